@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import time
 import tracemalloc
 import warnings
@@ -518,3 +519,20 @@ def test_ot_denoise_elephant_fast_no_dense_matrix():
     assert elapsed < 5.0, elapsed
     assert peak < n * n * 8 / 100, peak  # a dense n x n float64 matrix would be 5 GB
     assert snr(Y, V) > snr(X, V) + 15, (snr(X, V), snr(Y, V))
+
+
+def test_image_benchmark_reproduces_naive_gibbs_finding(tmp_path):
+    import importlib.util
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "ot_image.py"
+    spec = importlib.util.spec_from_file_location("ot_image", path)
+    bench = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(bench)
+    s = bench.main(["--out", str(tmp_path), "--size", "64"])
+    assert (tmp_path / "ot_image.png").stat().st_size > 1000
+    assert json.loads((tmp_path / "ot_image.json").read_text())["best_gibbs"] == s["best_gibbs"]
+    noisy = s["rows"][0]["psnr"]
+    assert s["best_gibbs"]["psnr"] > noisy + 3  # it does denoise ...
+    assert s["best_gibbs"]["psnr"] < s["best_gaussian"]["psnr"]  # ... but never beats a Gaussian blur
+    usual = [r for r in s["rows"] if r["method"] == "gibbs" and r["param"] == "reg=0.01"]
+    assert usual[0]["psnr"] < s["best_gaussian"]["psnr"] - 3
