@@ -50,6 +50,22 @@ def filters() -> None:
             console.print(f"    {p.name} ({p.kind.__name__}, default {p.default!r}, {p.range_text()}): {p.help}")
 
 
+def _add_commands() -> None:
+    """Add the commands of every module in ``meshdenoise/commands`` (each lists its own in ``COMMANDS``)."""
+    import importlib
+    import pkgutil
+
+    from . import commands
+
+    for info in sorted(pkgutil.iter_modules(commands.__path__), key=lambda m: m.name):
+        if not info.name.startswith("_"):
+            for command in importlib.import_module(f"{commands.__name__}.{info.name}").COMMANDS:
+                cli.add_command(command)
+
+
+_add_commands()
+
+
 def main() -> None:
     """Console-script entry point."""
     try:
