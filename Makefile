@@ -1,0 +1,35 @@
+# Two commands do all set-up on a fresh Debian machine with Python 3.11:
+#   make demo   denoise a built-in mesh with the three filters and print a table
+#   make test   run the test suite
+# Both install the missing Debian packages, create .venv and install the package with its
+# dev extras at the pinned versions of constraints.txt. A second run skips what is done.
+
+PY ?= python3
+VENV := .venv
+BIN := $(VENV)/bin
+STAMP := $(VENV)/.installed
+PYTEST_WORKERS ?= 2
+
+.PHONY: all demo test system-deps venv clean
+
+all: test
+
+system-deps:
+	@PY=$(PY) ./scripts/install-system-deps.sh
+
+$(STAMP): pyproject.toml constraints.txt
+	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
+	$(BIN)/python -m pip install -q --disable-pip-version-check --upgrade "pip>=23"
+	$(BIN)/python -m pip install -q --disable-pip-version-check -c constraints.txt -e '.[dev]'
+	@touch $(STAMP)
+
+venv: system-deps $(STAMP)
+
+demo: venv
+	$(BIN)/meshdenoise demo --out out/demo
+
+test: venv
+	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) -q
+
+clean:
+	rm -rf $(VENV) out .pytest_cache

@@ -1,0 +1,43 @@
+"""``make demo``: denoise a built-in mesh with the paper's three filters and print a table."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from .data import sample_mesh
+from .io import load_arrays, save_arrays
+from .metrics import snr
+from .noise import add_normal_noise
+from .registry import apply_filter
+
+# Parameters that suit a mesh of a few thousand vertices at noise 1% of its size.
+DEMO_SETTINGS = [
+    ("filtering", {"iterations": 4}),
+    ("heat", {"tau": 0.5, "time": 2.0}),
+    ("sobolev", {"mu": 1.0}),
+]
+
+
+def run_demo(out_dir: str | Path, mesh_path: str | Path | None = None, noise: float = 0.01, seed: int = 0) -> list[dict]:
+    """Add normal noise (``noise`` x bounding-box diagonal) to a mesh, run each filter, write the results.
+
+    Returns one row per mesh written: method, parameters, SNR (dB), time (ms), file.
+    """
+    path = Path(mesh_path) if mesh_path else sample_mesh("bunny.obj")
+    V, F = load_arrays(path)
+    out = Path(out_dir)
+    rho = noise * float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
+    Vn, _ = add_normal_noise((V, F), rho=rho, seed=seed)
+    rows = [{"method": "noisy", "params": f"rho={rho:.4g}", "snr_db": snr(V, Vn), "ms": 0.0,
+             "file": save_arrays(out / "noisy.ply", Vn, F)}]
+    for name, params in DEMO_SETTINGS:
+        apply_filter(name, (Vn, F), **params)  # warm-up: operators and factorisation are cached per topology
+        t0 = time.perf_counter()
+        Y, _ = apply_filter(name, (Vn, F), **params)
+        ms = (time.perf_counter() - t0) * 1e3
+        rows.append({"method": name, "params": ", ".join(f"{k}={v}" for k, v in params.items()),
+                     "snr_db": snr(V, Y), "ms": ms, "file": save_arrays(out / f"{name}.ply", Y, F)})
+    return rows, path, V.shape[0]

@@ -1,0 +1,261 @@
+"""One registry of filters, shared by the Python API, the CLI and the YAML pipelines.
+
+A filter is written once, as an array-core function::
+
+    @register("filtering", params=[Param("iterations", int, 10, low=0)], summary="...")
+    def filtering(V, F, *, ops, fixed, iterations):
+        '''numpydoc docstring shown to users'''
+        return new_V
+
+and :func:`register` returns the public function, which accepts every mesh type of
+:mod:`meshdenoise.adapters`, checks each parameter's type and range, resolves the
+common options (``pinned=``, ``region=``, ``preserve_volume=``, ``operators=``) and
+converts the result back to the caller's mesh type.
+"""
+
+from __future__ import annotations
+
+import difflib
+import functools
+import inspect
+import math
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+__all__ = ["Param", "FilterSpec", "register", "get_filter", "list_filters", "apply_filter", "REGISTRY"]
+
+
+@dataclass(frozen=True)
+class Param:
+    """A typed, range-checked filter parameter.
+
+    Parameters
+    ----------
+    name : str
+    kind : type
+        ``int``, ``float``, ``bool`` or ``str``.
+    default : object
+    low, high : float, optional
+        Bounds; closed unless ``low_open`` / ``high_open``.
+    choices : tuple of str, optional
+        Allowed values of a ``str`` parameter.
+    help : str
+        One line for ``meshdenoise filters`` and error messages.
+    """
+
+    name: str
+    kind: type
+    default: Any
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False
+    high_open: bool = False
+    choices: tuple | None = None
+    help: str = ""
+
+    def range_text(self) -> str:
+        """The allowed values in words, e.g. ``0 < tau <= 2`` or ``one of 'a', 'b'``."""
+        if self.choices is not None:
+            return "one of " + ", ".join(repr(c) for c in self.choices)
+        if self.kind is bool:
+            return "True or False"
+        parts = []
+        if self.low is not None:
+            parts.append(f"{self.low:g} {'<' if self.low_open else '<='} ")
+        parts.append(self.name)
+        if self.high is not None:
+            parts.append(f" {'<' if self.high_open else '<='} {self.high:g}")
+        if self.low is None and self.high is None:
+            return f"any {self.kind.__name__}"
+        return "".join(parts)
+
+    def check(self, value: Any, where: str = "") -> Any:
+        """Return ``value`` converted to this parameter's type, or raise with the allowed range.
+
+        Raises
+        ------
+        TypeError
+            Wrong type (``True`` is not an ``int``; ``2.5`` is not an ``int``).
+        ValueError
+            Out of range or not among the choices; the message names the parameter,
+            the value and the allowed range.
+        """
+        prefix = f"{where}: " if where else ""
+        k = self.kind
+        if k is bool:
+            if not isinstance(value, (bool, np.bool_)):
+                raise TypeError(f"{prefix}parameter '{self.name}' must be True or False, got {value!r}")
+            return bool(value)
+        if k is str:
+            if not isinstance(value, str):
+                raise TypeError(f"{prefix}parameter '{self.name}' must be a string, got {value!r}")
+            if self.choices is not None and value not in self.choices:
+                hint = difflib.get_close_matches(value, self.choices, n=1)
+                extra = f" (did you mean {hint[0]!r}?)" if hint else ""
+                raise ValueError(
+                    f"{prefix}parameter '{self.name}' = {value!r} is not allowed: {self.range_text()}{extra}"
+                )
+            return value
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise TypeError(f"{prefix}parameter '{self.name}' must be a {k.__name__}, got {value!r}")
+        if k is int:
+            if isinstance(value, (float, np.floating)):
+                if not float(value).is_integer():
+                    raise TypeError(f"{prefix}parameter '{self.name}' must be an int, got {value!r}")
+            value = int(value)
+        else:
+            value = float(value)
+            if not math.isfinite(value):
+                raise ValueError(f"{prefix}parameter '{self.name}' = {value!r} must be finite ({self.range_text()})")
+        too_low = self.low is not None and (value <= self.low if self.low_open else value < self.low)
+        too_high = self.high is not None and (value >= self.high if self.high_open else value > self.high)
+        if too_low or too_high:
+            raise ValueError(f"{prefix}parameter '{self.name}' = {value!r} is out of range: {self.range_text()}")
+        return value
+
+    def describe(self) -> dict:
+        """A JSON-friendly description (CLI listing, docs)."""
+        return {
+            "name": self.name,
+            "type": self.kind.__name__,
+            "default": self.default,
+            "range": self.range_text(),
+            "help": self.help,
+        }
+
+
+@dataclass(frozen=True)
+class FilterSpec:
+    """A registered filter: its name, parameters, array core and public function."""
+
+    name: str
+    summary: str
+    params: tuple[Param, ...]
+    core: Callable
+    linear: bool = False
+    translation_equivariant: bool = True
+    public: Callable | None = field(default=None, compare=False)
+
+    def param(self, name: str) -> Param:
+        for p in self.params:
+            if p.name == name:
+                return p
+        raise KeyError(name)
+
+    def resolve(self, given: dict, where: str = "") -> dict:
+        """Check the given parameters (names, types, ranges) and fill in defaults."""
+        known = {p.name for p in self.params}
+        prefix = f"{where}: " if where else f"filter '{self.name}': "
+        for key in given:
+            if key not in known:
+                hint = difflib.get_close_matches(key, sorted(known | COMMON_OPTIONS), n=1)
+                extra = f" (did you mean '{hint[0]}'?)" if hint else ""
+                allowed = ", ".join(sorted(known)) or "none"
+                raise TypeError(f"{prefix}unknown parameter '{key}'{extra}; its parameters are: {allowed}")
+        return {p.name: p.check(given.get(p.name, p.default), prefix.rstrip(": ")) for p in self.params}
+
+
+COMMON_OPTIONS = {"pinned", "region", "preserve_volume", "operators"}
+REGISTRY: dict[str, FilterSpec] = {}
+
+
+def register(
+    name: str,
+    *,
+    params: list[Param],
+    summary: str,
+    linear: bool = False,
+    translation_equivariant: bool = True,
+) -> Callable[[Callable], Callable]:
+    """Register an array-core filter and return its public, mesh-type-agnostic function.
+
+    The core is called as ``core(V, F, ops=ops, fixed=fixed, **params)`` with ``V``
+    read-only ``(n, 3) float64``, ``F (m, 3) int64``, ``ops`` the cached
+    :class:`~meshdenoise.operators.Operators` and ``fixed`` a boolean mask of the
+    vertices that must not move (or ``None``). It returns the new ``(n, 3)`` array.
+    """
+    if name in REGISTRY:
+        raise ValueError(f"a filter named {name!r} is already registered")
+
+    def decorate(core: Callable) -> Callable:
+        spec = FilterSpec(name, summary, tuple(params), core, linear, translation_equivariant)
+
+        @functools.wraps(core)
+        def public(mesh, **kwargs):
+            return _run_filter(spec, mesh, kwargs)
+
+        sig = [inspect.Parameter("mesh", inspect.Parameter.POSITIONAL_OR_KEYWORD)]
+        sig += [inspect.Parameter(p.name, inspect.Parameter.KEYWORD_ONLY, default=p.default) for p in params]
+        sig += [
+            inspect.Parameter("pinned", inspect.Parameter.KEYWORD_ONLY, default=None),
+            inspect.Parameter("region", inspect.Parameter.KEYWORD_ONLY, default=None),
+            inspect.Parameter("preserve_volume", inspect.Parameter.KEYWORD_ONLY, default=False),
+            inspect.Parameter("operators", inspect.Parameter.KEYWORD_ONLY, default=None),
+        ]
+        public.__signature__ = inspect.Signature(sig)  # takes precedence over the core's (__wrapped__)
+        object.__setattr__(spec, "public", public)
+        REGISTRY[name] = spec
+        return public
+
+    return decorate
+
+
+def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
+    # Imported here: adapters and constraints import the registry's users, not the reverse.
+    from .adapters import read_mesh
+    from .constraints import fixed_mask, restore_volume
+    from .operators import Operators, get_operators
+
+    options = {k: kwargs.pop(k) for k in list(kwargs) if k in COMMON_OPTIONS}
+    values = spec.resolve(kwargs)
+    preserve_volume = options.get("preserve_volume", False)
+    if not isinstance(preserve_volume, (bool, np.bool_)):
+        raise TypeError(f"filter '{spec.name}': preserve_volume must be True or False, got {preserve_volume!r}")
+    data = read_mesh(mesh)
+    V, F = data.V, data.F
+    ops = options.get("operators")
+    if ops is None:
+        ops = get_operators(F, V.shape[0])
+    elif not isinstance(ops, Operators) or ops.n != V.shape[0] or not np.array_equal(ops.F, F):
+        raise ValueError(f"filter '{spec.name}': operators= was built for another topology than this mesh")
+    fixed = fixed_mask(ops, options.get("pinned"), options.get("region"), data)
+    V_in = V.view()
+    V_in.flags.writeable = False  # a core must return new arrays, never write into its input
+    V_out = np.array(spec.core(V_in, F, ops=ops, fixed=fixed, **values), dtype=np.float64)
+    if fixed is not None:
+        V_out[fixed] = V[fixed]
+    if preserve_volume:
+        V_out = restore_volume(V, V_out, F, fixed)
+    if not np.isfinite(V_out).all():
+        raise FloatingPointError(
+            f"filter '{spec.name}' with {values} produced non-finite coordinates; "
+            "this is a bug or an unstable parameter: please report it with the mesh"
+        )
+    return data.write(V_out)
+
+
+def get_filter(name: str) -> FilterSpec:
+    """The registered filter ``name``; a ``KeyError`` suggests the closest names."""
+    _load_plugins()
+    if name not in REGISTRY:
+        hint = difflib.get_close_matches(name, REGISTRY, n=1)
+        extra = f" (did you mean '{hint[0]}'?)" if hint else ""
+        raise KeyError(f"unknown filter '{name}'{extra}; known filters: {', '.join(sorted(REGISTRY))}")
+    return REGISTRY[name]
+
+
+def list_filters() -> list[FilterSpec]:
+    """Every registered filter, sorted by name."""
+    _load_plugins()
+    return [REGISTRY[k] for k in sorted(REGISTRY)]
+
+
+def apply_filter(name: str, mesh: Any, **params) -> Any:
+    """Run the registered filter ``name`` on ``mesh`` (any supported mesh type)."""
+    return get_filter(name).public(mesh, **params)
+
+
+def _load_plugins() -> None:
+    from . import plugins  # noqa: F401  (importing registers every filter)

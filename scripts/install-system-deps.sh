@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# Installs the Debian packages meshdenoise needs, only when they are missing, so a second run is instant.
+#   libusb-1.0-0                      Open3D's Python module will not import without it
+#   libegl1 libgl1 libvulkan1
+#   mesa-vulkan-drivers               headless rendering with Open3D's OffscreenRenderer
+#   python3-venv                      Debian's python3 cannot create a virtual environment without it
+set -euo pipefail
+
+PY=${PY:-python3}
+wanted=(libusb-1.0-0 libegl1 libgl1 libvulkan1 mesa-vulkan-drivers)
+missing=()
+for pkg in "${wanted[@]}"; do
+    dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")
+done
+if ! "$PY" -c "import ensurepip, venv" >/dev/null 2>&1; then
+    missing+=(python3-venv)
+fi
+[ ${#missing[@]} -eq 0 ] && exit 0
+
+if ! command -v apt-get >/dev/null 2>&1; then
+    echo "meshdenoise: missing system packages (${missing[*]}) and no apt-get here: install them with your package manager." >&2
+    exit 1
+fi
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then
+    if command -v sudo >/dev/null 2>&1; then SUDO="sudo"; else
+        echo "meshdenoise: need root to install ${missing[*]}: run 'sudo apt-get update && sudo apt-get install -y ${missing[*]}'." >&2
+        exit 1
+    fi
+fi
+echo "meshdenoise: installing system packages: ${missing[*]}"
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -q
+$SUDO apt-get install -y -q --no-install-recommends "${missing[@]}"
