@@ -38,6 +38,9 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.special import logsumexp
 
+from .geometry import cotangent_laplacian, lumped_mass
+from .operators import get_operators
+
 __all__ = [
     "sinkhorn",
     "barycenter",
@@ -564,40 +567,6 @@ def convolutional_barycenter2d(A, reg, weights=None, numItermax=10000, stopThr=1
 # --------------------------------------------------------------------------
 # Mesh heat kernel
 # --------------------------------------------------------------------------
-def _cotangent_laplacian(V, F):
-    """Cotangent Laplacian (PSD, rows sum to 0), CSR (n, n)."""
-    n = V.shape[0]
-    L = sp.csr_matrix((n, n))
-    rows, cols, vals = [], [], []
-    for k in range(3):
-        i, j, o = F[:, (k + 1) % 3], F[:, (k + 2) % 3], F[:, k]
-        e1 = V[i] - V[o]
-        e2 = V[j] - V[o]
-        cross = np.linalg.norm(np.cross(e1, e2), axis=1)
-        cot = np.einsum("ij,ij->i", e1, e2) / np.maximum(cross, 1e-300)
-        rows += [i, j]
-        cols += [j, i]
-        vals += [0.5 * cot, 0.5 * cot]
-    W = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n))
-    L = sp.diags(np.asarray(W.sum(1)).ravel()) - W
-    return L.tocsr()
-
-
-def _graph_laplacian(F, n):
-    """L = D - W with W the 0/1 vertex adjacency, CSR (n, n)."""
-    i = np.concatenate([F[:, 0], F[:, 1], F[:, 2]])
-    j = np.concatenate([F[:, 1], F[:, 2], F[:, 0]])
-    W = sp.csr_matrix((np.ones(2 * i.size), (np.concatenate([i, j]), np.concatenate([j, i]))), shape=(n, n))
-    W.data[:] = 1.0
-    return (sp.diags(np.asarray(W.sum(1)).ravel()) - W).tocsr()
-
-
-def _lumped_mass(V, F):
-    """One third of the incident face areas per vertex, (n,)."""
-    area = 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
-    return np.bincount(F.ravel(), weights=np.repeat(area / 3.0, 3), minlength=V.shape[0])
-
-
 def _mesh_arrays(V, F):
     V = _float_array("V", V, (2,))
     if V.shape[1] != 3 or V.shape[0] == 0:
@@ -691,8 +660,8 @@ class MeshHeatKernel:
         n = V.shape[0]
         self.n = n
         self.laplacian = laplacian
-        self.L = _cotangent_laplacian(V, F) if laplacian == "cotangent" else _graph_laplacian(F, n)
-        self.mass = _lumped_mass(V, F) if mass == "lumped" else np.ones(n)
+        self.L = cotangent_laplacian(V, F) if laplacian == "cotangent" else get_operators(F, n).L
+        self.mass = lumped_mass(V, F) if mass == "lumped" else np.ones(n)
         if np.any(self.mass <= 0):
             raise ValueError(f"vertex {int(np.argmin(self.mass))} has zero area (unreferenced or degenerate)")
         A = (sp.diags(self.mass) + (self.t / self.steps) * self.L).tocoo()
@@ -761,7 +730,8 @@ def symmetric_sinkhorn(kernel, m, numItermax=500, stopThr=1e-10, u0=None, warn=T
     kernel : callable
         ``kernel(x)`` applies the symmetric kernel :math:`G` to x, shape (n,).
     m : array_like, shape (n,)
-        Positive target marginal.
+        Non-negative target marginal (not all zero); where :math:`m_i = 0`,
+        :math:`u_i = 0`.
     numItermax : int
         Maximum number of iterations.
     stopThr : float
@@ -781,8 +751,8 @@ def symmetric_sinkhorn(kernel, m, numItermax=500, stopThr=1e-10, u0=None, warn=T
     Raises
     ------
     ValueError
-        If ``m`` is not positive, or the kernel maps a positive vector to a
-        vector with a non-positive entry (the kernel is not positive, e.g. a
+        If ``m`` has a negative entry or is all zero, or the kernel maps a
+        positive vector to one with a non-positive entry on the support of m (the kernel is not positive, e.g. a
         cotangent heat kernel on a mesh with very obtuse triangles).
 
     References
@@ -802,17 +772,18 @@ def symmetric_sinkhorn(kernel, m, numItermax=500, stopThr=1e-10, u0=None, warn=T
     if not callable(kernel):
         raise TypeError(f"kernel must be a callable, got {kernel!r}")
     m = _float_array("m", m, (1,))
-    if m.size == 0 or np.any(m <= 0):
-        raise ValueError(f"m must be non-empty and positive, got min {m.min() if m.size else None!r}")
+    if m.size == 0 or np.any(m < 0) or not np.any(m > 0):
+        raise ValueError(f"m must be non-negative and not all zero, got min {m.min() if m.size else None!r}")
+    support = m > 0
     numItermax = _positive_int("numItermax", numItermax)
     stopThr = _positive_float("stopThr", stopThr, allow_zero=True)
-    u = np.sqrt(m) if u0 is None else _float_array("u0", u0, (1,)).copy()
+    u = np.sqrt(m) if u0 is None else np.where(support, _float_array("u0", u0, (1,)), 0.0)
     msum = m.sum()
     err = np.inf
     for it in range(numItermax):
         Gu = kernel(u)
-        if np.any(Gu <= 0):
-            bad = int(np.argmin(Gu))
+        if np.any(Gu[support] <= 0):
+            bad = int(np.flatnonzero(support)[np.argmin(Gu[support])])
             raise ValueError(
                 f"the kernel is not positive: (G u)[{bad}] = {Gu[bad]!r} for positive u; "
                 "use laplacian='graph' or a smaller t"
@@ -820,7 +791,9 @@ def symmetric_sinkhorn(kernel, m, numItermax=500, stopThr=1e-10, u0=None, warn=T
         err = float(np.abs(u * Gu - m).sum() / msum)
         if err < stopThr:
             break
-        u = np.sqrt(u * m / Gu)
+        u_new = np.zeros_like(m)
+        u_new[support] = np.sqrt(u[support] * m[support] / Gu[support])
+        u = u_new
     else:
         if warn:
             warnings.warn(
@@ -840,6 +813,7 @@ def ot_denoise(
     laplacian="graph",
     measure="uniform",
     debias=True,
+    steps=1,
     fixed=None,
     stopThr=1e-10,
     numItermax=500,
@@ -849,7 +823,8 @@ def ot_denoise(
 
     One iteration, on the current vertex positions :math:`X` (n, 3):
 
-    1. heat kernel :math:`G = (I + tL)^{-1}` (symmetric, positive, applied by
+    1. heat kernel :math:`G = (I + tL)^{-1}` (or its ``steps``-fold split
+       :math:`(I + \tfrac{t}{s}L)^{-s}`; symmetric, positive, applied by
        a cached sparse Cholesky factor, never formed), :math:`L` the graph
        Laplacian :math:`D - W` or the cotangent Laplacian of :math:`X`;
     2. vertex measure :math:`m` (``"uniform"``: ones; ``"area"``: lumped
@@ -866,7 +841,9 @@ def ot_denoise(
 
     which removes the first-order shrinkage (blur) of :math:`T`.
     Vertices in ``fixed`` are reset to their input position after each
-    iteration.  Since :math:`T1 = 1` the result is translation equivariant.
+    iteration; with ``measure="area"`` a vertex of zero area (isolated, or
+    only in degenerate faces) carries no mass and stays put.
+    Since :math:`T1 = 1` the result is translation equivariant.
     With ``measure="uniform"`` :math:`G1 = 1` already, so :math:`u = 1` and
     :math:`T = G` (implicit graph/cotangent smoothing); ``"area"`` gives a
     genuinely rescaled plan.
@@ -888,6 +865,8 @@ def ot_denoise(
         Vertex measure :math:`m`.
     debias : bool
         Apply the twicing correction.
+    steps : int
+        Backward-Euler substeps of the heat kernel (:class:`MeshHeatKernel`).
     fixed : array_like of bool, shape (n,), optional
         Vertices that must not move.
     stopThr, numItermax
@@ -928,6 +907,7 @@ def ot_denoise(
         raise ValueError(f"measure must be 'uniform' or 'area', got {measure!r}")
     if not isinstance(debias, (bool, np.bool_)):
         raise TypeError(f"debias must be True or False, got {debias!r}")
+    steps = _positive_int("steps", steps)
     n = V.shape[0]
     if fixed is not None:
         fixed = np.asarray(fixed)
@@ -939,25 +919,29 @@ def ot_denoise(
     X = V.copy()
     for _ in range(int(iterations)):
         if laplacian == "graph":
-            key = ("ot_denoise.graph_heat", t)
+            key = ("ot_denoise.graph_heat", t, steps)
             if key not in cache:
-                cache[key] = MeshHeatKernel(X, F, t, laplacian="graph", mass="uniform")
+                cache[key] = MeshHeatKernel(X, F, t, laplacian="graph", mass="uniform", steps=steps)
             K = cache[key]
         else:
-            K = MeshHeatKernel(X, F, t, laplacian="cotangent", mass="uniform")
+            K = MeshHeatKernel(X, F, t, laplacian="cotangent", mass="uniform", steps=steps)
         if measure == "uniform":
             m = np.ones(n)
         else:
-            m = _lumped_mass(X, F)
-            if np.any(m <= 0):
-                raise ValueError(f"vertex {int(np.argmin(m))} has zero area; use measure='uniform'")
-            m = m / m.mean()
+            m = lumped_mass(X, F)
+            if not np.any(m > 0):
+                raise ValueError("every vertex has zero area; use measure='uniform'")
+            m = m / m[m > 0].mean()
         u, _ = symmetric_sinkhorn(K.solve, m, numItermax=numItermax, stopThr=stopThr)
         um = u[:, None]
-        inv_m = (1.0 / m)[:, None]
+        live = m > 0  # a vertex without mass has nothing to transport: it stays put
+        inv_m = np.zeros((n, 1))
+        inv_m[live, 0] = 1.0 / m[live]
 
         def T(Z):
-            return inv_m * (um * K.solve(um * Z))
+            TZ = inv_m * (um * K.solve(um * Z))
+            TZ[~live] = Z[~live]
+            return TZ
 
         TX = T(X)
         X = 2.0 * TX - T(TX) if debias else TX

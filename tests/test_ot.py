@@ -409,8 +409,14 @@ def test_symmetric_sinkhorn_marginals(sphere3):
     np.testing.assert_allclose(u * K.solve(u), m, rtol=1e-10)
     with pytest.warns(UserWarning, match="numItermax=2"):
         mo.symmetric_sinkhorn(K.solve, m, numItermax=2, stopThr=0.0)
-    with pytest.raises(ValueError, match="positive"):
+    with pytest.raises(ValueError, match="non-negative"):
         mo.symmetric_sinkhorn(K.solve, -m)
+    # zero-mass entries get u = 0; the rest still matches its marginal
+    m0 = m.copy()
+    m0[:10] = 0
+    u0, _ = mo.symmetric_sinkhorn(K.solve, m0, stopThr=1e-12)
+    assert np.all(u0[:10] == 0)
+    np.testing.assert_allclose(u0 * K.solve(u0), m0, atol=1e-10)
     with pytest.raises(ValueError, match="not positive"):
         mo.symmetric_sinkhorn(lambda x: -x, m)
 
