@@ -347,18 +347,29 @@ def _ibp(Kop, KTop, A, w, numItermax, stopThr, log, warn, stab=1e-300):
     u = np.ones_like(A)
     errs = []
     converged = False
-    with np.errstate(divide="ignore", invalid="ignore"):
+    p_last = None
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         for it in range(numItermax):
             v = A / Kop(u)
             KTv = KTop(v)
             marg = u * KTv
             p = np.exp(np.log(np.maximum(marg, stab)) @ w)
             u = p[:, None] / KTv
+            if not (np.all(np.isfinite(p)) and np.all(np.isfinite(u))):
+                warnings.warn(
+                    f"barycenter: numerical under/overflow at iteration {it} (reg too small for the scaling "
+                    "iterations); returning the last finite iterate -- increase reg, or use "
+                    "method='sinkhorn_log' where available",
+                    UserWarning,
+                    stacklevel=3,
+                )
+                p = p_last if p_last is not None else p
+                converged = True  # already warned
+                break
+            p_last = p
             if it % 10 == 9:
                 err = float(np.sum(np.std(marg, axis=1)))
                 errs.append(err)
-                if not np.isfinite(err):
-                    break
                 if err < stopThr:
                     converged = True
                     break
@@ -502,7 +513,9 @@ def gaussian_kernel2d(shape, reg):
     return apply
 
 
-def convolutional_barycenter2d(A, reg, weights=None, numItermax=10000, stopThr=1e-9, log=False, warn=True):
+def convolutional_barycenter2d(
+    A, reg, weights=None, method="sinkhorn", numItermax=10000, stopThr=1e-9, log=False, warn=True
+):
     r"""Entropic Wasserstein barycenter of 2D images with a separable Gaussian kernel.
 
     Same conventions as POT's ``ot.bregman.convolutional_barycenter2d``: the
@@ -524,6 +537,10 @@ def convolutional_barycenter2d(A, reg, weights=None, numItermax=10000, stopThr=1
         Entropic regularisation / squared kernel width, > 0.
     weights : array_like, shape (n_hists,), optional
         Barycentric weights; uniform by default.
+    method : {"sinkhorn", "sinkhorn_log"}
+        Scaling iterations, or the same iterations on the logarithms of the
+        scalings with the kernel applied by separable log-sum-exp (stable for
+        small ``reg``, slower: :math:`O(wh(w+h))` exponentials per application).
     numItermax : int
         Maximum number of iterations.
     stopThr : float
@@ -553,15 +570,72 @@ def convolutional_barycenter2d(A, reg, weights=None, numItermax=10000, stopThr=1
     >>> p.shape, round(float(p.sum()), 6)
     ((20, 20), 1.0)
     """
+    method = _check_method(method)
     A = _histogram("A", A, (3,))
     k, w, h = A.shape
-    K = gaussian_kernel2d((w, h), reg)
-    res = convolutional_barycenter(
-        A.reshape(k, w * h).T, K, weights, numItermax=numItermax, stopThr=stopThr, log=log, warn=warn
-    )
+    if method == "sinkhorn":
+        K = gaussian_kernel2d((w, h), reg)
+        res = convolutional_barycenter(
+            A.reshape(k, w * h).T, K, weights, numItermax=numItermax, stopThr=stopThr, log=log, warn=warn
+        )
+    else:
+        reg = _positive_float("reg", reg)
+        res = _ibp_log(_log_gaussian_kernel2d(w, h, reg), A.reshape(k, w * h).T, _weights(weights, k),
+                       numItermax, stopThr, log, warn)
     if log:
         return res[0].reshape(w, h), res[1]
     return res.reshape(w, h)
+
+
+def _log_gaussian_kernel2d(w, h, reg):
+    """``f(logX)`` = log(K exp(logX)) for the separable Gaussian kernel, X of shape (w*h, k)."""
+    t1, t2 = np.linspace(0, 1, w), np.linspace(0, 1, h)
+    M1 = -((t1[:, None] - t1[None, :]) ** 2) / reg
+    M2 = -((t2[:, None] - t2[None, :]) ** 2) / reg
+
+    def apply(logX):
+        k = logX.shape[1]
+        Y = logX.reshape(w, h, k)
+        Y = logsumexp(M1[:, :, None, None] + Y[None, :, :, :], axis=1)  # (w, h, k)
+        Y = logsumexp(M2[None, :, :, None] + Y[:, None, :, :], axis=2)  # (w, h, k)
+        return Y.reshape(w * h, k)
+
+    return apply
+
+
+def _ibp_log(logK, A, w, numItermax, stopThr, log, warn):
+    """Iterative Bregman projections on log-scalings (symmetric log-kernel operator)."""
+    numItermax = _positive_int("numItermax", numItermax)
+    stopThr = _positive_float("stopThr", stopThr, allow_zero=True)
+    with np.errstate(divide="ignore"):
+        logA = np.log(A)
+    logu = np.zeros_like(A)
+    errs = []
+    converged = False
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for it in range(numItermax):
+            logv = logA - logK(logu)
+            logKv = logK(logv)
+            logmarg = logu + logKv
+            logp = logmarg @ w
+            logu = logp[:, None] - logKv
+            if it % 10 == 9:
+                err = float(np.sum(np.std(np.exp(logmarg), axis=1)))
+                errs.append(err)
+                if err < stopThr:
+                    converged = True
+                    break
+    if not converged and warn:
+        warnings.warn(
+            f"barycenter did not converge in numItermax={numItermax} iterations "
+            f"(error {errs[-1] if errs else float('nan'):.3e} > stopThr={stopThr:g}): increase numItermax or reg",
+            UserWarning,
+            stacklevel=3,
+        )
+    p = np.exp(logp)
+    if log:
+        return p, {"err": errs, "niter": it}
+    return p
 
 
 # --------------------------------------------------------------------------

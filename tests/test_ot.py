@@ -126,7 +126,7 @@ def test_sinkhorn_pot_doc_example_and_uniform_default():
 
 def test_sinkhorn_log_small_reg_where_scaling_breaks():
     a, b, M = problem()
-    reg = 1e-3  # exp(-M/reg) underflows to 0 for most entries
+    reg = 2e-3  # exp(-M/reg) underflows to 0 for many entries
     P = mo.sinkhorn(a, b, M, reg, method="sinkhorn_log", stopThr=1e-9, numItermax=20000)
     np.testing.assert_allclose(P.sum(1), a, atol=1e-8)
     np.testing.assert_allclose(P.sum(0), b, atol=1e-8)
@@ -238,13 +238,33 @@ def test_convolutional_barycenter2d_matches_pot(method):
     np.testing.assert_allclose(p, ref, atol=1e-6, rtol=0)
 
 
-def test_convolutional_barycenter2d_weighted_small_reg_matches_pot_log():
-    I = images()
+@pytest.mark.parametrize("method", ["sinkhorn", "sinkhorn_log"])
+def test_convolutional_barycenter2d_weighted_small_reg_matches_pot_log(method):
+    # at reg=4e-3 POT's scaling version is off by its stabThr=1e-30 inside the log; its log one is the reference
+    I = images()[:, ::2, ::2]  # 15 x 20 keeps the log-domain runs short
+    I = I / I.sum((1, 2), keepdims=True)
     ref = pot.bregman.convolutional_barycenter2d(
-        I, 4e-3, W3, method="sinkhorn_log", stopThr=1e-13, numItermax=20000
+        I, 4e-3, W3, method="sinkhorn_log", stopThr=1e-11, numItermax=20000
     )
-    p = mo.convolutional_barycenter2d(I, 4e-3, W3, stopThr=1e-13, numItermax=20000)
+    p = mo.convolutional_barycenter2d(I, 4e-3, W3, method=method, stopThr=1e-11, numItermax=20000)
     np.testing.assert_allclose(p, ref, atol=1e-6, rtol=0)
+
+
+def test_convolutional_barycenter2d_log_domain_survives_tiny_reg():
+    # reg=1e-3 on a 20 x 24 grid: the scalings under/overflow in the plain method; the log method works
+    I = np.zeros((2, 20, 24))
+    I[0, 3:6, 3:6] = 1
+    I[1, 13:16, 17:20] = 1
+    I /= I.sum((1, 2), keepdims=True)
+    ref = pot.bregman.convolutional_barycenter2d(I, 1e-3, method="sinkhorn_log", stopThr=1e-10, numItermax=5000)
+    p = mo.convolutional_barycenter2d(I, 1e-3, method="sinkhorn_log", stopThr=1e-10, numItermax=5000)
+    assert np.all(np.isfinite(p))
+    np.testing.assert_allclose(p, ref, atol=1e-6, rtol=0)
+    with pytest.warns(UserWarning, match="overflow.*sinkhorn_log"):
+        q = mo.convolutional_barycenter2d(I, 1e-3, method="sinkhorn", stopThr=1e-10, numItermax=5000)
+    assert np.all(np.isfinite(q))
+    with pytest.raises(ValueError, match="'sinkhorn_stabilized'"):
+        mo.convolutional_barycenter2d(I, 1e-2, method="sinkhorn_stabilized")
 
 
 def test_convolutional_barycenter_equals_dense_barycenter():
