@@ -110,3 +110,19 @@ def test_bad_constraint_specs():
         md.filtering((V, F), region="boundary")
     with pytest.raises(TypeError, match="preserve_volume"):
         md.filtering((V, F), preserve_volume="yes")
+
+
+def test_sobolev_factor_cache_keys_on_the_mask():
+    from meshdenoise.plugins.sobolev import sobolev_solver
+
+    V, Vn, F = noisy_sphere(subdivisions=2)
+    ops = get_operators(F, len(V))
+    a = np.zeros(len(V), bool)
+    a[:5] = True
+    b = np.zeros(len(V), bool)
+    b[5:10] = True
+    sa = sobolev_solver(ops, 0.777, a)
+    assert sobolev_solver(ops, 0.777, a.copy()) is sa  # same mask content: same factor
+    sb = sobolev_solver(ops, 0.777, b)
+    assert sb is not sa and sobolev_solver(ops, 0.777, None) not in (sa, sb)
+    np.testing.assert_array_equal(md.sobolev((Vn, F), mu=0.777, pinned=b)[0][b], Vn[b])
