@@ -47,9 +47,11 @@ def substitute(value: Any, variables: dict, where: str) -> Any:
             return _lookup(whole.group(1), variables, where)
         return VARIABLE.sub(lambda m: str(_lookup(m.group(1), variables, where)), value)
     if isinstance(value, dict):
-        out = LineDict((k, substitute(v, variables, where)) for k, v in value.items())
+        # Keys too: a sweep may choose the step itself (``- ${method}: {}``).
+        out = LineDict((substitute(k, variables, where) if isinstance(k, str) else k, substitute(v, variables, where)) for k, v in value.items())
         out.line = getattr(value, "line", 0)
-        out.key_lines = getattr(value, "key_lines", {})
+        lines = getattr(value, "key_lines", {})
+        out.key_lines = {substitute(k, variables, where) if isinstance(k, str) else k: v for k, v in lines.items()}
         return out
     if isinstance(value, list):
         out = LineList(substitute(v, variables, where) for v in value)
