@@ -131,3 +131,101 @@ def test_taubin_pinned_vertices_stay_and_bad_mu_is_refused():
         assert rel(Y, V) > 1e-4
     with pytest.raises(ValueError, match=r"'mu' = 0.5 is out of range"):
         taubin((V, F), mu=0.5)
+
+
+# --- two-stage normal filtering ---------------------------------------------------------------
+from meshdenoise.geometry import face_areas, face_normals  # noqa: E402
+from meshdenoise.plugins.normal_filtering import (  # noqa: E402
+    bilateral_normals,
+    face_neighbourhood,
+    fit_vertices_to_normals,
+    guidance_normals,
+    two_stage,
+)
+
+from .conftest import data_mesh_path  # noqa: E402
+
+
+def loop_neighbours(F):
+    return [[g for g in range(len(F)) if set(F[f]) & set(F[g])] for f in range(len(F))]
+
+
+def test_bilateral_normals_match_a_loop_over_faces():
+    V, Vn, F = noisy_sphere(rho=0.05, subdivisions=1)
+    ops = get_operators(F, len(V))
+    N, A, C = face_normals(Vn, F), face_areas(Vn, F), Vn[F].mean(1)
+    nbrs = loop_neighbours(F)
+    expected = N.copy()
+    for _ in range(2):
+        new = np.zeros_like(expected)
+        for f in range(len(F)):
+            s = np.zeros(3)
+            for g in nbrs[f]:
+                ws = np.exp(-np.sum((C[f] - C[g]) ** 2) / (2 * 0.3**2))
+                wr = np.exp(-np.sum((expected[f] - expected[g]) ** 2) / (2 * 0.4**2))
+                s += A[g] * ws * wr * expected[g]
+            new[f] = s / np.linalg.norm(s)
+        expected = new
+    ours = bilateral_normals(N, C, A, face_neighbourhood(ops), sigma_s=0.3, sigma_r=0.4, iterations=2, guided=False)
+    np.testing.assert_allclose(ours, expected, atol=1e-12)
+
+
+def test_guidance_normals_match_a_loop_over_patches():
+    V, Vn, F = noisy_sphere(rho=0.05, subdivisions=1)
+    N, A = face_normals(Vn, F), face_areas(Vn, F)
+    nbrs = loop_neighbours(F)
+    edge_pairs = [(a, b) for a in range(len(F)) for b in range(a + 1, len(F)) if len(set(F[a]) & set(F[b])) == 2]
+    H, g = [], []
+    for j in range(len(F)):
+        P = nbrs[j]
+        mean = sum(A[k] * N[k] for k in P)
+        mean = mean / np.linalg.norm(mean)
+        spread = max(np.linalg.norm(N[k] - mean) for k in P)
+        phis = [np.linalg.norm(N[a] - N[b]) for a, b in edge_pairs if a in P and b in P]
+        H.append(spread * max(phis) / (1e-9 + sum(phis)))
+        g.append(mean)
+    expected = np.array([g[min(nbrs[i], key=lambda j: (H[j], j))] for i in range(len(F))])
+    ours = guidance_normals(N, A, face_neighbourhood(get_operators(F, len(V))))
+    np.testing.assert_allclose(ours, expected, atol=1e-12)
+
+
+def test_vertex_update_matches_a_loop():
+    V, Vn, F = noisy_sphere(rho=0.05, subdivisions=1)
+    target = face_normals(V, F)
+    X = Vn.copy()
+    for _ in range(3):
+        C = X[F].mean(1)
+        new = X.copy()
+        for i in range(len(X)):
+            faces = [f for f in range(len(F)) if i in F[f]]
+            new[i] = X[i] + sum(target[f] * np.dot(target[f], C[f] - X[i]) for f in faces) / len(faces)
+        X = new
+    np.testing.assert_allclose(fit_vertices_to_normals(Vn, F, target, 3), X, atol=1e-12)
+
+
+def test_two_stage_keeps_planes_and_pinned_vertices():
+    V, F = grid(10, 8)
+    Y, _ = two_stage((V, F))
+    np.testing.assert_allclose(Y, V, atol=1e-12)  # a flat mesh is already a fixed point
+    ops = get_operators(F, len(V))
+    inner = ~ops.boundary_vertices
+    Vn = V.copy()
+    Vn[inner, 2] += 0.02 * np.random.default_rng(1).standard_normal(inner.sum())  # a flat, pinned frame
+    for guidance in ("guided", "bilateral"):
+        Y, _ = two_stage((Vn, F), pinned="boundary", guidance=guidance)
+        np.testing.assert_array_equal(Y[~inner], V[~inner])
+        assert Y[inner, 2].std() < 0.5 * Vn[inner, 2].std()
+
+
+@pytest.mark.data
+@pytest.mark.parametrize("name, noisy_deg, target_deg", [("Fandisk0.3", 28.4, 4.0), ("Block0.4", 33.7, 5.2)])
+def test_two_stage_defaults_reach_the_feature_targets(name, noisy_deg, target_deg):
+    """Issue 5's target: <= 4 degrees on Fandisk0.3; on Block0.4 under half of the best MeshLab/Open3D
+    filter (10.46 degrees, MeshLab Taubin with oracle iterations; see benchmarks/features.py)."""
+    from meshdenoise.io import load_arrays
+    from meshdenoise.quality_metrics import normal_error_deg
+
+    Vn, F = load_arrays(data_mesh_path(f"benchmark/{name}/Noisy.obj"))
+    V0, F0 = load_arrays(data_mesh_path(f"benchmark/{name}/Original.obj"))
+    assert normal_error_deg((V0, F0), (Vn, F)) == pytest.approx(noisy_deg, abs=0.05)
+    assert normal_error_deg((V0, F0), two_stage((Vn, F))) <= target_deg
