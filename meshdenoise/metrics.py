@@ -79,3 +79,5 @@ def compute_metrics(reference: Any, candidate: Any, names: list[str] | None = No
     if unknown:
         raise ValueError(f"unknown metric(s) {unknown}; known: {', '.join(METRICS)}")
     return {n: METRICS[n](reference, candidate) for n in chosen}
+
+from . import quality_metrics  # noqa: E402,F401  (registers normal error, distances and volume change in METRICS)
