@@ -395,15 +395,16 @@ def _run_metrics(step: Step, ctx: RunContext) -> None:
     from ..metrics import compute_metrics
 
     ref = step.params["reference"]
+    # whole meshes, not coordinates: normal and distance metrics need the faces too
     if isinstance(ref, dict):
-        label = ref["before"]
-        ref_V = ctx.snapshots[label][0]
+        reference = ctx.snapshots[ref["before"]][:2]
     elif ref == "input":
-        ref_V = ctx.input_arrays[0]
+        reference = tuple(ctx.input_arrays[:2])
     else:
-        ref_V = load_mesh(ctx.resolve_input(ref) if hasattr(ctx, "resolve_input") else ref).V
-    V, _, _ = current_arrays(ctx.ms)
-    values = compute_metrics(ref_V, V, step.params["metrics"])
+        loaded = load_mesh(ctx.resolve_input(ref) if hasattr(ctx, "resolve_input") else ref)
+        reference = (loaded.V, loaded.F)
+    V, F, _ = current_arrays(ctx.ms)
+    values = compute_metrics(reference, (V, F), step.params["metrics"])
     prefix = f"{step.label}." if step.label else ""
     for k, v in values.items():
         ctx.row[f"{prefix}{k}"] = v
