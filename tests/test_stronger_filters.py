@@ -1,0 +1,133 @@
+"""Taubin, bi-Laplacian Sobolev, two-stage normal filtering and normal-direction filters,
+against dense solves, loops written here and the real MeshLab / Open3D filters."""
+
+import numpy as np
+import pytest
+
+import meshdenoise as md
+from meshdenoise.operators import get_operators
+from meshdenoise.plugins.sobolev_bilaplacian import sobolev_bilaplacian
+from meshdenoise.plugins.taubin import taubin
+from meshdenoise.shapes import grid
+
+from .conftest import noisy_sphere
+
+
+def dense_laplacian(F, n):
+    W = np.zeros((n, n))
+    for a, b in np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]):
+        if a != b:
+            W[a, b] = W[b, a] = 1
+    return np.diag(W.sum(1)) - W, W
+
+
+def noisy_grid(seed=0):
+    V, F = grid(9, 7)
+    rng = np.random.default_rng(seed)
+    V = V + 0.02 * rng.standard_normal(V.shape)
+    return V, F
+
+
+def rel(a, b):
+    return np.linalg.norm(a - b) / np.linalg.norm(b)
+
+
+# --- higher-order Sobolev -----------------------------------------------------------------
+def test_bilaplacian_matches_dense_solve():
+    V, Vn, F = noisy_sphere(subdivisions=2)
+    L, _ = dense_laplacian(F, len(V))
+    for mu in (0.05, 1.0, 20.0):
+        expected = np.linalg.solve(np.eye(len(V)) + mu * L @ L, Vn)
+        np.testing.assert_allclose(sobolev_bilaplacian((Vn, F), mu=mu)[0], expected, rtol=0, atol=1e-10)
+    np.testing.assert_array_equal(sobolev_bilaplacian((Vn, F), mu=0.0)[0], Vn)
+
+
+def test_bilaplacian_with_pinned_vertices_solves_the_reduced_system():
+    V, F = noisy_grid()
+    n = len(V)
+    L, _ = dense_laplacian(F, n)
+    A = np.eye(n) + 2.0 * L @ L
+    pinned = np.zeros(n, bool)
+    pinned[get_operators(F, n).boundary_vertices] = True
+    f, p = ~pinned, pinned
+    expected = V.copy()
+    expected[f] = np.linalg.solve(A[np.ix_(f, f)], V[f] - A[np.ix_(f, p)] @ V[p])
+    Y, _ = sobolev_bilaplacian((V, F), mu=2.0, pinned=pinned)
+    np.testing.assert_allclose(Y, expected, rtol=0, atol=1e-10)
+    np.testing.assert_array_equal(Y[p], V[p])
+    # the equations hold on the free rows
+    np.testing.assert_allclose((A @ Y)[f], V[f], atol=1e-9)
+
+
+def test_bilaplacian_keeps_a_plane_and_shrinks_less_than_first_order():
+    V, F = grid(10, 10)
+    Y, _ = sobolev_bilaplacian((V, F), mu=5.0)
+    assert np.abs(Y[:, 2]).max() < 1e-12  # planar in, planar out
+    V, Vn, F = noisy_sphere(rho=0.03, subdivisions=3)
+    r2 = np.linalg.norm(sobolev_bilaplacian((Vn, F), mu=1.0)[0], axis=1).mean()
+    r1 = np.linalg.norm(md.sobolev((Vn, F), mu=1.0)[0], axis=1).mean()
+    assert abs(r2 - 1) < abs(r1 - 1)
+
+
+# --- Taubin -----------------------------------------------------------------------------
+def test_taubin_uniform_matches_a_dense_loop():
+    V, Vn, F = noisy_sphere(subdivisions=2)
+    L, W = dense_laplacian(F, len(V))
+    P = W / W.sum(1, keepdims=True)
+    X = Vn.copy()
+    for _ in range(4):
+        X = X + 0.6 * (P @ X - X)
+        X = X - 0.64 * (P @ X - X)
+    np.testing.assert_allclose(taubin((Vn, F), iterations=4, lam=0.6, mu=-0.64)[0], X, rtol=0, atol=1e-12)
+
+
+@pytest.fixture(params=["closed", "open"])
+def closed_or_open(request, nefertiti):
+    if request.param == "open":
+        return nefertiti
+    V, Vn, F = noisy_sphere(rho=0.03, subdivisions=3)
+    return Vn, F
+
+
+@pytest.mark.parametrize("lam, mu, steps", [(0.5, -0.53, 10), (0.33, -0.34, 3)])
+def test_taubin_meshlab_matches_pymeshlab(closed_or_open, lam, mu, steps):
+    import pymeshlab
+
+    V, F = closed_or_open
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=F.astype(np.int32)))
+    ms.apply_coord_taubin_smoothing(lambda_=lam, mu=mu, stepsmoothnum=steps)
+    expected = ms.current_mesh().vertex_matrix()
+    ours = taubin((V, F), iterations=steps, lam=lam, mu=mu, weights="meshlab")[0]
+    assert rel(ours, expected) < 1e-10
+    assert rel(V, expected) > 1e-4  # the filter really moved the mesh
+
+
+@pytest.mark.parametrize("lam, mu, steps", [(0.5, -0.53, 10), (0.33, -0.34, 3)])
+def test_taubin_open3d_matches_open3d(closed_or_open, lam, mu, steps):
+    import open3d as o3d
+
+    V, F = closed_or_open
+    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F.astype(np.int32)))
+    expected = np.asarray(m.filter_smooth_taubin(steps, lambda_filter=lam, mu=mu).vertices)
+    ours = taubin((V, F), iterations=steps, lam=lam, mu=mu, weights="open3d")[0]
+    assert rel(ours, expected) < 1e-10
+    assert rel(V, expected) > 1e-4
+
+
+def test_taubin_does_not_shrink_like_plain_filtering():
+    V, Vn, F = noisy_sphere(rho=0.03, subdivisions=3)
+    r_t = np.linalg.norm(taubin((Vn, F), iterations=20)[0], axis=1).mean()
+    r_f = np.linalg.norm(md.filtering((Vn, F), iterations=40)[0], axis=1).mean()
+    assert abs(r_t - 1) < 0.2 * abs(r_f - 1)
+
+
+def test_taubin_pinned_vertices_stay_and_bad_mu_is_refused():
+    V, F = noisy_grid()
+    ops = get_operators(F, len(V))
+    for weights in ("uniform", "meshlab", "open3d"):
+        Y, _ = taubin((V, F), weights=weights, pinned="boundary")
+        np.testing.assert_array_equal(Y[ops.boundary_vertices], V[ops.boundary_vertices])
+        assert rel(Y, V) > 1e-4
+    with pytest.raises(ValueError, match=r"'mu' = 0.5 is out of range"):
+        taubin((V, F), mu=0.5)
