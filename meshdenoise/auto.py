@@ -448,11 +448,45 @@ def _choose_sobolev(ctx: _Context) -> dict:
     return {"mu": float(p.value)}, p
 
 
+def _choose_taubin(ctx: _Context) -> dict:
+    """``iterations`` of Taubin lambda/mu smoothing (``lam``, ``mu`` as given, else the defaults 0.5, -0.53).
+
+    With ``weights`` "uniform" or "meshlab" one iteration is the linear map
+    :math:`H_1 = (I + \\mu(A - I))(I + \\lambda(A - I))`, so SURE is read along one run
+    exactly as for ``filtering``. Open3D's weights depend on the coordinates: not linear,
+    not supported here.
+    """
+    from .plugins.taubin import meshlab_taubin_operator
+
+    weights = ctx.given.get("weights", "uniform")
+    if weights == "open3d":
+        raise ValueError(
+            "choose_parameters: taubin with weights='open3d' (inverse-distance, recomputed each pass) is not a "
+            "linear smoother; automatic parameters need weights 'uniform' or 'meshlab'"
+        )
+    spec = get_filter("taubin")
+    lam = float(ctx.given.get("lam", spec.param("lam").default))
+    mu = float(ctx.given.get("mu", spec.param("mu").default))
+    A = ctx.ops.P if weights == "uniform" else meshlab_taubin_operator(ctx.ops)
+    shrink, inflate = _averaging_step(A, lam), _averaging_step(A, mu)
+    p = _best_on_path(_iterative_path(ctx.V, ctx.ops, lambda Y: inflate(shrink(Y)), ctx.exact), ctx.ops.n, ctx.rho, ctx.criterion)
+    return {"iterations": int(p.value)}, p
+
+
+def _choose_sobolev_bilaplacian(ctx: _Context) -> dict:
+    """``mu`` of :math:`(I + \\mu L^2) Y = X`: SURE over log mu, starting at :math:`(k/\\bar d)^2`."""
+    L = ctx.ops.L
+    p = _best_mu(ctx.V, sp.csr_matrix(L @ L), ctx.rho, ctx.criterion, ctx.exact, center=_mu_guess(ctx, 2))
+    return {"mu": float(p.value)}, p
+
+
 # method -> (the parameters its rule chooses, the rule)
 AUTO_METHODS: dict[str, tuple[tuple[str, ...], Callable]] = {
     "filtering": (("iterations",), _choose_filtering),
     "heat": (("tau", "time"), _choose_heat),
     "sobolev": (("mu",), _choose_sobolev),
+    "sobolev_bilaplacian": (("mu",), _choose_sobolev_bilaplacian),
+    "taubin": (("iterations",), _choose_taubin),
 }
 
 
