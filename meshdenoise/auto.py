@@ -1,0 +1,627 @@
+"""Parameters chosen from the noisy mesh alone: noise estimation, SURE / GCV, ``denoise``.
+
+A user cleaning a scan has no clean mesh to tune against. This module estimates the
+noise level ``rho`` of the paper's model :math:`x_i = x^0_i + \\rho\\, \\varepsilon_i N_i`
+from the noisy mesh (:func:`estimate_noise`), picks each filter's parameters by
+minimising an unbiased estimate of the mean squared error to the unknown clean mesh
+(:func:`choose_parameters`), and runs the filter (:func:`denoise`).
+
+Why SURE works here
+-------------------
+For a linear smoother :math:`\\hat X = H X` (the same ``n x n`` matrix on the three
+coordinate columns) and noise :math:`E` with independent per-vertex covariance
+:math:`\\Sigma_i = \\rho^2 N_i N_i^T` (the paper's model: unit-variance Gaussian along
+the unit normal), expanding :math:`\\|HX - X^0\\|^2 = \\|HX - X + E\\|^2` gives Stein's
+unbiased risk estimate (Stein 1981; for linear smoothers no Gaussianity is needed)
+
+.. math:: \\mathrm{SURE}(H) = \\|H X - X\\|_F^2 - n \\rho^2 + 2 \\rho^2\\, \\mathrm{tr}(H),
+          \\qquad \\mathbb E\\, \\mathrm{SURE}(H) = \\mathbb E \\|H X - X^0\\|_F^2,
+
+because :math:`\\mathbb E \\langle E, H E\\rangle = \\sum_i H_{ii}\\, \\mathrm{tr}\\,\\Sigma_i = \\rho^2 \\mathrm{tr}(H)`.
+The SNR is a decreasing function of :math:`\\|\\hat X - X^0\\|_F`, so minimising SURE
+maximises the expected SNR. ``tr(H)`` is estimated by Hutchinson's estimator
+:math:`\\mathrm{tr}(H) \\approx \\frac1m \\sum_k z_k^T H z_k` with Rademacher probes
+:math:`z_k`, carried along the run: the probes go through the same sparse steps (or the
+same Cholesky solves) as the coordinates, so the whole SURE curve of ``filtering`` /
+``heat`` / ``taubin`` costs one run. Small meshes (``n <= EXACT_TRACE_MAX``) use the
+identity as probe block, which gives the exact trace.
+
+Generalised cross-validation (Craven and Wahba 1979),
+:math:`\\mathrm{GCV}(H) = n \\|HX - X\\|_F^2 / (n - \\mathrm{tr} H)^2`, needs no noise
+level and is offered as ``criterion="gcv"``; it assumes noise in all ``3n`` coordinates,
+while the model's noise is along the normals only, and on a noisy sphere it picks a
+Sobolev ``mu`` 3.4 dB worse than SURE's (tests/test_auto.py): SURE is the default.
+
+For a nonlinear filter :math:`f`, the divergence term is estimated by Monte-Carlo
+SURE (Ramani, Blu and Unser 2008): with :math:`b_i = \\rho z_i N_i`,
+:math:`\\mathbb E\\, b^T (f(X + \\delta b) - f(X)) / \\delta \\to \\mathrm{tr}(\\Sigma J_f)`,
+two filter runs per candidate.
+
+References
+----------
+C. Stein, "Estimation of the mean of a multivariate normal distribution", Ann. Stat. 1981.
+P. Craven, G. Wahba, "Smoothing noisy data with spline functions", Numer. Math. 1979.
+M. F. Hutchinson, "A stochastic estimator of the trace of the influence matrix", 1990.
+S. Ramani, T. Blu, M. Unser, "Monte-Carlo SURE", IEEE TIP 2008.
+D. L. Donoho, I. M. Johnstone, "Ideal spatial adaptation by wavelet shrinkage", 1994 (MAD).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import warnings
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterator
+
+import numpy as np
+import scipy.sparse as sp
+from cholespy import CholeskySolverD, MatrixType
+
+from .adapters import read_mesh
+from .geometry import vertex_normals
+from .operators import Operators, get_operators
+from .registry import COMMON_OPTIONS, apply_filter, get_filter
+
+__all__ = [
+    "estimate_noise",
+    "choose_parameters",
+    "denoise",
+    "sure",
+    "gcv",
+    "probe_block",
+    "AUTO_METHODS",
+    "EXACT_TRACE_MAX",
+]
+
+log = logging.getLogger("meshdenoise.auto")
+
+EXACT_TRACE_MAX = 800  # up to this many vertices the trace is exact (identity probes)
+N_PROBES = 24  # Rademacher probes otherwise: trace error ~ sqrt(2 ||H||_F^2 / 24), negligible next to n rho^2
+_MAD = 0.6744897501960817  # median |N(0, 1)|
+
+
+# ----------------------------------------------------------------------------- criteria
+def sure(residual_sq: float, trace: float, n: int, rho: float) -> float:
+    """Stein's unbiased estimate of :math:`\\|HX - X^0\\|_F^2` for a linear smoother.
+
+    .. math:: \\mathrm{SURE} = \\|HX - X\\|_F^2 - n\\rho^2 + 2\\rho^2\\, \\mathrm{tr}(H)
+
+    Parameters
+    ----------
+    residual_sq : float
+        :math:`\\|HX - X\\|_F^2` (all three coordinates).
+    trace : float
+        :math:`\\mathrm{tr}(H)` of the ``n x n`` smoother.
+    n : int
+        Number of vertices.
+    rho : float
+        Noise level (standard deviation of the normal displacement).
+
+    Examples
+    --------
+    >>> sure(residual_sq=0.0, trace=10.0, n=10, rho=1.0)  # H = I: the noise itself, n rho^2
+    10.0
+    """
+    return float(residual_sq - n * rho**2 + 2.0 * rho**2 * trace)
+
+
+def gcv(residual_sq: float, trace: float, n: int) -> float:
+    """Generalised cross-validation score :math:`n \\|HX - X\\|_F^2 / (n - \\mathrm{tr} H)^2`.
+
+    Examples
+    --------
+    >>> gcv(residual_sq=4.0, trace=8.0, n=10)
+    10.0
+    """
+    denom = (n - trace) ** 2
+    return float("inf") if denom <= 0 else float(n * residual_sq / denom)
+
+
+def probe_block(n: int, exact: bool | None = None, n_probes: int = N_PROBES, seed: int = 0) -> tuple[np.ndarray, float]:
+    """Trace probes ``Z`` (n, m) and the scale ``s`` such that ``tr(H) ~ s * sum(Z * (H Z))``.
+
+    Exact (``Z = I``, ``s = 1``) when ``exact`` is True, or when it is None and
+    ``n <= EXACT_TRACE_MAX``; otherwise ``n_probes`` Rademacher columns, ``s = 1/m``
+    (Hutchinson: :math:`\\mathbb E z^T H z = \\mathrm{tr} H` for :math:`z_i = \\pm 1`).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> H = np.arange(16.0).reshape(4, 4)
+    >>> Z, s = probe_block(4)
+    >>> float(s * np.sum(Z * (H @ Z)))  # exact on a small matrix: 0 + 5 + 10 + 15
+    30.0
+    """
+    if exact is None:
+        exact = n <= EXACT_TRACE_MAX
+    if exact:
+        return np.eye(n), 1.0
+    rng = np.random.default_rng(seed)
+    return rng.choice([-1.0, 1.0], size=(n, n_probes)), 1.0 / n_probes
+
+
+# ----------------------------------------------------------------------------- noise level
+def _noise_normals(V: np.ndarray, F: np.ndarray, ops: Operators, steps: int) -> np.ndarray:
+    X = np.array(V, dtype=np.float64)
+    for _ in range(steps):
+        X = ops.P @ X
+    return vertex_normals(X, F)
+
+
+def _normal_residual_scale(V: np.ndarray, ops: Operators, N: np.ndarray) -> float:
+    """MAD estimate of rho from the normal component of :math:`B X`, :math:`B = (I - P)^2`.
+
+    The noise part of :math:`r_i = \\langle (BX)_i, N_i\\rangle` is
+    :math:`\\rho \\sum_j B_{ij} \\varepsilon_j \\langle N_j, N_i\\rangle`, a Gaussian of
+    standard deviation :math:`\\rho c_i`, :math:`c_i^2 = \\sum_j B_{ij}^2 \\langle N_i, N_j\\rangle^2`
+    (about :math:`1 + 4/d + ...`: computed exactly from the sparse ``B``). ``B`` is a
+    fourth-order difference, so the clean surface's smooth curvature term is much
+    smaller than with one Laplacian; the median ignores the features (edges, corners).
+    """
+    n = ops.n
+    A = sp.identity(n, format="csr") - ops.P
+    B = sp.csr_matrix(A @ A).tocoo()
+    g = np.einsum("ij,ij->i", N[B.row], N[B.col])
+    c = np.sqrt(np.bincount(B.row, weights=(B.data * g) ** 2, minlength=n))
+    r = np.einsum("ij,ij->i", np.asarray(B.tocsr() @ V), N)
+    ok = (c > 1e-12) & ~ops.isolated & (np.linalg.norm(N, axis=1) > 0)
+    if ok.sum() < 3:
+        raise ValueError(f"estimate_noise: the mesh has {int(ok.sum())} usable vertices; at least 3 are needed")
+    return float(np.median(np.abs(r[ok] / c[ok])) / _MAD)
+
+
+def _residual_energy_scale(V: np.ndarray, ops: Operators) -> float:
+    """Root-mean-square estimate of rho from the whole 3-D residual :math:`B X`, no normals needed.
+
+    The noise part of :math:`(BX)_i` is :math:`\\rho \\sum_j B_{ij} \\varepsilon_j N_j` with
+    unit :math:`N_j`, so :math:`\\mathbb E \\|(BX)_i\\|^2 = \\rho^2 \\sum_j B_{ij}^2` whatever the
+    normals are: exact under strong noise, where no normal can be trusted. The clean
+    surface adds its own (small, positive) energy, so this errs upward on weak noise.
+    """
+    A = sp.identity(ops.n, format="csr") - ops.P
+    B = sp.csr_matrix(A @ A)
+    c2 = np.asarray(B.multiply(B).sum(axis=1)).ravel()
+    ok = (c2 > 1e-24) & ~ops.isolated
+    if ok.sum() < 3:
+        raise ValueError(f"estimate_noise: the mesh has {int(ok.sum())} usable vertices; at least 3 are needed")
+    R = np.asarray(B @ V)
+    return float(np.sqrt(np.mean(np.sum(R[ok] ** 2, axis=1) / c2[ok])))
+
+
+def _mean_edge_length(X: np.ndarray, ops: Operators) -> float:
+    e = ops.edges
+    return float(np.linalg.norm(X[e[:, 0]] - X[e[:, 1]], axis=1).mean()) if e.size else 0.0
+
+
+def estimate_noise(mesh: Any, *, refine: int = 2) -> float:
+    """Estimate the noise level ``rho`` of a noisy mesh, without the clean mesh.
+
+    The paper's noise moves vertex ``i`` by :math:`\\rho\\, \\varepsilon_i N_i`. The
+    high-frequency part of the coordinates, :math:`B X` with :math:`B = (I - D^{-1}W)^2`
+    (a fourth-order difference, blind to the smooth part of the surface), is almost
+    only noise. Two estimates are read from it:
+
+    - along the normals, robustly: the noise part of :math:`r_i = \\langle (BX)_i, N_i\\rangle`
+      has standard deviation :math:`\\rho c_i`, :math:`c_i^2 = \\sum_j B_{ij}^2 \\langle N_i, N_j\\rangle^2`
+      (exact, from the sparse ``B``), so :math:`\\hat\\rho_{N} = \\operatorname{median}_i |r_i| / c_i / 0.6745`
+      (MAD: ignores sharp edges and corners; the projection ignores the tangential
+      irregularity of the sampling). It needs normals of the *clean* surface: they are
+      taken from the mesh smoothed by SURE-chosen ``filtering``, refined ``refine`` times;
+    - in 3-D, by energy: :math:`\\hat\\rho_{E}^2 = \\operatorname{mean}_i \\|(BX)_i\\|^2 / \\sum_j B_{ij}^2`,
+      exact for any normals, but it also counts the clean surface's detail.
+
+    Which one to trust depends on the noise relative to the mesh resolution ``h`` (mean
+    edge length of the smoothed mesh): when :math:`\\hat\\rho_E > h` no normal survives
+    the noise (and the surface detail is negligible next to it), so :math:`\\hat\\rho_E`
+    is used; below :math:`h/2`, :math:`\\hat\\rho_N`; in between a geometric blend.
+
+    Parameters
+    ----------
+    mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
+    refine : int, >= 1
+        Rounds of smoothing the normals are taken from.
+
+    Returns
+    -------
+    float
+        :math:`\\hat\\rho` in the mesh's units: within about 5 % on smooth and CAD meshes
+        from 0.2 to 25 edge lengths of noise (docs/auto_quality.md); a coarse, curved mesh
+        with noise far below its edge length (Nefertiti at rho = 0.015) is overestimated.
+
+    Examples
+    --------
+    >>> from meshdenoise.shapes import icosphere
+    >>> from meshdenoise import add_normal_noise
+    >>> V, F = icosphere(4)
+    >>> Vn, _ = add_normal_noise((V, F), rho=0.01, seed=0)
+    >>> round(estimate_noise((Vn, F)) / 0.01, 1)
+    1.0
+    """
+    if isinstance(refine, (bool, np.bool_)) or not isinstance(refine, (int, np.integer)) or refine < 1:
+        raise ValueError(f"estimate_noise: parameter 'refine' must be an int >= 1, got {refine!r}")
+    data = read_mesh(mesh)
+    V, F = data.V, data.F
+    ops = get_operators(F, V.shape[0])
+    rho_e = _residual_energy_scale(V, ops)
+    rho = rho_e
+    for _ in range(int(refine)):
+        if rho == 0:
+            return 0.0
+        smooth = _best_on_path(_iterative_path(V, ops, _averaging_step(ops.P, 1.0)), V.shape[0], rho, "sure").X
+        rho_n = _normal_residual_scale(V, ops, vertex_normals(smooth, F))
+        h = _mean_edge_length(smooth, ops)
+        w = 1.0 if h == 0 else min(max((rho_e / h - 0.5) / 0.5, 0.0), 1.0)
+        rho = float(np.exp((1 - w) * np.log(max(rho_n, 1e-300)) + w * np.log(rho_e)))
+    return rho
+
+
+# ----------------------------------------------------------------------------- linear paths
+@dataclass
+class _Point:
+    value: float
+    residual_sq: float
+    trace: float
+    X: np.ndarray = field(repr=False)
+    score: float = math.inf
+
+
+def _averaging_step(A: sp.csr_matrix, lam: float) -> Callable[[np.ndarray], np.ndarray]:
+    def step(Y: np.ndarray) -> np.ndarray:
+        AY = A @ Y
+        return AY if lam == 1.0 else Y + lam * (AY - Y)
+
+    return step
+
+
+def _iterative_path(
+    V: np.ndarray, ops: Operators, step: Callable, exact: bool | None = None, seed: int = 0
+) -> Iterator[_Point]:
+    """Yield (k, ||H_k X - X||^2, tr H_k, H_k X) for k = 0, 1, ... with H_k = step^k (linear)."""
+    n = V.shape[0]
+    Z, s = probe_block(n, exact, seed=seed)
+    Y = np.hstack([np.array(V, dtype=np.float64), Z])
+    k = 0
+    while True:
+        X = Y[:, :3]
+        yield _Point(k, float(np.sum((X - V) ** 2)), s * float(np.sum(Z * Y[:, 3:])), X.copy())
+        Y = step(Y)
+        k += 1
+
+
+def _score(p: _Point, n: int, rho: float | None, criterion: str | Callable) -> float:
+    if callable(criterion):  # "oracle": the true squared error against a reference
+        return float(criterion(p))
+    return sure(p.residual_sq, p.trace, n, rho) if criterion == "sure" else gcv(p.residual_sq, p.trace, n)
+
+
+def _best_on_path(path: Iterator[_Point], n: int, rho: float | None, criterion: str, max_steps: int = 20000) -> _Point:
+    """Walk a path until its score has risen well past its minimum; return the minimum.
+
+    Stops when ``k >= 2 k_best + 20`` and the score exceeds the minimum: SURE curves of
+    the smoothers here are unimodal in practice (bias grows, variance falls, both monotone).
+    """
+    best: _Point | None = None
+    for p in path:
+        p.score = _score(p, n, rho, criterion)
+        if best is None or p.score < best.score:
+            best = p
+        if p.value >= 2 * best.value + 20 and p.score > best.score:
+            return best
+        if p.value >= max_steps:
+            warnings.warn(
+                f"choose_parameters: the criterion still decreased after {max_steps} steps; "
+                "the noise may be too strong for this filter, consider sobolev or a larger step size",
+                UserWarning,
+                stacklevel=3,
+            )
+            return best
+    raise AssertionError("unreachable")  # pragma: no cover
+
+
+def _factor(A: sp.csr_matrix) -> CholeskySolverD:
+    A = sp.csr_matrix(A)
+    A.sort_indices()
+    return CholeskySolverD(
+        A.shape[0], A.indptr.astype(np.int32), A.indices.astype(np.int32), A.data.astype(np.float64), MatrixType.CSR
+    )
+
+
+def _solve_point(V: np.ndarray, M: sp.csr_matrix, mu: float, Z: np.ndarray, s: float) -> _Point:
+    n = V.shape[0]
+    rhs = np.ascontiguousarray(np.hstack([V, Z]))
+    out = np.empty_like(rhs)
+    _factor(sp.identity(n, format="csr") + mu * M).solve(rhs, out)
+    X = out[:, :3]
+    return _Point(mu, float(np.sum((X - V) ** 2)), s * float(np.sum(Z * out[:, 3:])), X)
+
+
+def _best_mu(
+    V: np.ndarray, M: sp.csr_matrix, rho: float | None, criterion: str, exact: bool | None = None,
+    center: float = 1.0, golden_steps: int = 8,
+) -> _Point:
+    """Minimise the criterion of :math:`(I + \\mu M)^{-1}` over log mu.
+
+    Five points 0.75 decades apart around ``center`` (a guess from the cheap
+    ``filtering`` path), extended while the minimum sits at an end of the grid, then
+    golden-section search between the minimum's neighbours (1.5 decades shrink to
+    about 0.03 decades in 8 steps). Each point is one sparse Cholesky factorisation.
+    """
+    n = V.shape[0]
+    Z, s = probe_block(n, exact)  # the same probes for every mu: a smooth curve to minimise
+    cache: dict[float, _Point] = {}
+
+    def at(t: float) -> _Point:
+        t = round(t, 12)
+        if t not in cache:
+            p = _solve_point(V, M, 10.0**t, Z, s)
+            p.score = _score(p, n, rho, criterion)
+            cache[t] = p
+        return cache[t]
+
+    c0 = math.log10(center)
+    grid = [c0 + 0.75 * j for j in range(-2, 3)]
+    lo_limit, hi_limit = -8.0, 10.0
+    while True:
+        scores = [at(t).score for t in grid]
+        i = int(np.argmin(scores))
+        if i == 0 and grid[0] > lo_limit:
+            grid.insert(0, grid[0] - 0.75)
+        elif i == len(grid) - 1 and grid[-1] < hi_limit:
+            grid.append(grid[-1] + 0.75)
+        else:
+            break
+    a, b = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+    g = (math.sqrt(5) - 1) / 2
+    c, d = b - g * (b - a), a + g * (b - a)
+    for _ in range(golden_steps):
+        if at(c).score < at(d).score:
+            b, d = d, c
+            c = b - g * (b - a)
+        else:
+            a, c = c, d
+            d = a + g * (b - a)
+    return min(cache.values(), key=lambda p: p.score)
+
+
+# ----------------------------------------------------------------------------- per-method rules
+@dataclass
+class _Context:
+    V: np.ndarray
+    F: np.ndarray
+    ops: Operators
+    rho: float | None
+    criterion: str
+    exact: bool | None
+    given: dict
+
+
+def _check_linear_weights(ctx: _Context, method: str) -> None:
+    w = ctx.given.get("weights", "uniform")
+    if w == "inverse_distance":
+        raise ValueError(
+            f"choose_parameters: method '{method}' with weights='inverse_distance' is not a linear smoother; "
+            "automatic parameters need weights 'uniform', 'meshlab' or 'open3d'"
+        )
+
+
+def _choose_filtering(ctx: _Context) -> dict:
+    """``iterations`` of ``X <- X + lam (A X - X)``: SURE along one run (``H_k = (I + lam(A - I))^k``)."""
+    from .plugins.filtering import averaging_operator
+
+    _check_linear_weights(ctx, "filtering")
+    lam = float(ctx.given.get("lam", 1.0))
+    A = averaging_operator(ctx.ops, ctx.given.get("weights", "uniform"), None, ctx.given.get("boundary", True))
+    p = _best_on_path(_iterative_path(ctx.V, ctx.ops, _averaging_step(A, lam), ctx.exact), ctx.ops.n, ctx.rho, ctx.criterion)
+    return {"iterations": int(p.value)}, p
+
+
+def _choose_heat(ctx: _Context) -> dict:
+    """``time`` (and ``tau`` unless given) of explicit-Euler heat diffusion.
+
+    For each candidate ``tau`` in (0.25, 0.5, 1) the SURE curve over ``time = k tau`` is
+    read along one run; the (tau, time) of the smallest SURE wins. Smaller steps follow
+    :math:`e^{-T(I - P)}` more closely; tau = 1 is plain averaging, whose high-frequency
+    gain :math:`(1 - \\lambda)^k` alternates in sign on bipartite-like meshes.
+    """
+    taus = [float(ctx.given["tau"])] if "tau" in ctx.given else [0.25, 0.5, 1.0]
+    best, best_tau = None, None
+    for tau in taus:
+        p = _best_on_path(_iterative_path(ctx.V, ctx.ops, _averaging_step(ctx.ops.P, tau), ctx.exact), ctx.ops.n, ctx.rho, ctx.criterion)
+        if best is None or p.score < best.score:
+            best, best_tau = p, tau
+    return {"tau": best_tau, "time": float(best.value * best_tau)}, best
+
+
+def _mu_guess(ctx: _Context, order: int) -> float:
+    k = _best_on_path(_iterative_path(ctx.V, ctx.ops, _averaging_step(ctx.ops.P, 1.0), ctx.exact), ctx.ops.n, ctx.rho, ctx.criterion).value
+    dbar = float(np.mean(ctx.ops.degree[~ctx.ops.isolated])) if (~ctx.ops.isolated).any() else 1.0
+    return max(k, 0.5) ** order / dbar**order
+
+
+def _choose_sobolev(ctx: _Context) -> dict:
+    """``mu`` of :math:`(I + \\mu L) Y = X`: SURE over log mu (grid, then golden section).
+
+    The search starts at :math:`\\mu_0 = k / \\bar d`, with ``k`` the SURE-best number of
+    averaging steps: both filters damp the eigenmode of :math:`I - D^{-1}W` with
+    eigenvalue :math:`\\lambda` by about half when :math:`k\\lambda \\approx \\mu \\bar d \\lambda \\approx 1`.
+    """
+    p = _best_mu(ctx.V, ctx.ops.L, ctx.rho, ctx.criterion, ctx.exact, center=_mu_guess(ctx, 1))
+    return {"mu": float(p.value)}, p
+
+
+def _choose_taubin(ctx: _Context) -> dict:
+    """``iterations`` of Taubin lambda/mu smoothing (``lam``, ``mu`` as given, else the defaults 0.5, -0.53).
+
+    With ``weights`` "uniform" or "meshlab" one iteration is the linear map
+    :math:`H_1 = (I + \\mu(A - I))(I + \\lambda(A - I))`, so SURE is read along one run
+    exactly as for ``filtering``. Open3D's weights depend on the coordinates: not linear,
+    not supported here.
+    """
+    from .plugins.taubin import meshlab_taubin_operator
+
+    weights = ctx.given.get("weights", "uniform")
+    if weights == "open3d":
+        raise ValueError(
+            "choose_parameters: taubin with weights='open3d' (inverse-distance, recomputed each pass) is not a "
+            "linear smoother; automatic parameters need weights 'uniform' or 'meshlab'"
+        )
+    spec = get_filter("taubin")
+    lam = float(ctx.given.get("lam", spec.param("lam").default))
+    mu = float(ctx.given.get("mu", spec.param("mu").default))
+    A = ctx.ops.P if weights == "uniform" else meshlab_taubin_operator(ctx.ops)
+    shrink, inflate = _averaging_step(A, lam), _averaging_step(A, mu)
+    p = _best_on_path(_iterative_path(ctx.V, ctx.ops, lambda Y: inflate(shrink(Y)), ctx.exact), ctx.ops.n, ctx.rho, ctx.criterion)
+    return {"iterations": int(p.value)}, p
+
+
+def _choose_sobolev_bilaplacian(ctx: _Context) -> dict:
+    """``mu`` of :math:`(I + \\mu L^2) Y = X`: SURE over log mu, starting at :math:`(k/\\bar d)^2`."""
+    L = ctx.ops.L
+    p = _best_mu(ctx.V, sp.csr_matrix(L @ L), ctx.rho, ctx.criterion, ctx.exact, center=_mu_guess(ctx, 2))
+    return {"mu": float(p.value)}, p
+
+
+# method -> (the parameters its rule chooses, the rule)
+AUTO_METHODS: dict[str, tuple[tuple[str, ...], Callable]] = {
+    "filtering": (("iterations",), _choose_filtering),
+    "heat": (("tau", "time"), _choose_heat),
+    "sobolev": (("mu",), _choose_sobolev),
+    "sobolev_bilaplacian": (("mu",), _choose_sobolev_bilaplacian),
+    "taubin": (("iterations",), _choose_taubin),
+}
+
+
+# ----------------------------------------------------------------------------- public API
+def choose_parameters(
+    mesh: Any,
+    method: str = "sobolev",
+    *,
+    noise: float | None = None,
+    criterion: str = "sure",
+    exact_trace: bool | None = None,
+    reference: Any = None,
+    **given: Any,
+) -> dict:
+    """Choose a filter's parameters from the noisy mesh alone.
+
+    Linear filters (``filtering``: iterations; ``heat``: time and tau; ``sobolev``: mu)
+    minimise SURE (module docstring) with the noise level from :func:`estimate_noise`,
+    or GCV with ``criterion="gcv"``; traces by Hutchinson probes carried along the run
+    (exact below ``EXACT_TRACE_MAX`` vertices).
+
+    Parameters
+    ----------
+    mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
+    method : str
+        A registered filter with an automatic rule (:data:`AUTO_METHODS`).
+    noise : float, optional
+        The noise level rho if known; estimated otherwise.
+    criterion : {"sure", "gcv", "oracle"}
+        ``"oracle"`` needs ``reference`` (the clean mesh) and minimises the true error
+        over the same search space: the best parameters in hindsight, for benchmarks.
+    exact_trace : bool, optional
+        Force exact traces (identity probes) or Hutchinson ones.
+    reference : mesh or (n, 3) array, optional
+        The clean mesh, only for ``criterion="oracle"``.
+    **given
+        Parameters held fixed (e.g. ``weights="meshlab"`` for filtering, ``tau`` for heat);
+        the method's tuned parameters that are not given are chosen.
+
+    Returns
+    -------
+    dict
+        The filter's parameters, ready for ``apply_filter(method, mesh, **params)``
+        (given ones included).
+
+    Examples
+    --------
+    >>> from meshdenoise.shapes import icosphere
+    >>> from meshdenoise import add_normal_noise
+    >>> V, F = icosphere(3)
+    >>> Vn, _ = add_normal_noise((V, F), rho=0.02, seed=0)
+    >>> sorted(choose_parameters((Vn, F), method="sobolev"))
+    ['mu']
+    """
+    if not isinstance(method, str):
+        raise TypeError(f"choose_parameters: method must be a filter name (str), got {method!r}")
+    spec = get_filter(method)  # KeyError with suggestions for an unknown name
+    if method not in AUTO_METHODS:
+        raise ValueError(
+            f"choose_parameters: no automatic rule for filter '{method}'; "
+            f"automatic parameters exist for: {', '.join(sorted(AUTO_METHODS))}"
+        )
+    if criterion not in ("sure", "gcv", "oracle"):
+        raise ValueError(f"choose_parameters: criterion must be 'sure', 'gcv' or 'oracle', got {criterion!r}")
+    if (criterion == "oracle") != (reference is not None):
+        raise ValueError("choose_parameters: reference= (the clean mesh) goes with criterion='oracle', and only with it")
+    spec.resolve(given, where=f"choose_parameters(method='{method}')")  # names/types/ranges of held values
+    data = read_mesh(mesh)
+    V, F = data.V, data.F
+    ops = get_operators(F, V.shape[0])
+    if noise is None:
+        rho = estimate_noise((V, F)) if criterion != "gcv" else None
+    else:
+        if isinstance(noise, (bool, np.bool_)) or not isinstance(noise, (int, float, np.integer, np.floating)):
+            raise TypeError(f"choose_parameters: noise must be a number, got {noise!r}")
+        if not (math.isfinite(noise) and noise >= 0):
+            raise ValueError(f"choose_parameters: parameter 'noise' = {noise!r} is out of range: noise >= 0")
+        rho = float(noise)
+    score: str | Callable = criterion
+    if criterion == "oracle":
+        from .metrics import coordinates
+
+        Y = coordinates(reference)
+        if Y.shape != V.shape:
+            raise ValueError(f"choose_parameters: reference has {Y.shape[0]} vertices, the mesh {V.shape[0]}")
+        score = lambda p: np.sum((p.X - Y) ** 2)  # noqa: E731
+    ctx = _Context(V, F, ops, rho, score, exact_trace, dict(given))
+    chosen, point = AUTO_METHODS[method][1](ctx)
+    params = {**chosen, **given}
+    log.info("choose_parameters(%s): %s (rho=%s, %s score %.6g)", method, params, rho, criterion, point.score)
+    return params
+
+
+def denoise(
+    mesh: Any, method: str = "sobolev", *, noise: float | None = None, return_params: bool = False, **params: Any
+) -> Any:
+    """Denoise with ``method``; parameters not given are chosen by :func:`choose_parameters`.
+
+    Parameters
+    ----------
+    mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
+    method : str
+        A registered filter.
+    noise : float, optional
+        The noise level if known (else :func:`estimate_noise`), used only when choosing.
+    return_params : bool
+        Also return the parameters used (given and chosen).
+    **params
+        Filter parameters (held fixed) and the common options (``pinned``, ``region``,
+        ``preserve_volume``, ``operators``). With none of the filter's own parameters
+        given, all of them are chosen automatically; the chosen values are logged
+        (logger ``meshdenoise.auto``) and returned with ``return_params=True``.
+
+    Returns
+    -------
+    Same type as ``mesh`` (a MeshSet is changed in place), or ``(mesh, params)``.
+
+    Examples
+    --------
+    >>> from meshdenoise.shapes import icosphere
+    >>> from meshdenoise import add_normal_noise, snr
+    >>> V, F = icosphere(3)
+    >>> Vn, _ = add_normal_noise((V, F), rho=0.02, seed=0)
+    >>> (Vd, Fd), used = denoise((Vn, F), method="sobolev", return_params=True)
+    >>> bool(snr(V, Vd) > snr(V, Vn))
+    True
+    """
+    spec = get_filter(method)
+    options = {k: params.pop(k) for k in list(params) if k in COMMON_OPTIONS}
+    if method in AUTO_METHODS and set(AUTO_METHODS[method][0]) - set(params):
+        chosen = choose_parameters(mesh, method, noise=noise, **params)
+        log.info("denoise(%s): automatic parameters %s", method, chosen)
+    else:
+        chosen = dict(params)
+    out = apply_filter(method, mesh, **chosen, **options)
+    return (out, chosen) if return_params else out

@@ -1,0 +1,228 @@
+"""Automatic parameters: noise estimation, SURE / GCV against dense computations, choices against an oracle."""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import pytest
+
+from meshdenoise import add_normal_noise, snr
+from meshdenoise.auto import (
+    AUTO_METHODS,
+    _averaging_step,
+    _iterative_path,
+    _solve_point,
+    choose_parameters,
+    denoise,
+    estimate_noise,
+    gcv,
+    probe_block,
+    sure,
+)
+from meshdenoise.geometry import vertex_normals
+from meshdenoise.io import load_arrays
+from meshdenoise.operators import get_operators
+from meshdenoise.registry import apply_filter
+from meshdenoise.shapes import grid, icosphere, torus
+
+from .conftest import data_mesh_path, make_mesh
+
+
+# ----------------------------------------------------------------------------- noise level
+@pytest.mark.parametrize(
+    "shape, rho",
+    [
+        (lambda: icosphere(4), 0.005),
+        (lambda: icosphere(4), 0.05),
+        (lambda: torus(60, 30), 0.01),
+        (lambda: grid(40, 40), 0.002),  # open, flat: boundary rows included
+    ],
+)
+def test_estimate_noise_matches_known_rho(shape, rho):
+    V, F = shape()
+    for seed in range(2):
+        Vn, _ = add_normal_noise((V, F), rho, seed=seed)
+        assert estimate_noise((Vn, F)) == pytest.approx(rho, rel=0.08)
+
+
+@pytest.mark.parametrize("rho", [0.015, 0.2])  # 2 and 26 edge lengths: normals are useless at 0.2
+def test_estimate_noise_on_the_elephant(rho):
+    V, F = load_arrays(data_mesh_path("elephant-50kv.off"))
+    Vn, _ = add_normal_noise((V, F), rho, seed=3)
+    assert estimate_noise((Vn, F)) == pytest.approx(rho, rel=0.05)
+
+
+def test_estimate_noise_is_zero_without_noise_on_a_plane():
+    V, F = grid(10, 10)
+    assert estimate_noise((V, F)) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_estimate_noise_rejects_bad_refine():
+    V, F = icosphere(1)
+    with pytest.raises(ValueError, match="refine"):
+        estimate_noise((V, F), refine=0)
+
+
+# ----------------------------------------------------------------------------- SURE / GCV vs dense
+def _dense_P(F, n):
+    W = np.zeros((n, n))
+    for a, b, c in F:  # a loop written for the test, independent of operators.py
+        for i, j in ((a, b), (b, c), (c, a)):
+            W[i, j] = W[j, i] = 1.0
+    return W / W.sum(1, keepdims=True), np.diag(W.sum(1)) - W
+
+
+def test_path_traces_and_residuals_match_dense_matrices():
+    V, F = icosphere(2)
+    Vn, _ = add_normal_noise((V, F), 0.03, seed=1)
+    n = len(V)
+    P, L = _dense_P(F, n)
+    ops = get_operators(F, n)
+    lam = 0.5
+    path = _iterative_path(Vn, ops, _averaging_step(ops.P, lam), exact=True)
+    H = np.eye(n)
+    for k in range(6):
+        p = next(path)
+        assert p.value == k
+        assert p.trace == pytest.approx(np.trace(H), rel=1e-12)
+        assert p.residual_sq == pytest.approx(np.sum((H @ Vn - Vn) ** 2), rel=1e-12)
+        H = H + lam * (P @ H - H)
+    Z, s = probe_block(n, exact=True)
+    p = _solve_point(Vn, ops.L, 0.7, Z, s)
+    Hs = np.linalg.inv(np.eye(n) + 0.7 * L)
+    assert p.trace == pytest.approx(np.trace(Hs), rel=1e-10)
+    assert np.allclose(p.X, Hs @ Vn, atol=1e-12)
+
+
+def test_hutchinson_trace_is_unbiased_against_the_exact_trace():
+    V, F = icosphere(2)
+    n = len(V)
+    P, _ = _dense_P(F, n)
+    H = np.linalg.matrix_power(0.5 * (np.eye(n) + P), 3)
+    Z, s = probe_block(n, exact=False, n_probes=4000, seed=7)
+    est = s * np.sum(Z * (H @ Z))
+    # Rademacher variance: 2 sum_{i != j} H_ij^2 (H_ij H_ji symmetrised) over 4000 probes
+    off = H - np.diag(np.diag(H))
+    sd = np.sqrt(np.sum(off**2 + off * off.T) / 4000)
+    assert abs(est - np.trace(H)) < 4 * sd
+    assert sd < 0.05 * np.trace(H)  # the check above is not vacuous
+
+
+def test_sure_is_unbiased_for_the_risk_under_normal_noise():
+    """Monte-Carlo mean of SURE = dense risk ||(H - I) X0||^2 + rho^2 ||H||_F^2 = mean true error."""
+    V, F = icosphere(2)
+    n, rho = len(V), 0.05
+    P, _ = _dense_P(F, n)
+    H = np.linalg.matrix_power(P, 3)
+    N = vertex_normals(V, F)
+    risk = np.sum(((H - np.eye(n)) @ V) ** 2) + rho**2 * np.sum(H**2)
+    rng = np.random.default_rng(0)
+    draws = 3000
+    eps = rng.standard_normal((draws, n))
+    Xs = V[None] + rho * eps[:, :, None] * N[None]  # (draws, n, 3)
+    HX = np.einsum("ij,djk->dik", H, Xs)
+    sures = [sure(np.sum((HX[d] - Xs[d]) ** 2), np.trace(H), n, rho) for d in range(draws)]
+    errors = np.sum((HX - V[None]) ** 2, axis=(1, 2))
+    assert np.mean(errors) == pytest.approx(risk, rel=0.02)
+    assert abs(np.mean(sures) - risk) < 4 * np.std(sures) / np.sqrt(draws)
+    # the naive estimate without the trace term is biased by far more than that
+    naive = np.mean([np.sum((HX[d] - Xs[d]) ** 2) for d in range(draws)])
+    assert abs(naive - risk) > 20 * np.std(sures) / np.sqrt(draws)
+
+
+def test_gcv_formula():
+    assert gcv(residual_sq=2.0, trace=3.0, n=5) == pytest.approx(5 * 2.0 / 4.0)
+    assert gcv(residual_sq=1.0, trace=5.0, n=5) == float("inf")
+
+
+# ----------------------------------------------------------------------------- auto vs oracle
+def _oracle_snr(method, Vn, V, F):
+    """Best SNR over a fine grid of the tuned parameter, by brute force with apply_filter."""
+    if method in ("filtering", "taubin"):
+        return max(snr(V, apply_filter(method, (Vn, F), iterations=k)[0]) for k in range(0, 120))
+    if method == "heat":
+        return max(
+            snr(V, apply_filter("heat", (Vn, F), tau=tau, time=k * tau)[0]) for tau in (0.25, 0.5, 1.0) for k in range(0, 90)
+        )
+    mus = np.logspace(-3, 3, 121)
+    return max(snr(V, apply_filter(method, (Vn, F), mu=float(mu))[0]) for mu in mus)
+
+
+@pytest.mark.parametrize("method", sorted(AUTO_METHODS))
+@pytest.mark.parametrize("case", ["sphere", "torus"])
+def test_auto_parameters_within_half_a_db_of_the_oracle(method, case):
+    V, F = icosphere(4) if case == "sphere" else torus(48, 24)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=11)
+    params = choose_parameters((Vn, F), method)
+    got = snr(V, apply_filter(method, (Vn, F), **params)[0])
+    best = _oracle_snr(method, Vn, V, F)
+    assert got > snr(V, Vn) + 2.0  # it denoises
+    assert got >= best - 0.5, (params, got, best)
+
+
+@pytest.mark.parametrize("method", ["filtering", "sobolev"])
+def test_oracle_criterion_matches_brute_force(method):
+    V, F = icosphere(3)
+    Vn, _ = add_normal_noise((V, F), 0.03, seed=2)
+    params = choose_parameters((Vn, F), method, criterion="oracle", reference=V)
+    got = snr(V, apply_filter(method, (Vn, F), **params)[0])
+    assert got == pytest.approx(_oracle_snr(method, Vn, V, F), abs=0.02)
+
+
+def test_gcv_criterion_denoises_without_a_noise_level_but_sure_is_better():
+    """GCV assumes noise in all 3n coordinates; the model's noise is along normals only (measured: -3.4 dB)."""
+    V, F = icosphere(4)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=5)
+    by_gcv = snr(V, apply_filter("sobolev", (Vn, F), **choose_parameters((Vn, F), "sobolev", criterion="gcv"))[0])
+    by_sure = snr(V, apply_filter("sobolev", (Vn, F), **choose_parameters((Vn, F), "sobolev"))[0])
+    assert by_gcv > snr(V, Vn) + 2.0
+    assert by_sure >= by_gcv
+
+
+def test_hutchinson_and_exact_traces_choose_the_same_parameters():
+    V, F = icosphere(3)
+    Vn, _ = add_normal_noise((V, F), 0.03, seed=4)
+    a = choose_parameters((Vn, F), "filtering", noise=0.03, exact_trace=True)
+    b = choose_parameters((Vn, F), "filtering", noise=0.03, exact_trace=False)
+    assert abs(a["iterations"] - b["iterations"]) <= 1
+
+
+# ----------------------------------------------------------------------------- denoise
+@pytest.mark.parametrize("kind", ["arrays", "meshset", "pymeshlab_mesh", "open3d"])
+def test_denoise_returns_the_same_mesh_type_and_the_chosen_values(kind, caplog):
+    V, F = icosphere(3)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
+    mesh = make_mesh(kind, Vn, F)
+    with caplog.at_level(logging.INFO, logger="meshdenoise.auto"):
+        out, used = denoise(mesh, method="sobolev", return_params=True)
+    assert type(out) is type(mesh)
+    assert set(used) == {"mu"} and used["mu"] > 0
+    assert "mu" in caplog.text  # recorded in the log
+    expected = apply_filter("sobolev", (Vn, F), mu=used["mu"])[0]
+    from meshdenoise.metrics import coordinates
+
+    assert np.allclose(coordinates(out), expected)
+
+
+def test_denoise_keeps_given_parameters_and_chooses_the_rest():
+    V, F = icosphere(3)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
+    _, used = denoise((Vn, F), method="heat", tau=0.5, return_params=True)
+    assert used["tau"] == 0.5 and used["time"] >= 0
+    _, used = denoise((Vn, F), method="filtering", iterations=3, return_params=True)
+    assert used == {"iterations": 3}  # nothing left to choose
+
+
+def test_bad_requests_name_the_problem():
+    V, F = icosphere(2)
+    with pytest.raises(KeyError, match="did you mean 'sobolev'"):
+        choose_parameters((V, F), "sobolv")
+    with pytest.raises(ValueError, match="not a linear smoother"):
+        choose_parameters((V, F), "filtering", weights="inverse_distance")
+    with pytest.raises(ValueError, match="noise"):
+        choose_parameters((V, F), "sobolev", noise=-1.0)
+    with pytest.raises(ValueError, match="reference"):
+        choose_parameters((V, F), "sobolev", criterion="oracle")
+    with pytest.raises(TypeError, match="unknown parameter 'iteration'"):
+        choose_parameters((V, F), "filtering", iteration=3)
