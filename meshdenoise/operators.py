@@ -74,7 +74,7 @@ class Operators:
     """
 
     def __init__(self, F: np.ndarray, n: int):
-        self.F = np.ascontiguousarray(F, dtype=np.int64)
+        self.F = np.array(F, dtype=np.int64, order="C")  # our own copy: the caller's array stays writable
         self.F.setflags(write=False)
         self.n = int(n)
         self.cache: dict = {}

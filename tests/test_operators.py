@@ -81,3 +81,10 @@ def test_fixed_rows_are_identity_rows():
     np.testing.assert_array_equal(B[fixed], np.eye(len(V))[fixed])
     np.testing.assert_array_equal(B[~fixed], ops.P.toarray()[~fixed])
     assert ops.with_fixed_rows(ops.P, fixed, "P") is ops.with_fixed_rows(ops.P, fixed.copy(), "P")
+
+
+def test_operators_do_not_touch_the_callers_faces():
+    V, F = icosphere(1)
+    F = np.ascontiguousarray(F, dtype=np.int64)
+    ops = Operators(F, len(V))
+    assert F.flags.writeable and not np.shares_memory(ops.F, F)

@@ -82,7 +82,10 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
 def _print_rows(rows: list[dict]) -> None:
     from ..pipeline.sweep import columns
 
-    cols = [c for c in columns(rows) if c not in ("outputs", "error")]
+    # The terminal shows the measurements; the chosen parameters, mesh sizes and output paths are in
+    # the CSV/JSON (a table of every column does not fit a terminal).
+    hidden = ("outputs", "error", "vertices", "faces")
+    cols = [c for c in columns(rows) if c not in hidden and not c.startswith("auto.")]
     table = Table()
     for c in cols:
         table.add_column(c)
