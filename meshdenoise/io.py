@@ -9,7 +9,7 @@ allocated. Unusual but legal input (polygons, CR or CRLF line endings, negative 
 indices, STL's unshared corners) is read and described in :attr:`MeshFile.notes`.
 
 Writers are numpy too: PLY stores ``double`` coordinates, OFF and OBJ 17 significant
-digits, so a write-read round trip is exact (STL stores float32 by definition).
+digits, so a write-read round trip is exact (binary STL stores float32 by definition).
 """
 
 from __future__ import annotations
@@ -806,7 +806,7 @@ def save_mesh(
     PLY (binary little-endian, or ASCII with ``binary=False``) stores ``double``
     coordinates and ``uchar`` RGBA colours; OFF (COFF with colours) and OBJ (``v x y z r g b``)
     store 17 significant digits, so reading the file back gives the same arrays. STL
-    (binary, or ASCII) stores float32 corners and no colours. Nothing is left at ``path``
+    stores float32 corners (binary) or 17 digits (ASCII), and no colours. Nothing is left at ``path``
     if writing fails, and an existing file there is replaced only once the new one is complete.
 
     Parameters
@@ -935,9 +935,8 @@ def _write_stl(fh, V, F, C, binary):
         fh.write(b"binary STL written by meshdenoise".ljust(80, b" ") + struct.pack("<I", len(F)))
         fh.write(rec.tobytes())
         return
-    P = V[F].astype(np.float32).astype(np.float64)
-    table = np.hstack([N, P.reshape(-1, 9)])
-    facet = ("facet normal %.9g %.9g %.9g\n outer loop\n" + "  vertex %.9g %.9g %.9g\n" * 3 + " endloop\nendfacet\n")
+    table = np.hstack([N, V[F].reshape(-1, 9)])
+    facet = ("facet normal %.9g %.9g %.9g\n outer loop\n" + "  vertex %.17g %.17g %.17g\n" * 3 + " endloop\nendfacet\n")
     fh.write(b"solid meshdenoise\n")
     fh.write(((facet * len(F)) % tuple(table.ravel().tolist())).encode())
     fh.write(b"endsolid meshdenoise\n")
