@@ -1,0 +1,251 @@
+"""CLI commands: run, denoise, info, mlx2yaml, yaml2mlx. Exit codes: 0 ok, 1 runtime failure, 2 bad input."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+
+import click
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+console = Console()
+err_console = Console(stderr=True)
+
+
+def _fail(message: str, code: int) -> None:
+    err_console.print(f"[red]error:[/red] {message}", highlight=False, markup=True, soft_wrap=True)
+    sys.exit(code)
+
+
+def _assignments(values: tuple[str, ...], option: str) -> dict:
+    from ..pipeline.variables import parse_assignment
+
+    out = {}
+    for text in values:
+        try:
+            name, value = parse_assignment(text)
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint=option) from None
+        out[name] = value
+    return out
+
+
+@click.command("run")
+@click.argument("pipeline", type=click.Path(dir_okay=False))
+@click.option("--set", "sets", multiple=True, metavar="NAME=VALUE", help="Override a ${variable} (repeatable).")
+@click.option("--input", "inputs", multiple=True, metavar="PATH", help="Input file or glob instead of the pipeline's inputs (repeatable).")
+@click.option("--out", "out_dir", default=None, type=click.Path(file_okay=False), help="Output folder (default: the pipeline's output_dir).")
+@click.option("--scheduler", default=None, metavar="ADDRESS", help="Dask distributed scheduler to submit to (tcp://host:8786).")
+@click.option("--workers", default=None, type=click.IntRange(min=1), help="Local Dask worker processes (default: cores).")
+@click.option("--serial", is_flag=True, help="Run every input in this process, one after another.")
+@click.option("--check", is_flag=True, help="Only check the pipeline and list its tasks; run nothing.")
+def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, check):
+    """Run a YAML PIPELINE on its inputs (several inputs run in parallel on Dask)."""
+    from ..pipeline import PipelineValidationError, load_pipeline, run_pipeline
+
+    overrides = _assignments(sets, "--set")
+    try:
+        plan = load_pipeline(pipeline, overrides=overrides, inputs=list(inputs) or None, output_dir=out_dir)
+    except PipelineValidationError as exc:
+        _fail(str(exc), 2)
+    n = len(plan.tasks)
+    console.print(f"{pipeline}: {n} task(s) ({len(plan.inputs)} input(s) x {n // max(len(plan.inputs), 1)} setting(s)), "
+                  f"outputs in {plan.output_dir}", highlight=False)
+    if check:
+        for t in plan.tasks:
+            console.print(f"  {t.input.name} {t.setting_text}: {', '.join(s.name for s in t.steps)}", highlight=False)
+        return
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
+                  console=err_console, transient=True, disable=n < 2) as progress:
+        bar = progress.add_task("meshes", total=n)
+
+        def done(row):
+            progress.advance(bar)
+            if row.get("status") != "ok":
+                err_console.print(f"[red]failed:[/red] {row.get('error')}", highlight=False)
+
+        rows = run_pipeline(plan, scheduler=scheduler, workers=workers, serial=serial, on_done=done)
+    _print_rows(rows)
+    if plan.writes_results and plan.results:
+        console.print(f"results: {plan.output_dir / (plan.results + '.csv')} and .json", highlight=False)
+    failed = [r for r in rows if r.get("status") != "ok"]
+    if failed:
+        if n == 1:
+            err_console.print(f"[red]error:[/red] {failed[0].get('error')}", highlight=False)
+        err_console.print(f"{len(failed)} of {n} task(s) failed", highlight=False)
+        sys.exit(1)
+
+
+def _print_rows(rows: list[dict]) -> None:
+    from ..pipeline.sweep import columns
+
+    cols = [c for c in columns(rows) if c not in ("outputs", "error")]
+    table = Table()
+    for c in cols:
+        table.add_column(c)
+    for r in rows:
+        cells = []
+        for c in cols:
+            v = r.get(c, "")
+            cells.append(Path(v).name if c == "input" else f"{v:.4g}" if isinstance(v, float) else str(v))
+        table.add_row(*cells)
+    console.print(table)
+
+
+@click.command("denoise")
+@click.argument("input_path", metavar="IN", type=click.Path(dir_okay=False))
+@click.argument("output_path", metavar="OUT", type=click.Path(dir_okay=False))
+@click.option("--method", required=True, help="A filter of ours (see `meshdenoise filters`).")
+@click.option("--param", "params", multiple=True, metavar="NAME=VALUE", help="A filter parameter (repeatable).")
+@click.option("--pinned", type=click.Choice(["boundary", "selection"]), default=None, help="Keep these vertices exactly fixed.")
+@click.option("--region-from-selection", is_flag=True, help="Move only the vertices selected in IN (PLY vertex flags).")
+@click.option("--preserve-volume", is_flag=True, help="Rescale so the enclosed volume equals the input's.")
+@click.option("--auto", "auto", is_flag=True, help="Choose the filter's parameters automatically (printed).")
+def denoise_command(input_path, output_path, method, params, pinned, region_from_selection, preserve_volume, auto):
+    """Denoise the mesh IN with one filter and write OUT (PLY, OBJ, OFF or STL; colours kept)."""
+    from ..pipeline.schema import Task
+    from ..pipeline.errors import PipelineValidationError
+    from ..pipeline.runner import run_task
+    from ..pipeline.steps import parse_step
+    from ..pipeline.errors import StepFailure
+
+    given = _assignments(params, "--param")
+    if pinned:
+        given["pinned"] = pinned
+    if region_from_selection:
+        given["region"] = _selected_vertices(input_path)
+    if preserve_volume:
+        given["preserve_volume"] = True
+    if auto:
+        given["parameters"] = "auto"
+    src, dst = Path(input_path), Path(output_path)
+    if not src.is_file():
+        _fail(f"{src}: no such file", 2)
+    if dst.resolve() == src.resolve():
+        _fail(f"{dst}: OUT is the input file; input files are never overwritten", 2)
+    from ..io import SUPPORTED_EXTENSIONS
+
+    if dst.suffix.lower() not in SUPPORTED_EXTENSIONS:
+        _fail(f"{dst}: unsupported extension {dst.suffix!r}; use one of {', '.join(SUPPORTED_EXTENSIONS)}", 2)
+    try:
+        from ..registry import get_filter
+
+        get_filter(method)
+        step = parse_step({method: given}, 1, "--method", None)
+    except KeyError as exc:
+        _fail(f"--method: {exc.args[0]}", 2)
+    except PipelineValidationError as exc:
+        _fail(str(exc).replace("--method: step 1 ", "--method ").replace("--method: ", ""), 2)
+    save = parse_step({"save": {"path": str(dst.resolve())}}, 2, "denoise", None)
+    task = Task(0, src.resolve(), {}, "", [step, save], {str(dst.resolve()): dst.resolve()})
+    try:
+        row = run_task(task, echo=lambda m: console.print(m, highlight=False))
+    except StepFailure as exc:
+        _fail(str(exc), 1)
+    console.print(f"{dst}: {row['vertices']} vertices, {row['faces']} faces, {method} in {row['seconds']:.2f} s", highlight=False)
+
+
+def _selected_vertices(path: str) -> list[int]:
+    """Indices of the vertices selected in a mesh file (MeshLab keeps the selection in PLY vertex flags)."""
+    import numpy as np
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    try:
+        ms.load_new_mesh(str(path))
+    except Exception as exc:
+        _fail(f"{path}: cannot be read ({exc})", 2)
+    selected = np.flatnonzero(ms.current_mesh().vertex_selection_array())
+    if selected.size == 0:
+        _fail(f"{path}: --region-from-selection: the file has no selected vertex (save the selection from MeshLab as PLY with flags)", 2)
+    return selected.tolist()
+
+
+@click.command("info")
+@click.argument("mesh", type=click.Path(dir_okay=False))
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of a table.")
+def info_command(mesh, as_json):
+    """Vertices, faces, bounding box, components, boundary loops, non-manifold and duplicate elements of MESH."""
+    from ..io import MeshFileError, load_mesh
+    from ..meshinfo import mesh_info
+
+    try:
+        m = load_mesh(mesh)
+    except MeshFileError as exc:
+        _fail(str(exc), 2)
+    info = mesh_info(m.V, m.F)
+    info["vertex_colors"] = m.vertex_colors is not None
+    if as_json:
+        click.echo(json.dumps(info, indent=1))
+        return
+    table = Table(title=str(mesh))
+    table.add_column("property")
+    table.add_column("value", justify="right")
+    for k, v in info.items():
+        text = ", ".join(f"{x:.6g}" for x in v) if isinstance(v, list) else f"{v:.6g}" if isinstance(v, float) else str(v)
+        table.add_row(k.replace("_", " "), text)
+    console.print(table)
+
+
+def _write_text(path: str | None, text: str) -> None:
+    if path is None:
+        click.echo(text, nl=False)
+        return
+    from ..io import atomic_path
+
+    with atomic_path(path) as tmp:
+        Path(tmp).write_text(text, encoding="utf-8")
+    err_console.print(f"written {path}", highlight=False)
+
+
+@click.command("mlx2yaml")
+@click.argument("script", type=click.Path(exists=True, dir_okay=False))
+@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False), help="Write here instead of stdout.")
+@click.option("--input", "input_glob", default="mesh.ply", show_default=True, help="The 'inputs' of the pipeline written.")
+def mlx2yaml_command(script, output, input_glob):
+    """Convert a MeshLab filter SCRIPT (.mlx) to a pipeline YAML (pymeshlab names)."""
+    import yaml
+
+    from ..pipeline.mlx import mlx_to_steps
+
+    try:
+        steps = mlx_to_steps(Path(script).read_text(encoding="utf-8"), script)
+    except ValueError as exc:
+        _fail(str(exc), 2)
+    doc = {"inputs": input_glob, "steps": steps + [{"save": {"path": "{stem}_out.ply"}}]}
+    _write_text(output, f"# converted from {Path(script).name} by meshdenoise mlx2yaml\n" + yaml.safe_dump(doc, sort_keys=False))
+
+
+@click.command("yaml2mlx")
+@click.argument("pipeline", type=click.Path(exists=True, dir_okay=False))
+@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False), help="Write here instead of stdout.")
+@click.option("--skip-other", is_flag=True, help="Leave out steps with no filter-script form (save, metrics, open3d.*).")
+def yaml2mlx_command(pipeline, output, skip_other):
+    """Convert the steps of a PIPELINE YAML to a MeshLab filter script (.mlx)."""
+    from ..pipeline.errors import PipelineValidationError
+    from ..pipeline.mlx import steps_to_mlx
+    from ..pipeline.yamlsource import load_yaml
+
+    try:
+        doc = load_yaml(Path(pipeline).read_text(encoding="utf-8"), pipeline)
+    except PipelineValidationError as exc:
+        _fail(str(exc), 2)
+    steps = doc.get("steps") if isinstance(doc, dict) else None
+    if not isinstance(steps, list):
+        _fail(f"{pipeline}: no 'steps' list", 2)
+    if skip_other:
+        from ..pipeline.steps import BUILTIN_STEPS
+
+        steps = [s for s in steps if (s if isinstance(s, str) else next(iter(s))) not in BUILTIN_STEPS
+                 and not (s if isinstance(s, str) else next(iter(s))).startswith("open3d.")]
+    try:
+        text = steps_to_mlx(steps)
+    except ValueError as exc:
+        _fail(f"{pipeline}: {exc}", 2)
+    _write_text(output, text)
+
+
+COMMANDS = [run_command, denoise_command, info_command, mlx2yaml_command, yaml2mlx_command]

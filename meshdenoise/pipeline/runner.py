@@ -1,0 +1,63 @@
+"""Running one task (an input under one setting): load, apply the steps, then write the outputs.
+
+Outputs of a task are written only once every step of it succeeded, each atomically
+(:func:`meshdenoise.io.save_mesh`): a failing step leaves no output of that task behind.
+Input files are only read.
+"""
+
+from __future__ import annotations
+
+import time
+import traceback
+from typing import Any, Callable
+
+from .errors import StepFailure
+from .schema import Task
+from .steps import RunContext, meshset_from_arrays, run_step
+
+__all__ = ["run_task", "run_task_safely"]
+
+
+def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
+    """Run one task and return its results row; raises :class:`StepFailure` naming input and step."""
+    from ..io import MeshFileError, load_mesh, save_mesh
+
+    start = time.perf_counter()
+    row: dict = {"input": str(task.input), **task.setting}
+    try:
+        mesh = load_mesh(task.input)
+    except MeshFileError as exc:
+        raise StepFailure(f"{task.input}: cannot load the input: {exc}") from None
+    ms = meshset_from_arrays(mesh.V, mesh.F, mesh.vertex_colors)
+    ctx = RunContext(ms=ms, input_path=task.input, input_arrays=(mesh.V, mesh.F), row=row, echo=echo)
+    ctx.resolve_path = lambda template: task.output_paths[template]
+    for step in task.steps:
+        try:
+            run_step(step, ctx)
+        except Exception as exc:  # any library error: name the input and the step
+            detail = str(exc) or type(exc).__name__
+            raise StepFailure(f"{task.input}: {step.where} failed: {type(exc).__name__}: {detail}") from exc
+    for path, V, F, colors, binary in ctx.staged:
+        save_mesh(path, V, F, colors, binary=binary)
+    V = ms.current_mesh()
+    row["vertices"] = V.vertex_number()
+    row["faces"] = V.face_number()
+    row["seconds"] = round(time.perf_counter() - start, 4)
+    row["status"] = "ok"
+    return row
+
+
+def run_task_safely(task: Task) -> dict:
+    """:func:`run_task`, with a failure turned into a row (``status: failed``, ``error``); for batches."""
+    try:
+        return run_task(task)
+    except StepFailure as exc:
+        return {"input": str(task.input), **task.setting, "status": "failed", "error": str(exc)}
+    except Exception as exc:  # a bug or an I/O error while writing: still one row, never a lost batch
+        return {
+            "input": str(task.input),
+            **task.setting,
+            "status": "failed",
+            "error": f"{task.input}: {type(exc).__name__}: {exc}",
+            "traceback": traceback.format_exc(limit=5),
+        }

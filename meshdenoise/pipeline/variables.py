@@ -1,0 +1,73 @@
+"""``${name}`` variables in pipeline parameters, and ``--set name=value`` overrides.
+
+A value that is exactly ``${mu}`` takes the variable's value with its type (a number
+stays a number); ``${mu}`` inside a longer string is replaced by its text.
+"""
+
+from __future__ import annotations
+
+import difflib
+import re
+from typing import Any
+
+import yaml
+
+from .errors import PipelineValidationError
+from .yamlsource import LineDict, LineList
+
+__all__ = ["substitute", "parse_assignment", "VARIABLE"]
+
+VARIABLE = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
+
+
+def parse_assignment(text: str) -> tuple[str, Any]:
+    """``"mu=5"`` -> ``("mu", 5)``: the value is read as YAML (numbers, booleans, lists).
+
+    >>> parse_assignment("mu=0.5"), parse_assignment("name=a b")
+    (('mu', 0.5), ('name', 'a b'))
+    """
+    if "=" not in text:
+        raise ValueError(f"expected NAME=VALUE, got {text!r}")
+    name, _, raw = text.partition("=")
+    name = name.strip()
+    if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+        raise ValueError(f"{text!r}: {name!r} is not a variable name (letters, digits, _)")
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else ""
+    except yaml.YAMLError:
+        value = raw
+    return name, value
+
+
+def substitute(value: Any, variables: dict, where: str) -> Any:
+    """A copy of ``value`` (nested dicts/lists) with every ``${name}`` replaced; line information kept."""
+    if isinstance(value, str):
+        whole = VARIABLE.fullmatch(value.strip())
+        if whole:
+            return _lookup(whole.group(1), variables, where)
+        return VARIABLE.sub(lambda m: str(_lookup(m.group(1), variables, where)), value)
+    if isinstance(value, dict):
+        # Keys too: a sweep may choose the step itself (``- ${method}: {}``).
+        out = LineDict((substitute(k, variables, where) if isinstance(k, str) else k, substitute(v, variables, where)) for k, v in value.items())
+        out.line = getattr(value, "line", 0)
+        lines = getattr(value, "key_lines", {})
+        out.key_lines = {substitute(k, variables, where) if isinstance(k, str) else k: v for k, v in lines.items()}
+        return out
+    if isinstance(value, list):
+        out = LineList(substitute(v, variables, where) for v in value)
+        out.line = getattr(value, "line", 0)
+        out.item_lines = getattr(value, "item_lines", [])
+        return out
+    return value
+
+
+def _lookup(name: str, variables: dict, where: str) -> Any:
+    if name not in variables:
+        hint = difflib.get_close_matches(name, list(variables), n=1)
+        extra = f" (did you mean '{hint[0]}'?)" if hint else ""
+        known = ", ".join(sorted(variables)) or "none"
+        raise PipelineValidationError(
+            f"{where}: undefined variable '${{{name}}}'{extra}; defined: {known} "
+            "(define it under 'variables:' or pass --set NAME=VALUE)"
+        )
+    return variables[name]
