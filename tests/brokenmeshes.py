@@ -37,6 +37,7 @@ class Case:
     match: str = ""  # regex the error message (refuse) or the joined notes (read) must match
     same_faces_geometry: bool = False  # STL: compare V[F] (vertex order is the reader's)
     colors: np.ndarray | None = None  # intended RGBA or RGB colours in [0, 1], when the file has them
+    info: dict | None = None  # facts `meshdenoise info --json` must report (components, non-manifold...)
 
     @property
     def ext(self) -> str:
@@ -216,18 +217,22 @@ def cases() -> list[Case]:
     read("zero_area_duplicate_faces.ply", ply_bytes(coll_V, zdup_F, binary=True), coll_V, zdup_F, match=r"(?i)duplicate")
     iso_V = np.vstack([V[:3], [[7.0, 7, 7]], V[3:], [[9.0, 9, 9]]])
     iso_F = np.where(OCTA_F >= 3, OCTA_F + 1, OCTA_F)
-    read("unreferenced_vertices.off", off_text(iso_V, iso_F), iso_V, iso_F, match=r"(?i)unreferenced")
+    read("unreferenced_vertices.off", off_text(iso_V, iso_F), iso_V, iso_F, match=r"(?i)unreferenced",
+         info={"unreferenced_vertices": 2})
     read("unreferenced_vertices.obj", obj_text(iso_V, iso_F), iso_V, iso_F, match=r"(?i)unreferenced")
     fin_V = np.array([[0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -1, 0], [0.5, 0, 1]], dtype=np.float64)
     fin_F = np.array([[0, 1, 2], [1, 0, 3], [0, 1, 4]])  # three faces on edge (0, 1)
-    read("nonmanifold_edge.off", off_text(fin_V, fin_F), fin_V, fin_F, match=r"(?i)non-manifold")
+    read("nonmanifold_edge.off", off_text(fin_V, fin_F), fin_V, fin_F, match=r"(?i)non-manifold",
+         info={"non_manifold_edges": 1})
     read("nonmanifold_edge.stl", stl_binary(fin_V, fin_F), fin_V, fin_F, same_faces_geometry=True)
     bow_V = np.array([[0, 0, 0], [1, 0, 0], [1, 1, 0], [-1, 0, 0], [-1, -1, 0]], dtype=np.float64)
     bow_F = np.array([[0, 1, 2], [0, 3, 4]])  # two triangles touching at vertex 0 only
-    read("nonmanifold_vertex.obj", obj_text(bow_V, bow_F), bow_V, bow_F)
+    read("nonmanifold_vertex.obj", obj_text(bow_V, bow_F), bow_V, bow_F,
+         info={"non_manifold_vertices": 1, "connected_components": 1})
     comp_V = np.vstack([V, V + 5.0, V * 0.5 - 4.0])
     comp_F = np.vstack([F, F + len(V), F + 2 * len(V)])
-    read("three_components.ply", ply_bytes(comp_V, comp_F, binary=False), comp_V, comp_F)
+    read("three_components.ply", ply_bytes(comp_V, comp_F, binary=False), comp_V, comp_F,
+         info={"connected_components": 3, "closed": True})
     read("three_components.stl", stl_ascii(comp_V, comp_F), comp_V, comp_F, same_faces_geometry=True)
 
     # --- colours (kept)
@@ -244,7 +249,7 @@ def cases() -> list[Case]:
     refuse("html_named.obj", b"<!DOCTYPE html><html><body>404 Not Found</body></html>\n", r"(?i)no vertices|not")
     pts = np.round(rng.normal(size=(20, 3)), 3)
     read("point_cloud.ply", ply_bytes(pts, np.zeros((0, 3), int), binary=True), pts, np.zeros((0, 3), int),
-         match=r"(?i)no faces|point cloud")
+         match=r"(?i)no faces|point cloud", info={"vertices": 20, "faces": 0})
     read("point_cloud.off", off_text(pts, np.zeros((0, 3), int)), pts, np.zeros((0, 3), int),
          match=r"(?i)no faces|point cloud")
     read("point_cloud.obj", obj_text(pts, []), pts, np.zeros((0, 3), int), match=r"(?i)no faces|point cloud")
