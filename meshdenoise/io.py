@@ -134,6 +134,12 @@ def load_mesh(path: str | os.PathLike) -> MeshFile:
     except (ValueError, IndexError, struct.error, OverflowError, MemoryError) as exc:
         # Any other parse failure is still a malformed file: say so with the file name.
         raise MeshFileError(f"{path}: cannot be read as {path.suffix.lower()[1:].upper()} ({exc})") from None
+    bad = np.flatnonzero(~np.isfinite(np.asarray(V, dtype=np.float64)).all(axis=1)) if len(V) else []
+    if len(bad):
+        raise MeshFileError(
+            f"{path}: {len(bad)} {'vertex' if len(bad) == 1 else 'vertices'} with a NaN or infinite coordinate "
+            f"(first: vertex {bad[0]} = {np.asarray(V)[bad[0]].tolist()})"
+        )
     try:
         V, F = check_mesh_arrays(V, F, allow_no_faces=True)
     except (MeshValidationError, TypeError) as exc:
