@@ -400,6 +400,8 @@ def _read_obj(data: bytes, notes: list[str]):
         if "\n" not in text:
             notes.append("CR-only (classic Mac) line endings")
         text = text.replace("\r\n", "\n").replace("\r", "\n")
+    if text.rstrip(" \t") and not text.rstrip(" \t").endswith("\n") and re.search(r"^[ \t]*[vf][ \t][^\n]*\Z", text, re.M):
+        notes.append("the last line has no end of line: the file may be truncated (OBJ has no counts to check)")
     if "#" in text:
         text = re.sub(r"#[^\n]*", "", text)
     if "\\\n" in text:  # line continuation: keep the line count so that messages stay right
