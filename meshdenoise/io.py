@@ -553,15 +553,16 @@ def _read_ply(data: bytes, notes: list[str]):
     values = {}
     if fmt == "ascii":
         body = _decode_text(data[offset:], "an ASCII PLY")
-        lines = [ln.split() for ln in body.splitlines()]
-        lines = [t for t in lines if t]
+        lines = [ln for ln in body.splitlines() if ln and not ln.isspace()]
         pos = 0
         for name, count, props in elements:
             if pos + count > len(lines):
                 raise _Malformed(
                     f"truncated: element '{name}' declares {count} records, the file ends after {len(lines) - pos}"
                 )
-            values[name] = _ply_ascii_element(lines[pos:pos + count], props, name)
+            block = lines[pos:pos + count]
+            fast = _ply_ascii_fast(block, props, name)
+            values[name] = fast if fast is not None else _ply_ascii_element([ln.split() for ln in block], props, name)
             pos += count
     else:
         endian = "<" if fmt == "binary_little_endian" else ">"
@@ -618,6 +619,33 @@ def _ply_binary_element(data, offset, count, props, name, endian):
     except ValueError:
         raise _Malformed(f"truncated: the file ends inside element '{name}'") from None
     return {p: (out[p] if p in lists else np.array(out[p])) for p, _ in props}, pos
+
+
+def _ply_ascii_fast(block: list[str], props, name):
+    """An ASCII element parsed by numpy when every record has the layout of the first one; else None."""
+    T = _fast_table(block)
+    if T is None:
+        return None
+    out, col = {}, 0
+    for pname, t in props:
+        if isinstance(t, str):
+            if col >= T.shape[1]:
+                return None
+            out[pname] = T[:, col]
+            col += 1
+        else:
+            if col >= T.shape[1] or not (T[:, col] == T[0, col]).all():
+                return None
+            k = int(T[0, col])
+            if k < 0 or col + 1 + k > T.shape[1]:
+                return None
+            L = T[:, col + 1:col + 1 + k]
+            if not np.all(np.mod(L, 1) == 0):
+                r = int(np.flatnonzero((np.mod(L, 1) != 0).any(axis=1))[0])
+                raise _Malformed(f"element '{name}' record {r}: list '{pname}' holds a non-integer {L[r].tolist()}")
+            out[pname] = L.astype(np.int64)
+            col += 1 + k
+    return out if col == T.shape[1] else None
 
 
 def _ply_ascii_element(rows, props, name):

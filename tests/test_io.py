@@ -212,3 +212,16 @@ def test_load_arrays_matches_load_mesh(tmp_path):
     V1, F1 = load_arrays(p)
     np.testing.assert_array_equal(V1, V)
     np.testing.assert_array_equal(F1, F)
+
+
+def test_a_fifo_or_device_is_refused_at_once_instead_of_blocking(tmp_path):
+    import os
+
+    fifo = tmp_path / "pipe.ply"
+    os.mkfifo(fifo)  # opening it for reading would block until a writer comes
+    with pytest.raises(MeshFileError, match=r"pipe\.ply: not a regular file"):
+        load_mesh(fifo)
+    dev = tmp_path / "zero.stl"
+    dev.symlink_to("/dev/zero")  # endless bytes
+    with pytest.raises(MeshFileError, match=r"zero\.stl: not a regular file"):
+        load_mesh(dev)
