@@ -50,7 +50,9 @@ class _Malformed(Exception):
 
 def _check_extension(path: Path) -> None:
     if path.suffix.lower() not in SUPPORTED_EXTENSIONS:
-        raise MeshFileError(f"{path}: unsupported extension {path.suffix!r}; use one of {', '.join(SUPPORTED_EXTENSIONS)}")
+        raise MeshFileError(
+            f"{path}: unsupported extension {path.suffix!r}; use one of {', '.join(SUPPORTED_EXTENSIONS)}"
+        )
 
 
 @dataclass
@@ -161,8 +163,10 @@ def topology_notes(V: np.ndarray, F: np.ndarray) -> list[str]:
     Examples
     --------
     >>> import numpy as np
-    >>> topology_notes(np.zeros((4, 3)), np.array([[0, 1, 2], [2, 1, 0]]))
-    ['1 unreferenced vertices (kept; filters leave them in place)', '1 duplicate faces (same vertices as an earlier face)']
+    >>> for note in topology_notes(np.zeros((4, 3)), np.array([[0, 1, 2], [2, 1, 0]])):
+    ...     print(note)
+    1 unreferenced vertices (kept; filters leave them in place)
+    1 duplicate faces (same vertices as an earlier face)
     """
     if F.shape[0] == 0:
         return [f"no faces: a point cloud of {V.shape[0]} vertices (filters need faces)"]
@@ -250,7 +254,7 @@ def _int_table(rows, what: str, linenos=None) -> np.ndarray:
     return A.astype(np.int64)
 
 
-def _triangulate(groups: list[tuple[np.ndarray, np.ndarray]], n_faces: int, notes: list[str]) -> np.ndarray:
+def _triangulate(groups: list[tuple[np.ndarray, np.ndarray]], notes: list[str]) -> np.ndarray:
     """Triangles from polygons given as ``(face ids (m,), indices (m, k))`` groups, in file order.
 
     A polygon ``(a, b, c, d, ...)`` becomes the fan ``(a, b, c), (a, c, d), ...``.
@@ -269,7 +273,9 @@ def _triangulate(groups: list[tuple[np.ndarray, np.ndarray]], n_faces: int, note
     T, key = np.concatenate(tris), np.concatenate(keys)
     T = T[np.argsort(key, kind="stable")]
     if n_poly:
-        notes.append(f"{n_poly} polygons with more than 3 vertices triangulated into fans ({T.shape[0]} triangles in all)")
+        notes.append(
+            f"{n_poly} polygons with more than 3 vertices triangulated into fans ({T.shape[0]} triangles in all)"
+        )
     return T
 
 
@@ -332,7 +338,7 @@ def _read_off(data: bytes, notes: list[str]):
             P = P.astype(np.int64)
             ids = np.arange(nf)
             _check_indices(P, ids, nv)
-            return V, _triangulate([(ids, P)], nf, notes), colors
+            return V, _triangulate([(ids, P)], notes), colors
     F = _polygon_rows([ln.split() for _, ln in flines], [i for i, _ in flines], nv, notes)
     return V, F, colors
 
@@ -379,7 +385,7 @@ def _polygon_rows(rows: list[list[str]], linenos: list[int], nv: int, notes: lis
             P = _int_table([rows[i][1:1 + k] for i in sel], "face", [linenos[i] for i in sel])
             _check_indices(P, sel, nv)
             groups.append((sel, P))
-    return _triangulate(groups, len(rows), notes)
+    return _triangulate(groups, notes)
 
 
 # ------------------------------------------------------------------------------------ OBJ
@@ -400,7 +406,8 @@ def _read_obj(data: bytes, notes: list[str]):
         if "\n" not in text:
             notes.append("CR-only (classic Mac) line endings")
         text = text.replace("\r\n", "\n").replace("\r", "\n")
-    if text.rstrip(" \t") and not text.rstrip(" \t").endswith("\n") and re.search(r"^[ \t]*[vf][ \t][^\n]*\Z", text, re.M):
+    tail = text.rstrip(" \t")
+    if tail and not tail.endswith("\n") and re.search(r"^[ \t]*[vf][ \t][^\n]*\Z", tail, re.M):
         notes.append("the last line has no end of line: the file may be truncated (OBJ has no counts to check)")
     if "#" in text:
         text = re.sub(r"#[^\n]*", "", text)
@@ -415,7 +422,8 @@ def _read_obj(data: bytes, notes: list[str]):
     if unknown:
         notes.append(f"{sum(unknown.values())} lines with unknown statements ignored ({', '.join(list(unknown)[:5])})")
     if keywords.get("l", 0) + keywords.get("p", 0):
-        notes.append(f"{keywords.get('l', 0) + keywords.get('p', 0)} line and point elements (l, p) ignored: only faces are read")
+        n_lp = keywords.get("l", 0) + keywords.get("p", 0)
+        notes.append(f"{n_lp} line and point elements (l, p) ignored: only faces are read")
 
     def lineno(regex, k):
         pos = next(mo.start() for j, mo in enumerate(regex.finditer(text)) if j == k)
@@ -439,7 +447,8 @@ def _read_obj(data: bytes, notes: list[str]):
         groups_raw = []
         for L in np.unique(lengths):
             ids = np.flatnonzero(lengths == L)
-            groups_raw.append((ids, _float_table([rows[i] for i in ids], "face", None, lambda k, ids=ids: lineno(_OBJ_F, ids[k]))))
+            where = lambda k, ids=ids: lineno(_OBJ_F, ids[k])  # noqa: E731
+            groups_raw.append((ids, _float_table([rows[i] for i in ids], "face", None, where)))
     nv_at = None
     if any((R < 0).any() for _, R in groups_raw):  # relative indices: count the vertices before each face
         v_pos = np.fromiter((mo.start() for mo in _OBJ_V.finditer(text)), dtype=np.int64)
@@ -468,7 +477,7 @@ def _read_obj(data: bytes, notes: list[str]):
                 f"(the file has {n} vertices{defined})"
             )
         groups.append((ids, P))
-    return V, _triangulate(groups, len(f_lines), notes), colors
+    return V, _triangulate(groups, notes), colors
 
 
 def _obj_vertices(bodies, lineno, notes):
@@ -510,7 +519,9 @@ def _ply_header(data: bytes):
         raise _Malformed("not a PLY file: it does not start with the line 'ply'")
     m = re.search(rb"end_header[ \t]*\r?\n", data[:1 << 20])
     if not m:
-        raise _Malformed("the PLY header has no 'end_header' line (file truncated inside the header, or not a PLY file)")
+        raise _Malformed(
+            "the PLY header has no 'end_header' line (file truncated inside the header, or not a PLY file)"
+        )
     try:
         head = data[:m.start()].decode("ascii").splitlines()
     except UnicodeDecodeError:
@@ -666,7 +677,9 @@ def _ply_ascii_element(rows, props, name):
                 else:
                     k = int(r[pos])
                     if k < 0 or pos + 1 + k > len(r):
-                        raise _Malformed(f"element '{name}' record {i}: list of {k} items but only {len(r) - pos - 1} numbers")
+                        raise _Malformed(
+                            f"element '{name}' record {i}: list of {k} items but only {len(r) - pos - 1} numbers"
+                        )
                     out[pname].append(np.array(r[pos + 1:pos + 1 + k], dtype=np.float64))
                     pos += 1 + k
         except IndexError:
@@ -704,7 +717,7 @@ def _ply_mesh(elements, values, notes):
         P = idx.astype(np.int64)
         ids = np.arange(P.shape[0])
         _check_indices(P, ids, n)
-        return V, _triangulate([(ids, P)], P.shape[0], notes), colors
+        return V, _triangulate([(ids, P)], notes), colors
     lengths = np.fromiter((len(p) for p in idx), dtype=np.int64, count=len(idx))
     groups = []
     for k in np.unique(lengths):
@@ -715,7 +728,7 @@ def _ply_mesh(elements, values, notes):
         P = P.astype(np.int64)
         _check_indices(P, ids, n)
         groups.append((ids, P))
-    return V, _triangulate(groups, len(idx), notes), colors
+    return V, _triangulate(groups, notes), colors
 
 
 # ------------------------------------------------------------------------------------ STL
