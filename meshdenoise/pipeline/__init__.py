@@ -1,8 +1,10 @@
 """Declarative YAML pipelines: check a pipeline file, run it on one or many inputs, write a results table.
 
->>> from meshdenoise.pipeline import load_pipeline, run_pipeline   # doctest: +SKIP
->>> plan = load_pipeline("pipelines/scan_cleanup.yaml", overrides={"mu": 2})  # doctest: +SKIP
->>> rows = run_pipeline(plan)  # doctest: +SKIP
+Use::
+
+    from meshdenoise.pipeline import load_pipeline, run_pipeline
+    plan = load_pipeline("pipelines/scan_cleanup.yaml", overrides={"mu": 2})
+    rows = run_pipeline(plan)
 
 See docs/pipelines.md for the file format.
 """

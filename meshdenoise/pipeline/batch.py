@@ -52,7 +52,13 @@ def run_tasks(
     cluster = None
     if scheduler is None:
         n = workers or max(1, min(os.cpu_count() or 1, len(tasks)))
-        cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
+        try:
+            cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
+        except Exception as exc:  # e.g. a script without an ``if __name__ == "__main__"`` guard
+            import warnings
+
+            warnings.warn(f"local Dask workers could not start ({exc}); running the tasks one after another", UserWarning, stacklevel=2)
+            return run_tasks(tasks, serial=True, on_done=on_done)
         client = Client(cluster)
     else:
         client = Client(scheduler, timeout="20s")

@@ -1,0 +1,189 @@
+"""YAML pipelines: validation (file, line, step; exit 2; nothing written), failures (exit 1, inputs untouched), sweeps, Dask."""
+
+import hashlib
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import meshdenoise as md
+from meshdenoise.cli import cli
+from meshdenoise.io import load_arrays, load_mesh, save_mesh
+from meshdenoise.shapes import icosphere
+
+
+def _sphere_file(tmp_path, name="s.ply", rho=0.02, seed=0):
+    V, F = icosphere(2)
+    Vn, _ = md.add_normal_noise((V, F), rho=rho, seed=seed)
+    return save_mesh(tmp_path / name, Vn, F)
+
+
+def _write(tmp_path, text):
+    p = tmp_path / "p.yaml"
+    p.write_text(text)
+    return p
+
+
+def _run(*args):
+    return CliRunner().invoke(cli, [str(a) for a in args])
+
+
+def _digest(path):
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+@pytest.mark.parametrize(
+    "steps, line, expected",
+    [
+        ("  - sobolv: {mu: 1}\n", 4, "did you mean 'sobolev'"),
+        ("  - sobolev: {mu: 1}\n  - apply_coord_laplacian_smoothing: {stepsmothnum: 3}\n", 5, "did you mean 'stepsmoothnum'"),
+        ("  - sobolev:\n      mu: -1\n", 5, "out of range"),
+        ("  - apply_coord_laplacian_smoothing: {stepsmoothnum: 2.5}\n", 4, "must be an integer"),
+        ("  - compute_normal_per_vertex: {weightmode: By Angel}\n", 4, "did you mean 'By Angle'"),
+        ("  - filtering: {pinned: boundry}\n", 4, "did you mean 'boundary'"),
+        ("  - sobolev: {mu: '${nu}'}\n", 4, "undefined variable"),
+        ("  - metrics: {reference: {before: clean}}\n", 4, "no earlier step has label 'clean'"),
+    ],
+)
+def test_validation_errors_name_file_line_step_and_write_nothing(tmp_path, steps, line, expected):
+    src = _sphere_file(tmp_path)
+    p = _write(tmp_path, f"inputs: s.ply\noutput_dir: {tmp_path / 'out'}\nsteps:\n{steps}  - save: {{path: x.ply}}\n")
+    result = _run("run", p)
+    assert result.exit_code == 2, result.output
+    assert f"{p}:{line}" in result.output and expected in result.output, result.output
+    assert not (tmp_path / "out").exists()
+    assert src.is_file()
+
+
+def test_missing_input_and_overwriting_input_are_validation_errors(tmp_path):
+    _sphere_file(tmp_path)
+    p = _write(tmp_path, "inputs: [s.ply, nothere.ply]\nsteps: [sobolev]\n")
+    result = _run("run", p)
+    assert result.exit_code == 2 and "nothere.ply" in result.output and f"{p}:1" in result.output
+    p = _write(tmp_path, f"inputs: s.ply\nsteps:\n  - save: {{path: {tmp_path / 's.ply'}}}\n")
+    result = _run("run", p)
+    assert result.exit_code == 2 and "overwrite the input" in result.output
+
+
+def test_runtime_failure_exit_1_names_step_no_partial_output_input_untouched(tmp_path):
+    src = _sphere_file(tmp_path)
+    before = _digest(src)
+    out = tmp_path / "out"
+    # The first save is staged; preserve_volume then fails on a flat mesh (no volume): nothing may be written.
+    from meshdenoise.shapes import grid
+
+    V, F = grid(6, 6)
+    save_mesh(tmp_path / "flat.ply", V, F)
+    flat_before = _digest(tmp_path / "flat.ply")
+    p = _write(tmp_path, f"inputs: flat.ply\noutput_dir: {out}\nsteps:\n  - save: {{path: a.ply}}\n  - sobolev: {{preserve_volume: true}}\n  - save: {{path: b.ply}}\n")
+    result = _run("run", p)
+    assert result.exit_code == 1, result.output
+    assert "flat.ply" in result.output and "step 2 'sobolev'" in result.output and f"{p}:5" in result.output
+    assert not out.exists() or not any(out.iterdir())
+    assert _digest(tmp_path / "flat.ply") == flat_before and _digest(src) == before
+
+
+def test_our_filter_pymeshlab_open3d_steps_match_direct_calls(tmp_path):
+    import pymeshlab
+
+    src = _sphere_file(tmp_path)
+    out = tmp_path / "out"
+    p = _write(tmp_path, f"variables: {{mu: 0.5}}\ninputs: s.ply\noutput_dir: {out}\nsteps:\n"
+               "  - sobolev: {mu: '${mu}', pinned: boundary}\n  - apply_coord_laplacian_smoothing: {stepsmoothnum: 2}\n"
+               "  - open3d.filter_smooth_simple: {number_of_iterations: 2}\n  - save: {path: r.ply}\n")
+    assert _run("run", p, "--set", "mu=2").exit_code == 0
+    V, F = load_arrays(src)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(md.sobolev((V, F), mu=2.0)[0], F.astype(np.int32)))
+    ms.apply_coord_laplacian_smoothing(stepsmoothnum=2)
+    import open3d as o3d
+
+    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(ms.current_mesh().vertex_matrix()), o3d.utility.Vector3iVector(F))
+    expected = np.asarray(m.filter_smooth_simple(number_of_iterations=2).vertices)
+    got, _ = load_arrays(out / "r.ply")
+    np.testing.assert_allclose(got, expected, atol=1e-6)  # binary PLY stores float32
+
+
+def test_sweep_writes_csv_and_json_one_row_per_setting_and_input(tmp_path):
+    _sphere_file(tmp_path, "a.ply", seed=1)
+    _sphere_file(tmp_path, "b.ply", seed=2)
+    out = tmp_path / "out"
+    p = _write(tmp_path, f"inputs: ['a.ply', 'b.ply']\noutput_dir: {out}\nsteps:\n  - add_noise: {{rho: 0.01, label: clean}}\n"
+               "  - sobolev: {mu: '${mu}'}\n  - metrics: {reference: {before: clean}}\n  - save: {path: '{stem}_{setting}.ply'}\n"
+               "sweep: {mu: [0.5, 2]}\n")
+    result = _run("run", p, "--serial")
+    assert result.exit_code == 0, result.output
+    rows = json.loads((out / "results.json").read_text())
+    assert sorted((r["input"].split("/")[-1], r["mu"]) for r in rows) == [("a.ply", 0.5), ("a.ply", 2), ("b.ply", 0.5), ("b.ply", 2)]
+    csv_lines = (out / "results.csv").read_text().splitlines()
+    assert len(csv_lines) == 5 and "snr" in csv_lines[0]
+    for r in rows:  # the SNR is recomputed here from the written files and an independent noise draw
+        V, F = load_arrays(tmp_path / r["input"].split("/")[-1])
+        Vn, _ = md.add_normal_noise((V, F), rho=0.01, seed=0)
+        Y, _ = load_arrays(out / f"{r['input'].split('/')[-1][0]}_mu={r['mu']}.ply")
+        assert abs(md.snr(V, Y) - r["snr"]) < 1e-3
+        np.testing.assert_allclose(Y, md.sobolev((Vn, F), mu=float(r["mu"]))[0], atol=1e-6)
+
+
+def test_shipped_scan_cleanup_on_range_scan(tmp_path):
+    out = tmp_path / "out"
+    result = _run("run", "pipelines/scan_cleanup.yaml", "--out", out, "--serial")
+    assert result.exit_code == 0, result.output
+    written = list(out.glob("*_clean.ply"))
+    assert [w.name for w in written] == ["face000_clean.ply"]
+    from meshdenoise.meshinfo import mesh_info
+
+    info = mesh_info(*load_arrays(written[0]))
+    assert info["unreferenced_vertices"] == 0 and info["duplicate_vertices"] == 0 and info["non_manifold_edges"] == 0
+
+
+def test_dask_local_cluster_batch_with_one_corrupt_mesh_matches_serial(tmp_path):
+    from distributed import LocalCluster
+
+    inputs = tmp_path / "in"
+    inputs.mkdir()
+    for k in range(19):
+        V, F = icosphere(1)
+        Vn, _ = md.add_normal_noise((V, F), rho=0.02, seed=k)
+        save_mesh(inputs / f"m{k:02d}.ply", Vn, F)
+    (inputs / "m19.ply").write_bytes(b"ply\nformat ascii 1.0\nelement vertex 3\nthis is not a mesh\n")
+    digests = {p.name: _digest(p) for p in inputs.iterdir()}
+    text = "inputs: 'in/*.ply'\nsteps:\n  - sobolev: {mu: 1}\n  - save: {path: '{stem}_out.ply'}\n"
+    p = _write(tmp_path, text)
+    serial = _run("run", p, "--out", tmp_path / "serial", "--serial")
+    assert serial.exit_code == 1
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None) as cluster:
+        result = _run("run", p, "--out", tmp_path / "dask", "--scheduler", cluster.scheduler_address)
+    assert result.exit_code == 1, result.output
+    rows = json.loads((tmp_path / "dask" / "results.json").read_text())
+    assert len(rows) == 20
+    failed = [r for r in rows if r["status"] != "ok"]
+    assert len(failed) == 1 and "m19.ply" in failed[0]["error"]
+    for k in range(19):
+        name = f"m{k:02d}_out.ply"
+        assert _digest(tmp_path / "dask" / name) == _digest(tmp_path / "serial" / name)
+    assert not (tmp_path / "dask" / "m19_out.ply").exists()
+    assert {p.name: _digest(p) for p in inputs.iterdir()} == digests
+
+
+def test_denoise_command_pinned_boundary_and_preserve_volume(tmp_path):
+    from meshdenoise.shapes import grid
+    from meshdenoise.geometry import signed_volume
+
+    V, F = grid(8, 8)
+    V = V + np.random.default_rng(0).normal(scale=0.01, size=V.shape)
+    save_mesh(tmp_path / "g.ply", V, F)
+    V32, _ = load_arrays(tmp_path / "g.ply")
+    assert _run("denoise", tmp_path / "g.ply", tmp_path / "o.ply", "--method", "filtering", "--param", "iterations=5", "--pinned", "boundary").exit_code == 0
+    W, _ = load_arrays(tmp_path / "o.ply")
+    ops = md.get_operators(F, len(V))
+    np.testing.assert_array_equal(W[ops.boundary_vertices], V32[ops.boundary_vertices])
+    assert not np.allclose(W, V32)
+    S, SF = _sphere_file(tmp_path, "s.ply"), None
+    assert _run("denoise", S, tmp_path / "v.ply", "--method", "sobolev", "--param", "mu=5", "--preserve-volume").exit_code == 0
+    X, F2 = load_arrays(S)
+    Y, _ = load_arrays(tmp_path / "v.ply")
+    assert abs(signed_volume(Y, F2) / signed_volume(X, F2) - 1) < 1e-5  # float32 file round trip
+    bad = _run("denoise", S, tmp_path / "w.ply", "--method", "sobolev", "--param", "muu=5")
+    assert bad.exit_code == 2 and "did you mean 'mu'" in bad.output and not (tmp_path / "w.ply").exists()
