@@ -35,6 +35,7 @@ __all__ = [
     "atomic_path",
     "MeshFileError",
     "SUPPORTED_EXTENSIONS",
+    "topology_notes",
 ]
 
 SUPPORTED_EXTENSIONS = (".ply", ".obj", ".off", ".stl")
