@@ -1,9 +1,24 @@
-"""Reading and writing mesh files: errors name the file, writes are atomic."""
+"""Reading and writing mesh files: strict readers, errors that name the file, atomic writes.
+
+The readers are pure Python/numpy (no C++ loader), so a hostile or broken file can raise
+:class:`MeshFileError` but cannot crash the process: pymeshlab's loaders silently accept
+truncated STL and OFF files and out-of-range OBJ indices, drop NaN vertices and duplicate
+faces, read an OFF file with comments as empty and refuse CR line endings (see
+docs/robustness.md). Header counts are checked against the file size before anything is
+allocated. Unusual but legal input (polygons, CR or CRLF line endings, negative OBJ
+indices, STL's unshared corners) is read and described in :attr:`MeshFile.notes`.
+
+Writers are numpy too: PLY stores ``double`` coordinates, OFF and OBJ 17 significant
+digits, so a write-read round trip is exact (binary STL stores float32 by definition).
+"""
 
 from __future__ import annotations
 
 import os
+import re
+import struct
 import tempfile
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -20,18 +35,25 @@ __all__ = [
     "atomic_path",
     "MeshFileError",
     "SUPPORTED_EXTENSIONS",
+    "topology_notes",
 ]
 
 SUPPORTED_EXTENSIONS = (".ply", ".obj", ".off", ".stl")
 
 
 class MeshFileError(ValueError):
-    """A mesh file that cannot be read or written; the message names the file."""
+    """A mesh file that cannot be read or written; the message names the file and the problem."""
+
+
+class _Malformed(Exception):
+    """Raised by a reader; :func:`load_mesh` prefixes the path."""
 
 
 def _check_extension(path: Path) -> None:
     if path.suffix.lower() not in SUPPORTED_EXTENSIONS:
-        raise MeshFileError(f"{path}: unsupported extension {path.suffix!r}; use one of {', '.join(SUPPORTED_EXTENSIONS)}")
+        raise MeshFileError(
+            f"{path}: unsupported extension {path.suffix!r}; use one of {', '.join(SUPPORTED_EXTENSIONS)}"
+        )
 
 
 @dataclass
@@ -42,10 +64,13 @@ class MeshFile:
     ----------
     V : ndarray, shape (n, 3), float64
     F : ndarray, shape (m, 3), int64
+        Triangles; polygons of the file are split into fans ``(a, b, c), (a, c, d), ...``.
     vertex_colors : ndarray, shape (n, 4), float64 in [0, 1], or None
         RGBA, when the file has vertex colours.
     notes : list of str
-        What was done to read an unusual but legal file (e.g. polygons triangulated).
+        What was done to read an unusual but legal file (polygons triangulated, STL corners
+        merged, CR line endings) and legal oddities worth knowing (unreferenced vertices,
+        duplicate faces, non-manifold edges, no faces).
     path : Path
     """
 
@@ -56,44 +81,726 @@ class MeshFile:
     path: Path | None = None
 
 
+# ---------------------------------------------------------------------------------- reading
 def load_mesh(path: str | os.PathLike) -> MeshFile:
-    """Read a PLY, OBJ, OFF or STL file, keeping the file's vertex order and vertex colours.
+    """Read a PLY (ASCII or binary), OBJ, OFF or STL (ASCII or binary) file.
+
+    The file's vertex order is kept (STL, which has no shared vertices, gets its corners
+    merged by exact coordinates in order of first appearance). Polygons are split into
+    triangle fans. Vertex colours are read from PLY (``red green blue [alpha]``), COFF and
+    OBJ (``v x y z r g b``).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        A ``.ply``, ``.obj``, ``.off`` or ``.stl`` file.
+
+    Returns
+    -------
+    MeshFile
+        ``V (n, 3) float64``, ``F (m, 3) int64`` (``m`` may be 0: a point cloud), colours
+        and notes.
 
     Raises
     ------
     MeshFileError
-        Naming the file and the problem (missing, unreadable, bad indices, NaN...).
-    """
-    import pymeshlab
+        Naming the file and the problem: missing, empty, not the format of its extension,
+        truncated, a face index outside the vertices, a NaN or infinite coordinate.
 
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> p = pathlib.Path(tempfile.mkdtemp()) / "quad.obj"
+    >>> _ = p.write_text("v 0 0 0\\nv 1 0 0\\nv 1 1 0\\nv 0 1 0\\nf 1 2 3 4\\n")
+    >>> m = load_mesh(p)
+    >>> m.F.tolist(), m.notes
+    ([[0, 1, 2], [0, 2, 3]], ['1 polygons with more than 3 vertices triangulated into fans (2 triangles in all)'])
+    """
     path = Path(path)
     _check_extension(path)
-    if not path.is_file():
+    if not path.exists():
         raise MeshFileError(f"{path}: no such file")
-    ms = pymeshlab.MeshSet()
+    if not path.is_file():
+        raise MeshFileError(f"{path}: not a regular file")
     try:
-        ms.load_new_mesh(str(path))
-    except Exception as exc:  # pymeshlab raises its own exception type with a terse text
-        raise MeshFileError(f"{path}: cannot be read as a mesh ({exc})") from None
-    m = ms.current_mesh()
+        data = path.read_bytes()
+    except OSError as exc:
+        raise MeshFileError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if not data.strip():
+        raise MeshFileError(f"{path}: the file is empty" + (" (whitespace only)" if data else ""))
+    reader = _READERS[path.suffix.lower()]
+    notes: list[str] = []
     try:
-        V, F = check_mesh_arrays(m.vertex_matrix(), m.face_matrix(), allow_no_faces=True)
+        V, F, colors = reader(data, notes)
+    except _Malformed as exc:
+        raise MeshFileError(f"{path}: {exc}") from None
+    except (ValueError, IndexError, struct.error, OverflowError, MemoryError) as exc:
+        # Any other parse failure is still a malformed file: say so with the file name.
+        raise MeshFileError(f"{path}: cannot be read as {path.suffix.lower()[1:].upper()} ({exc})") from None
+    bad = np.flatnonzero(~np.isfinite(np.asarray(V, dtype=np.float64)).all(axis=1)) if len(V) else []
+    if len(bad):
+        raise MeshFileError(
+            f"{path}: {len(bad)} {'vertex' if len(bad) == 1 else 'vertices'} with a NaN or infinite coordinate "
+            f"(first: vertex {bad[0]} = {np.asarray(V)[bad[0]].tolist()})"
+        )
+    try:
+        V, F = check_mesh_arrays(V, F, allow_no_faces=True)
     except (MeshValidationError, TypeError) as exc:
         raise MeshFileError(f"{path}: {exc}") from None
-    colors = m.vertex_color_matrix() if m.has_vertex_color() else None
-    return MeshFile(V, F, colors, [], path)
+    notes += topology_notes(V, F)
+    return MeshFile(V, F, colors, notes, path)
 
 
 def load_arrays(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
-    """Read a triangle mesh file into ``(V (n, 3) float64, F (m, 3) int64)``, keeping the file's vertex order."""
+    """Read a mesh file into ``(V (n, 3) float64, F (m, 3) int64)``; see :func:`load_mesh`."""
     mesh = load_mesh(path)
     return mesh.V, mesh.F
 
 
+def topology_notes(V: np.ndarray, F: np.ndarray) -> list[str]:
+    """Legal oddities of a mesh, in words: no faces, unreferenced vertices, degenerate,
+    duplicate faces, non-manifold edges. Empty for a clean manifold mesh.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> for note in topology_notes(np.zeros((4, 3)), np.array([[0, 1, 2], [2, 1, 0]])):
+    ...     print(note)
+    1 unreferenced vertices (kept; filters leave them in place)
+    1 duplicate faces (same vertices as an earlier face)
+    """
+    if F.shape[0] == 0:
+        return [f"no faces: a point cloud of {V.shape[0]} vertices (filters need faces)"]
+    notes = []
+    n = V.shape[0]
+    used = np.zeros(n, dtype=bool)
+    used[F.ravel()] = True
+    if not used.all():
+        notes.append(f"{int((~used).sum())} unreferenced vertices (kept; filters leave them in place)")
+    S = np.sort(F, axis=1)
+    degenerate = int(((S[:, 0] == S[:, 1]) | (S[:, 1] == S[:, 2])).sum())
+    if degenerate:
+        notes.append(f"{degenerate} degenerate faces (a vertex repeated)")
+    duplicates = F.shape[0] - _unique_rows(S, n)[0].size
+    if duplicates:
+        notes.append(f"{duplicates} duplicate faces (same vertices as an earlier face)")
+    E = np.concatenate([S[:, [0, 1]], S[:, [1, 2]], S[:, [0, 2]]])
+    E = E[E[:, 0] != E[:, 1]]
+    nonmanifold = int((_unique_rows(E, n)[1] > 2).sum())
+    if nonmanifold:
+        notes.append(f"{nonmanifold} non-manifold edges (shared by more than two faces)")
+    return notes
+
+
+def _unique_rows(A: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unique rows of a small-int array (values in 0..n-1) and their counts, via one int64 key per row."""
+    if float(n) ** A.shape[1] < 2.0**62:
+        key = np.zeros(A.shape[0], dtype=np.int64)
+        for j in range(A.shape[1]):
+            key = key * n + A[:, j]
+        return np.unique(key, return_counts=True)
+    return np.unique(A, axis=0, return_counts=True)
+
+
+def _fast_table(lines: list[str]) -> np.ndarray | None:
+    """Lines of whitespace-separated numbers as a float64 (k, c) array by numpy's C parser;
+    None when the lines do not all have the same count of numbers (the caller goes slow)."""
+    if not lines:
+        return None
+    try:
+        return np.loadtxt(lines, dtype=np.float64, ndmin=2, comments=None)
+    except ValueError:
+        return None
+
+
+def _decode_text(data: bytes, what: str) -> str:
+    if b"\x00" in data:
+        raise _Malformed(f"not {what} file: it contains binary data (NUL bytes) where text is expected")
+    try:
+        return data.decode("utf-8")
+    except UnicodeDecodeError:
+        return data.decode("latin-1")  # comments and names in a legacy encoding are harmless
+
+
+def _lines(text: str, notes: list[str]) -> list[str]:
+    if "\r" in text and "\n" not in text:
+        notes.append("CR-only (classic Mac) line endings")
+    return text.splitlines()
+
+
+def _float_table(rows: list[list[str]], what: str, linenos=None, lineno_of=None) -> np.ndarray:
+    """Rows of number tokens (all of one length) as a float64 array; the error names the line or row."""
+    try:
+        return np.array(rows, dtype=np.str_).astype(np.float64)
+    except ValueError:
+        for k, row in enumerate(rows):
+            for tok in row:
+                try:
+                    float(tok)
+                except ValueError:
+                    if lineno_of is not None:
+                        where = f"line {lineno_of(k)}"
+                    else:
+                        where = f"line {linenos[k]}" if linenos is not None else f"{what} {k}"
+                    raise _Malformed(f"{where}: {tok[:40]!r} is not a number") from None
+        raise
+
+
+def _int_table(rows, what: str, linenos=None) -> np.ndarray:
+    A = _float_table(rows, what, linenos)
+    if A.size and not np.all(np.mod(A, 1) == 0):
+        k = int(np.flatnonzero((np.mod(A, 1) != 0).any(axis=1))[0])
+        where = f"line {linenos[k]}" if linenos is not None else f"{what} {k}"
+        raise _Malformed(f"{where}: vertex indices must be integers, got {' '.join(rows[k])!r}")
+    return A.astype(np.int64)
+
+
+def _triangulate(groups: list[tuple[np.ndarray, np.ndarray]], notes: list[str]) -> np.ndarray:
+    """Triangles from polygons given as ``(face ids (m,), indices (m, k))`` groups, in file order.
+
+    A polygon ``(a, b, c, d, ...)`` becomes the fan ``(a, b, c), (a, c, d), ...``.
+    """
+    tris, keys = [np.zeros((0, 3), np.int64)], [np.zeros(0, np.int64)]
+    n_poly = 0
+    for ids, P in groups:
+        k = P.shape[1]
+        if k < 3:
+            raise _Malformed(f"face {int(ids.min())} has {k} vertices: a face needs at least 3")
+        T = np.stack([P[:, [0, j, j + 1]] for j in range(1, k - 1)], axis=1).reshape(-1, 3)
+        tris.append(T)
+        keys.append(np.repeat(ids, k - 2) * 1_000_000_000 + np.tile(np.arange(k - 2), len(ids)))
+        if k > 3:
+            n_poly += len(ids)
+    T, key = np.concatenate(tris), np.concatenate(keys)
+    T = T[np.argsort(key, kind="stable")]
+    if n_poly:
+        notes.append(
+            f"{n_poly} polygons with more than 3 vertices triangulated into fans ({T.shape[0]} triangles in all)"
+        )
+    return T
+
+
+def _check_indices(P: np.ndarray, ids: np.ndarray, n: int) -> None:
+    bad = (P < 0) | (P >= n)
+    if bad.any():
+        r = int(np.flatnonzero(bad.any(axis=1))[0])
+        raise _Malformed(
+            f"face {int(ids[r])} = {P[r].tolist()} references a vertex outside 0..{n - 1} (the file has {n} vertices)"
+        )
+
+
+# ------------------------------------------------------------------------------------ OFF
+_OFF_HEADER = re.compile(r"^(ST)?(C)?(N)?(4)?(n)?OFF$")
+
+
+def _read_off(data: bytes, notes: list[str]):
+    text = _decode_text(data, "an OFF")
+    raw = _lines(text, notes)
+    if "#" in text:
+        raw = [ln.split("#", 1)[0] for ln in raw]
+    lines = [(i, ln) for i, ln in enumerate(raw, 1) if ln and not ln.isspace()]
+    if not lines:
+        raise _Malformed("the file has only comments")
+    head = lines[0][1].split()
+    m = _OFF_HEADER.match(head[0])
+    if not m:
+        raise _Malformed(f"not an OFF file: the first word is {head[0][:40]!r}, expected OFF, COFF, NOFF or STOFF")
+    if m.group(4) or m.group(5):
+        raise _Malformed(f"{head[0]} (4D or n-dimensional OFF) is not supported: only 3D meshes")
+    if len(head) > 1 and head[1].upper() == "BINARY":
+        raise _Malformed("binary OFF is not supported: convert it to PLY")
+    rest = lines[1:]
+    counts = head[1:]
+    if not counts:
+        if not rest:
+            raise _Malformed("truncated: the file ends after the OFF header, before the vertex and face counts")
+        counts = rest[0][1].split()
+        rest = rest[1:]
+    try:
+        nv, nf = int(counts[0]), int(counts[1])
+    except (ValueError, IndexError):
+        raise _Malformed(f"the counts line must be 'vertices faces edges', got {' '.join(counts)!r}") from None
+    if nv < 0 or nf < 0:
+        raise _Malformed(f"negative counts: {nv} vertices, {nf} faces")
+    if nv + nf > len(rest):
+        raise _Malformed(
+            f"truncated: the header declares {nv} vertices and {nf} faces, but the file ends after "
+            f"{len(rest)} data lines"
+        )
+    if len(rest) > nv + nf:
+        notes.append(f"{len(rest) - nv - nf} lines after the declared faces ignored")
+    ncoord = 3 + (3 if m.group(3) else 0) + (2 if m.group(1) else 0)
+    vlines, flines = rest[:nv], rest[nv:nv + nf]
+    V, colors = _off_vertices(vlines, ncoord, head[0], bool(m.group(2)))
+    T = _fast_table([ln for _, ln in flines])
+    if T is not None and T.shape[1] >= 4 and (T[:, 0] == T[0, 0]).all() and 3 <= T[0, 0] <= T.shape[1] - 1:
+        P = T[:, 1:1 + int(T[0, 0])]
+        if np.all(np.mod(P, 1) == 0):
+            P = P.astype(np.int64)
+            ids = np.arange(nf)
+            _check_indices(P, ids, nv)
+            return V, _triangulate([(ids, P)], notes), colors
+    F = _polygon_rows([ln.split() for _, ln in flines], [i for i, _ in flines], nv, notes)
+    return V, F, colors
+
+
+def _off_vertices(vlines, ncoord: int, keyword: str, has_colours: bool):
+    nv = len(vlines)
+    if nv == 0:
+        return np.zeros((0, 3)), None
+    T = _fast_table([ln for _, ln in vlines])
+    if T is None:  # rows of different lengths, or a bad number: find which
+        rows = [ln.split() for _, ln in vlines]
+        lengths = np.fromiter(map(len, rows), dtype=np.int64, count=nv)
+        if lengths.min() < ncoord:
+            k = int(np.argmin(lengths))
+            raise _Malformed(f"line {vlines[k][0]}: a {keyword} vertex needs {ncoord} numbers, got {lengths[k]}")
+        V = _float_table([t[:3] for t in rows], "vertex", [i for i, _ in vlines])
+        return V, None
+    if T.shape[1] < ncoord:
+        raise _Malformed(f"line {vlines[0][0]}: a {keyword} vertex needs {ncoord} numbers, got {T.shape[1]}")
+    colors = None
+    if has_colours and T.shape[1] in (ncoord + 3, ncoord + 4):
+        C = T[:, ncoord:]
+        if not any("." in tok for tok in vlines[0][1].split()[ncoord:]):  # integers 0..255
+            C = C / 255.0
+        colors = np.hstack([C, np.ones((nv, 1))]) if C.shape[1] == 3 else C
+    return np.ascontiguousarray(T[:, :3]), colors
+
+
+def _polygon_rows(rows: list[list[str]], linenos: list[int], nv: int, notes: list[str]) -> np.ndarray:
+    """OFF face lines ``k i_1 ... i_k [colour]``, grouped by length so that each group is one array."""
+    if not rows:
+        return np.zeros((0, 3), np.int64)
+    lengths = np.fromiter((len(r) for r in rows), dtype=np.int64, count=len(rows))
+    groups = []
+    for L in np.unique(lengths):
+        ids = np.flatnonzero(lengths == L)
+        sub = [rows[i] for i in ids]
+        ks = _int_table([r[:1] for r in sub], "face", [linenos[i] for i in ids])[:, 0]
+        for k in np.unique(ks):
+            sel = ids[ks == k]
+            if k < 0 or 1 + k > L:
+                i = int(sel[0])
+                raise _Malformed(f"line {linenos[i]}: a face of {k} vertices needs {1 + k} numbers, got {L}")
+            P = _int_table([rows[i][1:1 + k] for i in sel], "face", [linenos[i] for i in sel])
+            _check_indices(P, sel, nv)
+            groups.append((sel, P))
+    return _triangulate(groups, notes)
+
+
+# ------------------------------------------------------------------------------------ OBJ
+_OBJ_IGNORED = {"vt", "vn", "vp", "g", "o", "s", "mtllib", "usemtl", "cstype", "deg", "bmat", "step", "curv",
+                "curv2", "surf", "parm", "trim", "hole", "scrv", "sp", "end", "con", "mg", "bevel", "c_interp",
+                "d_interp", "lod", "shadow_obj", "trace_obj", "ctech", "stech", "maplib", "usemap", "call", "csh"}
+
+
+_OBJ_KEYWORD = re.compile(r"^[ \t]*([^\s#]+)", re.M)
+_OBJ_V = re.compile(r"^[ \t]*v[ \t]+([^\n]*)", re.M)
+_OBJ_F = re.compile(r"^[ \t]*f[ \t]+([^\n]*)", re.M)
+
+
+def _read_obj(data: bytes, notes: list[str]):
+    # Whole-text regular expressions and numpy's parser instead of a Python loop over lines.
+    text = _decode_text(data, "an OBJ")
+    if "\r" in text:
+        if "\n" not in text:
+            notes.append("CR-only (classic Mac) line endings")
+        text = text.replace("\r\n", "\n").replace("\r", "\n")
+    tail = text.rstrip(" \t")
+    if tail and not tail.endswith("\n") and re.search(r"^[ \t]*[vf][ \t][^\n]*\Z", tail, re.M):
+        notes.append("the last line has no end of line: the file may be truncated (OBJ has no counts to check)")
+    if "#" in text:
+        text = re.sub(r"#[^\n]*", "", text)
+    if "\\\n" in text:  # line continuation: keep the line count so that messages stay right
+        text = re.sub(r"\\\n([^\n]*)", lambda mo: " " + mo.group(1) + "\n", text)
+    keywords = Counter(_OBJ_KEYWORD.findall(text))
+    unknown = {k: c for k, c in keywords.items() if k not in _OBJ_IGNORED and k not in ("v", "f", "l", "p")}
+    v_bodies = _OBJ_V.findall(text)
+    if not v_bodies:
+        what = f" (unknown statements: {', '.join(repr(k[:20]) for k in list(unknown)[:3])})" if unknown else ""
+        raise _Malformed(f"no vertices: not an OBJ mesh{what}")
+    if unknown:
+        notes.append(f"{sum(unknown.values())} lines with unknown statements ignored ({', '.join(list(unknown)[:5])})")
+    if keywords.get("l", 0) + keywords.get("p", 0):
+        n_lp = keywords.get("l", 0) + keywords.get("p", 0)
+        notes.append(f"{n_lp} line and point elements (l, p) ignored: only faces are read")
+
+    def lineno(regex, k):
+        pos = next(mo.start() for j, mo in enumerate(regex.finditer(text)) if j == k)
+        return text.count("\n", 0, pos) + 1
+
+    V, colors = _obj_vertices(v_bodies, lambda k: lineno(_OBJ_V, k), notes)
+    n = V.shape[0]
+    f_bodies = _OBJ_F.findall(text)
+    if not f_bodies:
+        return V, np.zeros((0, 3), np.int64), colors
+    joined = "\n".join(f_bodies)
+    if "/" in joined:
+        joined = re.sub(r"/[^ \t\n]*", "", joined)  # keep the vertex index of v/vt/vn
+    f_lines = joined.split("\n")
+    T = _fast_table(f_lines)
+    if T is not None:
+        groups_raw = [(np.arange(len(f_lines)), T)]
+    else:
+        rows = [ln.split() for ln in f_lines]
+        lengths = np.fromiter(map(len, rows), dtype=np.int64, count=len(rows))
+        groups_raw = []
+        for L in np.unique(lengths):
+            ids = np.flatnonzero(lengths == L)
+            where = lambda k, ids=ids: lineno(_OBJ_F, ids[k])  # noqa: E731
+            groups_raw.append((ids, _float_table([rows[i] for i in ids], "face", None, where)))
+    nv_at = None
+    if any((R < 0).any() for _, R in groups_raw):  # relative indices: count the vertices before each face
+        v_pos = np.fromiter((mo.start() for mo in _OBJ_V.finditer(text)), dtype=np.int64)
+        f_pos = np.fromiter((mo.start() for mo in _OBJ_F.finditer(text)), dtype=np.int64)
+        nv_at = np.searchsorted(v_pos, f_pos)
+    groups = []
+    for ids, R in groups_raw:
+        if R.shape[1] < 3:
+            raise _Malformed(f"line {lineno(_OBJ_F, ids[0])}: a face needs at least 3 vertices, got {R.shape[1]}")
+        bad = (np.mod(R, 1) != 0).any(axis=1) | (R == 0).any(axis=1)
+        if bad.any():
+            r = int(ids[np.flatnonzero(bad)[0]])
+            raise _Malformed(
+                f"line {lineno(_OBJ_F, r)}: face {f_bodies[r].strip()!r}: vertex indices are integers "
+                "from 1 (or negative, relative to the last vertex); 0 is not allowed"
+            )
+        R = R.astype(np.int64)
+        before = nv_at[ids][:, None] if nv_at is not None else n
+        P = np.where(R > 0, R - 1, before + R)
+        bad = ((P < 0) | (P >= n) | ((R < 0) & (P >= before))).any(axis=1)
+        if bad.any():
+            r = int(ids[np.flatnonzero(bad)[0]])
+            defined = f"; {int(nv_at[r])} defined before this line" if nv_at is not None else ""
+            raise _Malformed(
+                f"line {lineno(_OBJ_F, r)}: face {f_bodies[r].strip()!r} references a vertex that does not exist "
+                f"(the file has {n} vertices{defined})"
+            )
+        groups.append((ids, P))
+    return V, _triangulate(groups, notes), colors
+
+
+def _obj_vertices(bodies, lineno, notes):
+    T = _fast_table(bodies)
+    if T is None:
+        rows = [b.split() for b in bodies]
+        lengths = np.fromiter(map(len, rows), dtype=np.int64, count=len(rows))
+        if lengths.min() < 3:
+            k = int(np.argmin(lengths))
+            raise _Malformed(f"line {lineno(k)}: a vertex needs 3 coordinates, got {lengths[k]}")
+        notes.append("extra numbers on some vertex lines ignored (colours only kept when every vertex has them)")
+        return _float_table([r[:3] for r in rows], "vertex", None, lineno), None
+    if T.shape[1] < 3:
+        raise _Malformed(f"line {lineno(0)}: a vertex needs 3 coordinates, got {T.shape[1]}")
+    colors = None
+    if T.shape[1] in (6, 7):
+        C = T[:, 3:]
+        colors = np.hstack([C, np.ones((len(T), 1))]) if C.shape[1] == 3 else C
+        if not (np.isfinite(colors).all() and colors.min() >= 0 and colors.max() <= 1):
+            notes.append("vertex colours outside [0, 1] ignored")
+            colors = None
+    return np.ascontiguousarray(T[:, :3]), colors
+
+
+# ------------------------------------------------------------------------------------ PLY
+_PLY_TYPES = {"char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1", "short": "i2", "int16": "i2",
+              "ushort": "u2", "uint16": "u2", "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+              "float": "f4", "float32": "f4", "double": "f8", "float64": "f8"}
+
+
+def _ply_type(name: str, lineno: int) -> str:
+    if name not in _PLY_TYPES:
+        raise _Malformed(f"header line {lineno}: unknown property type {name!r}")
+    return _PLY_TYPES[name]
+
+
+def _ply_header(data: bytes):
+    if not (data.startswith(b"ply\n") or data.startswith(b"ply\r\n")):
+        raise _Malformed("not a PLY file: it does not start with the line 'ply'")
+    m = re.search(rb"end_header[ \t]*\r?\n", data[:1 << 20])
+    if not m:
+        raise _Malformed(
+            "the PLY header has no 'end_header' line (file truncated inside the header, or not a PLY file)"
+        )
+    try:
+        head = data[:m.start()].decode("ascii").splitlines()
+    except UnicodeDecodeError:
+        raise _Malformed("the PLY header is not ASCII text") from None
+    fmt, elements = None, []
+    for lineno, line in enumerate(head[1:], 2):
+        toks = line.split()
+        if not toks or toks[0] in ("comment", "obj_info"):
+            continue
+        if toks[0] == "format":
+            if len(toks) < 2 or toks[1] not in ("ascii", "binary_little_endian", "binary_big_endian"):
+                raise _Malformed(f"header line {lineno}: unknown format {' '.join(toks[1:])!r}")
+            fmt = toks[1]
+        elif toks[0] == "element":
+            try:
+                count = int(toks[2])
+            except (IndexError, ValueError):
+                raise _Malformed(f"header line {lineno}: expected 'element <name> <count>', got {line!r}") from None
+            if count < 0:
+                raise _Malformed(f"header line {lineno}: negative element count {count}")
+            elements.append((toks[1], count, []))
+        elif toks[0] == "property":
+            if not elements:
+                raise _Malformed(f"header line {lineno}: property before any element")
+            if len(toks) == 5 and toks[1] == "list":
+                elements[-1][2].append((toks[4], (_ply_type(toks[2], lineno), _ply_type(toks[3], lineno))))
+            elif len(toks) == 3:
+                elements[-1][2].append((toks[2], _ply_type(toks[1], lineno)))
+            else:
+                raise _Malformed(f"header line {lineno}: malformed property line {line!r}")
+        else:
+            raise _Malformed(f"header line {lineno}: unknown keyword {toks[0][:30]!r}")
+    if fmt is None:
+        raise _Malformed("the PLY header has no 'format' line")
+    return fmt, elements, m.end()
+
+
+def _read_ply(data: bytes, notes: list[str]):
+    fmt, elements, offset = _ply_header(data)
+    values = {}
+    if fmt == "ascii":
+        body = _decode_text(data[offset:], "an ASCII PLY")
+        lines = [ln for ln in body.splitlines() if ln and not ln.isspace()]
+        pos = 0
+        for name, count, props in elements:
+            if pos + count > len(lines):
+                raise _Malformed(
+                    f"truncated: element '{name}' declares {count} records, the file ends after {len(lines) - pos}"
+                )
+            block = lines[pos:pos + count]
+            fast = _ply_ascii_fast(block, props, name)
+            values[name] = fast if fast is not None else _ply_ascii_element([ln.split() for ln in block], props, name)
+            pos += count
+    else:
+        endian = "<" if fmt == "binary_little_endian" else ">"
+        for name, count, props in elements:
+            values[name], offset = _ply_binary_element(data, offset, count, props, name, endian)
+    return _ply_mesh(elements, values, notes)
+
+
+def _ply_binary_element(data, offset, count, props, name, endian):
+    # Sizes are checked before reading, so a count of 10^10 fails here instead of allocating.
+    least = sum(np.dtype(t).itemsize if isinstance(t, str) else np.dtype(t[0]).itemsize for _, t in props)
+    if count * least > len(data) - offset:
+        raise _Malformed(
+            f"truncated: element '{name}' declares {count} records of at least {least} bytes, "
+            f"but only {len(data) - offset} bytes are left"
+        )
+    if count == 0:
+        return {p: (np.zeros(0, t) if isinstance(t, str) else np.zeros((0, 3), t[1])) for p, t in props}, offset
+    # Fast path: every list has the length of the first record's (all triangles, say).
+    fields, pos = [], offset
+    for pname, t in props:
+        if isinstance(t, str):
+            fields.append((pname, endian + t))
+            pos += np.dtype(t).itemsize
+        else:
+            if pos + np.dtype(t[0]).itemsize > len(data):
+                raise _Malformed(f"truncated inside element '{name}'")
+            k = int(np.frombuffer(data, endian + t[0], 1, pos)[0])
+            fields.append((pname + "#count", endian + t[0]))
+            fields.append((pname, endian + t[1], (k,)))
+            pos += np.dtype(t[0]).itemsize + k * np.dtype(t[1]).itemsize
+    dt = np.dtype(fields)
+    lists = [p for p, t in props if not isinstance(t, str)]
+    if count * dt.itemsize <= len(data) - offset:
+        rec = np.frombuffer(data, dt, count, offset)
+        if all((rec[p + "#count"] == dt[p].shape[0]).all() for p in lists):
+            return {p: rec[p] for p, _ in props}, offset + count * dt.itemsize
+    if not lists:
+        raise _Malformed(f"truncated: element '{name}' needs {count * dt.itemsize} bytes, {len(data) - offset} left")
+    # Slow path: lists of varying length (polygons), record by record.
+    out = {p: [] for p, _ in props}
+    pos = offset
+    try:
+        for _ in range(count):
+            for pname, t in props:
+                if isinstance(t, str):
+                    out[pname].append(np.frombuffer(data, endian + t, 1, pos)[0])
+                    pos += np.dtype(t).itemsize
+                else:
+                    k = int(np.frombuffer(data, endian + t[0], 1, pos)[0])
+                    pos += np.dtype(t[0]).itemsize
+                    out[pname].append(np.frombuffer(data, endian + t[1], k, pos))
+                    pos += k * np.dtype(t[1]).itemsize
+    except ValueError:
+        raise _Malformed(f"truncated: the file ends inside element '{name}'") from None
+    return {p: (out[p] if p in lists else np.array(out[p])) for p, _ in props}, pos
+
+
+def _ply_ascii_fast(block: list[str], props, name):
+    """An ASCII element parsed by numpy when every record has the layout of the first one; else None."""
+    T = _fast_table(block)
+    if T is None:
+        return None
+    out, col = {}, 0
+    for pname, t in props:
+        if isinstance(t, str):
+            if col >= T.shape[1]:
+                return None
+            out[pname] = T[:, col]
+            col += 1
+        else:
+            if col >= T.shape[1] or not (T[:, col] == T[0, col]).all():
+                return None
+            k = int(T[0, col])
+            if k < 0 or col + 1 + k > T.shape[1]:
+                return None
+            L = T[:, col + 1:col + 1 + k]
+            if not np.all(np.mod(L, 1) == 0):
+                r = int(np.flatnonzero((np.mod(L, 1) != 0).any(axis=1))[0])
+                raise _Malformed(f"element '{name}' record {r}: list '{pname}' holds a non-integer {L[r].tolist()}")
+            out[pname] = L.astype(np.int64)
+            col += 1 + k
+    return out if col == T.shape[1] else None
+
+
+def _ply_ascii_element(rows, props, name):
+    lists = [p for p, t in props if not isinstance(t, str)]
+    if not lists:
+        if rows and min(map(len, rows)) < len(props):
+            raise _Malformed(f"element '{name}': a record has fewer than its {len(props)} properties")
+        A = _float_table([r[:len(props)] for r in rows], name) if rows else np.zeros((0, len(props)))
+        return {p: A[:, j] for j, (p, _) in enumerate(props)}
+    out = {p: [] for p, _ in props}
+    for i, r in enumerate(rows):
+        pos = 0
+        try:
+            for pname, t in props:
+                if isinstance(t, str):
+                    out[pname].append(float(r[pos]))
+                    pos += 1
+                else:
+                    k = int(r[pos])
+                    if k < 0 or pos + 1 + k > len(r):
+                        raise _Malformed(
+                            f"element '{name}' record {i}: list of {k} items but only {len(r) - pos - 1} numbers"
+                        )
+                    out[pname].append(np.array(r[pos + 1:pos + 1 + k], dtype=np.float64))
+                    pos += 1 + k
+        except IndexError:
+            raise _Malformed(f"element '{name}' record {i}: fewer numbers than its properties") from None
+        except ValueError as exc:
+            raise _Malformed(f"element '{name}' record {i}: not a number ({exc})") from None
+    return {p: (out[p] if p in lists else np.array(out[p])) for p, _ in props}
+
+
+def _ply_mesh(elements, values, notes):
+    if "vertex" not in values:
+        raise _Malformed("the PLY file has no 'vertex' element")
+    vx = values["vertex"]
+    if not all(c in vx for c in "xyz"):
+        raise _Malformed("the 'vertex' element has no x, y, z properties")
+    V = np.stack([np.asarray(vx[c], dtype=np.float64) for c in "xyz"], axis=1)
+    colors = None
+    names = next(([f"{p}red", f"{p}green", f"{p}blue"] for p in ("", "diffuse_") if f"{p}red" in vx), None)
+    if names:
+        types = dict(next(e for e in elements if e[0] == "vertex")[2])
+        C = np.stack([np.asarray(vx[c], np.float64) for c in names], axis=1)
+        alpha_name = names[0].replace("red", "alpha")
+        A = np.asarray(vx[alpha_name], np.float64)[:, None] if alpha_name in vx else None
+        scale = 255.0 if types[names[0]] in ("u1", "i1") else 1.0
+        colors = np.hstack([C, A if A is not None else np.full((len(V), 1), scale)]) / scale
+    n = V.shape[0]
+    if "face" not in values:
+        return V, np.zeros((0, 3), np.int64), colors
+    fc = values["face"]
+    key = next((k for k in ("vertex_indices", "vertex_index") if k in fc), None)
+    if key is None:
+        raise _Malformed("the 'face' element has no vertex_indices list")
+    idx = fc[key]
+    if isinstance(idx, np.ndarray):  # fixed-length fast path: (m, k)
+        P = idx.astype(np.int64)
+        ids = np.arange(P.shape[0])
+        _check_indices(P, ids, n)
+        return V, _triangulate([(ids, P)], notes), colors
+    lengths = np.fromiter((len(p) for p in idx), dtype=np.int64, count=len(idx))
+    groups = []
+    for k in np.unique(lengths):
+        ids = np.flatnonzero(lengths == k)
+        P = np.array([idx[i] for i in ids], dtype=np.float64).reshape(len(ids), k)
+        if not np.all(np.mod(P, 1) == 0):
+            raise _Malformed(f"face {int(ids[0])}: vertex indices must be integers")
+        P = P.astype(np.int64)
+        _check_indices(P, ids, n)
+        groups.append((ids, P))
+    return V, _triangulate(groups, notes), colors
+
+
+# ------------------------------------------------------------------------------------ STL
+def _read_stl(data: bytes, notes: list[str]):
+    if len(data) >= 84:
+        m = int(np.frombuffer(data, "<u4", 1, 80)[0])
+        if len(data) == 84 + 50 * m:
+            rec = np.frombuffer(data, np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")]), m, 84)
+            return _stl_mesh(rec["v"].astype(np.float64).reshape(-1, 3), notes) + (None,)
+    if data.lstrip()[:5].lower() == b"solid" and b"\x00" not in data:
+        return _read_stl_ascii(data.decode("latin-1"), notes) + (None,)
+    if len(data) >= 84:
+        m = int(np.frombuffer(data, "<u4", 1, 80)[0])
+        raise _Malformed(
+            f"not a valid STL file: as binary STL its header declares {m} triangles, which need "
+            f"{84 + 50 * m} bytes, but the file has {len(data)} (truncated?); it is not ASCII STL either"
+        )
+    raise _Malformed(f"not an STL file: {len(data)} bytes, too short for binary STL and not ASCII STL ('solid ...')")
+
+
+def _read_stl_ascii(text: str, notes: list[str]):
+    toks = np.array(text.split())
+    low = np.char.lower(toks)
+    if not (low == "endsolid").any():
+        raise _Malformed("truncated ASCII STL: no 'endsolid' line")
+    facets = np.flatnonzero(low == "facet")
+    ends = np.flatnonzero(low == "endfacet")
+    verts = np.flatnonzero(low == "vertex")
+    if len(facets) != len(ends) or len(verts) != 3 * len(facets):
+        raise _Malformed(
+            f"malformed ASCII STL: {len(facets)} 'facet', {len(ends)} 'endfacet' and {len(verts)} 'vertex' "
+            "lines (each facet needs exactly 3 vertices)"
+        )
+    if len(facets) and not np.array_equal(np.bincount(np.searchsorted(facets, verts, side="right") - 1,
+                                                      minlength=len(facets)), np.full(len(facets), 3)):
+        raise _Malformed("malformed ASCII STL: a facet does not have exactly 3 vertices")
+    if len(verts) and verts.max() + 3 >= len(toks):
+        raise _Malformed("truncated ASCII STL")
+    coords = toks[(verts[:, None] + np.arange(1, 4)).ravel()] if len(verts) else np.zeros(0, str)
+    try:
+        C = coords.astype(np.float64).reshape(-1, 3)
+    except ValueError:
+        raise _Malformed("malformed ASCII STL: a vertex line has a coordinate that is not a number") from None
+    return _stl_mesh(C, notes)
+
+
+def _stl_mesh(corners: np.ndarray, notes: list[str]):
+    """Merge STL's per-triangle corners into shared vertices (exact match, first-appearance order)."""
+    bad = ~np.isfinite(corners).all(axis=1)
+    if bad.any():
+        t = int(np.flatnonzero(bad)[0]) // 3
+        raise _Malformed(f"triangle {t} has a NaN or infinite coordinate {corners[3 * t:3 * t + 3].tolist()}")
+    if corners.shape[0] == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64)
+    uniq, first, inverse = np.unique(corners, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(order.size)
+    notes.append(f"STL corners merged into shared vertices by exact position: {corners.shape[0]} -> {uniq.shape[0]}")
+    return uniq[order], rank[inverse.ravel()].reshape(-1, 3).astype(np.int64)
+
+
+_READERS = {".off": _read_off, ".obj": _read_obj, ".ply": _read_ply, ".stl": _read_stl}
+
+
+# ---------------------------------------------------------------------------------- writing
 class atomic_path:
     """Context manager giving a temporary path beside ``path``, renamed onto it only on success.
 
-    Nothing is left behind on failure, and a reader never sees a half-written file.
+    Nothing is left behind on failure, and a reader never sees a half-written file: the
+    temporary file is flushed to disk and then renamed (atomic on POSIX and Windows).
 
     Examples
     --------
@@ -109,19 +816,30 @@ class atomic_path:
         self.path = Path(path)
 
     def __enter__(self) -> Path:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=self.path.suffix, dir=self.path.parent)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=self.path.suffix, dir=self.path.parent)
+        except OSError as exc:
+            raise MeshFileError(f"{self.path}: cannot be written ({exc.strerror or exc})") from None
         os.close(fd)
         self.tmp = Path(tmp)
         return self.tmp
 
     def __exit__(self, exc_type, exc, tb) -> bool:
         if exc_type is None and self.tmp.exists() and self.tmp.stat().st_size > 0:
-            os.replace(self.tmp, self.path)
+            try:
+                with open(self.tmp, "rb") as fh:
+                    os.fsync(fh.fileno())
+                os.replace(self.tmp, self.path)
+            except OSError as err:
+                self.tmp.unlink(missing_ok=True)
+                raise MeshFileError(f"{self.path}: cannot be written ({err.strerror or err})") from None
         else:
             self.tmp.unlink(missing_ok=True)
             if exc_type is None:
                 raise MeshFileError(f"{self.path}: nothing was written")
+            if issubclass(exc_type, OSError):
+                raise MeshFileError(f"{self.path}: cannot be written ({exc.strerror or exc})") from None
         return False
 
 
@@ -133,32 +851,145 @@ def save_mesh(
     *,
     binary: bool = True,
 ) -> Path:
-    """Write a mesh (format from the extension) atomically, with vertex colours where the format has them.
+    """Write a mesh atomically (temporary file, then rename); the format comes from the extension.
 
-    ``vertex_colors`` is (n, 3) or (n, 4) in [0, 1]. Returns the path.
+    PLY (binary little-endian, or ASCII with ``binary=False``) stores ``double``
+    coordinates and ``uchar`` RGBA colours; OFF (COFF with colours) and OBJ (``v x y z r g b``)
+    store 17 significant digits, so reading the file back gives the same arrays. STL
+    stores float32 corners (binary) or 17 digits (ASCII), and no colours. Nothing is left at ``path``
+    if writing fails, and an existing file there is replaced only once the new one is complete.
+
+    Parameters
+    ----------
+    path : str or PathLike
+    V : array_like, shape (n, 3)
+    F : array_like of int, shape (m, 3)
+        ``m`` may be 0 (a point cloud), except for STL.
+    vertex_colors : array_like, shape (n, 3) or (n, 4), in [0, 1], optional
+    binary : bool
+        PLY and STL only.
+
+    Returns
+    -------
+    Path
+
+    Raises
+    ------
+    MeshFileError
+        Naming the file: bad arrays (NaN, bad indices), bad colours, a point cloud as STL,
+        or an OS error (permission, disk full).
+
+    Examples
+    --------
+    >>> import tempfile, pathlib, numpy as np
+    >>> p = pathlib.Path(tempfile.mkdtemp()) / "t.ply"
+    >>> _ = save_mesh(p, np.eye(3), np.array([[0, 1, 2]]))
+    >>> load_mesh(p).V.tolist()
+    [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
     """
-    import pymeshlab
-
     path = Path(path)
     _check_extension(path)
-    V, F = check_mesh_arrays(V, F, allow_no_faces=True)
-    kwargs = {}
+    try:
+        V, F = check_mesh_arrays(V, F, allow_no_faces=True)
+    except (MeshValidationError, TypeError) as exc:
+        raise MeshFileError(f"{path}: cannot be written: {exc}") from None
+    C = None
     if vertex_colors is not None:
-        c = np.asarray(vertex_colors, dtype=np.float64)
-        if c.shape not in ((V.shape[0], 3), (V.shape[0], 4)):
-            raise MeshFileError(f"{path}: vertex_colors must have shape ({V.shape[0]}, 3 or 4), got {c.shape}")
-        kwargs["v_color_matrix"] = c if c.shape[1] == 4 else np.hstack([c, np.ones((c.shape[0], 1))])
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=F.astype(np.int32), **kwargs))
-    with atomic_path(path) as tmp:
-        kwargs = {"binary": binary} if path.suffix.lower() in (".ply", ".stl") else {}
-        try:
-            ms.save_current_mesh(str(tmp), **kwargs)
-        except Exception as exc:
-            raise MeshFileError(f"{path}: cannot be written ({exc})") from None
+        C = np.asarray(vertex_colors, dtype=np.float64)
+        if C.shape not in ((V.shape[0], 3), (V.shape[0], 4)):
+            raise MeshFileError(f"{path}: vertex_colors must have shape ({V.shape[0]}, 3 or 4), got {C.shape}")
+        if not np.isfinite(C).all() or C.min() < 0 or C.max() > 1:
+            raise MeshFileError(f"{path}: vertex_colors must lie in [0, 1], got values in [{C.min()}, {C.max()}]")
+        if C.shape[1] == 3:
+            C = np.hstack([C, np.ones((C.shape[0], 1))])
+    ext = path.suffix.lower()
+    if ext == ".stl" and F.shape[0] == 0:
+        raise MeshFileError(f"{path}: STL stores triangles only and this mesh has no faces; use .ply for a point cloud")
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        _WRITERS[ext](fh, V, F, C, binary)
     return path
 
 
 def save_arrays(path: str | os.PathLike, V: np.ndarray, F: np.ndarray, *, binary: bool = True) -> Path:
-    """Write ``(V, F)`` to ``path`` (format from the extension) atomically; returns the path."""
+    """Write ``(V, F)`` to ``path`` (format from the extension) atomically; see :func:`save_mesh`."""
     return save_mesh(path, V, F, binary=binary)
+
+
+def _rows_text(A: np.ndarray, fmt: str, prefix: str = "") -> bytes:
+    if A.shape[0] == 0:
+        return b""
+    line = prefix + " ".join([fmt] * A.shape[1]) + "\n"
+    return ((line * A.shape[0]) % tuple(A.ravel().tolist())).encode()
+
+
+def _colour_bytes(C: np.ndarray) -> np.ndarray:
+    return np.clip(np.rint(C * 255.0), 0, 255).astype(np.uint8)
+
+
+def _write_ply(fh, V, F, C, binary):
+    head = ["ply", f"format {'binary_little_endian' if binary else 'ascii'} 1.0", "comment written by meshdenoise",
+            f"element vertex {len(V)}", "property double x", "property double y", "property double z"]
+    if C is not None:
+        head += [f"property uchar {c}" for c in ("red", "green", "blue", "alpha")]
+    head += [f"element face {len(F)}", "property list uchar int vertex_indices", "end_header"]
+    fh.write(("\n".join(head) + "\n").encode())
+    if binary:
+        vfields = [("p", "<f8", 3)] + ([("c", "u1", 4)] if C is not None else [])
+        vrec = np.empty(len(V), np.dtype(vfields))
+        vrec["p"] = V
+        if C is not None:
+            vrec["c"] = _colour_bytes(C)
+        fh.write(vrec.tobytes())
+        frec = np.empty(len(F), np.dtype([("k", "u1"), ("i", "<i4", 3)]))
+        frec["k"], frec["i"] = 3, F
+        fh.write(frec.tobytes())
+    else:
+        fh.write(_ply_ascii_vertices(V, C))
+        fh.write(_rows_text(np.hstack([np.full((len(F), 1), 3), F]), "%d"))
+
+
+def _ply_ascii_vertices(V, C):
+    if C is None:
+        return _rows_text(V, "%.17g")
+    cb = _colour_bytes(C)
+    line = "%.17g %.17g %.17g %d %d %d %d\n"
+    vals = np.empty((len(V), 7), dtype=object)
+    vals[:, :3], vals[:, 3:] = V, cb
+    return ((line * len(V)) % tuple(vals.ravel().tolist())).encode()
+
+
+def _write_off(fh, V, F, C, binary):
+    fh.write(f"{'COFF' if C is not None else 'OFF'}\n{len(V)} {len(F)} 0\n".encode())
+    if C is None:
+        fh.write(_rows_text(V, "%.17g"))
+    else:
+        vals = np.empty((len(V), 7), dtype=object)
+        vals[:, :3], vals[:, 3:] = V, _colour_bytes(C)
+        fh.write((("%.17g %.17g %.17g %d %d %d %d\n" * len(V)) % tuple(vals.ravel().tolist())).encode())
+    fh.write(_rows_text(np.hstack([np.full((len(F), 1), 3), F]), "%d"))
+
+
+def _write_obj(fh, V, F, C, binary):
+    fh.write(b"# written by meshdenoise\n")
+    fh.write(_rows_text(V if C is None else np.hstack([V, C[:, :3]]), "%.17g", "v "))
+    fh.write(_rows_text(F + 1, "%d", "f "))
+
+
+def _write_stl(fh, V, F, C, binary):
+    from .geometry import face_normals
+
+    N = np.nan_to_num(face_normals(V, F)) if len(F) else np.zeros((0, 3))
+    if binary:
+        rec = np.zeros(len(F), np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")]))
+        rec["n"], rec["v"] = N, V[F]
+        fh.write(b"binary STL written by meshdenoise".ljust(80, b" ") + struct.pack("<I", len(F)))
+        fh.write(rec.tobytes())
+        return
+    table = np.hstack([N, V[F].reshape(-1, 9)])
+    facet = ("facet normal %.9g %.9g %.9g\n outer loop\n" + "  vertex %.17g %.17g %.17g\n" * 3 + " endloop\nendfacet\n")
+    fh.write(b"solid meshdenoise\n")
+    fh.write(((facet * len(F)) % tuple(table.ravel().tolist())).encode())
+    fh.write(b"endsolid meshdenoise\n")
+
+
+_WRITERS = {".off": _write_off, ".obj": _write_obj, ".ply": _write_ply, ".stl": _write_stl}
