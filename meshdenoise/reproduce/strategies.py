@@ -1,0 +1,70 @@
+"""Which search each filter gets: a dedicated strategy, else a one-parameter grid, else none."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from ..registry import REGISTRY, list_filters
+from .batch import NoisyBatch
+from .filtering_search import search_filtering
+from .grid_search import GRIDS, search_grid
+from .heat_search import search_heat
+from .result import SearchResult
+from .sobolev_search import search_sobolev
+
+__all__ = ["STRATEGIES", "PAPER_METHODS", "available_methods", "run_search", "Strategy"]
+
+# A strategy receives every noise level of one mesh (they share the topology, so a factorisation
+# can serve all of them) and an ``advance(fraction)`` callback for the progress bar.
+Strategy = Callable[[list[NoisyBatch], Callable[[float], None]], list[SearchResult]]
+
+
+def _per_batch(search: Callable[[NoisyBatch], SearchResult]) -> Strategy:
+    def strategy(batches: list[NoisyBatch], advance: Callable[[float], None]) -> list[SearchResult]:
+        results = []
+        for b in batches:
+            results.append(search(b))
+            advance(1.0)
+        return results
+
+    return strategy
+
+
+def _sobolev(batches: list[NoisyBatch], advance: Callable[[float], None]) -> list[SearchResult]:
+    steps = []
+    results = search_sobolev(batches, advance=lambda f: (advance(f * len(batches)), steps.append(f)))
+    if not steps:  # the exact spectral path has no per-mu loop
+        advance(float(len(batches)))
+    return results
+
+
+STRATEGIES: dict[str, Strategy] = {
+    "filtering": _per_batch(search_filtering),
+    "heat": _per_batch(search_heat),
+    "sobolev": _sobolev,
+}
+
+PAPER_METHODS = ("filtering", "heat", "sobolev")
+
+
+def available_methods() -> list[str]:
+    """The paper's three methods, then every registered filter that has a :data:`GRIDS` entry."""
+    list_filters()  # loads the plugins
+    return list(PAPER_METHODS) + [name for name in GRIDS if name in REGISTRY and name not in PAPER_METHODS]
+
+
+def run_search(name: str, batches: list[NoisyBatch], advance: Callable[[float], None] = lambda f: None) -> list[SearchResult]:
+    """Search the best parameter of filter ``name`` on every noise level of one mesh."""
+    if name in STRATEGIES:
+        return STRATEGIES[name](batches, advance)
+    if name in GRIDS:
+        if name not in REGISTRY:
+            raise ValueError(f"reproduce: filter '{name}' has a grid but is not registered in this installation")
+        out = []
+        for b in batches:
+            out.append(search_grid(b, name, GRIDS[name], advance))
+        return out
+    raise ValueError(
+        f"reproduce: no search for method '{name}'; searchable: {', '.join(available_methods())} "
+        "(add a GridSpec to meshdenoise.reproduce.grid_search.GRIDS for another registered filter)"
+    )
