@@ -43,7 +43,7 @@ def reproduce(data_dir: str, out_dir: str, seeds: int, meshes: tuple[str, ...], 
     try:
         rows = run_reproduction(data_dir, out_dir, seeds, list(meshes) or None, list(methods) or None, quick, console)
     except (ValueError, OSError) as exc:
-        console.print(f"[red]reproduce failed:[/red] {exc}")
+        click.echo(f"reproduce failed: {exc}", err=True)
         sys.exit(2)
     console.print(_summary(rows))
     console.print(f"{len(rows)} results in {time.perf_counter() - t0:.0f} s, written to {click.format_filename(out_dir)}/")
