@@ -25,7 +25,7 @@ __all__ = ["COMMANDS", "reproduce"]
               help="Meshes to use (repeat the option); default: both.")
 @click.option("--methods", multiple=True,
               help="Filters to search (repeat); default: filtering, heat, sobolev and every registered filter with a grid.")
-@click.option("--quick", is_flag=True, help="One seed unless --seeds is given, short timings, no time-vs-parameter curves.")
+@click.option("--quick", is_flag=True, help="Smoke run: one seed unless --seeds is given, coarser mu grid, short timings, no time-vs-parameter curves.")
 def reproduce(data_dir: str, out_dir: str, seeds: int, meshes: tuple[str, ...], methods: tuple[str, ...], quick: bool) -> None:
     """Search each method's best parameter on the paper's meshes and noise levels; write the table and figures."""
     from ..reproduce.runner import run_reproduction

@@ -134,7 +134,7 @@ def time_figure(curves: dict[str, dict[str, dict]], path: Path) -> Path:
                           label=f"{mesh}, with factorisation")
             param = c["param"]
         ax.set(title=method, xlabel=param, ylabel="ms")
-        ax.legend(fontsize=7)
+        ax.legend(fontsize=6, loc="center right")
     return _save(fig, path)
 
 

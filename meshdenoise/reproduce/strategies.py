@@ -4,23 +4,27 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numpy as np
+
 from ..registry import REGISTRY, list_filters
 from .batch import NoisyBatch
 from .filtering_search import search_filtering
 from .grid_search import GRIDS, search_grid
 from .heat_search import search_heat
+from .paper import MU_GRID
 from .result import SearchResult
 from .sobolev_search import search_sobolev
 
 __all__ = ["STRATEGIES", "PAPER_METHODS", "available_methods", "run_search", "Strategy"]
 
 # A strategy receives every noise level of one mesh (they share the topology, so a factorisation
-# can serve all of them) and an ``advance(fraction)`` callback for the progress bar.
-Strategy = Callable[[list[NoisyBatch], Callable[[float], None]], list[SearchResult]]
+# can serve all of them), an ``advance(fraction)`` callback for the progress bar and ``quick``
+# (a coarser grid where the search is costly).
+Strategy = Callable[[list[NoisyBatch], Callable[[float], None], bool], list[SearchResult]]
 
 
 def _per_batch(search: Callable[[NoisyBatch], SearchResult]) -> Strategy:
-    def strategy(batches: list[NoisyBatch], advance: Callable[[float], None]) -> list[SearchResult]:
+    def strategy(batches: list[NoisyBatch], advance: Callable[[float], None], quick: bool = False) -> list[SearchResult]:
         results = []
         for b in batches:
             results.append(search(b))
@@ -30,9 +34,10 @@ def _per_batch(search: Callable[[NoisyBatch], SearchResult]) -> Strategy:
     return strategy
 
 
-def _sobolev(batches: list[NoisyBatch], advance: Callable[[float], None]) -> list[SearchResult]:
+def _sobolev(batches: list[NoisyBatch], advance: Callable[[float], None], quick: bool = False) -> list[SearchResult]:
     steps = []
-    results = search_sobolev(batches, advance=lambda f: (advance(f * len(batches)), steps.append(f)))
+    mus = np.concatenate([[0.0], MU_GRID[1::2]]) if quick else MU_GRID  # quick: 3 per decade, same ends
+    results = search_sobolev(batches, mus, advance=lambda f: (advance(f * len(batches)), steps.append(f)))
     if not steps:  # the exact spectral path has no per-mu loop
         advance(float(len(batches)))
     return results
@@ -53,10 +58,12 @@ def available_methods() -> list[str]:
     return list(PAPER_METHODS) + [name for name in GRIDS if name in REGISTRY and name not in PAPER_METHODS]
 
 
-def run_search(name: str, batches: list[NoisyBatch], advance: Callable[[float], None] = lambda f: None) -> list[SearchResult]:
+def run_search(
+    name: str, batches: list[NoisyBatch], advance: Callable[[float], None] = lambda f: None, quick: bool = False
+) -> list[SearchResult]:
     """Search the best parameter of filter ``name`` on every noise level of one mesh."""
     if name in STRATEGIES:
-        return STRATEGIES[name](batches, advance)
+        return STRATEGIES[name](batches, advance, quick)
     if name in GRIDS:
         if name not in REGISTRY:
             raise ValueError(f"reproduce: filter '{name}' has a grid but is not registered in this installation")
