@@ -43,7 +43,16 @@ GRIDS: dict[str, GridSpec] = {
 
 
 def search_grid(batch: NoisyBatch, name: str, grid: GridSpec, advance=None) -> SearchResult:
-    """SNR of the registered filter ``name`` at each value of ``grid.param``, for every seed."""
+    """SNR of the registered filter ``name`` at each value of ``grid.param``, for every seed.
+
+    Examples
+    --------
+    >>> from meshdenoise.reproduce.batch import make_batch
+    >>> from meshdenoise.shapes import icosphere
+    >>> b = make_batch("sphere", *icosphere(1), rho=0.05, seeds=(0, 1))
+    >>> r = search_grid(b, "sobolev", GridSpec("mu", (0.1, 1.0)))
+    >>> [p["mu"] for p in r.params], r.snr.shape
+    ([0.1, 1.0], (2, 2))"""
     spec = get_filter(name)
     try:
         spec.param(grid.param)

@@ -33,6 +33,16 @@ def search_heat(
     evaluated exactly (to 1e-12) at ``time_points`` times through one Chebyshev basis
     (:mod:`.chebyshev`). Steps above the stability bound ``2 / lambda_max(I - D^-1 W)``
     diverge and are skipped; the result's notes list them.
+
+    Examples
+    --------
+    >>> from meshdenoise.reproduce.batch import make_batch
+    >>> from meshdenoise.shapes import icosphere
+    >>> r = search_heat(make_batch("sphere", *icosphere(1), rho=0.05, seeds=(0,)), taus=np.array([0.1, 0.5, 1.9]))
+    >>> r.notes[0].startswith("tau 1.9 skipped: above the stability bound")
+    True
+    >>> sorted(float(t) for t in r.figure_data["curves"])
+    [0.1, 0.5]
     """
     ops = batch.ops
     bound = stable_tau(ops)

@@ -46,6 +46,13 @@ def run_reproduction(
     Writes ``results.json``, ``table.md``, ``timing.json`` and the PNG figures to ``out_dir``
     and returns the rows of ``results.json``. ``quick``: a Sobolev grid of 3 values per decade
     instead of 6, timings with fewer repeats and no time-vs-parameter curves (a smoke run).
+
+    Examples
+    --------
+    >>> run_reproduction("/no/such/folder", "/tmp/unused", meshes=["nefertiti"])  # doctest: +ELLIPSIS
+    Traceback (most recent call last):
+    ...
+    meshdenoise.io.MeshFileError: /no/such/folder/nefertiti.off: not found; --data must be the folder ...
     """
     if not (isinstance(seeds, int) and seeds >= 1):
         raise ValueError(f"reproduce: seeds must be a positive int, got {seeds!r}")

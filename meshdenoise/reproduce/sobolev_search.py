@@ -56,6 +56,14 @@ def search_sobolev(
     cholespy redoes its symbolic analysis for each matrix, so each mu costs one analysis
     and factorisation (the filter's own :class:`~meshdenoise.plugins.sobolev.SobolevSolver`),
     reused for every seed and noise level at once (one multi-column solve).
+
+    Examples
+    --------
+    >>> from meshdenoise.reproduce.batch import make_batch
+    >>> from meshdenoise.shapes import icosphere
+    >>> (r,) = search_sobolev([make_batch("sphere", *icosphere(1), rho=0.05, seeds=(0,))], np.array([0.0, 0.1, 1.0]))
+    >>> r.params[0], r.snr.shape
+    ({'mu': 0.0}, (3, 1))
     """
     mus = np.asarray(mus, dtype=np.float64)
     n = batches[0].V.shape[0]

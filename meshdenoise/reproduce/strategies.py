@@ -53,7 +53,12 @@ PAPER_METHODS = ("filtering", "heat", "sobolev")
 
 
 def available_methods() -> list[str]:
-    """The paper's three methods, then every registered filter that has a :data:`GRIDS` entry."""
+    """The paper's three methods, then every registered filter that has a :data:`GRIDS` entry.
+
+    Examples
+    --------
+    >>> available_methods()[:3]
+    ['filtering', 'heat', 'sobolev']"""
     list_filters()  # loads the plugins
     return list(PAPER_METHODS) + [name for name in GRIDS if name in REGISTRY and name not in PAPER_METHODS]
 
@@ -61,7 +66,16 @@ def available_methods() -> list[str]:
 def run_search(
     name: str, batches: list[NoisyBatch], advance: Callable[[float], None] = lambda f: None, quick: bool = False
 ) -> list[SearchResult]:
-    """Search the best parameter of filter ``name`` on every noise level of one mesh."""
+    """Search the best parameter of filter ``name`` on every noise level of one mesh.
+
+    Examples
+    --------
+    >>> from meshdenoise.reproduce.batch import make_batch
+    >>> from meshdenoise.shapes import icosphere
+    >>> V, F = icosphere(1)
+    >>> batches = [make_batch("sphere", V, F, rho, (0,)) for rho in (0.01, 0.1)]
+    >>> [(r.method, r.rho) for r in run_search("sobolev", batches)]
+    [('sobolev', 0.01), ('sobolev', 0.1)]"""
     if name in STRATEGIES:
         return STRATEGIES[name](batches, advance, quick)
     if name in GRIDS:

@@ -17,7 +17,12 @@ ROW_KEYS = ("mesh", "rho", "method", "noisy_snr", "best_snr", "best_snr_std", "b
 
 
 def tolerance(std: float) -> float:
-    """The issue's agreement band: 0.5 dB, or two standard deviations over seeds where that is larger."""
+    """The issue's agreement band: 0.5 dB, or two standard deviations over seeds where that is larger.
+
+    Examples
+    --------
+    >>> tolerance(0.1), tolerance(0.4)
+    (0.5, 0.8)"""
     return max(0.5, 2.0 * std)
 
 

@@ -17,7 +17,13 @@ __all__ = ["median_seconds", "time_best", "time_curve", "TIME_CURVES"]
 
 
 def median_seconds(fn: Callable[[int], object], min_repeats: int = 3, max_repeats: int = 25, budget: float = 0.5) -> tuple[float, int]:
-    """Median wall time of ``fn(i)`` over repeats ``i = 0, 1, ...``: at least ``min_repeats``, then until ``budget`` seconds."""
+    """Median wall time of ``fn(i)`` over repeats ``i = 0, 1, ...``: at least ``min_repeats``, then until ``budget`` seconds.
+
+    Examples
+    --------
+    >>> seconds, repeats = median_seconds(lambda i: sum(range(100)), budget=0.0)
+    >>> repeats, seconds > 0
+    (3, True)"""
     times = []
     start = time.perf_counter()
     while len(times) < min_repeats or (len(times) < max_repeats and time.perf_counter() - start < budget):
