@@ -53,7 +53,7 @@ def search_filtering(batch: NoisyBatch, max_iterations: int = 5000) -> SearchRes
     >>> from meshdenoise.reproduce.batch import make_batch
     >>> from meshdenoise.shapes import icosphere
     >>> r = search_filtering(make_batch("sphere", *icosphere(3), rho=0.05, seeds=(0,)))
-    >>> r.best_params["iterations"] >= 1 and r.best_snr > r.snr[0, 0]  # row 0: the noisy input
+    >>> r.best_params["iterations"] >= 1 and r.best_snr > float(r.snr[0, 0])  # row 0: the noisy input
     True
     """
     snr, capped = run_until_past_peak(batch, smoothing_steps(batch.X, batch.ops), max_iterations)
