@@ -30,7 +30,8 @@ def search_heat(
     multiples ``k tau``. The largest stable ``tau`` runs first, until twice its best step
     count: that fixes ``T_max``. Every other ``tau`` needing at most ``direct_steps``
     steps to reach ``T_max`` is run directly (SNR after every step); smaller steps are
-    evaluated exactly (to 1e-12) at ``time_points`` times through one Chebyshev basis
+    evaluated exactly (to 1e-12) after each of their first ``direct_steps`` steps and at
+    ``time_points`` times up to ``T_max`` through one Chebyshev basis
     (:mod:`.chebyshev`). Steps above the stability bound ``2 / lambda_max(I - D^-1 W)``
     diverge and are skipped; the result's notes list them.
 
@@ -69,7 +70,9 @@ def search_heat(
         if n_steps <= direct_steps:
             curves[tau] = (np.arange(n_steps + 1) * tau, snr_along_run(batch, smoothing_steps(batch.X, ops, lam=tau), n_steps))
         else:
-            ks = np.unique(np.ceil(np.linspace(0.0, t_max, time_points + 1) / tau - 1e-9).astype(np.int64))
+            # every one of the first direct_steps steps (an optimum at a small T is not missed), then an even T grid
+            grid = np.ceil(np.linspace(0.0, t_max, time_points + 1) / tau - 1e-9).astype(np.int64)
+            ks = np.unique(np.concatenate([np.arange(direct_steps + 1), grid]))
             chebyshev_taus.append(np.full(ks.size, tau))
             chebyshev_ks.append(ks)
     how = f"SNR after every step of one run per tau (direct up to {direct_steps} steps)"
@@ -81,7 +84,8 @@ def search_heat(
             start += ks.size
         small = sorted(float(t[0]) for t in chebyshev_taus)
         how += (
-            f"; tau <= {small[-1]:.3g} at {time_points} times each through one Chebyshev basis of degree {degree} "
+            f"; tau <= {small[-1]:.3g} after each of the first {direct_steps} steps and at {time_points} times up to "
+            f"T_max = {t_max:.3g}, through one Chebyshev basis of degree {degree} "
             "(coefficients dropped below 1e-13)"
         )
     params, rows = [], []
