@@ -118,11 +118,6 @@ def test_input_object_is_untouched(name, kind, mesh):
         assert out is not obj
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="known bug: operators.Operators.__init__ calls setflags(write=False) on the caller's own F "
-    "when it is already C-contiguous int64; fix: copy it (np.array(F, dtype=np.int64, order='C'))",
-)
 @pytest.mark.parametrize("name", NAMES)
 def test_the_callers_face_array_stays_writeable(name):
     V, F = _delaunay(41 + NAMES.index(name), np.random.default_rng(987 + NAMES.index(name)))  # a fresh topology

@@ -107,8 +107,13 @@ def guidance_normals(N: np.ndarray, areas: np.ndarray, nb: FaceNeighbourhood) ->
     largest = _segment_max(phi, nb.patch, m)
     total = np.bincount(nb.patch, weights=phi, minlength=m)
     H = spread * largest / (1e-9 + total)
-    # for each face i, the neighbour patch j with the least H (rows are sorted, so lexsort by (H, row))
-    order = np.lexsort((H[nb.cols], nb.rows))
+    # Symmetric meshes (an icosahedron, a CAD part's flat sides) have exactly tied patches; rounding
+    # noise (say from a translation) must not decide between them. Quantise H to 1e-9 of its range
+    # so near-ties are ties, broken by patch index.
+    scale = float(H.max()) if H.size else 0.0
+    Hq = np.round(H * (1e9 / scale)) if scale > 0 else np.zeros_like(H)
+    # for each face i, the neighbour patch j with the least H (rows are sorted, so lexsort by (H, j, row))
+    order = np.lexsort((nb.cols, Hq[nb.cols], nb.rows))
     return g[nb.cols[order[nb.starts]]]
 
 
