@@ -93,11 +93,6 @@ def test_refused_file_stops_with_message_naming_file_and_problem(tmp_path, case,
     assert _sha(src) == digest
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="pipelines branch: `denoise` and `run` exit 1 (runtime failure) on an unreadable input or a point "
-    "cloud, where the issue asks for exit code 2 (bad input); `info` already exits 2",
-)
 @pytest.mark.parametrize("command", ["denoise", "run"])
 def test_bad_input_exit_code_is_2_for_denoise_and_run(tmp_path, command):
     codes = {}

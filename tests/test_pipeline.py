@@ -152,10 +152,10 @@ def test_dask_local_cluster_batch_with_one_corrupt_mesh_matches_serial(tmp_path)
     text = "inputs: 'in/*.ply'\nsteps:\n  - sobolev: {mu: 1}\n  - save: {path: '{stem}_out.ply'}\n"
     p = _write(tmp_path, text)
     serial = _run("run", p, "--out", tmp_path / "serial", "--serial")
-    assert serial.exit_code == 1
+    assert serial.exit_code == 2  # the only failure is an unreadable input: bad input
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1", dashboard_address=None) as cluster:
         result = _run("run", p, "--out", tmp_path / "dask", "--scheduler", cluster.scheduler_address)
-    assert result.exit_code == 1, result.output
+    assert result.exit_code == 2, result.output
     rows = json.loads((tmp_path / "dask" / "results.json").read_text())
     assert len(rows) == 20
     failed = [r for r in rows if r["status"] != "ok"]

@@ -73,10 +73,9 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
         console.print(f"results: {plan.output_dir / (plan.results + '.csv')} and .json", highlight=False)
     failed = [r for r in rows if r.get("status") != "ok"]
     if failed:
-        if n == 1:
-            err_console.print(f"[red]error:[/red] {failed[0].get('error')}", highlight=False)
+        # each failure was printed as it happened; bad inputs alone are bad input (2), anything else a failure (1)
         err_console.print(f"{len(failed)} of {n} task(s) failed", highlight=False)
-        sys.exit(1)
+        sys.exit(2 if all(r.get("failure") == "input" for r in failed) else 1)
 
 
 def _print_rows(rows: list[dict]) -> None:
@@ -113,7 +112,7 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
     from ..pipeline.errors import PipelineValidationError
     from ..pipeline.runner import run_task
     from ..pipeline.steps import parse_step
-    from ..pipeline.errors import StepFailure
+    from ..pipeline.errors import InputError, StepFailure
 
     given = _assignments(params, "--param")
     if pinned:
@@ -146,6 +145,8 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
     task = Task(0, src.resolve(), {}, "", [step, save], {str(dst.resolve()): dst.resolve()})
     try:
         row = run_task(task, echo=lambda m: console.print(m, highlight=False))
+    except InputError as exc:
+        _fail(str(exc), 2)
     except StepFailure as exc:
         _fail(str(exc), 1)
     console.print(f"{dst}: {row['vertices']} vertices, {row['faces']} faces, {method} in {row['seconds']:.2f} s", highlight=False)

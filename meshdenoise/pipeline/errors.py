@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["PipelineError", "PipelineValidationError", "StepFailure", "where"]
+__all__ = ["PipelineError", "PipelineValidationError", "StepFailure", "InputError", "where"]
 
 
 class PipelineError(Exception):
@@ -15,6 +15,10 @@ class PipelineValidationError(PipelineError, ValueError):
 
 class StepFailure(PipelineError, RuntimeError):
     """A step failed while running; the message names the input, the step and its line."""
+
+
+class InputError(StepFailure):
+    """The input is bad (unreadable file, or a mesh no filter can work on): exit code 2, not 1."""
 
 
 def where(source: str, line: int | None, step: str | None = None) -> str:

@@ -11,7 +11,8 @@ import time
 import traceback
 from typing import Any, Callable
 
-from .errors import StepFailure
+from ..arrays import MeshValidationError
+from .errors import InputError, StepFailure
 from .schema import Task
 from .steps import RunContext, meshset_from_arrays, run_step
 
@@ -26,14 +27,16 @@ def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
     row: dict = {"input": str(task.input), **task.setting}
     try:
         mesh = load_mesh(task.input)
-    except MeshFileError as exc:
-        raise StepFailure(f"{task.input}: cannot load the input: {exc}") from None
+    except MeshFileError as exc:  # its message already names the file
+        raise InputError(str(exc)) from None
     ms = meshset_from_arrays(mesh.V, mesh.F, mesh.vertex_colors)
     ctx = RunContext(ms=ms, input_path=task.input, input_arrays=(mesh.V, mesh.F), row=row, echo=echo)
     ctx.resolve_path = lambda template: task.output_paths[template]
     for step in task.steps:
         try:
             run_step(step, ctx)
+        except MeshValidationError as exc:  # the mesh itself is unusable (a point cloud, NaN coordinates...)
+            raise InputError(f"{task.input}: {step.where}: {exc}") from None
         except Exception as exc:  # any library error: name the input and the step
             detail = str(exc) or type(exc).__name__
             raise StepFailure(f"{task.input}: {step.where} failed: {type(exc).__name__}: {detail}") from exc
@@ -52,7 +55,8 @@ def run_task_safely(task: Task) -> dict:
     try:
         return run_task(task)
     except StepFailure as exc:
-        return {"input": str(task.input), **task.setting, "status": "failed", "error": str(exc)}
+        kind = "input" if isinstance(exc, InputError) else "step"
+        return {"input": str(task.input), **task.setting, "status": "failed", "error": str(exc), "failure": kind}
     except Exception as exc:  # a bug or an I/O error while writing: still one row, never a lost batch
         return {
             "input": str(task.input),
