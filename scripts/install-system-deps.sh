@@ -4,16 +4,22 @@
 #   libegl1 libgl1 libvulkan1
 #   mesa-vulkan-drivers               headless rendering with Open3D's OffscreenRenderer
 #   python3-venv                      Debian's python3 cannot create a virtual environment without it
+#   libsuitesparse-dev, gcc,
+#   python3-dev                       to build scikit-sparse (CHOLMOD with reusable analysis, dev extras)
 set -euo pipefail
 
 PY=${PY:-python3}
-wanted=(libusb-1.0-0 libegl1 libgl1 libvulkan1 mesa-vulkan-drivers)
+wanted=(libusb-1.0-0 libegl1 libgl1 libvulkan1 mesa-vulkan-drivers libsuitesparse-dev)
 missing=()
 for pkg in "${wanted[@]}"; do
     dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")
 done
 if ! "$PY" -c "import ensurepip, venv" >/dev/null 2>&1; then
     missing+=(python3-venv)
+fi
+command -v cc >/dev/null 2>&1 || missing+=(gcc)
+if ! "$PY" -c "import os, sysconfig; exit(not os.path.exists(os.path.join(sysconfig.get_paths()['include'], 'Python.h')))" >/dev/null 2>&1; then
+    missing+=(python3-dev)
 fi
 [ ${#missing[@]} -eq 0 ] && exit 0
 
