@@ -2,21 +2,17 @@
 
 from __future__ import annotations
 
-from collections import OrderedDict
-
 import numpy as np
 import scipy.sparse as sp
-from cholespy import CholeskySolverD, MatrixType
 
-from ..operators import Operators, mask_key
+from ..operators import Operators
 from ..registry import Param, register
+from ..solvers import SPDSolver, cached_solver
 
 __all__ = ["sobolev", "SobolevSolver", "sobolev_solver"]
 
-_FACTORS_PER_TOPOLOGY = 4  # a mu sweep keeps only the last few factorisations
 
-
-class SobolevSolver:
+class SobolevSolver(SPDSolver):
     """A factorised ``I + mu L`` (restricted to free vertices when some are fixed), reusable for any X.
 
     Parameters
@@ -42,69 +38,13 @@ class SobolevSolver:
     def __init__(self, ops: Operators, mu: float, fixed: np.ndarray | None = None):
         if not mu > 0:
             raise ValueError(f"SobolevSolver: mu must be > 0, got {mu!r}")
-        self.n, self.mu = ops.n, float(mu)
-        self.fixed = None if fixed is None or not fixed.any() else fixed.copy()
-        L = ops.L
-        if self.fixed is None:
-            self.free = None
-            A = sp.identity(self.n, format="csr") + self.mu * L
-            self._coupling = None
-        else:
-            self.free = np.flatnonzero(~self.fixed)
-            pinned = np.flatnonzero(self.fixed)
-            L_free = L[self.free]
-            A = sp.identity(self.free.size, format="csr") + self.mu * L_free[:, self.free]
-            self._coupling = self.mu * L_free[:, pinned]  # moves the pinned values to the right-hand side
-            self._pinned = pinned
-        A = sp.csr_matrix(A)
-        A.sort_indices()
-        self.size = A.shape[0]
-        self._solver = (
-            CholeskySolverD(
-                self.size,
-                A.indptr.astype(np.int32),
-                A.indices.astype(np.int32),
-                A.data.astype(np.float64),
-                MatrixType.CSR,
-            )
-            if self.size
-            else None
-        )
-
-    def solve(self, X: np.ndarray) -> np.ndarray:
-        """Return ``Y`` with ``(I + mu L) Y = X`` on free rows and ``Y = X`` on fixed ones; X (n, k)."""
-        X = np.asarray(X, dtype=np.float64)
-        if X.shape[0] != self.n:
-            raise ValueError(f"SobolevSolver.solve: X has {X.shape[0]} rows, the mesh {self.n} vertices")
-        squeeze = X.ndim == 1
-        X2 = X.reshape(self.n, -1)
-        if self.free is None:
-            rhs = np.array(X2, dtype=np.float64, order="C")  # cholespy needs a writable array
-        else:
-            rhs = np.ascontiguousarray(X2[self.free] - self._coupling @ X2[self._pinned])
-        out = np.empty_like(rhs)
-        if self._solver is not None:
-            self._solver.solve(rhs, out)
-        if self.free is None:
-            Y = out
-        else:
-            Y = X2.copy()
-            Y[self.free] = out
-        return Y.ravel() if squeeze else Y
+        self.mu = float(mu)
+        super().__init__(sp.identity(ops.n, format="csr") + self.mu * ops.L, fixed)
 
 
 def sobolev_solver(ops: Operators, mu: float, fixed: np.ndarray | None = None) -> SobolevSolver:
     """The cached :class:`SobolevSolver` of this topology for ``(mu, fixed)``, built on first use."""
-    factors = ops.cache.setdefault("sobolev", OrderedDict())
-    key = (float(mu), mask_key(fixed if fixed is not None and fixed.any() else None))
-    if key in factors:
-        factors.move_to_end(key)
-        return factors[key]
-    solver = SobolevSolver(ops, mu, fixed)
-    factors[key] = solver
-    while len(factors) > _FACTORS_PER_TOPOLOGY:
-        factors.popitem(last=False)
-    return solver
+    return cached_solver(ops, "sobolev", mu, fixed, lambda: SobolevSolver(ops, mu, fixed))
 
 
 @register(
