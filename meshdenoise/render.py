@@ -652,8 +652,8 @@ def _compose(out_png: Path, panels, titles, errors, vmax, cmap, mode) -> list[tu
                            extend="max" if over else "neither")
         bar.ax.tick_params(labelsize=8)
         bar.ax.yaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:.3g}"))  # no offset text to clip
-        label = "distance to reference surface" if mode == "nearest" else "vertex displacement from reference"
-        bar.set_label(label + " (mesh units)", fontsize=8)
+        label = "distance to reference" if mode == "nearest" else "vertex displacement"
+        bar.set_label(label + " (mesh units)", fontsize=7)
     with atomic_path(out_png) as tmp:
         fig.savefig(tmp, dpi=100, format="png", facecolor="white")
     return boxes
