@@ -2,14 +2,16 @@
 # Installs the Debian packages meshdenoise needs, only when they are missing, so a second run is instant.
 #   libusb-1.0-0                      Open3D's Python module will not import without it
 #   libegl1 libgl1 libvulkan1
-#   mesa-vulkan-drivers               headless rendering with Open3D's OffscreenRenderer
+#   mesa-vulkan-drivers               headless rendering with Open3D's OffscreenRenderer (Filament on Mesa's
+#                                     software Vulkan, lavapipe; libegl1/libgl1 pull libegl-mesa0/libglx-mesa0)
+#   chromium                          the report test opens the HTML report in headless Chromium
 #   python3-venv                      Debian's python3 cannot create a virtual environment without it
 #   libsuitesparse-dev, gcc,
 #   python3-dev                       to build scikit-sparse (CHOLMOD with reusable analysis, dev extras)
 set -euo pipefail
 
 PY=${PY:-python3}
-wanted=(libusb-1.0-0 libegl1 libgl1 libvulkan1 mesa-vulkan-drivers libsuitesparse-dev)
+wanted=(libusb-1.0-0 libegl1 libgl1 libvulkan1 mesa-vulkan-drivers chromium libsuitesparse-dev)
 missing=()
 for pkg in "${wanted[@]}"; do
     dpkg-query -W -f='${Status}' "$pkg" 2>/dev/null | grep -q "install ok installed" || missing+=("$pkg")

@@ -1,0 +1,139 @@
+"""``meshdenoise show``, ``render`` and ``report``: look at meshes and at a run's results."""
+
+from __future__ import annotations
+
+import os
+import sys
+from pathlib import Path
+
+import click
+
+MESH = click.Path(exists=True, dir_okay=False, path_type=Path)
+
+
+def _parse_size(text: str) -> tuple[int, int]:
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise click.BadParameter(f"expected WIDTHxHEIGHT in pixels, e.g. 400x400; got {text!r}") from None
+    return w, h
+
+
+def _parse_view(text: str) -> tuple[float, float]:
+    try:
+        az, el = (float(x) for x in text.split(","))
+    except ValueError:
+        raise click.BadParameter(f"expected AZIMUTH,ELEVATION in degrees, e.g. 30,20; got {text!r}") from None
+    return az, el
+
+
+_common = [
+    click.option("--size", default="400x400", show_default=True, help="Pixels of one panel, WIDTHxHEIGHT."),
+    click.option("--view", default="0,0", show_default=True,
+                 help="AZIMUTH,ELEVATION in degrees; 0,0 looks from +z with +y up."),
+    click.option("--error-mode", type=click.Choice(["auto", "vertex", "nearest"]), default="auto", show_default=True,
+                 help="vertex: displacement of vertex i from reference vertex i; nearest: distance to the "
+                      "reference surface; auto: vertex when the faces are the same."),
+    click.option("--vmax", type=click.FloatRange(min=0, min_open=True), default=None,
+                 help="Top of the colour bar (default: the largest error)."),
+    click.option("--backend", type=click.Choice(["auto", "open3d", "matplotlib"]), default="auto", show_default=True,
+                 help="Rasteriser; auto tries Open3D's OffscreenRenderer, then matplotlib."),
+]
+
+
+def _with_common(f):
+    for option in reversed(_common):
+        f = option(f)
+    return f
+
+
+def _render(meshes, png, reference, titles, size, view, error_mode, vmax, backend, error_of="last"):
+    from ..render import render_comparison
+
+    try:
+        result = render_comparison(list(meshes), png, reference=reference, titles=titles,
+                                   size=_parse_size(size), view=_parse_view(view), error_of=error_of,
+                                   error_mode=error_mode, vmax=vmax, backend=backend)
+    except click.BadParameter:
+        raise
+    except (ValueError, TypeError) as exc:
+        raise click.UsageError(str(exc)) from None
+    click.echo(f"wrote {result.path} ({len(result.panels)} panels) with {result.backend_detail}")
+    if result.vmax is not None:
+        click.echo(f"colour bar 0 to {result.vmax:.4g} ({result.error_mode} error)")
+
+
+def _has_display() -> bool:
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+@click.command()
+@click.argument("meshes", nargs=-1, required=True, type=MESH)
+@click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Render to this PNG instead of opening a window (default without a display: show.png).")
+@click.option("--reference", type=MESH, default=None, help="Clean mesh: add error heat maps of every mesh.")
+@_with_common
+def show(meshes, png, reference, size, view, error_mode, vmax, backend):
+    """Look at MESHES: Open3D's viewer with a display, else (or with --png) a headless PNG.
+
+    In the viewer the meshes stand side by side along x (coloured by their error when
+    --reference is given); in the PNG they share one camera.
+    """
+    if png is None and _has_display():
+        _open_viewer(meshes, reference, error_mode, vmax)
+        return
+    if png is None:
+        png = Path("show.png")
+        click.echo("no display found: rendering headless to show.png (use --png to choose)")
+    _render(meshes, png, reference, None, size, view, error_mode, vmax, backend, error_of="all")
+
+
+def _open_viewer(paths, reference, error_mode, vmax):
+    import numpy as np
+    import open3d as o3d
+
+    from ..io import load_mesh
+    from ..render import _default_vmax, error_colors, vertex_error
+
+    geoms, offset = [], 0.0
+    errors = [vertex_error(p, reference, error_mode)[0] for p in paths] if reference else None
+    top = (vmax or _default_vmax(errors)) if errors else None
+    for k, path in enumerate(paths):
+        m = load_mesh(path)
+        V = m.V.copy()
+        width = float(np.ptp(V[:, 0]))
+        V[:, 0] += offset - V[:, 0].min()
+        offset += width * 1.1
+        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(m.F.astype(np.int32)))
+        mesh.compute_vertex_normals()
+        if errors is not None:
+            mesh.vertex_colors = o3d.utility.Vector3dVector(error_colors(errors[k], top))
+        geoms.append(mesh)
+    o3d.visualization.draw_geometries(geoms, window_name="meshdenoise: " + ", ".join(p.name for p in paths))
+
+
+@click.command()
+@click.argument("before", type=MESH)
+@click.argument("after", type=MESH)
+@click.option("--reference", type=MESH, required=True, help="The clean mesh the error is measured against.")
+@click.option("--png", type=click.Path(dir_okay=False, path_type=Path), required=True, help="PNG to write.")
+@_with_common
+def render(before, after, reference, png, size, view, error_mode, vmax, backend):
+    """Before / after / error of AFTER against --reference, side by side in one PNG."""
+    _render([before, after], png, reference, [f"before: {before.name}", f"after: {after.name}"],
+            size, view, error_mode, vmax, backend)
+
+
+@click.command()
+@click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--embed", is_flag=True, help="Put the pictures inside the page (it can then be moved alone).")
+def report(run_dir, embed):
+    """Write RUN_DIR/report.html: the results tables, plots and renders of a run (static, no server)."""
+    from ..report import write_report
+
+    path = write_report(run_dir, embed=embed)
+    click.echo(f"wrote {path}")
+    sys.stdout.flush()
+
+
+COMMANDS = [show, render, report]

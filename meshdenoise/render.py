@@ -1,0 +1,659 @@
+"""Pictures of meshes: headless renders, error heat maps, before / after / error side by side.
+
+Two rasterisers draw the same camera:
+
+``open3d``
+    Open3D's :class:`~open3d.visualization.rendering.OffscreenRenderer` (Filament). On a
+    machine without a GPU it runs on Mesa's software Vulkan driver (lavapipe/llvmpipe),
+    from the Debian packages ``libvulkan1`` and ``mesa-vulkan-drivers``. It runs in a child
+    process with a time limit (``MESHDENOISE_RENDER_TIMEOUT``, default 60 s): there a
+    missing driver aborts the process instead of raising, and with Open3D 0.20 on Mesa 22
+    llvmpipe a frame now and then stalls for 10 s to minutes.
+``matplotlib``
+    A pure-software fallback: the same pinhole camera in numpy, triangles drawn back to
+    front (painter's algorithm) by matplotlib's Agg. Occlusion is by whole triangles, so it
+    is coarser where surfaces interpenetrate.
+
+``backend="auto"`` (the default) tries Open3D and falls back to matplotlib with a
+``UserWarning`` saying why; :attr:`RenderResult.backend` and ``backend_detail`` say which
+path ran. ``MESHDENOISE_RENDER_BACKEND=open3d|matplotlib`` forces one.
+
+Both backends draw unlit colours computed here: the geometry panels are shaded by a light
+from the camera's upper left (Lambert, two-sided), the heat maps are not shaded at all, so
+a pixel's colour is the colour bar's colour for the error interpolated across the triangle.
+(Open3D's lit shader also stalls for minutes on llvmpipe.)
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import tempfile
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from .adapters import read_mesh
+from .io import atomic_path, load_mesh
+
+__all__ = [
+    "Camera",
+    "RenderResult",
+    "frame_camera",
+    "vertex_error",
+    "error_colors",
+    "render_mesh",
+    "render_comparison",
+    "RenderError",
+]
+
+BACKGROUND = (1.0, 1.0, 1.0)
+MESH_COLOR = (0.78, 0.78, 0.78)
+BACKENDS = ("auto", "open3d", "matplotlib")
+ERROR_MODES = ("auto", "vertex", "nearest")
+
+
+# --- camera ------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Camera:
+    """A pinhole camera: ``eye`` looks at ``center`` with ``up`` pointing up, vertical field of view in degrees.
+
+    The same ``Camera`` drawn by either backend puts a point at the same pixel:
+
+    .. math:: u = \\tfrac{W}{2} + f \\frac{(p - e) \\cdot s}{(p - e) \\cdot d}, \\quad
+              v = \\tfrac{H}{2} - f \\frac{(p - e) \\cdot t}{(p - e) \\cdot d}, \\quad
+              f = \\frac{H / 2}{\\tan(\\mathrm{fov} / 2)}
+
+    with :math:`d` the viewing direction, :math:`s` the right and :math:`t` the up axis.
+    """
+
+    center: tuple[float, float, float]
+    eye: tuple[float, float, float]
+    up: tuple[float, float, float]
+    fov: float
+    near: float
+    far: float
+
+    def axes(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Unit vectors (right, up, forward) of the camera frame."""
+        d = np.subtract(self.center, self.eye)
+        d = d / np.linalg.norm(d)
+        s = np.cross(d, self.up)
+        s = s / np.linalg.norm(s)
+        return s, np.cross(s, d), d
+
+    def project(self, points: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+        """Pixel coordinates ``(k, 2)`` (column, row; float) and depth ``(k,)`` of ``(k, 3)`` points, as ``(k, 3)``."""
+        w, h = size
+        s, t, d = self.axes()
+        rel = np.asarray(points, dtype=np.float64) - np.asarray(self.eye)
+        depth = rel @ d
+        f = (h / 2.0) / np.tan(np.radians(self.fov) / 2.0)
+        return np.stack([w / 2.0 + f * (rel @ s) / depth, h / 2.0 - f * (rel @ t) / depth, depth], axis=1)
+
+
+def frame_camera(
+    vertex_sets: Sequence[np.ndarray],
+    size: tuple[int, int] = (400, 400),
+    view: tuple[float, float] = (0.0, 0.0),
+    fov: float = 30.0,
+    margin: float = 1.08,
+) -> Camera:
+    """One camera framing every vertex set, so compared meshes are seen from the same place.
+
+    The camera looks at the centre of the union's bounding box from distance
+    :math:`r / \\sin(\\phi / 2) \\cdot m`, with :math:`r` the largest distance of a vertex
+    from that centre, :math:`\\phi` the smaller of the vertical and horizontal fields of view
+    and :math:`m` the ``margin``: the bounding sphere fits in the picture.
+
+    Parameters
+    ----------
+    vertex_sets : sequence of ndarray, each shape (n_k, 3)
+    size : (width, height) in pixels
+    view : (azimuth, elevation) in degrees
+        ``(0, 0)`` looks from +z towards -z with +y up (MeshLab's default); the azimuth turns
+        the eye about +y towards +x, the elevation raises it towards +y.
+    fov : float
+        Vertical field of view in degrees, in (0, 170).
+    margin : float
+        >= 1; room left around the bounding sphere.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> cam = frame_camera([np.array([[-1.0, 0, 0], [1, 0, 0]])], size=(100, 100))
+    >>> cam.center, round(cam.eye[2], 3)
+    ((0.0, 0.0, 0.0), 4.173)
+    >>> cam.project(np.array([[0.0, 0, 0]]), (100, 100))[0, :2].tolist()
+    [50.0, 50.0]
+    """
+    w, h = _check_size(size)
+    if not 0 < fov < 170:
+        raise ValueError(f"fov must be in (0, 170) degrees, got {fov!r}")
+    if margin < 1:
+        raise ValueError(f"margin must be >= 1, got {margin!r}")
+    if len(view) != 2:
+        raise ValueError(f"view must be (azimuth, elevation) in degrees, got {view!r}")
+    pts = np.vstack([np.asarray(v, dtype=np.float64).reshape(-1, 3) for v in vertex_sets])
+    center = (pts.min(axis=0) + pts.max(axis=0)) / 2.0
+    radius = float(np.linalg.norm(pts - center, axis=1).max()) or 1.0
+    half_v = np.radians(fov) / 2.0
+    half_h = np.arctan(np.tan(half_v) * w / h)
+    dist = radius / np.sin(min(half_v, half_h)) * margin
+    az, el = np.radians(view[0]), np.radians(view[1])
+    direction = np.array([np.sin(az) * np.cos(el), np.sin(el), np.cos(az) * np.cos(el)])
+    # looking straight up or down: +y is the viewing axis, so "up" on the screen is -z or +z
+    up = (0.0, 1.0, 0.0) if abs(np.cos(el)) > 1e-6 else (0.0, 0.0, -float(np.sign(np.sin(el))))
+    eye = center + dist * direction
+    return Camera(
+        tuple(float(c) for c in center), tuple(float(c) for c in eye), up, float(fov),
+        near=max(dist - 1.5 * radius, dist * 1e-3), far=dist + 1.5 * radius,
+    )
+
+
+def _check_size(size) -> tuple[int, int]:
+    try:
+        w, h = (int(size[0]), int(size[1]))
+    except (TypeError, ValueError, IndexError):
+        raise ValueError(f"size must be (width, height) in pixels, got {size!r}") from None
+    if w != size[0] or h != size[1] or w < 16 or h < 16 or w > 8192 or h > 8192:
+        raise ValueError(f"size must be two integers in [16, 8192] (width, height), got {size!r}")
+    return w, h
+
+
+# --- errors and colours -------------------------------------------------------------------------
+def vertex_error(mesh: Any, reference: Any, mode: str = "auto") -> tuple[np.ndarray, str]:
+    """Per-vertex error of ``mesh`` against ``reference``.
+
+    Parameters
+    ----------
+    mesh, reference : a ``(V, F)`` tuple, any mesh type of :func:`meshdenoise.adapters.read_mesh`, or a file path
+    mode : {'auto', 'vertex', 'nearest'}
+        ``'vertex'``: :math:`e_i = \\|x_i - y_i\\|`, the displacement of vertex *i* from the
+        reference's vertex *i* (the meshes must share vertex order, as noisy and denoised
+        copies of one mesh do). ``'nearest'``: :math:`e_i = \\min_{y \\in S} \\|x_i - y\\|`, the
+        distance to the nearest point of the reference surface *S* (Open3D's
+        ``RaycastingScene.compute_distance``, in float32). ``'auto'``: ``'vertex'`` when both
+        meshes have the same faces (hence the same vertex order), else ``'nearest'``.
+
+    Returns
+    -------
+    error : ndarray, shape (n,), float64
+    mode : str
+        The mode used.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]); F = np.array([[0, 1, 2]])
+    >>> err, how = vertex_error((V + [0, 0, 0.5], F), (V, F))
+    >>> err.tolist(), how
+    ([0.5, 0.5, 0.5], 'vertex')
+    >>> err, how = vertex_error((V[[1, 2, 0]] + [0, 0, 0.25], F), (V, F), mode="nearest")
+    >>> np.round(err, 6).tolist(), how
+    ([0.25, 0.25, 0.25], 'nearest')
+    """
+    if mode not in ERROR_MODES:
+        raise ValueError(f"error mode must be one of {ERROR_MODES}, got {mode!r}")
+    V, F = _arrays(mesh, "mesh")
+    Vr, Fr = _arrays(reference, "reference")
+    if mode == "auto":
+        mode = "vertex" if F.shape == Fr.shape and np.array_equal(F, Fr) else "nearest"
+    if mode == "vertex":
+        if V.shape != Vr.shape:
+            raise ValueError(
+                f"error mode 'vertex' needs the same vertices in the same order: the mesh has {V.shape[0]} "
+                f"vertices, the reference {Vr.shape[0]}; use mode='nearest'"
+            )
+        return np.linalg.norm(V - Vr, axis=1), mode
+    import open3d as o3d
+
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(Vr.astype(np.float32)), o3d.core.Tensor(Fr.astype(np.uint32)))
+    dist = scene.compute_distance(o3d.core.Tensor(V.astype(np.float32))).numpy()
+    return dist.astype(np.float64), mode
+
+
+def error_colors(error: np.ndarray, vmax: float, cmap: str = "viridis") -> np.ndarray:
+    """RGB colours ``(n, 3)`` in [0, 1] of errors on the colour bar from 0 to ``vmax``.
+
+    Errors above ``vmax`` take the top colour; the colour bar then shows an arrow (it is
+    drawn with ``extend='max'``), so a saturated picture is never mistaken for a scale.
+
+    Examples
+    --------
+    >>> error_colors(np.array([0.0, 1.0]), vmax=1.0, cmap="gray").tolist()
+    [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]
+    """
+    import matplotlib
+
+    err = np.asarray(error, dtype=np.float64)
+    if not np.isfinite(vmax) or vmax <= 0:
+        raise ValueError(f"vmax must be a finite number > 0, got {vmax!r}")
+    if err.size and (not np.isfinite(err).all() or err.min() < 0):
+        raise ValueError("errors must be finite and >= 0")
+    return matplotlib.colormaps[cmap](np.clip(err / vmax, 0.0, 1.0))[:, :3]
+
+
+def _arrays(mesh: Any, what: str) -> tuple[np.ndarray, np.ndarray]:
+    """(V, F) of a mesh object or file; a mesh without faces cannot be drawn."""
+    if isinstance(mesh, (str, os.PathLike)):
+        m = load_mesh(mesh)
+        V, F = m.V, m.F
+        if F.shape[0] == 0:
+            raise ValueError(f"{mesh}: {what} has no faces, so there is no surface to render")
+        return V, F
+    data = read_mesh(mesh)
+    return data.V, data.F
+
+
+# --- backends ------------------------------------------------------------------------------------
+class RenderError(RuntimeError):
+    """Open3D's OffscreenRenderer failed or did not finish in time; the message says which and why."""
+
+
+def _shade(V: np.ndarray, F: np.ndarray, camera: Camera, base=MESH_COLOR) -> np.ndarray:
+    """Per-vertex colours of a grey surface lit by a light from the camera's upper left.
+
+    Lambert's law, two-sided (the back of an open surface is lit like its front, as in
+    MeshLab): :math:`c_i = c_0 (0.25 + 0.75 |n_i \\cdot l|)`. Computed here for both backends,
+    so they draw the same shades.
+    """
+    from .geometry import vertex_normals
+
+    s, t, d = camera.axes()
+    light = d - 0.5 * t + 0.3 * s
+    light /= np.linalg.norm(light)
+    n = vertex_normals(V, F)
+    return np.asarray(base)[None, :] * (0.25 + 0.75 * np.abs(n @ light))[:, None]
+
+
+_CHILD = r"""
+import sys
+sys.path.insert(0, sys.argv[3])
+from meshdenoise.render import _open3d_child
+_open3d_child(sys.argv[1], sys.argv[2])
+"""
+
+
+def _open3d_child(job_path: str, out_path: str) -> None:
+    """Child process: draw every panel of ``job_path`` (npz) unlit with Open3D, save the pictures."""
+    import open3d as o3d
+    import open3d.visualization.rendering as rendering
+
+    job = np.load(job_path)
+    w, h = (int(x) for x in job["size"])
+    renderer = rendering.OffscreenRenderer(w, h)
+    scene = renderer.scene
+    scene.set_background([*BACKGROUND, 1.0])
+    scene.view.set_post_processing(False)  # no tone mapping: pixels are the colours given
+    center, eye, up = job["center"], job["eye"], job["up"]
+    fov, near, far = (float(x) for x in job["lens"])
+    images = []
+    material = rendering.MaterialRecord()
+    material.shader = "defaultUnlit"  # the lit shader stalls for minutes on llvmpipe; shading is baked in
+    for k in range(int(job["count"])):
+        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(job[f"V{k}"]),
+                                         o3d.utility.Vector3iVector(job[f"F{k}"].astype(np.int32)))
+        mesh.vertex_colors = o3d.utility.Vector3dVector(job[f"C{k}"].astype(np.float64))
+        scene.clear_geometry()
+        scene.add_geometry("mesh", mesh, material)
+        renderer.setup_camera(fov, center, eye, up, near, far)
+        images.append(np.asarray(renderer.render_to_image())[:, :, :3].copy())
+    scene.clear_geometry()  # a renderer destroyed while showing geometry aborts the process
+    np.savez(out_path, *images)
+    print("MESHDENOISE_RENDERED", len(images), flush=True)
+
+
+def _render_timeout() -> float:
+    text = os.environ.get("MESHDENOISE_RENDER_TIMEOUT", "60")
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"MESHDENOISE_RENDER_TIMEOUT must be a number of seconds, got {text!r}") from None
+    if value <= 0:
+        raise ValueError(f"MESHDENOISE_RENDER_TIMEOUT must be > 0 seconds, got {text!r}")
+    return value
+
+
+def _draw_open3d(jobs: list[dict], size, camera: Camera, timeout: float) -> tuple[list[np.ndarray], str]:
+    """Draw the panels with Open3D's OffscreenRenderer in a child process, bounded by ``timeout`` seconds.
+
+    A child process because on a software Vulkan driver a missing library aborts the
+    process (it does not raise) and a frame can stall for minutes (seen with Open3D 0.20 on
+    Mesa 22 llvmpipe); the parent then falls back instead of hanging or dying.
+    """
+    import open3d as o3d
+
+    with tempfile.TemporaryDirectory(prefix="meshdenoise-render-") as tmp:
+        job_path, out_path = Path(tmp) / "job.npz", Path(tmp) / "out.npz"
+        arrays = {"size": np.array(size), "center": np.array(camera.center), "eye": np.array(camera.eye),
+                  "up": np.array(camera.up), "lens": np.array([camera.fov, camera.near, camera.far]),
+                  "count": np.array(len(jobs))}
+        for k, job in enumerate(jobs):
+            arrays.update({f"V{k}": job["V"], f"F{k}": job["F"], f"C{k}": job["colors"]})
+        np.savez(job_path, **arrays)
+        package_parent = str(Path(__file__).resolve().parent.parent)
+        try:
+            proc = subprocess.run([sys.executable, "-c", _CHILD, str(job_path), str(out_path), package_parent],
+                                  capture_output=True, text=True, timeout=timeout)
+        except subprocess.TimeoutExpired:
+            raise RenderError(
+                f"Open3D's OffscreenRenderer did not finish {len(jobs)} picture(s) of {size[0]}x{size[1]} in "
+                f"{timeout:g} s (MESHDENOISE_RENDER_TIMEOUT)") from None
+        log = proc.stdout + proc.stderr
+        if proc.returncode != 0 or not out_path.is_file():
+            tail = " | ".join(line.strip() for line in log.strip().splitlines()[-3:])
+            raise RenderError(
+                f"Open3D's OffscreenRenderer failed (exit status {proc.returncode}: {tail or 'no output'}); "
+                "it needs the Debian packages libvulkan1 mesa-vulkan-drivers libegl1 libgl1 "
+                "(scripts/install-system-deps.sh)")
+        with np.load(out_path) as out:
+            images = [out[f"arr_{k}"] for k in range(len(jobs))]
+    device = next((ln.split(":", 1)[1].strip() for ln in log.splitlines() if "device driver:" in ln), "")
+    backend = next((ln.split(":", 1)[1].strip() for ln in log.splitlines() if "resolved backend:" in ln), "")
+    extra = ", ".join(x for x in (f"Filament {backend}" if backend else "", device) if x)
+    return images, f"Open3D {o3d.__version__} OffscreenRenderer" + (f" ({extra})" if extra else "")
+
+
+def _draw_matplotlib(job: dict, size, camera: Camera) -> np.ndarray:
+    """Painter's algorithm: project with ``camera``, draw triangles far to near with Agg."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.collections import PolyCollection
+    from matplotlib.figure import Figure
+
+    V, F = job["V"], job["F"]
+    w, h = size
+    proj = camera.project(V, size)
+    tri = proj[F]
+    keep = (tri[:, :, 2] > camera.near).all(axis=1)
+    F, tri = F[keep], tri[keep]
+    order = np.argsort(-tri[:, :, 2].mean(axis=1), kind="stable")
+    F, tri = F[order], tri[order]
+    fig = Figure(figsize=(w / 100.0, h / 100.0), dpi=100, facecolor=BACKGROUND)
+    FigureCanvasAgg(fig)
+    ax = fig.add_axes([0, 0, 1, 1])
+    ax.set_axis_off()
+    ax.set_xlim(0, w)
+    ax.set_ylim(h, 0)
+    if job.get("scalar") is not None:  # heat map: the scalar interpolated (Gouraud), then coloured
+        ax.tripcolor(proj[:, 0], proj[:, 1], F, job["scalar"], shading="gouraud", cmap=job["cmap"], norm=job["norm"])
+    else:
+        rgb = np.clip(job["colors"][F].mean(axis=1), 0.0, 1.0)
+        ax.add_collection(PolyCollection(tri[:, :, :2], facecolors=rgb, edgecolors=rgb, linewidths=0.3))
+    fig.canvas.draw()
+    return np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy()
+
+
+def _draw(jobs: list[dict], size, camera: Camera, backend: str) -> tuple[list[np.ndarray], str, str]:
+    """Pictures of the jobs with the chosen backend; 'auto' falls back to matplotlib with a warning."""
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if backend == "auto":
+        env = os.environ.get("MESHDENOISE_RENDER_BACKEND", "auto")
+        if env not in BACKENDS:
+            raise ValueError(f"MESHDENOISE_RENDER_BACKEND must be one of {BACKENDS}, got {env!r}")
+        backend = env
+    reason = "requested"
+    if backend in ("auto", "open3d"):
+        try:
+            images, detail = _draw_open3d(jobs, size, camera, _render_timeout())
+            return images, "open3d", detail
+        except RenderError as exc:
+            if backend == "open3d":
+                raise
+            reason = str(exc)
+            warnings.warn(f"{reason}; drawing with the matplotlib software rasteriser instead "
+                          "(set MESHDENOISE_RENDER_BACKEND=matplotlib to skip Open3D)", UserWarning, stacklevel=3)
+    images = [_draw_matplotlib(job, size, camera) for job in jobs]
+    return images, "matplotlib", f"matplotlib {_mpl_version()} software rasteriser ({reason})"
+
+
+def _mpl_version() -> str:
+    import matplotlib
+
+    return matplotlib.__version__
+
+
+def _job(V, F, camera: Camera, error=None, vmax=None, cmap: str = "viridis") -> dict:
+    """What one panel needs: geometry, per-vertex colours, and for heat maps the scalar and scale."""
+    if error is None:
+        return {"V": V, "F": F, "colors": _shade(V, F, camera)}
+    import matplotlib
+    from matplotlib.colors import Normalize
+
+    error = np.asarray(error, dtype=np.float64)
+    if error.shape != (V.shape[0],):
+        raise ValueError(f"error must have one value per vertex, shape ({V.shape[0]},), got {error.shape}")
+    vmax = _default_vmax([error]) if vmax is None else vmax
+    return {"V": V, "F": F, "colors": error_colors(error, vmax, cmap), "scalar": np.minimum(error, vmax),
+            "norm": Normalize(0.0, vmax), "cmap": matplotlib.colormaps[cmap]}
+
+
+def render_mesh(
+    mesh: Any,
+    size: tuple[int, int] = (400, 400),
+    camera: Camera | None = None,
+    *,
+    error: np.ndarray | None = None,
+    vmax: float | None = None,
+    cmap: str = "viridis",
+    backend: str = "auto",
+) -> np.ndarray:
+    """One picture ``(height, width, 3) uint8`` of a mesh on a white background.
+
+    Without ``error``: light grey, shaded by :func:`_shade`'s light. With ``error`` (one
+    value per vertex): an unlit heat map on the colour map ``cmap`` from 0 to ``vmax``
+    (default: the largest error). ``camera`` defaults to :func:`frame_camera` of this mesh
+    alone; pass one camera to compare meshes. ``backend`` as in :func:`render_comparison`.
+
+    Examples
+    --------
+    >>> from meshdenoise.shapes import icosphere
+    >>> img = render_mesh(icosphere(1), size=(32, 32), backend="matplotlib")
+    >>> img.shape, bool((img < 255).any())
+    ((32, 32, 3), True)
+    """
+    size = _check_size(size)
+    V, F = _arrays(mesh, "mesh")
+    camera = camera or frame_camera([V], size)
+    images, _, _ = _draw([_job(V, F, camera, error, vmax, cmap)], size, camera, backend)
+    return images[0]
+
+
+def _default_vmax(errors: Sequence[np.ndarray]) -> float:
+    """The largest error shown; a tiny positive scale when all are zero (identical meshes)."""
+    top = max((float(e.max()) for e in errors if e.size), default=0.0)
+    return top if top > 0 else 1e-12
+
+
+# --- side by side --------------------------------------------------------------------------------
+@dataclass
+class RenderResult:
+    """What :func:`render_comparison` drew.
+
+    Attributes
+    ----------
+    path : Path
+        The PNG written.
+    backend : str
+        ``'open3d'`` or ``'matplotlib'``: the rasteriser that ran.
+    backend_detail : str
+        The device (e.g. ``Filament Vulkan on llvmpipe``) or why the fallback ran.
+    panels : list of ndarray, each (height, width, 3) uint8
+        The pictures, left to right, as pasted into the PNG.
+    boxes : list of (row, column, height, width)
+        Where each panel lies in the PNG.
+    titles : list of str
+    errors : list of ndarray
+        The per-vertex errors of the heat-map panels, in order.
+    error_mode : str or None
+        ``'vertex'`` or ``'nearest'`` (see :func:`vertex_error`), None without a reference.
+    vmax : float or None
+        The top of the colour bar.
+    camera : Camera
+        The camera shared by every panel.
+    """
+
+    path: Path
+    backend: str
+    backend_detail: str
+    panels: list[np.ndarray]
+    boxes: list[tuple[int, int, int, int]]
+    titles: list[str]
+    errors: list[np.ndarray] = field(default_factory=list)
+    error_mode: str | None = None
+    vmax: float | None = None
+    camera: Camera | None = None
+
+
+def render_comparison(
+    meshes: Sequence[Any],
+    out_png: str | os.PathLike,
+    reference: Any = None,
+    titles: Sequence[str] | None = None,
+    *,
+    size: tuple[int, int] = (400, 400),
+    view: tuple[float, float] = (0.0, 0.0),
+    error_of: str = "last",
+    error_mode: str = "auto",
+    vmax: float | None = None,
+    cmap: str = "viridis",
+    backend: str = "auto",
+) -> RenderResult:
+    """Meshes side by side from one camera, then error heat maps against ``reference``, in one PNG.
+
+    For ``meshes = [noisy, denoised]`` and a clean ``reference`` this is the before /
+    after / error picture: two lit panels and a heat map of the denoised mesh's error with
+    a colour bar in mesh units. The camera frames all meshes (and the reference) together,
+    so the same mesh gives the same panel wherever it appears.
+
+    Parameters
+    ----------
+    meshes : sequence of meshes
+        ``(V, F)`` tuples, any type :func:`meshdenoise.adapters.read_mesh` accepts, or file paths.
+    out_png : path
+        Written atomically (temporary file, then rename); must end in ``.png``.
+    reference : mesh, optional
+        The clean mesh the errors are measured against (see :func:`vertex_error`).
+    titles : sequence of str, optional
+        One per mesh (default: file names, else "mesh 1", "mesh 2", ...).
+    size : (width, height)
+        Pixels of one panel.
+    view : (azimuth, elevation)
+        Degrees; see :func:`frame_camera`.
+    error_of : {'last', 'all'}
+        Heat maps of the last mesh only, or of every mesh (one shared colour bar).
+    error_mode : {'auto', 'vertex', 'nearest'}
+        See :func:`vertex_error`.
+    vmax : float, optional
+        Top of the colour bar; default the largest error shown. Larger errors get the top
+        colour and the bar an arrow.
+    cmap : str
+        A matplotlib colour map (perceptually uniform ones, e.g. viridis, read best).
+    backend : {'auto', 'open3d', 'matplotlib'}
+        ``'auto'``: Open3D, else matplotlib with a warning (see the module's notes).
+
+    Returns
+    -------
+    RenderResult
+
+    Examples
+    --------
+    >>> import tempfile, pathlib
+    >>> from meshdenoise.shapes import icosphere
+    >>> V, F = icosphere(1)
+    >>> out = pathlib.Path(tempfile.mkdtemp()) / "cmp.png"
+    >>> res = render_comparison([(V * 1.1, F), (V * 1.01, F)], out, reference=(V, F),
+    ...                         size=(48, 48), backend="matplotlib")
+    >>> res.titles, res.error_mode, round(res.vmax, 6), out.is_file()
+    (['mesh 1', 'mesh 2', 'error of mesh 2'], 'vertex', 0.01, True)
+    """
+    size = _check_size(size)
+    if isinstance(meshes, (str, os.PathLike)) or (isinstance(meshes, tuple) and len(meshes) == 2
+                                                  and isinstance(meshes[0], np.ndarray)):
+        meshes = [meshes]  # one mesh given bare
+    meshes = list(meshes)
+    if not meshes:
+        raise ValueError("render_comparison needs at least one mesh")
+    if error_of not in ("last", "all"):
+        raise ValueError(f"error_of must be 'last' or 'all', got {error_of!r}")
+    out_png = Path(out_png)
+    if out_png.suffix.lower() != ".png":
+        raise ValueError(f"{out_png}: the picture is written as PNG, so the name must end in .png")
+    if titles is None:
+        titles = [Path(m).name if isinstance(m, (str, os.PathLike)) else f"mesh {i + 1}" for i, m in enumerate(meshes)]
+    titles = [str(t) for t in titles]
+    if len(titles) != len(meshes):
+        raise ValueError(f"titles: {len(titles)} given for {len(meshes)} meshes")
+    arrays = [_arrays(m, f"mesh {i + 1}") for i, m in enumerate(meshes)]
+    ref = _arrays(reference, "reference") if reference is not None else None
+    camera = frame_camera([V for V, _ in arrays] + ([ref[0]] if ref else []), size, view)
+
+    jobs, panel_titles = [_job(V, F, camera) for V, F in arrays], list(titles)
+    errors, mode_used = [], None
+    if ref is not None:
+        targets = range(len(arrays)) if error_of == "all" else [len(arrays) - 1]
+        for k in targets:
+            err, mode_used = vertex_error(arrays[k], ref, error_mode)
+            errors.append(err)
+        vmax = _default_vmax(errors) if vmax is None else float(vmax)
+        if not np.isfinite(vmax) or vmax <= 0:
+            raise ValueError(f"vmax must be a finite number > 0, got {vmax!r}")
+        for k, err in zip(targets, errors):
+            jobs.append(_job(*arrays[k], camera, err, vmax, cmap))
+            panel_titles.append(f"error of {titles[k]}")
+    panels, which, detail = _draw(jobs, size, camera, backend)
+    boxes = _compose(out_png, panels, panel_titles, errors, vmax, cmap, mode_used)
+    return RenderResult(out_png, which, detail, panels, boxes, panel_titles, errors, mode_used,
+                        vmax if ref is not None else None, camera)
+
+
+TITLE_BAND = 40  # pixels above the panels for titles
+BAR_BAND = 110  # pixels right of the panels for the colour bar
+
+
+def _compose(out_png: Path, panels, titles, errors, vmax, cmap, mode) -> list[tuple[int, int, int, int]]:
+    """Paste the panels pixel for pixel (``figimage``, no resampling) with titles and a colour bar."""
+    import matplotlib
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.colorbar import ColorbarBase
+    from matplotlib.colors import Normalize
+    from matplotlib.figure import Figure
+    from matplotlib.ticker import FuncFormatter
+
+    h, w = panels[0].shape[:2]
+    gap = 8
+    width = len(panels) * w + (len(panels) - 1) * gap + (BAR_BAND if errors else 0)
+    height = h + TITLE_BAND
+    fig = Figure(figsize=(width / 100.0, height / 100.0), dpi=100, facecolor="white")
+    FigureCanvasAgg(fig)
+    boxes = []
+    n_geometry = len(panels) - len(errors)
+    for k, (img, title) in enumerate(zip(panels, titles)):
+        x0 = k * (w + gap)
+        fig.figimage(img, xo=x0, yo=0, origin="upper")
+        boxes.append((TITLE_BAND, x0, h, w))
+        lines = [title]
+        if k >= n_geometry:
+            e = errors[k - n_geometry]
+            lines.append(f"max {e.max():.3g}, RMS {np.sqrt(np.mean(e**2)):.3g}")
+        fig.text((x0 + w / 2) / width, 1 - 4 / height, "\n".join(lines), ha="center", va="top",
+                 fontsize=9, wrap=False, clip_on=True)
+    if errors:
+        x0 = len(panels) * (w + gap) + 4
+        cax = fig.add_axes([x0 / width, 0.08 * h / height, 14 / width, 0.84 * h / height])
+        over = any(float(e.max()) > vmax for e in errors)
+        bar = ColorbarBase(cax, cmap=matplotlib.colormaps[cmap], norm=Normalize(0.0, vmax),
+                           extend="max" if over else "neither")
+        bar.ax.tick_params(labelsize=8)
+        bar.ax.yaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:.3g}"))  # no offset text to clip
+        label = "distance to reference" if mode == "nearest" else "vertex displacement"
+        bar.set_label(label + " (mesh units)", fontsize=7)
+    with atomic_path(out_png) as tmp:
+        fig.savefig(tmp, dpi=100, format="png", facecolor="white")
+    return boxes
