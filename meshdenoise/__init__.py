@@ -25,6 +25,7 @@ from .plugins.sobolev_bilaplacian import sobolev_bilaplacian
 from .plugins.taubin import taubin
 from .quality_metrics import max_distance, mean_distance, normal_error_deg, volume_change
 from .auto import choose_parameters, denoise, estimate_noise
+from .io import MeshFile, MeshFileError, load_mesh, save_mesh
 from .meshinfo import mesh_info
 from .metrics import compute_metrics
 from .registry import Param, apply_filter, get_filter, list_filters, register
@@ -37,6 +38,14 @@ def __getattr__(name: str):
         from . import pipeline
 
         return getattr(pipeline, name)
+    if name == "render_comparison":  # rendering and reports load matplotlib and Open3D's renderer on demand
+        from .render import render_comparison
+
+        return render_comparison
+    if name == "write_report":
+        from .report import write_report
+
+        return write_report
     raise AttributeError(f"module 'meshdenoise' has no attribute {name!r}")
 
 
@@ -55,6 +64,12 @@ __all__ = [
     "mesh_info",
     "load_pipeline",
     "run_pipeline",
+    "render_comparison",
+    "write_report",
+    "load_mesh",
+    "save_mesh",
+    "MeshFile",
+    "MeshFileError",
     "filtering",
     "heat",
     "sinkhorn",

@@ -232,3 +232,48 @@ def test_shipped_compare_meshlab_runs_every_filter(tmp_path):
     Vn, _ = md.add_normal_noise((V, F), rho=rho, seed=0)
     for name in ("filtering", "sobolev", "taubin"):
         assert rows[name]["snr"] == pytest.approx(md.snr(V, md.apply_filter(name, (Vn, F))[0]), abs=1e-9), name
+
+
+def test_render_step_draws_before_after_error_and_is_staged(tmp_path):
+    """The render step: noisy / denoised / error heat map in one PNG, written only if the task succeeds."""
+    from PIL import Image
+
+    from meshdenoise.shapes import grid
+
+    save_mesh(tmp_path / "sphere.ply", *icosphere(2))
+    out = tmp_path / "out"
+    p = _write(tmp_path, (
+        "inputs: sphere.ply\n"
+        f"output_dir: {out}\n"
+        "steps:\n"
+        "  - add_noise: {rho: 0.02, seed: 0, label: clean}\n"
+        "  - sobolev: {mu: 1, label: noisy}\n"
+        "  - render: {path: '{stem}.png', meshes: [noisy, result], reference: clean, size: [120, 100], backend: matplotlib}\n"
+    ))
+    result = _run("run", p, "--serial")
+    assert result.exit_code == 0, result.output
+    image = Image.open(out / "sphere.png")
+    assert image.width >= 3 * 120 and image.height >= 100  # noisy, denoised and the heat map of the last
+    assert list(out.glob(".*")) == []  # no temporary left behind
+    # a later step fails: the picture of that task must not be left behind
+    save_mesh(tmp_path / "flat.ply", *grid(6, 6))
+    out2 = tmp_path / "out2"
+    p2 = _write(tmp_path, (
+        "inputs: flat.ply\n"
+        f"output_dir: {out2}\n"
+        "steps:\n"
+        "  - render: {path: '{stem}.png', backend: matplotlib, size: [64, 64]}\n"
+        "  - sobolev: {preserve_volume: true}\n"
+    ))
+    assert _run("run", p2, "--serial").exit_code == 1
+    assert not out2.exists() or list(out2.iterdir()) == []
+
+
+def test_render_step_names_are_checked_before_running(tmp_path):
+    save_mesh(tmp_path / "sphere.ply", *icosphere(1))
+    p = _write(tmp_path, "inputs: sphere.ply\nsteps:\n  - render: {path: a.png, meshes: [input, cleen]}\n")
+    result = _run("run", p)
+    assert result.exit_code == 2 and "'cleen' is neither input, result nor the label" in result.output
+    p = _write(tmp_path, "inputs: sphere.ply\nsteps:\n  - render: {path: a.png, mehses: [input]}\n")
+    result = _run("run", p)
+    assert result.exit_code == 2 and "did you mean 'meshes'" in result.output

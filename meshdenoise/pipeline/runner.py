@@ -7,6 +7,7 @@ Input files are only read.
 
 from __future__ import annotations
 
+import os
 import time
 import traceback
 from typing import Any, Callable
@@ -32,16 +33,22 @@ def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
     ms = meshset_from_arrays(mesh.V, mesh.F, mesh.vertex_colors)
     ctx = RunContext(ms=ms, input_path=task.input, input_arrays=(mesh.V, mesh.F), row=row, echo=echo)
     ctx.resolve_path = lambda template: task.output_paths[template]
-    for step in task.steps:
-        try:
-            run_step(step, ctx)
-        except MeshValidationError as exc:  # the mesh itself is unusable (a point cloud, NaN coordinates...)
-            raise InputError(f"{task.input}: {step.where}: {exc}") from None
-        except Exception as exc:  # any library error: name the input and the step
-            detail = str(exc) or type(exc).__name__
-            raise StepFailure(f"{task.input}: {step.where} failed: {type(exc).__name__}: {detail}") from exc
-    for path, V, F, colors, binary in ctx.staged:
-        save_mesh(path, V, F, colors, binary=binary)
+    try:
+        for step in task.steps:
+            try:
+                run_step(step, ctx)
+            except MeshValidationError as exc:  # the mesh itself is unusable (a point cloud, NaN coordinates...)
+                raise InputError(f"{task.input}: {step.where}: {exc}") from None
+            except Exception as exc:  # any library error: name the input and the step
+                detail = str(exc) or type(exc).__name__
+                raise StepFailure(f"{task.input}: {step.where} failed: {type(exc).__name__}: {detail}") from exc
+        for path, V, F, colors, binary in ctx.staged:
+            save_mesh(path, V, F, colors, binary=binary)
+        for tmp, path in ctx.staged_files:
+            os.replace(tmp, path)
+    finally:
+        for tmp, _ in ctx.staged_files:  # left only when the task failed
+            tmp.unlink(missing_ok=True)
     V = ms.current_mesh()
     row["vertices"] = V.vertex_number()
     row["faces"] = V.face_number()

@@ -188,6 +188,14 @@ def build_plan(
 def _check_labels(steps: list[Step], base_dir: Path) -> None:
     seen: set[str] = set()
     for step in steps:
+        if step.kind == "render":
+            wanted = list(step.params["meshes"]) + ([step.params["reference"]] if step.params["reference"] else [])
+            for name in wanted:
+                if name not in ("input", "result") and name not in seen:
+                    raise PipelineValidationError(
+                        f"{step.where}: '{name}' is neither input, result nor the label of an earlier step "
+                        f"(labels so far: {', '.join(sorted(seen)) or 'none'})"
+                    )
         if step.kind == "metrics":
             ref = step.params["reference"]
             if isinstance(ref, dict) and ref["before"] not in seen:

@@ -7,6 +7,9 @@ Open3D operations go through arrays and back.
 
 from __future__ import annotations
 
+import os
+import tempfile
+
 import difflib
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -149,6 +152,47 @@ def _our_filter(index, name, given, label, source, line) -> Step:
     return Step(index, name, "ours", params, label, source, line, options)
 
 
+RENDER_PARAMS = ("path", "meshes", "reference", "titles", "size", "backend", "cmap", "vmax")
+
+
+def _check_render(given: dict, at: str) -> dict:
+    """``render``: the named meshes side by side (``input``, ``result`` or a step label: the mesh
+    before that step), with an error heat map against ``reference`` when one is named."""
+    from ..render import BACKENDS
+
+    for key in given:
+        if key not in RENDER_PARAMS:
+            hint = difflib.get_close_matches(str(key), RENDER_PARAMS, n=1)
+            extra = f" (did you mean '{hint[0]}'?)" if hint else ""
+            raise PipelineValidationError(f"{at}: unknown parameter '{key}'{extra}; its parameters: {', '.join(RENDER_PARAMS)}")
+    path = given.get("path")
+    if not isinstance(path, str) or not path.lower().endswith(".png"):
+        raise PipelineValidationError(f"{at}: render needs path: an image file ending in .png, got {path!r}")
+    meshes = given.get("meshes", ["input", "result"])
+    if isinstance(meshes, str):
+        meshes = [meshes]
+    if not isinstance(meshes, list) or not meshes or not all(isinstance(m, str) for m in meshes):
+        raise PipelineValidationError(f"{at}: meshes: expected a list of names (input, result or step labels), got {meshes!r}")
+    reference = given.get("reference")
+    if reference is not None and not isinstance(reference, str):
+        raise PipelineValidationError(f"{at}: reference: expected input, result or a step label, got {reference!r}")
+    titles = given.get("titles")
+    if titles is not None and (not isinstance(titles, list) or len(titles) != len(meshes)):
+        raise PipelineValidationError(f"{at}: titles: expected a list of {len(meshes)} strings (one per mesh), got {titles!r}")
+    size = given.get("size", [400, 400])
+    if (not isinstance(size, list) or len(size) != 2
+            or not all(isinstance(v, int) and not isinstance(v, bool) and 16 <= v <= 4096 for v in size)):
+        raise PipelineValidationError(f"{at}: size: expected [width, height] in pixels (16..4096), got {size!r}")
+    backend = given.get("backend", "auto")
+    if backend not in BACKENDS:
+        raise PipelineValidationError(f"{at}: backend = {backend!r} is not allowed: one of {', '.join(BACKENDS)}")
+    vmax = given.get("vmax")
+    if vmax is not None and (isinstance(vmax, bool) or not isinstance(vmax, (int, float)) or not vmax > 0):
+        raise PipelineValidationError(f"{at}: vmax: expected a positive number (top of the colour bar), got {vmax!r}")
+    return {"path": path, "meshes": meshes, "reference": reference, "titles": titles or list(meshes),
+            "size": tuple(size), "backend": backend, "cmap": str(given.get("cmap", "viridis")), "vmax": vmax}
+
+
 def _check_metrics(given: dict, at: str) -> dict:
     from ..metrics import METRICS
 
@@ -243,9 +287,7 @@ def _parse(name, given, index, label, source, line, at_param) -> Step:
     if name == "metrics":
         return Step(index, name, "metrics", _check_metrics(given, at), label, source, line)
     if name == "render":
-        if not isinstance(given.get("path"), str):
-            raise PipelineValidationError(f"{at}: render needs a path (an image file)")
-        return Step(index, name, "render", given, label, source, line)
+        return Step(index, name, "render", _check_render(given, at), label, source, line)
     if name in pymeshlab_steps.filter_names():
         try:
             params = pymeshlab_steps.check_parameters(name, given, at)
@@ -276,6 +318,7 @@ class RunContext:
     snapshots: dict = field(default_factory=dict)  # label -> (V, F) before that step
     row: dict = field(default_factory=dict)
     staged: list = field(default_factory=list)  # (path, V, F, colors, binary) written at the end
+    staged_files: list = field(default_factory=list)  # (temporary, path) renamed at the end (images)
     resolve_path: Any = None  # template -> Path
     echo: Any = None  # callable(str) for messages (auto parameters)
 
@@ -338,11 +381,20 @@ def run_step(step: Step, ctx: RunContext) -> None:
     elif step.kind == "render":
         from ..render import render_comparison  # written separately; imported only when used
 
-        params = dict(step.params)
-        path = ctx.resolve_path(params.pop("path"))
+        p = step.params
         V, F, _ = current_arrays(ctx.ms)
-        meshes = {"input": ctx.input_arrays, **ctx.snapshots, "result": (V, F)}
-        render_comparison(meshes, path, **params)
+        named = {"input": tuple(ctx.input_arrays[:2]), **{k: v[:2] for k, v in ctx.snapshots.items()}, "result": (V, F)}
+        path = Path(ctx.resolve_path(p["path"]))
+        # staged like a saved mesh: drawn into a hidden file beside the target, renamed once every step succeeded
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
+        os.close(fd)
+        ctx.staged_files.append((Path(tmp), path))
+        result = render_comparison(
+            [named[m] for m in p["meshes"]], tmp, reference=named[p["reference"]] if p["reference"] else None,
+            titles=p["titles"], size=p["size"], backend=p["backend"], cmap=p["cmap"], vmax=p["vmax"],
+        )
+        ctx.row[f"{step.label + '.' if step.label else ''}render.backend"] = result.backend
         ctx.row.setdefault("outputs", []).append(str(path))
     else:  # pragma: no cover - parse_step only makes the kinds above
         raise AssertionError(step.kind)
