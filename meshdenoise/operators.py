@@ -264,7 +264,7 @@ def _check_kernel() -> bool:
 def spmm(
     A: sp.csr_matrix, X: np.ndarray, out: np.ndarray | None = None, *, accumulate: bool = False, threads: int | None = None
 ) -> np.ndarray:
-    """``A @ X`` for CSR ``A`` (n, p) and dense ``X`` (p, k), threaded over row blocks, into ``out``.
+    r"""``A @ X`` for CSR ``A`` (n, p) and dense ``X`` (p, k), threaded over row blocks, into ``out``.
 
     .. math:: Y \leftarrow A X \quad\text{or, with accumulate=True,}\quad Y \leftarrow Y + A X
 
