@@ -140,7 +140,7 @@ def _memory_child(path: str, what: str, queue) -> None:
 
     with np.load(path) as z:
         V, F = z["V"], z["F"]
-    base = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+    base = _reset_peak_rss()
     tracemalloc.start()
     if what == "filtering":
         filtering((V, F), iterations=1)  # operators built inside, as a user's first call
@@ -154,7 +154,37 @@ def _memory_child(path: str, what: str, queue) -> None:
         sobolev((V, F), mu=1.0)
     _, peak = tracemalloc.get_traced_memory()
     tracemalloc.stop()
-    queue.put({"maxrss_delta": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024 - base, "tracemalloc_peak": peak})
+    queue.put({"maxrss_delta": _peak_rss() - base, "tracemalloc_peak": peak})
+
+
+def _proc_status(field: str) -> int | None:
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith(field + ":"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return None
+
+
+def _reset_peak_rss() -> int:
+    """Reset the kernel's RSS high-water mark to the current RSS (Linux) and return that RSS.
+
+    ``ru_maxrss`` is no good here: Linux carries it across fork and exec, so a child of a
+    process holding a 6M-vertex mesh starts with that process's peak. ``VmHWM`` belongs to
+    the child's own address space, and writing 5 to ``clear_refs`` resets it.
+    """
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        pass
+    rss = _proc_status("VmRSS")
+    return rss if rss is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
+
+
+def _peak_rss() -> int:
+    hwm = _proc_status("VmHWM")
+    return hwm if hwm is not None else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024
 
 
 def peak_memory(path: Path, what: str) -> dict:
@@ -336,6 +366,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cache-dir", default=None, help="where the subdivided meshes are kept (default ~/.cache/meshdenoise)")
     ap.add_argument("--no-external", action="store_true", help="skip MeshLab and Open3D")
     ap.add_argument("--no-memory", action="store_true", help="skip the peak-memory subprocesses")
+    ap.add_argument("--memory-only", action="store_true", help="only the peak-memory subprocesses (no timings)")
     args = ap.parse_args(argv)
     labels = [s.strip() for s in args.sizes.split(",") if s.strip()]
     for lab in labels:
@@ -345,6 +376,24 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(f"--repeats must be at least 1, got {args.repeats}")
     folder = cache_dir(args.cache_dir)
     t0 = time.perf_counter()
+    if args.memory_only:
+        doc = {}
+        for lab in labels:
+            V, F = benchmark_mesh(lab, folder)
+            n = len(V)
+            del V, F
+            path = folder / f"elephant-loop{SIZES[lab]}.npz"
+            doc[lab] = {"n": n}
+            for what in ("filtering", "heat_euler", "heat_chebyshev", "sobolev"):
+                m = peak_memory(path, what)
+                doc[lab][what] = m
+                print(f"{lab:5s} n={n:>9,d} {what:15s} peak RSS growth {m['maxrss_delta'] / n:7.0f} B/vertex, "
+                      f"tracemalloc peak {m['tracemalloc_peak'] / n:7.0f} B/vertex", flush=True)
+        if args.out:
+            tmp = Path(args.out).with_name(Path(args.out).name + ".tmp")
+            tmp.write_text(json.dumps(doc, indent=1))
+            os.replace(tmp, args.out)
+        return 0
     results = []
     for lab in labels:
         print(f"[{time.perf_counter() - t0:7.1f} s] {lab} ...", file=sys.stderr, flush=True)
