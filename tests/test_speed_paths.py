@@ -224,3 +224,37 @@ def test_loop_subdivision_of_the_benchmark():
     Vg, Fg = grid(5, 4)
     Vg2, Fg2 = loop(Vg, Fg)
     np.testing.assert_allclose(Vg2[:, 2], 0.0, atol=1e-15)  # planar stays planar
+
+
+def test_locality_order_is_a_permutation_that_shrinks_bandwidth():
+    V, F = icosphere(3)
+    perm = np.random.default_rng(4).permutation(len(V))  # scramble the labels first
+    inv = np.argsort(perm)
+    ops = Operators(inv[F], len(V))
+    order = ops.locality_order
+    np.testing.assert_array_equal(np.sort(order), np.arange(len(V)))
+    Pp = ops.permuted(ops.P, "P").tocoo()
+    np.testing.assert_array_equal(Pp.toarray(), ops.P.toarray()[order][:, order])
+    assert np.abs(Pp.row - Pp.col).max() < np.abs(ops.P.tocoo().row - ops.P.tocoo().col).max() / 4
+
+
+@pytest.mark.parametrize("method", ["euler", "chebyshev"])
+def test_relabelled_fast_path_gives_the_same_result(monkeypatch, method):
+    """Forcing the locality-ordered path on a small mesh changes nothing but rounding."""
+    from meshdenoise.plugins import filtering as filtering_module
+
+    V, F = _noisy(torus(14, 9))
+    pinned = np.zeros(len(V), bool)
+    pinned[[3, 40, 77]] = True
+    monkeypatch.setattr(filtering_module, "LOCALITY_MIN_VERTICES", 10**9)
+    ref_heat, _ = heat((V, F), time=6.0, method=method, pinned=pinned)
+    ref_filt, _ = filtering((V, F), iterations=20, lam=0.6, weights="meshlab", pinned=pinned)
+    monkeypatch.setattr(filtering_module, "LOCALITY_MIN_VERTICES", 0)
+    ops = Operators(F, len(V))
+    assert filtering_module.use_locality_order(ops, 20)
+    got_heat, _ = heat((V, F), time=6.0, method=method, pinned=pinned, operators=ops)
+    got_filt, _ = filtering((V, F), iterations=20, lam=0.6, weights="meshlab", pinned=pinned, operators=ops)
+    assert "locality_order" in ops.__dict__  # the relabelled path really ran
+    np.testing.assert_allclose(got_heat, ref_heat, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(got_filt, ref_filt, rtol=0, atol=1e-13)
+    np.testing.assert_array_equal(got_heat[pinned], V[pinned])
