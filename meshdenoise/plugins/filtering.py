@@ -7,10 +7,11 @@ from collections.abc import Iterator
 import numpy as np
 import scipy.sparse as sp
 
+from ..gpu import BACKENDS, Backend, get_backend
 from ..operators import Operators
 from ..registry import Param, register
 
-__all__ = ["filtering", "averaging_operator", "smoothing_steps", "WEIGHTS"]
+__all__ = ["filtering", "averaging_operator", "smoothing_steps", "step_matrix", "run_linear_steps", "WEIGHTS"]
 
 WEIGHTS = ("uniform", "meshlab", "open3d", "inverse_distance")
 
@@ -87,6 +88,81 @@ def averaging_operator(
     return ops.with_fixed_rows(A, fixed, name)
 
 
+LOCALITY_MIN_VERTICES = 1 << 16  # below this X fits in cache and relabelling cannot pay
+LOCALITY_MIN_STEPS = 16  # the first relabelling costs about 15 products at 1.6M vertices
+
+
+def use_locality_order(ops: Operators, steps: int) -> bool:
+    """Whether to iterate on relabelled vertices (:attr:`Operators.locality_order`).
+
+    Yes for large meshes when the order is already computed or the run is long enough
+    to repay computing it.
+    """
+    if ops.n < LOCALITY_MIN_VERTICES:
+        return False
+    return "locality_order" in ops.__dict__ or steps >= LOCALITY_MIN_STEPS
+
+
+def step_matrix(
+    ops: Operators,
+    weights: str = "uniform",
+    lam: float = 1.0,
+    fixed: np.ndarray | None = None,
+    boundary: bool = True,
+    permuted: bool = False,
+) -> sp.csr_matrix:
+    """The one matrix of a step :math:`X \\leftarrow X + \\lambda (A X - X) = ((1 - \\lambda) I + \\lambda A) X`.
+
+    Fixed vertices get exact identity rows, so they stay bit-identical. Folding the
+    step into one matrix makes each iteration a single sparse product with no
+    temporaries. Built per call for ``lam < 1`` (one sparse addition, O(nnz)); the
+    ``lam = 1`` matrices are the cached averaging operators. With ``permuted=True`` the
+    matrix acts on vertices relabelled by :attr:`Operators.locality_order`.
+    """
+    if permuted:
+        order = ops.locality_order
+        A = ops.permuted(averaging_operator(ops, weights, None, boundary), f"{weights}-{boundary}")
+        fixed = None if fixed is None else fixed[order]
+        if lam == 1.0:
+            return ops.with_fixed_rows(A, fixed, f"permuted-{weights}-{boundary}")
+    elif lam == 1.0:
+        return averaging_operator(ops, weights, fixed, boundary)
+    else:
+        A = averaging_operator(ops, weights, None, boundary)
+    M = sp.csr_matrix(lam * A + sp.diags(np.full(ops.n, 1.0 - lam)))
+    if fixed is not None and fixed.any():
+        M = sp.csr_matrix(sp.diags((~fixed).astype(np.float64)) @ M + sp.diags(fixed.astype(np.float64)))
+        M.eliminate_zeros()
+    M.sort_indices()
+    return M
+
+
+def run_linear_steps(
+    M: sp.csr_matrix, V: np.ndarray, steps: int, backend: str | Backend = "cpu", order: np.ndarray | None = None
+) -> np.ndarray:
+    """``M^steps V`` by repeated sparse products on ``backend``; ``V`` (n, 3) is not modified.
+
+    Two buffers alternate, so memory stays at two copies of the coordinates plus ``M``.
+    With ``order``, ``M`` acts on the vertices relabelled by it (``M = A[order][:, order]``)
+    and the result comes back in the original labels.
+    """
+    be = get_backend(backend) if isinstance(backend, str) else backend
+    if steps == 0:
+        return np.array(V, dtype=np.float64)
+    Md = be.matrix(M)
+    X = be.asarray(V if order is None else V[order])
+    Y = be.zeros_like(X)
+    for _ in range(steps):
+        be.spmm(Md, X, out=Y)
+        X, Y = Y, X
+    result = np.array(be.to_numpy(X), dtype=np.float64)
+    if order is not None:
+        back = np.empty_like(result)
+        back[order] = result
+        return back
+    return result
+
+
 def smoothing_steps(
     V: np.ndarray,
     ops: Operators,
@@ -103,15 +179,15 @@ def smoothing_steps(
     for every number of steps. Each yielded array is new (safe to keep).
     """
     X = np.array(V, dtype=np.float64, order="C")
-    A = None if weights == "inverse_distance" else averaging_operator(ops, weights, fixed, boundary)
+    M = None if weights == "inverse_distance" else step_matrix(ops, weights, lam, fixed, boundary)
     while True:
-        if A is None:
+        if M is None:
             AX = _inverse_distance_operator(ops, X) @ X
             if fixed is not None:
                 AX[fixed] = X[fixed]
+            X = AX if lam == 1.0 else X + lam * (AX - X)
         else:
-            AX = A @ X
-        X = AX if lam == 1.0 else X + lam * (AX - X)
+            X = Backend().spmm(M, X)  # one threaded product per step, a new array each time
         yield X
 
 
@@ -136,10 +212,17 @@ def smoothing_steps(
             help="weights='meshlab' only, MeshLab's option: True smooths boundary vertices along the boundary, "
             "False over their whole ring",
         ),
+        Param(
+            "backend",
+            str,
+            "cpu",
+            choices=BACKENDS,
+            help="where the sparse products run: cpu (default), scipy (reference), cupy or torch (GPU when present)",
+        ),
     ],
     linear=True,
 )
-def filtering(V, F, *, ops, fixed, iterations, weights, lam, boundary):
+def filtering(V, F, *, ops, fixed, iterations, weights, lam, boundary, backend):
     """Linear filtering by repeated neighbour averaging (the paper's first method).
 
     .. math:: X^{(t+1)} = X^{(t)} + \\lambda \\left(A X^{(t)} - X^{(t)}\\right), \\qquad t = 0, \\dots, k - 1
@@ -170,6 +253,10 @@ def filtering(V, F, *, ops, fixed, iterations, weights, lam, boundary):
         Step size; 1 replaces each vertex by the average.
     boundary : bool
         Only with ``weights="meshlab"``: MeshLab's ``boundary`` option.
+    backend : {"cpu", "scipy", "cupy", "torch"}
+        Where the sparse products run (linear weights only); see :mod:`meshdenoise.gpu`.
+        The default ``"cpu"`` folds a step into one matrix and runs scipy's CSR kernel
+        threaded over row blocks.
     pinned, region, preserve_volume, operators
         Options shared by every filter; see the README.
 
@@ -194,8 +281,19 @@ def filtering(V, F, *, ops, fixed, iterations, weights, lam, boundary):
     """
     if not boundary and weights != "meshlab":
         raise ValueError(f"parameter 'boundary' = False applies only to weights='meshlab', not weights={weights!r}")
-    steps = smoothing_steps(V, ops, weights=weights, lam=lam, fixed=fixed, boundary=boundary)
-    X = np.array(V, dtype=np.float64)
-    for _ in range(iterations):
-        X = next(steps)
-    return X
+    if weights == "inverse_distance":
+        if backend != "cpu":
+            raise ValueError(
+                f"parameter 'backend' = {backend!r} is not available with weights='inverse_distance' "
+                "(its weights change every step); use backend='cpu' or a linear weights rule"
+            )
+        steps = smoothing_steps(V, ops, weights=weights, lam=lam, fixed=fixed, boundary=boundary)
+        X = np.array(V, dtype=np.float64)
+        for _ in range(iterations):
+            X = next(steps)
+        return X
+    if iterations == 0:
+        return np.array(V, dtype=np.float64)
+    permuted = use_locality_order(ops, iterations)
+    M = step_matrix(ops, weights, lam, fixed, boundary, permuted=permuted)
+    return run_linear_steps(M, V, iterations, backend, ops.locality_order if permuted else None)

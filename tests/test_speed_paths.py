@@ -1,0 +1,260 @@
+"""Correctness of the fast paths (threaded kernel, fused steps, Chebyshev heat, backends, the
+benchmark's Loop subdivision) against independent computations. No timings here."""
+
+import importlib.util
+from pathlib import Path
+
+import numpy as np
+import pytest
+import scipy.linalg as sl
+import scipy.sparse as sp
+from scipy.special import iv
+
+from meshdenoise import operators as op_module
+from meshdenoise.gpu import BACKENDS, get_backend
+from meshdenoise.operators import Operators, spmm
+from meshdenoise.plugins.filtering import filtering
+from meshdenoise.plugins.heat import chebyshev_coefficients, heat
+from meshdenoise.shapes import grid, icosphere, torus
+
+
+def _noisy(mesh, seed=0):
+    V, F = mesh
+    return V + 0.05 * np.random.default_rng(seed).standard_normal(V.shape), F
+
+
+def _random_csr(n, p, density, seed):
+    A = sp.random(n, p, density=density, format="csr", random_state=seed)
+    A.sort_indices()
+    return A
+
+
+@pytest.mark.parametrize("threads", [1, 2, 3, 7])
+def test_spmm_matches_dense_product(threads):
+    A = _random_csr(200, 150, 0.05, 1)
+    X = np.random.default_rng(2).standard_normal((150, 3))
+    np.testing.assert_allclose(spmm(A, X, threads=threads), A.toarray() @ X, rtol=1e-13, atol=1e-13)
+    Y0 = np.random.default_rng(3).standard_normal((200, 3))
+    Y = Y0.copy()
+    spmm(A, X, Y, accumulate=True, threads=threads)
+    np.testing.assert_allclose(Y, Y0 + A.toarray() @ X, rtol=1e-13, atol=1e-13)
+
+
+def test_spmm_empty_rows_vectors_and_fallback(monkeypatch):
+    A = sp.csr_matrix(np.array([[0.0, 0, 0], [1, 0, 2], [0, 0, 0], [0, 3, 0]]))
+    x = np.array([1.0, 2.0, 3.0])
+    np.testing.assert_array_equal(spmm(A, x, threads=4), A.toarray() @ x)
+    monkeypatch.setattr(op_module, "_kernel_ok", False)  # a scipy without the private kernel
+    np.testing.assert_array_equal(spmm(A, x), A.toarray() @ x)
+
+
+def test_spmm_rejects_bad_arguments():
+    A = sp.csr_matrix(np.eye(3))
+    with pytest.raises(ValueError, match="accumulate=True needs out"):
+        spmm(A, np.ones((3, 2)), accumulate=True)
+    with pytest.raises(ValueError, match="X has 4 rows"):
+        spmm(A, np.ones((4, 2)))
+    with pytest.raises(ValueError, match="C-contiguous float64"):
+        spmm(A, np.ones((3, 2)), out=np.ones((3, 2), dtype=np.float32))
+
+
+def test_spmm_threads_env(monkeypatch):
+    monkeypatch.setenv("MESHDENOISE_THREADS", "3")
+    assert op_module.spmm_threads() == 3
+    monkeypatch.setenv("MESHDENOISE_THREADS", "zero")
+    with pytest.raises(ValueError, match="MESHDENOISE_THREADS = 'zero'"):
+        op_module.spmm_threads()
+
+
+@pytest.mark.parametrize("mesh", [icosphere(2), grid(9, 6), torus(12, 7)], ids=["sphere", "plane", "torus"])
+def test_fast_operator_build_matches_coo_construction(mesh):
+    """W and P built from sorted keys equal scipy's COO -> CSR construction with duplicates summed."""
+    V, F = mesh
+    n = len(V)
+    ops = Operators(F, n)
+    rows = np.concatenate([F[:, 0], F[:, 1], F[:, 2], F[:, 1], F[:, 2], F[:, 0]])
+    cols = np.concatenate([F[:, 1], F[:, 2], F[:, 0], F[:, 0], F[:, 1], F[:, 2]])
+    W = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(n, n)).tocsr()
+    W.data[:] = 1.0
+    assert (ops.W != W).nnz == 0
+    assert ops.W.has_sorted_indices and ops.W.indices.dtype == np.int32
+    for i in range(n):  # sorted, duplicate-free column indices in every row
+        row = ops.W.indices[ops.W.indptr[i] : ops.W.indptr[i + 1]]
+        assert np.all(np.diff(row) > 0)
+    np.testing.assert_allclose(ops.P.toarray(), W.toarray() / W.toarray().sum(1, keepdims=True), atol=1e-15)
+
+
+def test_filtering_fused_step_equals_textbook_update():
+    """X <- X + lam (A X - X), written as a loop here, for every linear weights rule and pinned vertices."""
+    V, F = _noisy(grid(10, 8))
+    ops = Operators(F, len(V))
+    pinned = np.zeros(len(V), bool)
+    pinned[::7] = True
+    for weights, A in [("uniform", ops.P), ("open3d", None), ("meshlab", None)]:
+        from meshdenoise.plugins.filtering import averaging_operator
+
+        A = averaging_operator(ops, weights, pinned).toarray()
+        X = V.copy()
+        for _ in range(4):
+            X = X + 0.4 * (A @ X - X)
+        Y, _ = filtering((V, F), iterations=4, lam=0.4, weights=weights, pinned=pinned)
+        np.testing.assert_allclose(Y, X, rtol=0, atol=1e-13)
+        np.testing.assert_array_equal(Y[pinned], V[pinned])
+
+
+def test_heat_euler_equals_textbook_steps():
+    V, F = _noisy(icosphere(2))
+    P = Operators(F, len(V)).P.toarray()
+    X = V.copy()
+    for _ in range(7):  # ceil(3.4 / 0.5)
+        X = X - 0.5 * (X - P @ X)
+    Y, _ = heat((V, F), tau=0.5, time=3.4)
+    np.testing.assert_allclose(Y, X, rtol=0, atol=1e-13)
+
+
+def test_chebyshev_coefficients_against_bessel_series():
+    """a_k = e^-T I_k(T) (doubled for k >= 1), and the truncated polynomial matches exp(-T x) on [0, 2]."""
+    T, tol = 12.5, 1e-9
+    a = chebyshev_coefficients(T, tol)
+    K = len(a) - 1
+    ref = 2 * np.exp(-T) * iv(np.arange(K + 1), T)
+    ref[0] /= 2
+    np.testing.assert_allclose(a[1:], ref[1:], rtol=1e-12)
+    assert abs(a.sum() - 1.0) < 1e-15  # p(0) = 1: translations pass through
+    x = np.linspace(0, 2, 401)
+    p = np.polynomial.chebyshev.chebval(1 - x, a)
+    assert np.abs(p - np.exp(-T * x)).max() <= 2 * tol
+    assert np.abs(np.polynomial.chebyshev.chebval(1 - x, a[:-1]) - np.exp(-T * x)).max() > tol  # K is needed
+    np.testing.assert_array_equal(chebyshev_coefficients(0.0, 1e-7), [1.0])
+
+
+@pytest.mark.parametrize("backend", ["cpu", "scipy"])
+def test_chebyshev_heat_matches_dense_expm(backend):
+    V, F = _noisy(torus(10, 6))
+    n = len(V)
+    P = Operators(F, n).P.toarray()
+    E = sl.expm(-9.7 * (np.eye(n) - P)) @ V
+    Y, _ = heat((V, F), time=9.7, method="chebyshev", tol=1e-10, backend=backend)
+    np.testing.assert_allclose(Y, E, rtol=0, atol=1e-9)
+
+
+def test_chebyshev_heat_with_pinned_vertices_is_the_dirichlet_exponential():
+    V, F = _noisy(grid(9, 7))
+    n = len(V)
+    ops = Operators(F, n)
+    pinned = ops.boundary_vertices
+    Pf = ops.P.toarray()
+    Pf[pinned] = np.eye(n)[pinned]  # fixed rows as identity: d/dt x_p = 0
+    E = sl.expm(-6.0 * (np.eye(n) - Pf)) @ V
+    Y, _ = heat((V, F), time=6.0, method="chebyshev", tol=1e-10, pinned="boundary")
+    np.testing.assert_allclose(Y, E, rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(Y[pinned], V[pinned])
+
+
+def test_chebyshev_and_euler_converge_to_the_same_heat_flow():
+    """Euler with a small step approaches exp(-T(I - P)) X; Chebyshev is that limit."""
+    V, F = _noisy(icosphere(2))
+    cheb, _ = heat((V, F), time=2.0, method="chebyshev", tol=1e-12)
+    errs = [np.abs(heat((V, F), time=2.0, tau=tau)[0] - cheb).max() for tau in (0.1, 0.05, 0.025)]
+    assert errs[0] > errs[1] > errs[2]
+    assert 1.7 < errs[0] / errs[1] < 2.3 and 1.7 < errs[1] / errs[2] < 2.3  # first order in tau
+
+
+def test_chebyshev_time_zero_returns_input():
+    V, F = _noisy(icosphere(1))
+    Y, _ = heat((V, F), time=0.0, method="chebyshev")
+    np.testing.assert_array_equal(Y, V)
+
+
+@pytest.mark.parametrize("name", ["scipy", "cpu"])
+def test_generic_backend_path_equals_default(name):
+    """The backend-generic code path (public scipy API) agrees with the default threaded kernel."""
+    V, F = _noisy(icosphere(3))
+    for kwargs in [{"iterations": 5}, {"iterations": 3, "lam": 0.3, "weights": "meshlab"}]:
+        a, _ = filtering((V, F), **kwargs)
+        b, _ = filtering((V, F), backend=name, **kwargs)
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-14)
+    a, _ = heat((V, F), time=5.0, method="chebyshev")
+    b, _ = heat((V, F), time=5.0, method="chebyshev", backend=name)
+    np.testing.assert_allclose(a, b, rtol=0, atol=1e-13)
+
+
+def test_backend_errors_are_clear():
+    with pytest.raises(ValueError, match="backend = 'tpu' is unknown"):
+        get_backend("tpu")
+    assert set(BACKENDS) == {"cpu", "scipy", "cupy", "torch"}
+    V, F = icosphere(1)
+    with pytest.raises(ValueError, match="inverse_distance"):
+        filtering((V, F), weights="inverse_distance", backend="scipy")
+    for name in ("cupy", "torch"):
+        try:
+            __import__(name)
+        except ImportError:
+            with pytest.raises(ValueError, match=f"backend='{name}' needs"):
+                filtering((V, F), backend=name)
+
+
+def _speed_module():
+    path = Path(__file__).resolve().parent.parent / "benchmarks" / "speed.py"
+    spec = importlib.util.spec_from_file_location("speed_benchmark", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_loop_subdivision_of_the_benchmark():
+    """Counts n + e and 4m, closed stays closed, and a flat grid stays flat with interior points
+    matching Loop's rules written out for one vertex and one edge."""
+    loop = _speed_module().loop_subdivide
+    V, F = icosphere(1)
+    ops = Operators(F, len(V))
+    V2, F2 = loop(V, F)
+    assert len(V2) == len(V) + len(ops.edges) and len(F2) == 4 * len(F)
+    assert len(Operators(F2, len(V2)).boundary_edges) == 0
+    # vertex 0 of the icosphere has valence 5: (1 - 5 beta) v + beta sum(neighbours)
+    k = 5
+    beta = (5 / 8 - (3 / 8 + np.cos(2 * np.pi / k) / 4) ** 2) / k
+    nb = ops.W[0].indices
+    np.testing.assert_allclose(V2[0], (1 - k * beta) * V[0] + beta * V[nb].sum(0), atol=1e-14)
+    # an interior edge (a, b) with opposite vertices c, d: 3/8 (a + b) + 1/8 (c + d)
+    a, b = ops.edges[0]
+    opp = [f[(f != a) & (f != b)][0] for f in F if a in f and b in f]
+    target = 3 / 8 * (V[a] + V[b]) + 1 / 8 * (V[opp[0]] + V[opp[1]])
+    assert np.min(np.linalg.norm(V2[len(V) :] - target, axis=1)) < 1e-14
+    Vg, Fg = grid(5, 4)
+    Vg2, Fg2 = loop(Vg, Fg)
+    np.testing.assert_allclose(Vg2[:, 2], 0.0, atol=1e-15)  # planar stays planar
+
+
+def test_locality_order_is_a_permutation_that_shrinks_bandwidth():
+    V, F = icosphere(3)
+    perm = np.random.default_rng(4).permutation(len(V))  # scramble the labels first
+    inv = np.argsort(perm)
+    ops = Operators(inv[F], len(V))
+    order = ops.locality_order
+    np.testing.assert_array_equal(np.sort(order), np.arange(len(V)))
+    Pp = ops.permuted(ops.P, "P").tocoo()
+    np.testing.assert_array_equal(Pp.toarray(), ops.P.toarray()[order][:, order])
+    assert np.abs(Pp.row - Pp.col).max() < np.abs(ops.P.tocoo().row - ops.P.tocoo().col).max() / 4
+
+
+@pytest.mark.parametrize("method", ["euler", "chebyshev"])
+def test_relabelled_fast_path_gives_the_same_result(monkeypatch, method):
+    """Forcing the locality-ordered path on a small mesh changes nothing but rounding."""
+    from meshdenoise.plugins import filtering as filtering_module
+
+    V, F = _noisy(torus(14, 9))
+    pinned = np.zeros(len(V), bool)
+    pinned[[3, 40, 77]] = True
+    monkeypatch.setattr(filtering_module, "LOCALITY_MIN_VERTICES", 10**9)
+    ref_heat, _ = heat((V, F), time=6.0, method=method, pinned=pinned)
+    ref_filt, _ = filtering((V, F), iterations=20, lam=0.6, weights="meshlab", pinned=pinned)
+    monkeypatch.setattr(filtering_module, "LOCALITY_MIN_VERTICES", 0)
+    ops = Operators(F, len(V))
+    assert filtering_module.use_locality_order(ops, 20)
+    got_heat, _ = heat((V, F), time=6.0, method=method, pinned=pinned, operators=ops)
+    got_filt, _ = filtering((V, F), iterations=20, lam=0.6, weights="meshlab", pinned=pinned, operators=ops)
+    assert "locality_order" in ops.__dict__  # the relabelled path really ran
+    np.testing.assert_allclose(got_heat, ref_heat, rtol=0, atol=1e-13)
+    np.testing.assert_allclose(got_filt, ref_filt, rtol=0, atol=1e-13)
+    np.testing.assert_array_equal(got_heat[pinned], V[pinned])
