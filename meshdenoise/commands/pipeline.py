@@ -144,7 +144,9 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
     save = parse_step({"save": {"path": str(dst.resolve())}}, 2, "denoise", None)
     task = Task(0, src.resolve(), {}, "", [step, save], {str(dst.resolve()): dst.resolve()})
     try:
-        row = run_task(task, echo=lambda m: console.print(m, highlight=False))
+        # a spinner with the elapsed time while the mesh is read, filtered and written (stderr, terminals only)
+        with err_console.status(f"{method} on {src.name}", spinner="dots"):
+            row = run_task(task, echo=lambda m: console.print(m, highlight=False))
     except InputError as exc:
         _fail(str(exc), 2)
     except StepFailure as exc:
