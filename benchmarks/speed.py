@@ -262,7 +262,14 @@ def run_size(label: str, folder: Path, repeats: int, external: bool, memory: boo
     r["sobolev_factor"] = timed(lambda: solver.append(SobolevSolver(ops, 1.0)), repeats)
     r["sobolev_solve"] = timed(lambda: solver[-1].solve(X), repeats)
     r["sobolev_resolve"] = timed(lambda: solver[-1].solve(X + 1e-3), repeats)
+    Y_chol = solver[-1].solve(X)
     del solver
+    from meshdenoise.plugins.sobolev import sobolev
+
+    r["sobolev_cg"] = timed(lambda: sobolev((V, F), mu=1.0, solver="cg", tol=1e-8, operators=ops), repeats)
+    Y_cg = sobolev((V, F), mu=1.0, solver="cg", tol=1e-8, operators=ops)[0]
+    r["sobolev_cg_maxrel"] = float(np.abs(Y_cg - Y_chol).max() / np.abs(Y_chol).max())
+    del Y_chol, Y_cg
 
     if external:
         ext_repeats = min(repeats, 3) if n < 2_000_000 else 1
@@ -294,6 +301,8 @@ def ratios(r: dict) -> dict:
         "chebyshev/euler_cpu": r["heat_chebyshev"]["cpu"] / r["heat_euler"]["cpu"],
         "chebyshev/textbook_euler": r["heat_chebyshev"]["wall"] / r["heat_euler_textbook"]["wall"],
     }
+    if "sobolev_cg_maxrel" in r:  # max |Y_cg - Y_chol| / max |Y_chol|, not a ratio of times
+        q["sobolev_cg: max rel. difference from Cholesky"] = r["sobolev_cg_maxrel"]
     if "meshlab_laplacian" in r:
         q["ours_meshlab/meshlab"] = r["filtering_meshlab"]["wall"] / r["meshlab_laplacian"]["wall"]
         q["ours_uniform/meshlab"] = r["filtering_call"]["wall"] / r["meshlab_laplacian"]["wall"]
@@ -324,6 +333,7 @@ ROWS = [
     ("Sobolev mu=1: factorisation", "sobolev_factor"),
     ("Sobolev: one solve", "sobolev_solve"),
     ("Sobolev: re-solve, cached factor", "sobolev_resolve"),
+    ("Sobolev CG (mu=1, tol 1e-8), no factorisation", "sobolev_cg"),
 ]
 
 
