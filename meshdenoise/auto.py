@@ -48,6 +48,7 @@ D. L. Donoho, I. M. Johnstone, "Ideal spatial adaptation by wavelet shrinkage", 
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import warnings
@@ -79,6 +80,58 @@ log = logging.getLogger("meshdenoise.auto")
 EXACT_TRACE_MAX = 800  # up to this many vertices the trace is exact (identity probes)
 N_PROBES = 24  # Rademacher probes otherwise: trace error ~ sqrt(2 ||H||_F^2 / 24), negligible next to n rho^2
 _MAD = 0.6744897501960817  # median |N(0, 1)|
+
+
+# ----------------------------------------------------------------------------- reuse
+class _LRU:
+    """A small least-recently-used memo of solves and filter runs.
+
+    The automatic and oracle searches of a benchmark (and repeated calls on the same
+    mesh) evaluate many identical points (same matrix, same right-hand side, same
+    parameter): those are computed once. Keys are content digests, never ``id()``.
+    """
+
+    def __init__(self, size: int):
+        self.size, self.data = size, {}
+
+    def get(self, key, compute: Callable):
+        if key in self.data:
+            value = self.data.pop(key)
+        else:
+            value = compute()
+        self.data[key] = value
+        while len(self.data) > self.size:
+            self.data.pop(next(iter(self.data)))
+        return value
+
+
+_MEMO = _LRU(64)
+
+
+def _digest(*parts: Any) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    for part in parts:
+        if sp.issparse(part):
+            part = sp.csr_matrix(part)
+            for a in (part.indptr, part.indices, part.data):
+                h.update(np.ascontiguousarray(a).tobytes())
+        elif isinstance(part, np.ndarray):
+            h.update(str(part.shape).encode() + np.ascontiguousarray(part).tobytes())
+        else:
+            h.update(repr(part).encode())
+    return h.hexdigest()
+
+
+def _solve_shifted(M: sp.csr_matrix, mu: float, rhs: np.ndarray, key: str | None = None) -> np.ndarray:
+    """``(I + mu M)^{-1} rhs`` by a sparse Cholesky factorisation, memoised on (M, mu, rhs)."""
+
+    def compute() -> np.ndarray:
+        r = np.ascontiguousarray(rhs, dtype=np.float64)
+        out = np.empty_like(r)
+        _factor(sp.identity(M.shape[0], format="csr") + mu * M).solve(r, out)
+        return out
+
+    return _MEMO.get(("solve", key or _digest(M, rhs), float(mu)), compute)
 
 
 # ----------------------------------------------------------------------------- criteria
@@ -327,12 +380,10 @@ def _factor(A: sp.csr_matrix) -> CholeskySolverD:
     )
 
 
-def _solve_point(V: np.ndarray, M: sp.csr_matrix, mu: float, Z: np.ndarray, s: float) -> _Point:
-    n = V.shape[0]
-    rhs = np.ascontiguousarray(np.hstack([V, Z]))
-    out = np.empty_like(rhs)
-    _factor(sp.identity(n, format="csr") + mu * M).solve(rhs, out)
-    X = out[:, :3]
+def _solve_point(V: np.ndarray, M: sp.csr_matrix, mu: float, Z: np.ndarray, s: float, key: str | None = None) -> _Point:
+    rhs = np.hstack([V, Z])
+    out = _solve_shifted(M, mu, rhs, key)
+    X = out[:, :3].copy()
     return _Point(mu, float(np.sum((X - V) ** 2)), s * float(np.sum(Z * out[:, 3:])), X)
 
 
@@ -387,9 +438,10 @@ def _best_mu(
     """
     n = V.shape[0]
     Z, s = probe_block(n, exact)
+    key = _digest(M, V, Z)
 
     def evaluate(mu: float) -> _Point:
-        p = _solve_point(V, M, mu, Z, s)
+        p = _solve_point(V, M, mu, Z, s, key)
         p.score = _score(p, n, rho, criterion)
         return p
 
@@ -527,16 +579,23 @@ def _choose_sinkhorn(ctx: _Context) -> dict:
     Z, s = probe_block(n, ctx.exact)
     best_k: dict[float, int] = {}
 
-    def evaluate(t: float) -> _Point:
+    key = _digest(ctx.F, ctx.V, Z, steps, max(ks))
+
+    def path(t: float) -> list:
         K = MeshHeatKernel(ctx.V, ctx.F, t, laplacian="graph", mass="uniform", steps=steps)
-        Y = np.hstack([ctx.V, Z])
-        best = None
-        for k in range(1, max(ks) + 1):
+        Y, out = np.hstack([ctx.V, Z]), []
+        for _ in range(max(ks)):
             GY = K.solve(Y)
             Y = 2.0 * GY - K.solve(GY)
+            X = Y[:, :3].copy()
+            out.append((X, float(np.sum((X - ctx.V) ** 2)), s * float(np.sum(Z * Y[:, 3:]))))
+        return out
+
+    def evaluate(t: float) -> _Point:
+        best = None
+        for k, (X, res, tr) in enumerate(_MEMO.get(("sinkhorn", key, float(t)), lambda: path(t)), start=1):
             if k in ks:
-                X = Y[:, :3]
-                p = _Point(t, float(np.sum((X - ctx.V) ** 2)), s * float(np.sum(Z * Y[:, 3:])), X.copy())
+                p = _Point(t, res, tr, X)
                 p.score = _score(p, n, ctx.rho, ctx.criterion)
                 if best is None or p.score < best.score:
                     best, best_k[t] = p, k
@@ -584,11 +643,18 @@ def _choose_two_stage(ctx: _Context) -> dict:
         b = z[:, None] * N
         delta = MC_SURE_STEP * ctx.rho
         Xp = ctx.V + delta * b
+    iterates = _MEMO.get(("two_stage", _digest(ctx.F, ctx.V, sorted(step_params.items()))), list)
+
+    def clean_run(k: int) -> np.ndarray:  # the k-th iterate of the unperturbed run, shared with other calls
+        while len(iterates) < k:
+            iterates.append(run(iterates[-1] if iterates else ctx.V))
+        return iterates[k - 1]
+
     X = np.array(ctx.V, dtype=np.float64)
     best = _Point(0, 0.0, float(n), X.copy())
     best.score = _score(best, n, ctx.rho, ctx.criterion)
     for k in range(1, TWO_STAGE_MAX_ITERATIONS + 1):
-        X = run(X)
+        X = clean_run(k)
         div = float(n)
         if sure_mode:
             Xp = run(Xp)
@@ -633,9 +699,11 @@ def _choose_sobolev_axes(ctx: _Context) -> dict:
     else:
         steps = int(_best_on_path(_iterative_path(ctx.V, ctx.ops, _averaging_step(ctx.ops.P, 1.0), ctx.exact), n, ctx.rho, "sure" if ctx.rho is not None else ctx.criterion).value)
     E, _ = normal_frame(ctx.V, ctx.F, ctx.ops, steps)
-    Xs = np.array(ctx.V, dtype=np.float64)
-    for _ in range(steps):
-        Xs = ctx.ops.P @ Xs
+    # noise directions: normals of the SURE-best bi-Laplacian estimate (smoother than `steps` averagings,
+    # whose normals at 0.4 edge lengths of noise are still noisy and would bias the per-axis shares)
+    L = ctx.ops.L
+    rho_sure = ctx.rho if ctx.rho is not None else 0.0
+    Xs = _best_mu(ctx.V, sp.csr_matrix(L @ L), rho_sure, "sure", ctx.exact, center=_mu_guess(ctx, 2)).X
     c = (vertex_normals(Xs, ctx.F) @ E) ** 2  # (n, 3) noise share of each axis per vertex
     Xf = ctx.V @ E
     Yf = None if ctx.reference is None else ctx.reference @ E
@@ -644,15 +712,14 @@ def _choose_sobolev_axes(ctx: _Context) -> dict:
     Q = np.hstack([Z * np.sqrt(c[:, [d]]) for d in range(3)])
     M = laplacian_power(ctx.ops, order)
     held = [f"mu{d + 1}" in ctx.given for d in range(3)]
-    evaluated: dict[float, list[tuple[float, float]]] = {}  # log10 mu -> per axis (score, mu)
+    evaluated: dict[float, list[float]] = {}  # log10 mu -> per-axis score
+    key = _digest(M, Xf, Q)
 
     def at(t: float) -> list:
         t = round(t, 9)
         if t not in evaluated:
             mu = 10.0**t
-            rhs = np.ascontiguousarray(np.hstack([Xf, Q]))
-            out = np.empty_like(rhs)
-            _factor(sp.identity(n, format="csr") + mu * M).solve(rhs, out)
+            out = _solve_shifted(M, mu, np.hstack([Xf, Q]), key)
             scores = []
             for d in range(3):
                 y = out[:, d]
