@@ -205,10 +205,13 @@ def _measure(task: tuple) -> tuple:
     return row_idx, seed_idx, per, rho, time.process_time() - cpu0
 
 
-def run(quick: bool, seeds: int, methods: list[str] | None, jobs: int = 1) -> dict:
+def run(quick: bool, seeds: int, methods: list[str] | None, jobs: int = 1, only: list[str] | None = None) -> dict:
     ours = methods or sorted(auto.AUTO_METHODS)
     rows = _cached_rows(quick, seeds)
-    tasks = [(r, s, quick, seeds, ours) for r, row in enumerate(rows) for s in range(len(row["noisy"]))]
+    keep = [r for r, row in enumerate(rows) if not only or any(o.lower() in row["row"].lower() for o in only)]
+    if not keep:
+        raise SystemExit(f"--rows {only}: no row matches; rows are: {', '.join(row['row'] for row in rows)}")
+    tasks = [(r, s, quick, seeds, ours) for r in keep for s in range(len(rows[r]["noisy"]))]
     tasks.sort(key=lambda t: -rows[t[0]]["V"].shape[0])  # largest first: better balance over processes
     done: dict[int, dict] = {}
     cpu = 0.0
@@ -230,7 +233,7 @@ def run(quick: bool, seeds: int, methods: list[str] | None, jobs: int = 1) -> di
             print(_row_markdown(entry), flush=True)
     if jobs != 1:
         pool.shutdown()
-    results = [done[r] for r in range(len(rows))]
+    results = [done[r] for r in keep]
     return {"rows": results, "methods": ours, "cpu_seconds_tasks": cpu}
 
 
@@ -323,6 +326,7 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--quick", action="store_true", help="1 seed and 5 rows: a fast check")
     ap.add_argument("--seeds", type=int, default=5, help="noise seeds for the rows with our noise (default 5)")
     ap.add_argument("--methods", nargs="*", help="our methods (default: every one with an automatic rule)")
+    ap.add_argument("--rows", nargs="*", help="only the rows whose label contains one of these (case-insensitive)")
     ap.add_argument("--jobs", type=int, default=1, help="processes over (row, seed) tasks (default 1)")
     ap.add_argument("--out", default="benchmark_results/quality", help="output folder")
     args = ap.parse_args(argv)
@@ -332,7 +336,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.jobs < 1:
         raise SystemExit(f"--jobs must be >= 1, got {args.jobs}")
     t0, c0 = time.perf_counter(), time.process_time()
-    res = run(args.quick, seeds, args.methods, args.jobs)
+    res = run(args.quick, seeds, args.methods, args.jobs, args.rows)
     res["seconds"] = time.perf_counter() - t0
     res["cpu_seconds"] = res["cpu_seconds_tasks"] + (time.process_time() - c0 if args.jobs > 1 else 0.0)
     res["command"] = "python benchmarks/quality.py " + " ".join(argv if argv is not None else sys.argv[1:])

@@ -785,10 +785,13 @@ def choose_parameters(
 ) -> dict:
     """Choose a filter's parameters from the noisy mesh alone.
 
-    Linear filters (``filtering``: iterations; ``heat``: time and tau; ``sobolev``: mu)
-    minimise SURE (module docstring) with the noise level from :func:`estimate_noise`,
-    or GCV with ``criterion="gcv"``; traces by Hutchinson probes carried along the run
-    (exact below ``EXACT_TRACE_MAX`` vertices).
+    Linear filters (``filtering``: iterations; ``heat``: time and tau; ``sobolev``,
+    ``sobolev_bilaplacian``: mu; ``taubin``: iterations; ``sinkhorn`` in its linear
+    configuration: t and iterations) minimise SURE (module docstring) with the noise level
+    from :func:`estimate_noise`, or GCV with ``criterion="gcv"``; traces by Hutchinson
+    probes carried along the run (exact below ``EXACT_TRACE_MAX`` vertices).
+    ``sobolev_axes`` minimises one SURE per principal axis of the normals (mu1, mu2, mu3);
+    ``two_stage`` (nonlinear) minimises Monte-Carlo SURE over its outer iterations.
 
     Parameters
     ----------
