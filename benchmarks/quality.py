@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/quality.py [--quick] [--seeds 5] [--out DIR]
+    python benchmarks/quality.py [--quick] [--seeds 5] [--jobs 2] [--out DIR]
 
 Rows: the paper's meshes at its noise levels (elephant 0.015, 0.2; Nefertiti 0.015, 0.2, 1),
 pymeshlab's sample bunny with normal noise at 0.5 % and 2 % of its bounding-box diagonal
@@ -16,7 +16,15 @@ parameters that are best in hindsight over the same search space (``oracle``);
 MeshLab's Laplacian, HC Laplacian (repeated k times), Taubin and two-step smoothing
 and Open3D's simple, Laplacian and Taubin filters, each with its number of iterations
 tuned on the clean mesh (oracle), the libraries themselves being called one
-iteration at a time (all are memoryless from one iteration to the next).
+iteration at a time on one MeshSet / TriangleMesh (all are memoryless from one
+iteration to the next), stopping ``PATIENCE`` iterations after the best. On the
+benchmark pairs each library filter also gets its normal-error oracle (the iteration
+count with the least mean face-normal error, read along the same run), the reference
+for the feature targets. ``two_stage`` (built for sharp features; two Monte-Carlo
+SURE runs of a nonlinear filter) runs on the benchmark pairs only.
+
+``--jobs 2`` measures the (row, seed) tasks in 2 processes: no timing is reported
+in the table, so parallel runs do not distort it; wall and CPU time are printed.
 
 The summary gives, per row, the margin of our best automatic method over the paper's
 best (its Table 1) and over the best oracle-tuned MeshLab/Open3D filter, and each
@@ -51,7 +59,8 @@ PAPER_BEST = {  # Table 1 of the paper: best SNR (dB) over its three methods, an
     ("nefertiti", 0.2): 24.17,
     ("nefertiti", 1.0): 14.62,
 }
-EXTRA_METRICS = [("normal_error", "normal err (deg)"), ("volume_change", "vol change (%)")]
+EXTRA_METRICS = [("normal_error_deg", "normal err (deg)"), ("volume_change", "vol change (%)")]
+FEATURE_ONLY = {"two_stage"}  # methods measured on the benchmark pairs only
 MAX_LIB_ITERS = 300  # cap of the oracle search for MeshLab / Open3D iterations
 PATIENCE = 8  # stop a library's oracle search this many iterations after the best SNR
 
@@ -68,19 +77,30 @@ def _rows(quick: bool, seeds: int) -> list[dict]:
     bench = ["Fandisk0.3", "Block0.4", "Bunny0.2", "Twelve0.5Impulsive"]
     if quick:
         synth = [synth[1], synth[3], synth[4], synth[5]]
-        bench = ["Fandisk0.3"]
+        bench = ["Fandisk0.3", "Block0.4"]
     for name, (V, F), rho in synth:
         key = (name, rho)
         noisy = [add_normal_noise((V, F), rho, seed=s)[0] for s in range(seeds)]
         label = f"{name} rho={rho:g}" if not name.startswith("bunny") else f"{name} (rho={rho:.4g})"
-        rows.append({"row": label, "V": V, "F": F, "noisy": noisy, "paper": PAPER_BEST.get(key)})
+        rows.append({"row": label, "V": V, "F": F, "noisy": noisy, "paper": PAPER_BEST.get(key), "features": False})
     for b in bench:
         Vo, F = load_arrays(data_file(f"benchmark/{b}/Original.obj"))
         Vn, Fn = load_arrays(data_file(f"benchmark/{b}/Noisy.obj"))
         if not np.array_equal(F, Fn):
             raise ValueError(f"benchmark/{b}: Noisy.obj and Original.obj have different faces")
-        rows.append({"row": b, "V": Vo, "F": F, "noisy": [Vn], "paper": None})
+        rows.append({"row": b, "V": Vo, "F": F, "noisy": [Vn], "paper": None, "features": True})
     return rows
+
+
+_ROWS_CACHE: dict = {}
+
+
+def _cached_rows(quick: bool, seeds: int) -> list[dict]:
+    """The rows, built once per process (workers rebuild them: noise is seeded, so identical)."""
+    key = (quick, seeds)
+    if key not in _ROWS_CACHE:
+        _ROWS_CACHE[key] = _rows(quick, seeds)
+    return _ROWS_CACHE[key]
 
 
 # ----------------------------------------------------------------------------- library filters
@@ -120,16 +140,30 @@ LIBRARY = {
 }
 
 
-def _library_oracle(run, V0, Vn, F) -> tuple[int, np.ndarray]:
-    """Best number of iterations by SNR against the clean mesh, one library call per iteration."""
-    best_k, best_X, best_s = 0, Vn, snr(V0, Vn)
+def _library_oracle(run, V0, Vn, F, track_normals: bool) -> dict:
+    """Best iteration counts by SNR (and, if asked, by normal error) against the clean mesh.
+
+    One library call per iteration on the same mesh object; stops ``PATIENCE`` iterations
+    after the last improvement of every tracked criterion, or at ``MAX_LIB_ITERS``.
+    """
+    from meshdenoise.quality_metrics import normal_error_deg
+
+    nerr = (lambda X: normal_error_deg((V0, F), X)) if track_normals else None  # noqa: E731
+    best = {"snr": (snr(V0, Vn), 0, Vn)}
+    if nerr:
+        best["normal"] = (-nerr(Vn), 0, Vn)  # maximise the negated error
     for k, X in enumerate(run(Vn, F), start=1):
-        s = snr(V0, X)
-        if s > best_s:
-            best_k, best_X, best_s = k, X, s
-        if k - best_k >= PATIENCE or k >= MAX_LIB_ITERS:
+        last = 0
+        for key, fn in (("snr", lambda Y: snr(V0, Y)), ("normal", (lambda Y: -nerr(Y)) if nerr else None)):
+            if fn is None:
+                continue
+            v = fn(X)
+            if v > best[key][0]:
+                best[key] = (v, k, X)
+            last = max(last, best[key][1])
+        if k - last >= PATIENCE or k >= MAX_LIB_ITERS:
             break
-    return best_k, best_X
+    return {key: (b[1], b[2]) for key, b in best.items()}
 
 
 # ----------------------------------------------------------------------------- measuring
@@ -137,7 +171,8 @@ def _metrics(V0, X, F) -> dict:
     out = {"snr": snr(V0, X)}
     for name, _ in EXTRA_METRICS:
         if name in METRICS:
-            out[name] = float(METRICS[name]((V0, F), (X, F)))
+            value = float(METRICS[name]((V0, F), (X, F)))
+            out[name] = 100.0 * value if name == "volume_change" else value
     return out
 
 
@@ -145,51 +180,95 @@ def _fmt_params(p: dict) -> str:
     return ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in p.items())
 
 
-def run(quick: bool, seeds: int, methods: list[str] | None) -> dict:
+def _measure(task: tuple) -> tuple:
+    """One (row, seed): every method's metrics and parameters, and the task's CPU seconds."""
+    row_idx, seed_idx, quick, seeds, ours = task
+    cpu0 = time.process_time()
+    row = _cached_rows(quick, seeds)[row_idx]
+    V0, F, Vn = row["V"], row["F"], row["noisy"][seed_idx]
+    per = {"noisy": (_metrics(V0, Vn, F), {})}
+    rho = auto.estimate_noise((Vn, F))
+    for m in ours:
+        if m in FEATURE_ONLY and not row["features"]:
+            continue
+        p_auto = auto.choose_parameters((Vn, F), m, noise=rho)
+        per[f"{m} auto"] = (_metrics(V0, apply_filter(m, (Vn, F), **p_auto)[0], F), p_auto)
+        p_or = auto.choose_parameters((Vn, F), m, criterion="oracle", reference=V0)
+        per[f"{m} oracle"] = (_metrics(V0, apply_filter(m, (Vn, F), **p_or)[0], F), p_or)
+    for name, steps in LIBRARY.items():
+        found = _library_oracle(steps, V0, Vn, F, track_normals=row["features"])
+        k, X = found["snr"]
+        per[f"{name} oracle"] = (_metrics(V0, X, F), {"iterations": k})
+        if "normal" in found:
+            k, X = found["normal"]
+            per[f"{name} normal-oracle"] = (_metrics(V0, X, F), {"iterations": k})
+    return row_idx, seed_idx, per, rho, time.process_time() - cpu0
+
+
+def run(quick: bool, seeds: int, methods: list[str] | None, jobs: int = 1, only: list[str] | None = None) -> dict:
     ours = methods or sorted(auto.AUTO_METHODS)
-    results = []
-    for row in _rows(quick, seeds):
-        V0, F = row["V"], row["F"]
-        t_row = time.perf_counter()
-        per = {}  # method label -> list of metric dicts (one per seed), plus params
-        for s_idx, Vn in enumerate(row["noisy"]):
-            per.setdefault("noisy", []).append((_metrics(V0, Vn, F), {}))
-            rho = auto.estimate_noise((Vn, F))
-            for m in ours:
-                p_auto = auto.choose_parameters((Vn, F), m, noise=rho)
-                X = apply_filter(m, (Vn, F), **p_auto)[0]
-                per.setdefault(f"{m} auto", []).append((_metrics(V0, X, F), p_auto))
-                p_or = auto.choose_parameters((Vn, F), m, criterion="oracle", reference=V0)
-                X = apply_filter(m, (Vn, F), **p_or)[0]
-                per.setdefault(f"{m} oracle", []).append((_metrics(V0, X, F), p_or))
-            for name, steps in LIBRARY.items():
-                k, X = _library_oracle(steps, V0, Vn, F)
-                per.setdefault(f"{name} oracle", []).append((_metrics(V0, X, F), {"iterations": k}))
-            per.setdefault("_rho", []).append(rho)
-        entry = {"row": row["row"], "seeds": len(row["noisy"]), "paper_best": row["paper"], "methods": {}}
-        for label, runs in per.items():
-            if label == "_rho":
-                continue
-            keys = runs[0][0].keys()
-            entry["methods"][label] = {
-                **{f"{k}_mean": float(np.mean([r[0][k] for r in runs])) for k in keys},
-                **{f"{k}_std": float(np.std([r[0][k] for r in runs])) for k in keys},
-                "params": _fmt_params(runs[0][1]) + (" (seed 0)" if len(runs) > 1 and runs[0][1] else ""),
-            }
-        true_rho = float(np.sqrt(np.mean(np.sum((row["noisy"][0] - V0) ** 2, axis=1))))
-        entry["rho_estimated"] = float(np.mean(per["_rho"]))
-        entry["rho_true_rms"] = true_rho
-        entry["seconds"] = time.perf_counter() - t_row
-        _summarise(entry, ours)
-        results.append(entry)
-        print(_row_markdown(entry), flush=True)
-    return {"rows": results, "methods": ours}
+    rows = _cached_rows(quick, seeds)
+    keep = [r for r, row in enumerate(rows) if not only or any(o.lower() in row["row"].lower() for o in only)]
+    if not keep:
+        raise SystemExit(f"--rows {only}: no row matches; rows are: {', '.join(row['row'] for row in rows)}")
+    tasks = [(r, s, quick, seeds, ours) for r in keep for s in range(len(rows[r]["noisy"]))]
+    tasks.sort(key=lambda t: -rows[t[0]]["V"].shape[0])  # largest first: better balance over processes
+    done: dict[int, dict] = {}
+    cpu = 0.0
+    if jobs == 1:
+        outputs = map(_measure, tasks)
+    else:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor
+
+        pool = ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("fork"))
+        outputs = pool.map(_measure, tasks)
+    for row_idx, seed_idx, per, rho, task_cpu in outputs:
+        cpu += task_cpu
+        done.setdefault(row_idx, {})[seed_idx] = (per, rho, task_cpu)
+        row = rows[row_idx]
+        if len(done[row_idx]) == len(row["noisy"]):
+            entry = _entry(row, [done[row_idx][s] for s in range(len(row["noisy"]))], ours)
+            done[row_idx] = entry
+            print(_row_markdown(entry), flush=True)
+    if jobs != 1:
+        pool.shutdown()
+    results = [done[r] for r in keep]
+    return {"rows": results, "methods": ours, "cpu_seconds_tasks": cpu}
+
+
+def _entry(row: dict, measured: list, ours: list[str]) -> dict:
+    V0 = row["V"]
+    labels = list(measured[0][0])
+    entry = {"row": row["row"], "seeds": len(measured), "paper_best": row["paper"], "features": row["features"], "methods": {}}
+    for label in labels:
+        runs = [m[0][label] for m in measured]
+        keys = runs[0][0].keys()
+        entry["methods"][label] = {
+            **{f"{k}_mean": float(np.mean([r[0][k] for r in runs])) for k in keys},
+            **{f"{k}_std": float(np.std([r[0][k] for r in runs])) for k in keys},
+            "params": _fmt_params(runs[0][1]) + (" (seed 0)" if len(runs) > 1 and runs[0][1] else ""),
+        }
+    entry["rho_estimated"] = float(np.mean([m[1] for m in measured]))
+    entry["rho_true_rms"] = float(np.sqrt(np.mean(np.sum((row["noisy"][0] - V0) ** 2, axis=1))))
+    entry["cpu_seconds"] = float(sum(m[2] for m in measured))
+    _summarise(entry, [m for m in ours if f"{m} auto" in entry["methods"]])
+    return entry
 
 
 def _summarise(entry: dict, ours: list[str]) -> None:
     M = entry["methods"]
     auto_best = max(ours, key=lambda m: M[f"{m} auto"]["snr_mean"])
     lib_best = max(LIBRARY, key=lambda n: M[f"{n} oracle"]["snr_mean"])
+    if entry["features"] and "two_stage auto" in M:
+        lib_n = min(LIBRARY, key=lambda n: M[f"{n} normal-oracle"]["normal_error_deg_mean"])
+        entry["features_summary"] = {
+            "two_stage_auto": M["two_stage auto"]["normal_error_deg_mean"],
+            "two_stage_oracle": M["two_stage oracle"]["normal_error_deg_mean"],
+            "noisy": M["noisy"]["normal_error_deg_mean"],
+            "library_best": lib_n,
+            "library_best_deg": M[f"{lib_n} normal-oracle"]["normal_error_deg_mean"],
+        }
     a = M[f"{auto_best} auto"]["snr_mean"]
     entry["auto_best"] = auto_best
     entry["auto_best_snr"] = a
@@ -201,7 +280,7 @@ def _summarise(entry: dict, ours: list[str]) -> None:
 
 def _row_markdown(entry: dict) -> str:
     lines = [f"\n### {entry['row']}  ({entry['seeds']} seed(s); rho estimated {entry['rho_estimated']:.4g}, "
-             f"true rms {entry['rho_true_rms']:.4g}; {entry['seconds']:.0f} s)\n"]
+             f"true rms {entry['rho_true_rms']:.4g}; {entry['cpu_seconds']:.0f} s CPU)\n"]
     extra = [(k, h) for k, h in EXTRA_METRICS if f"{k}_mean" in entry["methods"]["noisy"]]
     head = "| method | SNR (dB) | " + " | ".join(h for _, h in extra) + (" | " if extra else "") + "parameters |"
     lines += [head, "|" + "---|" * (3 + len(extra))]
@@ -224,11 +303,21 @@ def _summary_table(res: dict) -> str:
     lines = ["| row | noisy SNR | best auto (dB) | vs paper | vs best MeshLab/Open3D oracle | worst auto loss |", "|---|---|---|---|---|---|"]
     for e in res["rows"]:
         paper = "n/a" if e["margin_vs_paper"] is None else f"{e['margin_vs_paper']:+.2f}"
-        worst = max(ours, key=lambda m: e["auto_loss"][m])
+        worst = max(e["auto_loss"], key=lambda m: e["auto_loss"][m])
         lines.append(
             f"| {e['row']} | {e['methods']['noisy']['snr_mean']:.2f} | {e['auto_best']} {e['auto_best_snr']:.2f} | {paper} | "
             f"{e['margin_vs_library']:+.2f} ({e['library_best']}) | {e['auto_loss'][worst]:+.2f} ({worst}) |"
         )
+    feats = [e for e in res["rows"] if "features_summary" in e]
+    if feats:
+        lines += ["", "| row (mean face-normal error, deg) | noisy | two_stage auto | two_stage oracle | best MeshLab/Open3D (normal-error oracle) | ratio |",
+                  "|---|---|---|---|---|---|"]
+        for e in feats:
+            f = e["features_summary"]
+            lines.append(
+                f"| {e['row']} | {f['noisy']:.2f} | {f['two_stage_auto']:.2f} | {f['two_stage_oracle']:.2f} | "
+                f"{f['library_best']} {f['library_best_deg']:.2f} | {f['two_stage_auto'] / f['library_best_deg']:.2f} |"
+            )
     return "\n".join(lines)
 
 
@@ -237,19 +326,26 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--quick", action="store_true", help="1 seed and 5 rows: a fast check")
     ap.add_argument("--seeds", type=int, default=5, help="noise seeds for the rows with our noise (default 5)")
     ap.add_argument("--methods", nargs="*", help="our methods (default: every one with an automatic rule)")
+    ap.add_argument("--rows", nargs="*", help="only the rows whose label contains one of these (case-insensitive)")
+    ap.add_argument("--jobs", type=int, default=1, help="processes over (row, seed) tasks (default 1)")
     ap.add_argument("--out", default="benchmark_results/quality", help="output folder")
     args = ap.parse_args(argv)
     if args.seeds < 1:
         raise SystemExit(f"--seeds must be >= 1, got {args.seeds}")
     seeds = 1 if args.quick else args.seeds
-    t0 = time.perf_counter()
-    res = run(args.quick, seeds, args.methods)
+    if args.jobs < 1:
+        raise SystemExit(f"--jobs must be >= 1, got {args.jobs}")
+    t0, c0 = time.perf_counter(), time.process_time()
+    res = run(args.quick, seeds, args.methods, args.jobs, args.rows)
     res["seconds"] = time.perf_counter() - t0
+    res["cpu_seconds"] = res["cpu_seconds_tasks"] + (time.process_time() - c0 if args.jobs > 1 else 0.0)
+    res["command"] = "python benchmarks/quality.py " + " ".join(argv if argv is not None else sys.argv[1:])
     summary = _summary_table(res)
-    print("\n## Summary\n\n" + summary + f"\n\ntotal {res['seconds']:.0f} s")
+    timing = f"total {res['seconds']:.0f} s wall, {res['cpu_seconds']:.0f} s CPU ({args.jobs} process(es))"
+    print("\n## Summary\n\n" + summary + "\n\n" + timing)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    md = "# Quality benchmark\n\n" + summary + "\n" + "\n".join(_row_markdown(e) for e in res["rows"]) + f"\n\ntotal {res['seconds']:.0f} s\n"
+    md = "# Quality benchmark\n\n" + summary + "\n" + "\n".join(_row_markdown(e) for e in res["rows"]) + f"\n\n{timing}\n"
     with atomic_path(out / "quality.md") as tmp:
         Path(tmp).write_text(md)
     with atomic_path(out / "quality.json") as tmp:

@@ -48,6 +48,7 @@ D. L. Donoho, I. M. Johnstone, "Ideal spatial adaptation by wavelet shrinkage", 
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import math
 import warnings
@@ -79,6 +80,58 @@ log = logging.getLogger("meshdenoise.auto")
 EXACT_TRACE_MAX = 800  # up to this many vertices the trace is exact (identity probes)
 N_PROBES = 24  # Rademacher probes otherwise: trace error ~ sqrt(2 ||H||_F^2 / 24), negligible next to n rho^2
 _MAD = 0.6744897501960817  # median |N(0, 1)|
+
+
+# ----------------------------------------------------------------------------- reuse
+class _LRU:
+    """A small least-recently-used memo of solves and filter runs.
+
+    The automatic and oracle searches of a benchmark (and repeated calls on the same
+    mesh) evaluate many identical points (same matrix, same right-hand side, same
+    parameter): those are computed once. Keys are content digests, never ``id()``.
+    """
+
+    def __init__(self, size: int):
+        self.size, self.data = size, {}
+
+    def get(self, key, compute: Callable):
+        if key in self.data:
+            value = self.data.pop(key)
+        else:
+            value = compute()
+        self.data[key] = value
+        while len(self.data) > self.size:
+            self.data.pop(next(iter(self.data)))
+        return value
+
+
+_MEMO = _LRU(64)
+
+
+def _digest(*parts: Any) -> str:
+    h = hashlib.blake2b(digest_size=16)
+    for part in parts:
+        if sp.issparse(part):
+            part = sp.csr_matrix(part)
+            for a in (part.indptr, part.indices, part.data):
+                h.update(np.ascontiguousarray(a).tobytes())
+        elif isinstance(part, np.ndarray):
+            h.update(str(part.shape).encode() + np.ascontiguousarray(part).tobytes())
+        else:
+            h.update(repr(part).encode())
+    return h.hexdigest()
+
+
+def _solve_shifted(M: sp.csr_matrix, mu: float, rhs: np.ndarray, key: str | None = None) -> np.ndarray:
+    """``(I + mu M)^{-1} rhs`` by a sparse Cholesky factorisation, memoised on (M, mu, rhs)."""
+
+    def compute() -> np.ndarray:
+        r = np.ascontiguousarray(rhs, dtype=np.float64)
+        out = np.empty_like(r)
+        _factor(sp.identity(M.shape[0], format="csr") + mu * M).solve(r, out)
+        return out
+
+    return _MEMO.get(("solve", key or _digest(M, rhs), float(mu)), compute)
 
 
 # ----------------------------------------------------------------------------- criteria
@@ -327,41 +380,31 @@ def _factor(A: sp.csr_matrix) -> CholeskySolverD:
     )
 
 
-def _solve_point(V: np.ndarray, M: sp.csr_matrix, mu: float, Z: np.ndarray, s: float) -> _Point:
-    n = V.shape[0]
-    rhs = np.ascontiguousarray(np.hstack([V, Z]))
-    out = np.empty_like(rhs)
-    _factor(sp.identity(n, format="csr") + mu * M).solve(rhs, out)
-    X = out[:, :3]
+def _solve_point(V: np.ndarray, M: sp.csr_matrix, mu: float, Z: np.ndarray, s: float, key: str | None = None) -> _Point:
+    rhs = np.hstack([V, Z])
+    out = _solve_shifted(M, mu, rhs, key)
+    X = out[:, :3].copy()
     return _Point(mu, float(np.sum((X - V) ** 2)), s * float(np.sum(Z * out[:, 3:])), X)
 
 
-def _best_mu(
-    V: np.ndarray, M: sp.csr_matrix, rho: float | None, criterion: str, exact: bool | None = None,
-    center: float = 1.0, golden_steps: int = 8,
-) -> _Point:
-    """Minimise the criterion of :math:`(I + \\mu M)^{-1}` over log mu.
+def _search_log(evaluate: Callable[[float], _Point], center: float, golden_steps: int = 8,
+                lo_limit: float = -8.0, hi_limit: float = 10.0) -> _Point:
+    """Minimise ``evaluate(10**t).score`` over ``t`` (a decimal logarithm).
 
-    Five points 0.75 decades apart around ``center`` (a guess from the cheap
-    ``filtering`` path), extended while the minimum sits at an end of the grid, then
-    golden-section search between the minimum's neighbours (1.5 decades shrink to
-    about 0.03 decades in 8 steps). Each point is one sparse Cholesky factorisation.
+    Five points 0.75 decades apart around ``center``, extended while the minimum sits
+    at an end of the grid, then golden-section search between the minimum's
+    neighbours (1.5 decades shrink to about 0.03 decades in 8 steps).
     """
-    n = V.shape[0]
-    Z, s = probe_block(n, exact)  # the same probes for every mu: a smooth curve to minimise
     cache: dict[float, _Point] = {}
 
     def at(t: float) -> _Point:
         t = round(t, 12)
         if t not in cache:
-            p = _solve_point(V, M, 10.0**t, Z, s)
-            p.score = _score(p, n, rho, criterion)
-            cache[t] = p
+            cache[t] = evaluate(10.0**t)
         return cache[t]
 
     c0 = math.log10(center)
     grid = [c0 + 0.75 * j for j in range(-2, 3)]
-    lo_limit, hi_limit = -8.0, 10.0
     while True:
         scores = [at(t).score for t in grid]
         i = int(np.argmin(scores))
@@ -384,6 +427,27 @@ def _best_mu(
     return min(cache.values(), key=lambda p: p.score)
 
 
+def _best_mu(
+    V: np.ndarray, M: sp.csr_matrix, rho: float | None, criterion: str, exact: bool | None = None,
+    center: float = 1.0, golden_steps: int = 8,
+) -> _Point:
+    """Minimise the criterion of :math:`(I + \\mu M)^{-1}` over log mu (:func:`_search_log`).
+
+    ``center`` is a guess from the cheap ``filtering`` path; each point is one sparse
+    Cholesky factorisation, with the same probes for every mu (a smooth curve).
+    """
+    n = V.shape[0]
+    Z, s = probe_block(n, exact)
+    key = _digest(M, V, Z)
+
+    def evaluate(mu: float) -> _Point:
+        p = _solve_point(V, M, mu, Z, s, key)
+        p.score = _score(p, n, rho, criterion)
+        return p
+
+    return _search_log(evaluate, center, golden_steps)
+
+
 # ----------------------------------------------------------------------------- per-method rules
 @dataclass
 class _Context:
@@ -394,6 +458,7 @@ class _Context:
     criterion: str
     exact: bool | None
     given: dict
+    reference: np.ndarray | None = None
 
 
 def _check_linear_weights(ctx: _Context, method: str) -> None:
@@ -482,6 +547,218 @@ def _choose_sobolev_bilaplacian(ctx: _Context) -> dict:
     return {"mu": float(p.value)}, p
 
 
+SINKHORN_MAX_ITERATIONS = 8
+TWO_STAGE_MAX_ITERATIONS = 8
+MC_SURE_STEP = 0.1  # finite-difference step of Monte-Carlo SURE, in units of rho
+
+
+def _choose_sinkhorn(ctx: _Context) -> dict:
+    """``t`` and ``iterations`` of the OT filter with the uniform measure and graph Laplacian.
+
+    That configuration is linear: :math:`T = G = (I + \\tfrac{t}{s} L)^{-s}` (the
+    Sinkhorn scaling of a doubly stochastic kernel is 1), and ``k`` twiced iterations
+    give :math:`H_k = (2G - G^2)^k = (I - (I - G)^2)^k`. For each ``t`` the SURE curve over
+    ``k = 1 .. SINKHORN_MAX_ITERATIONS`` is read along one run (probes carried through the
+    same Cholesky solves); ``t`` minimises the best of it (:func:`_search_log`, starting at
+    the ``sobolev`` guess). A given ``iterations`` is held.
+    """
+    from .ot import MeshHeatKernel
+
+    spec = get_filter("sinkhorn")
+    full = spec.resolve(ctx.given, where="choose_parameters(method='sinkhorn')")
+    if full["laplacian"] != "graph" or full["measure"] != "uniform" or not full["debias"]:
+        raise ValueError(
+            "choose_parameters: sinkhorn is a linear smoother only with laplacian='graph', measure='uniform' and "
+            f"debias=True (got laplacian={full['laplacian']!r}, measure={full['measure']!r}, debias={full['debias']!r}); "
+            "automatic parameters need that configuration"
+        )
+    steps = full["steps"]
+    held = ctx.given.get("iterations")
+    ks = [held] if held is not None else list(range(1, SINKHORN_MAX_ITERATIONS + 1))
+    n = ctx.ops.n
+    Z, s = probe_block(n, ctx.exact)
+    best_k: dict[float, int] = {}
+
+    key = _digest(ctx.F, ctx.V, Z, steps, max(ks))
+
+    def path(t: float) -> list:
+        K = MeshHeatKernel(ctx.V, ctx.F, t, laplacian="graph", mass="uniform", steps=steps)
+        Y, out = np.hstack([ctx.V, Z]), []
+        for _ in range(max(ks)):
+            GY = K.solve(Y)
+            Y = 2.0 * GY - K.solve(GY)
+            X = Y[:, :3].copy()
+            out.append((X, float(np.sum((X - ctx.V) ** 2)), s * float(np.sum(Z * Y[:, 3:]))))
+        return out
+
+    def evaluate(t: float) -> _Point:
+        best = None
+        for k, (X, res, tr) in enumerate(_MEMO.get(("sinkhorn", key, float(t)), lambda: path(t)), start=1):
+            if k in ks:
+                p = _Point(t, res, tr, X)
+                p.score = _score(p, n, ctx.rho, ctx.criterion)
+                if best is None or p.score < best.score:
+                    best, best_k[t] = p, k
+        return best
+
+    if held == 0:
+        return {"t": float(spec.param("t").default)}, _Point(0, 0.0, float(n), ctx.V, 0.0)
+    p = _search_log(evaluate, _mu_guess(ctx, 1))
+    return {"t": float(p.value), "iterations": int(best_k[p.value])}, p
+
+
+def _choose_two_stage(ctx: _Context) -> dict:
+    """``iterations`` (outer) of ``two_stage`` by Monte-Carlo SURE (Ramani, Blu and Unser 2008).
+
+    ``two_stage`` is not linear, so the trace term of SURE becomes the divergence
+    :math:`\\mathrm{tr}(\\Sigma J_f)` of the filter along the noise directions,
+    :math:`\\Sigma_i = \\rho^2 N_i N_i^T`. With one Rademacher probe
+    :math:`b_i = z_i N_i` (``N`` the vertex normals of the SURE-smoothed mesh, as in
+    :func:`estimate_noise`) and step :math:`\\delta = 0.1\\rho`,
+
+    .. math:: \\mathrm{SURE}_k = \\|f_k(X) - X\\|^2 - n\\rho^2
+              + 2\\rho^2\\, b^T (f_k(X + \\delta b) - f_k(X)) / \\delta .
+
+    Each outer iteration depends on the previous positions only, so the clean and
+    perturbed runs advance together and the whole curve over ``k`` costs two runs;
+    they stop two iterations after the minimum (or at ``TWO_STAGE_MAX_ITERATIONS``).
+    The other parameters are held (defaults: scale free, see the filter). Measured on
+    the benchmark pairs, SURE follows the true squared error within 3 to 20 % and picks
+    1 iteration on Fandisk0.3 and 2 on Block0.4 (3.5 and 3.9 degrees of normal error).
+    """
+    spec = get_filter("two_stage")
+    full = spec.resolve(ctx.given, where="choose_parameters(method='two_stage')")
+    n = ctx.ops.n
+    if ctx.rho is not None and ctx.rho == 0:
+        return {"iterations": 0}, _Point(0, 0.0, float(n), ctx.V, 0.0)
+    if ctx.criterion == "gcv":
+        raise ValueError("choose_parameters: two_stage is not a linear smoother; use criterion 'sure' or 'oracle'")
+    step_params = {**full, "iterations": 1}
+    run = lambda X: spec.core(X, ctx.F, ops=ctx.ops, fixed=None, **step_params)  # noqa: E731
+    sure_mode = not callable(ctx.criterion)
+    if sure_mode:
+        smooth = _best_on_path(_iterative_path(ctx.V, ctx.ops, _averaging_step(ctx.ops.P, 1.0)), n, ctx.rho, "sure").X
+        N = vertex_normals(smooth, ctx.F)
+        z = np.random.default_rng(0).choice([-1.0, 1.0], size=n)
+        b = z[:, None] * N
+        delta = MC_SURE_STEP * ctx.rho
+        Xp = ctx.V + delta * b
+    iterates = _MEMO.get(("two_stage", _digest(ctx.F, ctx.V, sorted(step_params.items()))), list)
+
+    def clean_run(k: int) -> np.ndarray:  # the k-th iterate of the unperturbed run, shared with other calls
+        while len(iterates) < k:
+            iterates.append(run(iterates[-1] if iterates else ctx.V))
+        return iterates[k - 1]
+
+    X = np.array(ctx.V, dtype=np.float64)
+    best = _Point(0, 0.0, float(n), X.copy())
+    best.score = _score(best, n, ctx.rho, ctx.criterion)
+    for k in range(1, TWO_STAGE_MAX_ITERATIONS + 1):
+        X = clean_run(k)
+        div = float(n)
+        if sure_mode:
+            Xp = run(Xp)
+            div = float(np.sum(b * (Xp - X)) / delta)
+        p = _Point(k, float(np.sum((X - ctx.V) ** 2)), div, X.copy())
+        p.score = _score(p, n, ctx.rho, ctx.criterion)
+        if p.score < best.score:
+            best = p
+        elif k >= best.value + 2:
+            break
+    return {"iterations": int(best.value)}, best
+
+
+def _choose_sobolev_axes(ctx: _Context) -> dict:
+    """``mu1, mu2, mu3`` (and ``frame_steps``) of ``sobolev_axes``: SURE on each principal axis.
+
+    ``frame_steps`` is the SURE-best number of averaging steps (the smoothing the noise
+    normals of :func:`estimate_noise` come from). In the frame :math:`E` of those normals
+    the filter acts on each coordinate :math:`x_d = X e_d` separately, and the noise on
+    it is :math:`\\rho\\, \\varepsilon_i (n_i \\cdot e_d)`, of variance
+    :math:`\\rho^2 c_{id}`, :math:`c_{id} = (n_i \\cdot e_d)^2`. So the risk splits
+    into one SURE per axis,
+
+    .. math:: \\mathrm{SURE}_d(\\mu) = \\|H_\\mu x_d - x_d\\|^2 - \\rho^2 \\sum_i c_{id}
+              + 2\\rho^2 \\sum_i (H_\\mu)_{ii}\\, c_{id}, \\qquad H_\\mu = (I + \\mu L^p)^{-1},
+
+    whose weighted trace is Hutchinson's with probes :math:`z \\odot \\sqrt{c_d}`
+    (:math:`\\mathbb E\\, (z \\odot a)^T H (z \\odot a) = \\sum_i H_{ii} a_i^2`), exact
+    (identity probes) on small meshes. One factorisation per ``mu`` serves the three
+    axes: a half-decade grid around the ``sobolev`` guess, extended until every axis's
+    minimum is inside, then refined to an eighth of a decade around each minimum.
+    """
+    from .plugins.sobolev_axes import laplacian_power, normal_frame
+
+    spec = get_filter("sobolev_axes")
+    full = spec.resolve(ctx.given, where="choose_parameters(method='sobolev_axes')")
+    if ctx.criterion == "gcv":
+        raise ValueError("choose_parameters: sobolev_axes needs a noise level per axis; use criterion 'sure' or 'oracle'")
+    n, order = ctx.ops.n, full["order"]
+    if "frame_steps" in ctx.given:
+        steps = full["frame_steps"]
+    else:
+        steps = int(_best_on_path(_iterative_path(ctx.V, ctx.ops, _averaging_step(ctx.ops.P, 1.0), ctx.exact), n, ctx.rho, "sure" if ctx.rho is not None else ctx.criterion).value)
+    E, _ = normal_frame(ctx.V, ctx.F, ctx.ops, steps)
+    # noise directions: normals of the SURE-best bi-Laplacian estimate (smoother than `steps` averagings,
+    # whose normals at 0.4 edge lengths of noise are still noisy and would bias the per-axis shares)
+    L = ctx.ops.L
+    rho_sure = ctx.rho if ctx.rho is not None else 0.0
+    Xs = _best_mu(ctx.V, sp.csr_matrix(L @ L), rho_sure, "sure", ctx.exact, center=_mu_guess(ctx, 2)).X
+    c = (vertex_normals(Xs, ctx.F) @ E) ** 2  # (n, 3) noise share of each axis per vertex
+    Xf = ctx.V @ E
+    Yf = None if ctx.reference is None else ctx.reference @ E
+    Z, s = probe_block(n, ctx.exact)
+    m = Z.shape[1]
+    Q = np.hstack([Z * np.sqrt(c[:, [d]]) for d in range(3)])
+    M = laplacian_power(ctx.ops, order)
+    held = [f"mu{d + 1}" in ctx.given for d in range(3)]
+    evaluated: dict[float, list[float]] = {}  # log10 mu -> per-axis score
+    key = _digest(M, Xf, Q)
+
+    def at(t: float) -> list:
+        t = round(t, 9)
+        if t not in evaluated:
+            mu = 10.0**t
+            out = _solve_shifted(M, mu, np.hstack([Xf, Q]), key)
+            scores = []
+            for d in range(3):
+                y = out[:, d]
+                if Yf is not None:
+                    score = float(np.sum((y - Yf[:, d]) ** 2))
+                else:
+                    tr = s * float(np.sum(Q[:, d * m:(d + 1) * m] * out[:, 3 + d * m:3 + (d + 1) * m]))
+                    score = float(np.sum((y - Xf[:, d]) ** 2)) - ctx.rho**2 * float(c[:, d].sum()) + 2 * ctx.rho**2 * tr
+                scores.append(score)
+            evaluated[t] = scores
+        return evaluated[t]
+
+    def best_t(d: int) -> float:
+        return min(evaluated, key=lambda t: evaluated[t][d])
+
+    if ctx.rho == 0 and Yf is None:
+        return {**{f"mu{d + 1}": 0.0 for d in range(3) if not held[d]}, "frame_steps": steps}, _Point(0, 0.0, float(n), ctx.V, 0.0)
+    c0 = math.log10(_mu_guess(ctx, order))
+    for j in range(-2, 3):
+        at(c0 + 0.5 * j)
+    for _ in range(40):  # extend the grid while an axis's minimum sits at an end
+        lo, hi = min(evaluated), max(evaluated)
+        ends = {best_t(d) for d in range(3) if not held[d]}
+        if lo in ends and lo > -10:
+            at(lo - 0.5)
+        elif hi in ends and hi < 14:
+            at(hi + 0.5)
+        else:
+            break
+    for step in (0.25, 0.125):
+        for d in range(3):
+            if not held[d]:
+                t = best_t(d)
+                at(t - step), at(t + step)
+    chosen = {f"mu{d + 1}": float(10.0 ** best_t(d)) for d in range(3) if not held[d]}
+    total = sum(evaluated[best_t(d)][d] for d in range(3) if not held[d])
+    return {**chosen, "frame_steps": steps}, _Point(0, 0.0, 0.0, ctx.V, total)
+
+
 # method -> (the parameters its rule chooses, the rule)
 AUTO_METHODS: dict[str, tuple[tuple[str, ...], Callable]] = {
     "filtering": (("iterations",), _choose_filtering),
@@ -489,6 +766,9 @@ AUTO_METHODS: dict[str, tuple[tuple[str, ...], Callable]] = {
     "sobolev": (("mu",), _choose_sobolev),
     "sobolev_bilaplacian": (("mu",), _choose_sobolev_bilaplacian),
     "taubin": (("iterations",), _choose_taubin),
+    "sinkhorn": (("t", "iterations"), _choose_sinkhorn),
+    "two_stage": (("iterations",), _choose_two_stage),
+    "sobolev_axes": (("mu1", "mu2", "mu3"), _choose_sobolev_axes),
 }
 
 
@@ -505,10 +785,13 @@ def choose_parameters(
 ) -> dict:
     """Choose a filter's parameters from the noisy mesh alone.
 
-    Linear filters (``filtering``: iterations; ``heat``: time and tau; ``sobolev``: mu)
-    minimise SURE (module docstring) with the noise level from :func:`estimate_noise`,
-    or GCV with ``criterion="gcv"``; traces by Hutchinson probes carried along the run
-    (exact below ``EXACT_TRACE_MAX`` vertices).
+    Linear filters (``filtering``: iterations; ``heat``: time and tau; ``sobolev``,
+    ``sobolev_bilaplacian``: mu; ``taubin``: iterations; ``sinkhorn`` in its linear
+    configuration: t and iterations) minimise SURE (module docstring) with the noise level
+    from :func:`estimate_noise`, or GCV with ``criterion="gcv"``; traces by Hutchinson
+    probes carried along the run (exact below ``EXACT_TRACE_MAX`` vertices).
+    ``sobolev_axes`` minimises one SURE per principal axis of the normals (mu1, mu2, mu3);
+    ``two_stage`` (nonlinear) minimises Monte-Carlo SURE over its outer iterations.
 
     Parameters
     ----------
@@ -575,7 +858,7 @@ def choose_parameters(
         if Y.shape != V.shape:
             raise ValueError(f"choose_parameters: reference has {Y.shape[0]} vertices, the mesh {V.shape[0]}")
         score = lambda p: np.sum((p.X - Y) ** 2)  # noqa: E731
-    ctx = _Context(V, F, ops, rho, score, exact_trace, dict(given))
+    ctx = _Context(V, F, ops, rho, score, exact_trace, dict(given), Y if criterion == "oracle" else None)
     chosen, point = AUTO_METHODS[method][1](ctx)
     params = {**chosen, **given}
     log.info("choose_parameters(%s): %s (rho=%s, %s score %.6g)", method, params, rho, criterion, point.score)
