@@ -38,7 +38,9 @@ class GridSpec:
 # Filter name -> grid. An entry is used only when its filter is registered, so a new filter
 # (issue 4's OT filter, issue 5's stronger filters) appears in the tables by adding one line here.
 GRIDS: dict[str, GridSpec] = {
-    "sinkhorn": GridSpec("t", tuple(float(t) for t in np.logspace(-1, 2, 13))),
+    # down to t = 1e-3, where the filter returns nearly its input: at low noise the best is "almost nothing"
+    "sinkhorn": GridSpec("t", tuple(float(t) for t in np.logspace(-3, 2, 21))),
+    "sobolev_bilaplacian": GridSpec("mu", tuple(float(m) for m in np.r_[0.0, np.logspace(-4, 3, 22)])),
 }
 
 
