@@ -279,7 +279,7 @@ def estimate_noise(mesh: Any, *, refine: int = 2) -> float:
     -------
     float
         :math:`\\hat\\rho` in the mesh's units: within about 5 % on smooth and CAD meshes
-        from 0.2 to 25 edge lengths of noise (docs/auto_quality.md); a coarse, curved mesh
+        from 0.2 to 25 edge lengths of noise (README, "Automatic parameters"); a coarse, curved mesh
         with noise far below its edge length (Nefertiti at rho = 0.015) is overestimated.
 
     Examples

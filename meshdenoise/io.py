@@ -4,7 +4,7 @@ The readers are pure Python/numpy (no C++ loader), so a hostile or broken file c
 :class:`MeshFileError` but cannot crash the process: pymeshlab's loaders silently accept
 truncated STL and OFF files and out-of-range OBJ indices, drop NaN vertices and duplicate
 faces, read an OFF file with comments as empty and refuse CR line endings (see
-docs/robustness.md). Header counts are checked against the file size before anything is
+the README section "Robustness"). Header counts are checked against the file size before anything is
 allocated. Unusual but legal input (polygons, CR or CRLF line endings, negative OBJ
 indices, STL's unshared corners) is read and described in :attr:`MeshFile.notes`.
 

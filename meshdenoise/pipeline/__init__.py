@@ -6,7 +6,7 @@ Use::
     plan = load_pipeline("pipelines/scan_cleanup.yaml", overrides={"mu": 2})
     rows = run_pipeline(plan)
 
-See docs/pipelines.md for the file format.
+See the README section "Pipelines and the command line" for the file format.
 """
 
 from __future__ import annotations

@@ -47,7 +47,7 @@ def sinkhorn(V, F, *, ops, fixed, t, iterations, laplacian, measure, debias, ste
 
     With ``measure="uniform"`` the heat kernel is already doubly stochastic
     (:math:`G1 = 1`), so :math:`u = 1` and :math:`T = G`; ``measure="area"`` makes the
-    scaling non-trivial (it scores lower on the elephant, see ``docs/ot.md``). The
+    scaling non-trivial (it scores lower on the elephant, see the README, "Optimal transport"). The
     filter is translation equivariant (:math:`T1 = 1`) and, with the default uniform
     measure and graph Laplacian, linear.
 

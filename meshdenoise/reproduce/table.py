@@ -154,12 +154,12 @@ def _comparison(rows: list[dict], outside: list) -> list[str]:
     for mesh, rho, method, mean, paper, std in outside:
         out.append(f"- Outside the band: {mesh} rho = {rho:g} {method}: ours {mean:.2f} ± {std:.2f} dB, paper {paper:.2f} "
                    f"({mean - paper:+.2f} dB). See the explanation below.")
-    out += ["", "### Findings behind the differences (reference run: 5 seeds; numbers in docs/reproduce.md)", ""]
+    out += ["", "### Findings behind the differences (reference run: 5 seeds; numbers in the README, "Reproducing the paper")", ""]
     out += EXPLANATIONS
     return out
 
 
-# Findings of the investigation behind the table (docs/reproduce.md gives the numbers behind each).
+# Findings of the investigation behind the table (the README section "Reproducing the paper" gives the numbers behind each).
 EXPLANATIONS: list[str] = [
     "- Elephant: every figure agrees within 0.3 dB (ours slightly higher: our search grids are finer, and we average "
     "5 draws where the paper has one). Filtering and heat tie, as in the paper: the best heat step is tau ~ 1, where "
