@@ -154,7 +154,7 @@ def _comparison(rows: list[dict], outside: list) -> list[str]:
     for mesh, rho, method, mean, paper, std in outside:
         out.append(f"- Outside the band: {mesh} rho = {rho:g} {method}: ours {mean:.2f} ± {std:.2f} dB, paper {paper:.2f} "
                    f"({mean - paper:+.2f} dB). See the explanation below.")
-    out += ["", "### Findings behind the differences (reference run: 5 seeds; numbers in the README, "Reproducing the paper")", ""]
+    out += ["", "### Findings behind the differences (reference run: 5 seeds; numbers in the README section Reproducing the paper)", ""]
     out += EXPLANATIONS
     return out
 
