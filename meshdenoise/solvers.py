@@ -20,27 +20,22 @@ from cholespy import CholeskySolverD, MatrixType
 
 from .operators import Operators, mask_key, spmm
 
-__all__ = ["SPDSolver", "CGSolver", "block_cg", "cached_solver"]
+__all__ = ["DirichletSystem", "SPDSolver", "CGSolver", "block_cg", "cached_solver"]
 
 FACTORS_PER_FAMILY = 4  # a parameter sweep keeps only the last few factorisations of each filter
 
 
-class SPDSolver:
-    """A sparse Cholesky factorisation (cholespy) of SPD ``A``, reduced to free rows when some are fixed.
+class DirichletSystem:
+    """``A Y = X`` on the free rows of a symmetric positive definite ``A``, with ``Y = X`` on fixed rows.
 
-    Solves ``A Y = X`` on the free rows with ``Y = X`` on the fixed ones, i.e. the reduced
-    system :math:`A_{ff} Y_f = X_f - A_{fp} X_p`; every ``A_ff`` of an SPD ``A`` is SPD.
-
-    Examples
-    --------
-    >>> import numpy as np, scipy.sparse as sp
-    >>> A = sp.csr_matrix(np.array([[2.0, -1, 0], [-1, 2, -1], [0, -1, 2]]))
-    >>> SPDSolver(A, np.array([False, True, False])).solve(np.array([[1.0], [5.0], [1.0]])).ravel()
-    array([3., 5., 3.])
+    Holds the reduced matrix :math:`A_{ff}` (sorted CSR, attribute ``A``) and the coupling
+    :math:`A_{fp}` that moves the fixed values to the right-hand side,
+    :math:`A_{ff} Y_f = X_f - A_{fp} X_p`; every :math:`A_{ff}` of an SPD ``A`` is SPD.
+    Subclasses solve the reduced system (a factorisation, or conjugate gradients).
     """
 
     def __init__(self, A: sp.spmatrix, fixed: np.ndarray | None = None):
-        A = sp.csr_matrix(A)
+        A = sp.csr_matrix(A, dtype=np.float64)
         self.n = A.shape[0]
         self.fixed = None if fixed is None or not fixed.any() else fixed.copy()
         if self.fixed is None:
@@ -52,7 +47,48 @@ class SPDSolver:
             self._coupling = A_free[:, self._pinned]  # moves the pinned values to the right-hand side
             A = sp.csr_matrix(A_free[:, self.free])
         A.sort_indices()
+        self.A = A
         self.size = A.shape[0]
+
+    def _columns(self, X: np.ndarray) -> np.ndarray:
+        """``X`` as float64 ``(n, k)``, checked against the system's size."""
+        X = np.asarray(X, dtype=np.float64)
+        if X.shape[0] != self.n:
+            raise ValueError(f"{type(self).__name__}.solve: X has {X.shape[0]} rows, the system {self.n}")
+        return X.reshape(self.n, -1)
+
+    def _reduce(self, X2: np.ndarray) -> np.ndarray:
+        """The right-hand side of the reduced system: a new C-contiguous array (solvers may write into it)."""
+        if self.free is None:
+            return np.array(X2, dtype=np.float64, order="C")
+        return np.ascontiguousarray(X2[self.free] - self._coupling @ X2[self._pinned])
+
+    def _expand(self, X2: np.ndarray, out: np.ndarray) -> np.ndarray:
+        """The full solution: ``out`` on the free rows, the fixed rows of ``X2`` bit for bit."""
+        if self.free is None:
+            return out
+        Y = X2.copy()
+        Y[self.free] = out
+        return Y
+
+
+class SPDSolver(DirichletSystem):
+    """A sparse Cholesky factorisation (cholespy) of SPD ``A``, reduced to free rows when some are fixed.
+
+    Solves ``A Y = X`` on the free rows with ``Y = X`` on the fixed ones, i.e. the reduced
+    system :math:`A_{ff} Y_f = X_f - A_{fp} X_p`.
+
+    Examples
+    --------
+    >>> import numpy as np, scipy.sparse as sp
+    >>> A = sp.csr_matrix(np.array([[2.0, -1, 0], [-1, 2, -1], [0, -1, 2]]))
+    >>> SPDSolver(A, np.array([False, True, False])).solve(np.array([[1.0], [5.0], [1.0]])).ravel()
+    array([3., 5., 3.])
+    """
+
+    def __init__(self, A: sp.spmatrix, fixed: np.ndarray | None = None):
+        super().__init__(A, fixed)
+        A = self.A
         self._solver = (
             CholeskySolverD(
                 self.size, A.indptr.astype(np.int32), A.indices.astype(np.int32), A.data.astype(np.float64),
@@ -64,23 +100,12 @@ class SPDSolver:
 
     def solve(self, X: np.ndarray) -> np.ndarray:
         """``Y`` of the shape of ``X`` (n,) or (n, k), with ``(A Y)_f = X_f`` and ``Y_p = X_p``."""
-        X = np.asarray(X, dtype=np.float64)
-        if X.shape[0] != self.n:
-            raise ValueError(f"{type(self).__name__}.solve: X has {X.shape[0]} rows, the system {self.n}")
-        X2 = X.reshape(self.n, -1)
-        if self.free is None:
-            rhs = np.array(X2, dtype=np.float64, order="C")  # cholespy needs a writable C array
-        else:
-            rhs = np.ascontiguousarray(X2[self.free] - self._coupling @ X2[self._pinned])
+        X2 = self._columns(X)
+        rhs = self._reduce(X2)
         out = np.empty_like(rhs)
         if self._solver is not None:
             self._solver.solve(rhs, out)
-        if self.free is None:
-            Y = out
-        else:
-            Y = X2.copy()
-            Y[self.free] = out
-        return Y.reshape(X.shape)
+        return self._expand(X2, out).reshape(np.shape(X))
 
 
 def block_cg(
@@ -217,7 +242,7 @@ def block_cg(
     return X.reshape(B.shape), it, relres
 
 
-class CGSolver:
+class CGSolver(DirichletSystem):
     """Iterative counterpart of :class:`SPDSolver`: no factorisation, Jacobi-preconditioned block CG.
 
     Builds the reduced system once (``A_ff``, the coupling ``A_fp`` and ``1 / diag(A_ff)``);
@@ -248,20 +273,9 @@ class CGSolver:
     """
 
     def __init__(self, A: sp.spmatrix, fixed: np.ndarray | None = None, *, maxiter: int | None = None):
-        A = sp.csr_matrix(A, dtype=np.float64)
-        self.n = A.shape[0]
+        super().__init__(A, fixed)
         self.maxiter = maxiter
-        self.fixed = None if fixed is None or not fixed.any() else fixed.copy()
-        if self.fixed is None:
-            self.free = None
-        else:
-            self.free = np.flatnonzero(~self.fixed)
-            self._pinned = np.flatnonzero(self.fixed)
-            A_free = A[self.free]
-            self._coupling = A_free[:, self._pinned]
-            A = sp.csr_matrix(A_free[:, self.free])
-        A.sort_indices()
-        self.A = A
+        A = self.A
         diag = A.diagonal()
         if not np.all(diag > 0):
             bad = int(np.flatnonzero(~(diag > 0))[0])
@@ -275,20 +289,14 @@ class CGSolver:
 
         ``x0`` (shape of ``X``, optional) is the starting guess; only its free rows are used.
         """
-        X = np.asarray(X, dtype=np.float64)
-        if X.shape[0] != self.n:
-            raise ValueError(f"{type(self).__name__}.solve: X has {X.shape[0]} rows, the system {self.n}")
-        if x0 is not None:
-            x0 = np.asarray(x0, dtype=np.float64)
-            if x0.shape != X.shape:
-                raise ValueError(f"{type(self).__name__}.solve: x0 has shape {x0.shape}, X {X.shape}")
-        X2 = X.reshape(self.n, -1)
-        x02 = None if x0 is None else x0.reshape(self.n, -1)
-        if self.free is None:
-            rhs, start = X2, x02
-        else:
-            rhs = X2[self.free] - self._coupling @ X2[self._pinned]
-            start = None if x02 is None else x02[self.free]
+        X2 = self._columns(X)
+        x02 = None if x0 is None else np.asarray(x0, dtype=np.float64)
+        if x02 is not None and x02.shape != np.shape(X):
+            raise ValueError(f"{type(self).__name__}.solve: x0 has shape {x02.shape}, X {np.shape(X)}")
+        rhs = self._reduce(X2)
+        start = None if x02 is None else x02.reshape(self.n, -1)
+        if start is not None and self.free is not None:
+            start = start[self.free]
         if rhs.shape[0]:
             out, self.iterations, self.relres = block_cg(
                 self.A, rhs, tol=tol, maxiter=maxiter if maxiter is not None else self.maxiter,
@@ -296,12 +304,7 @@ class CGSolver:
             )
         else:
             out, self.iterations, self.relres = rhs.copy(), 0, np.zeros(rhs.shape[1])
-        if self.free is None:
-            Y = out
-        else:
-            Y = X2.copy()
-            Y[self.free] = out
-        return Y.reshape(X.shape)
+        return self._expand(X2, out).reshape(np.shape(X))
 
 
 def cached_solver(
