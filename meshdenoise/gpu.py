@@ -82,6 +82,7 @@ class ScipyBackend(Backend):
 
     name = "scipy"
 
+    # generic array arithmetic (``@``, ``+=``): also what CuPy uses, which subclasses this backend
     def spmm(self, M, X, out=None, accumulate=False):
         Y = M @ X
         if out is None:
@@ -96,7 +97,7 @@ class ScipyBackend(Backend):
         Y += a * X
 
 
-class CupyBackend(Backend):
+class CupyBackend(ScipyBackend):
     """CuPy on the current CUDA device (``cupyx.scipy.sparse.csr_matrix`` times dense)."""
 
     name = "cupy"
@@ -128,19 +129,6 @@ class CupyBackend(Backend):
 
     def zeros_like(self, X):
         return self.cp.zeros_like(X)
-
-    def spmm(self, M, X, out=None, accumulate=False):
-        Y = M @ X
-        if out is None:
-            return Y
-        if accumulate:
-            out += Y
-        else:
-            out[...] = Y
-        return out
-
-    def axpy(self, a, X, Y):
-        Y += a * X
 
 
 class TorchBackend(Backend):
