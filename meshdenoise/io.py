@@ -796,6 +796,15 @@ _READERS = {".off": _read_off, ".obj": _read_obj, ".ply": _read_ply, ".stl": _re
 
 
 # ---------------------------------------------------------------------------------- writing
+def _process_umask() -> int:
+    mask = os.umask(0)  # the only portable way to read it is to set it, so read it once, at import
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _process_umask()
+
+
 class atomic_path:
     """Context manager giving a temporary path beside ``path``, renamed onto it only on success.
 
@@ -830,6 +839,10 @@ class atomic_path:
             try:
                 with open(self.tmp, "rb") as fh:
                     os.fsync(fh.fileno())
+                # mkstemp makes private (0600) files; give the result the mode any other tool would:
+                # the replaced file's, or 0666 minus the umask for a new one
+                mode = self.path.stat().st_mode & 0o7777 if self.path.exists() else 0o666 & ~_UMASK
+                os.chmod(self.tmp, mode)
                 os.replace(self.tmp, self.path)
             except OSError as err:
                 self.tmp.unlink(missing_ok=True)

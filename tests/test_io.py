@@ -225,3 +225,19 @@ def test_a_fifo_or_device_is_refused_at_once_instead_of_blocking(tmp_path):
     dev.symlink_to("/dev/zero")  # endless bytes
     with pytest.raises(MeshFileError, match=r"zero\.stl: not a regular file"):
         load_mesh(dev)
+
+
+def test_written_files_get_the_usual_mode_and_keep_a_replaced_files_mode(tmp_path):
+    """Atomic writes go through a private temporary file; the result must not stay private (0600)."""
+    import os
+
+    from meshdenoise.io import save_mesh
+    from meshdenoise.shapes import icosphere
+
+    mask = os.umask(0)  # read the process umask (the writer reads the same one at import)
+    os.umask(mask)
+    path = save_mesh(tmp_path / "new.ply", *icosphere(1))
+    assert path.stat().st_mode & 0o777 == 0o666 & ~mask
+    os.chmod(path, 0o640)
+    save_mesh(path, *icosphere(1))
+    assert path.stat().st_mode & 0o777 == 0o640
