@@ -57,12 +57,12 @@ from typing import Any, Callable, Iterator
 
 import numpy as np
 import scipy.sparse as sp
-from cholespy import CholeskySolverD, MatrixType
 
 from .adapters import read_mesh
 from .geometry import vertex_normals
 from .operators import Operators, get_operators
 from .registry import COMMON_OPTIONS, apply_filter, get_filter
+from .solvers import SPDSolver
 
 __all__ = [
     "estimate_noise",
@@ -126,10 +126,7 @@ def _solve_shifted(M: sp.csr_matrix, mu: float, rhs: np.ndarray, key: str | None
     """``(I + mu M)^{-1} rhs`` by a sparse Cholesky factorisation, memoised on (M, mu, rhs)."""
 
     def compute() -> np.ndarray:
-        r = np.ascontiguousarray(rhs, dtype=np.float64)
-        out = np.empty_like(r)
-        _factor(sp.identity(M.shape[0], format="csr") + mu * M).solve(r, out)
-        return out
+        return SPDSolver(sp.identity(M.shape[0], format="csr") + mu * M).solve(rhs)
 
     return _MEMO.get(("solve", key or _digest(M, rhs), float(mu)), compute)
 
@@ -370,14 +367,6 @@ def _best_on_path(path: Iterator[_Point], n: int, rho: float | None, criterion: 
             )
             return best
     raise AssertionError("unreachable")  # pragma: no cover
-
-
-def _factor(A: sp.csr_matrix) -> CholeskySolverD:
-    A = sp.csr_matrix(A)
-    A.sort_indices()
-    return CholeskySolverD(
-        A.shape[0], A.indptr.astype(np.int32), A.indices.astype(np.int32), A.data.astype(np.float64), MatrixType.CSR
-    )
 
 
 def _solve_point(V: np.ndarray, M: sp.csr_matrix, mu: float, Z: np.ndarray, s: float, key: str | None = None) -> _Point:
