@@ -722,7 +722,7 @@ class MeshHeatKernel:
     """
 
     def __init__(self, V, F, t, laplacian="cotangent", mass="lumped", steps=1):
-        from cholespy import CholeskySolverD, MatrixType
+        from .solvers import SPDSolver
 
         V, F = _mesh_arrays(V, F)
         self.t = _positive_float("t", t)
@@ -738,14 +738,7 @@ class MeshHeatKernel:
         self.mass = lumped_mass(V, F) if mass == "lumped" else np.ones(n)
         if np.any(self.mass <= 0):
             raise ValueError(f"vertex {int(np.argmin(self.mass))} has zero area (unreferenced or degenerate)")
-        A = (sp.diags(self.mass) + (self.t / self.steps) * self.L).tocoo()
-        self._solver = CholeskySolverD(
-            n,
-            A.row.astype(np.int32),
-            A.col.astype(np.int32),
-            A.data.astype(np.float64),
-            MatrixType.COO,
-        )
+        self._solver = SPDSolver(sp.diags(self.mass) + (self.t / self.steps) * self.L)
 
     def _check(self, B):
         B = np.asarray(B, dtype=np.float64)
@@ -754,10 +747,7 @@ class MeshHeatKernel:
         return B
 
     def _inverse(self, B):
-        B = np.ascontiguousarray(B)
-        X = np.empty_like(B)
-        self._solver.solve(B, X)
-        return X
+        return self._solver.solve(B)
 
     def solve(self, B):
         r"""Apply the symmetric kernel :math:`G = K M^{-1}` to B, shape (n,) or (n, k).
