@@ -328,7 +328,7 @@ ROWS = [
     ("Open3D filter_smooth_laplacian(1)", "open3d_laplacian"),
     ("heat T=40: Euler tau=0.5 (80 fused steps)", "heat_euler"),
     ("heat T=40: textbook Euler loop (before)", "heat_euler_textbook"),
-    ("heat T=40: Chebyshev (tol 1e-7)", "heat_chebyshev"),
+    ("heat T=40: Chebyshev (default tol 1e-3)", "heat_chebyshev"),
     ("heat T=40: scipy expm_multiply (n < 500k only)", "heat_expm_multiply"),
     ("Sobolev mu=1: factorisation", "sobolev_factor"),
     ("Sobolev: one solve", "sobolev_solve"),

@@ -68,6 +68,16 @@ class Backend:
     def zeros_like(self, X: Any) -> Any:
         return np.zeros_like(X)
 
+    def asarray_owned(self, X: np.ndarray) -> Any:
+        """:meth:`asarray` for a numpy array the caller hands over: used as is when it can be (no copy)."""
+        if X.dtype == np.float64 and X.flags.c_contiguous and X.flags.writeable:
+            return X
+        return self.asarray(X)
+
+    def to_new_numpy(self, X: Any) -> np.ndarray:
+        """A float64 numpy array of ``X`` for a buffer the caller gives up (no copy when ``X`` is one)."""
+        return np.asarray(X, dtype=np.float64)
+
     def spmm(self, M: Any, X: Any, out: Any = None, accumulate: bool = False) -> Any:
         """``out <- M X`` (or ``out <- out + M X``); a new array when ``out`` is None."""
         return spmm(M, X, out, accumulate=accumulate)
@@ -75,6 +85,10 @@ class Backend:
     def axpy(self, a: float, X: Any, Y: Any) -> None:
         """``Y <- Y + a X`` in place."""
         _axpy_blocked(a, X.reshape(-1), Y.reshape(-1))
+
+    def axpy2(self, a: float, X: Any, b: float, Z: Any, Y: Any) -> None:
+        """``Y <- Y + a X + b Z`` in place, in one pass over ``Y`` where the backend can."""
+        _axpy2_blocked(a, X.reshape(-1), b, Z.reshape(-1), Y.reshape(-1))
 
 
 class ScipyBackend(Backend):
@@ -95,6 +109,10 @@ class ScipyBackend(Backend):
 
     def axpy(self, a, X, Y):
         Y += a * X
+
+    def axpy2(self, a, X, b, Z, Y):
+        Y += a * X
+        Y += b * Z
 
 
 class CupyBackend(ScipyBackend):
@@ -129,6 +147,12 @@ class CupyBackend(ScipyBackend):
 
     def zeros_like(self, X):
         return self.cp.zeros_like(X)
+
+    def asarray_owned(self, X):
+        return self.asarray(X)
+
+    def to_new_numpy(self, X):
+        return np.array(self.to_numpy(X), dtype=np.float64)
 
 
 class TorchBackend(Backend):
@@ -170,6 +194,12 @@ class TorchBackend(Backend):
     def zeros_like(self, X):
         return self.torch.zeros_like(X)
 
+    def asarray_owned(self, X):
+        return self.asarray(X)
+
+    def to_new_numpy(self, X):
+        return np.array(self.to_numpy(X), dtype=np.float64)
+
     def spmm(self, M, X, out=None, accumulate=False):
         Y = M @ X
         if out is None:
@@ -182,6 +212,10 @@ class TorchBackend(Backend):
 
     def axpy(self, a, X, Y):
         Y.add_(X, alpha=a)
+
+    def axpy2(self, a, X, b, Z, Y):
+        Y.add_(X, alpha=a)
+        Y.add_(Z, alpha=b)
 
 
 _AXPY_BLOCK = 1 << 15  # 256 KiB of float64: the scratch for a * x stays in cache
@@ -198,6 +232,21 @@ def _axpy_blocked(a: float, x: np.ndarray, y: np.ndarray) -> None:
         xs = x[i : i + _AXPY_BLOCK]
         t = tmp[: xs.size]
         np.multiply(xs, a, out=t)
+        ys = y[i : i + _AXPY_BLOCK]
+        np.add(ys, t, out=ys)
+
+
+def _axpy2_blocked(a: float, x: np.ndarray, b: float, z: np.ndarray, y: np.ndarray) -> None:
+    """``y += a x + b z`` over cache-sized blocks: four streams instead of the six of two ``axpy``."""
+    tmp = np.empty(min(_AXPY_BLOCK, x.size))
+    tmp2 = np.empty_like(tmp)
+    for i in range(0, x.size, _AXPY_BLOCK):
+        xs = x[i : i + _AXPY_BLOCK]
+        t = tmp[: xs.size]
+        t2 = tmp2[: xs.size]
+        np.multiply(xs, a, out=t)
+        np.multiply(z[i : i + _AXPY_BLOCK], b, out=t2)
+        t += t2
         ys = y[i : i + _AXPY_BLOCK]
         np.add(ys, t, out=ys)
 

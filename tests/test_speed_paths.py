@@ -112,20 +112,77 @@ def test_heat_euler_equals_textbook_steps():
     np.testing.assert_allclose(Y, X, rtol=0, atol=1e-13)
 
 
-def test_chebyshev_coefficients_against_bessel_series():
-    """a_k = e^-T I_k(T) (doubled for k >= 1), and the truncated polynomial matches exp(-T x) on [0, 2]."""
-    T, tol = 12.5, 1e-9
-    a = chebyshev_coefficients(T, tol)
+@pytest.mark.parametrize("upper", [2.0, 1.5, 0.7])
+@pytest.mark.parametrize("T, tol", [(12.5, 1e-9), (40.0, 1e-3), (3.0, 1e-5)])
+def test_chebyshev_coefficients_against_bessel_series(upper, T, tol):
+    """a_k = e^-T' I_k(T') (doubled for k >= 1, T' = T b / 2), and the truncated polynomial in
+    y = 1 - 2x/b stays within tol of exp(-T x) on [0, b] while one term fewer does not."""
+    a = chebyshev_coefficients(T, tol, upper)
     K = len(a) - 1
-    ref = 2 * np.exp(-T) * iv(np.arange(K + 1), T)
+    Tp = T * upper / 2
+    ref = 2 * np.exp(-Tp) * iv(np.arange(K + 1), Tp)
     ref[0] /= 2
     np.testing.assert_allclose(a[1:], ref[1:], rtol=1e-12)
     assert abs(a.sum() - 1.0) < 1e-15  # p(0) = 1: translations pass through
-    x = np.linspace(0, 2, 401)
-    p = np.polynomial.chebyshev.chebval(1 - x, a)
-    assert np.abs(p - np.exp(-T * x)).max() <= 2 * tol
-    assert np.abs(np.polynomial.chebyshev.chebval(1 - x, a[:-1]) - np.exp(-T * x)).max() > tol  # K is needed
+    x = np.linspace(0, upper, 4001)
+    y = 1 - 2 * x / upper
+    assert np.abs(np.polynomial.chebyshev.chebval(y, a) - np.exp(-T * x)).max() <= tol
+    shorter = a[:-1].copy()
+    shorter[0] += a[-1]  # the same construction one degree lower
+    assert np.abs(np.polynomial.chebyshev.chebval(y, shorter) - np.exp(-T * x)).max() > tol / 20
+
+
+def test_chebyshev_coefficients_edge_cases():
     np.testing.assert_array_equal(chebyshev_coefficients(0.0, 1e-7), [1.0])
+    for bad in (0.0, -1.0, 2.5):
+        with pytest.raises(ValueError, match="upper"):
+            chebyshev_coefficients(1.0, 1e-3, bad)
+
+
+def _meshes_for_the_bound():
+    rng = np.random.default_rng(8)
+    V, F = grid(6, 5)
+    yield "closed icosphere", icosphere(2)[1], len(icosphere(2)[0])
+    yield "closed torus", torus(9, 6)[1], len(torus(9, 6)[0])
+    yield "open grid", F, len(V)
+    yield "one triangle", np.array([[0, 1, 2]]), 3
+    yield "two triangles sharing an edge", np.array([[0, 1, 2], [1, 3, 2]]), 4
+    fan = np.array([[0, 1, 2], [0, 2, 3], [0, 3, 1], [0, 1, 4]])  # edge 0-1 in three faces
+    yield "non-manifold fan", fan, 5
+    yield "with degenerate faces and an isolated vertex", np.vstack([F, [[0, 0, 1], [3, 3, 3]]]), len(V) + 1
+    for k in range(6):  # triangle soups: random faces on few vertices, duplicates and all
+        n = int(rng.integers(4, 12))
+        yield f"random soup {k}", rng.integers(0, n, size=(int(rng.integers(2, 25)), 3)), n
+
+
+@pytest.mark.parametrize("case", list(_meshes_for_the_bound()), ids=lambda c: c[0])
+def test_lambda_max_bound_holds_against_dense_eigenvalues(case):
+    _, F, n = case
+    ops = Operators(F, n)
+    lam = float(np.max(np.linalg.eigvals(np.eye(n) - ops.P.toarray()).real))
+    assert lam <= ops.lambda_max_bound + 1e-12 <= 2.0 + 1e-12
+
+
+def test_lambda_max_bound_is_tight_on_closed_meshes():
+    for V, F in (icosphere(3), torus(20, 12)):
+        ops = Operators(F, len(V))
+        assert ops.lambda_max_bound == 1.5
+        assert 1.3 < ops.lambda_max() <= 1.5
+    tri = Operators(np.array([[0, 1, 2]]), 3)  # eigenvalues 0, 1.5, 1.5: the bound is attained
+    assert tri.lambda_max_bound == 1.5
+    np.testing.assert_allclose(np.sort(np.linalg.eigvals(np.eye(3) - tri.P.toarray()).real), [0, 1.5, 1.5], atol=1e-12)
+    assert Operators(np.zeros((0, 3), dtype=int), 4).lambda_max_bound == 0.0
+
+
+@pytest.mark.parametrize("n", [10, 3_000_000])
+def test_gather_rows_equals_fancy_indexing(n):
+    """Small inputs take numpy's path, large ones the threaded sparse gather: both equal X[index]."""
+    rng = np.random.default_rng(n)
+    X = rng.standard_normal((n, 3))
+    index = rng.permutation(n)
+    got = op_module.gather_rows(X, index)
+    np.testing.assert_array_equal(got, X[index])
+    assert got.flags.c_contiguous and not np.shares_memory(got, X)
 
 
 @pytest.mark.parametrize("backend", ["cpu", "scipy"])
@@ -258,3 +315,41 @@ def test_relabelled_fast_path_gives_the_same_result(monkeypatch, method):
     np.testing.assert_allclose(got_heat, ref_heat, rtol=0, atol=1e-13)
     np.testing.assert_allclose(got_filt, ref_filt, rtol=0, atol=1e-13)
     np.testing.assert_array_equal(got_heat[pinned], V[pinned])
+
+
+@pytest.mark.parametrize("case", list(_meshes_for_the_bound()), ids=lambda c: c[0])
+def test_chebyshev_heat_on_the_bounded_interval_matches_expm(case):
+    """The shrunk interval [0, lambda_max_bound] is safe on open, non-manifold and degenerate meshes."""
+    _, F, n = case
+    V = np.random.default_rng(n).standard_normal((n, 3))
+    ops = Operators(F, n)
+    E = sl.expm(-7.0 * (np.eye(n) - ops.P.toarray())) @ V
+    Y, _ = heat((V, F), time=7.0, method="chebyshev", tol=1e-11)
+    np.testing.assert_allclose(Y, E, rtol=0, atol=1e-9 * max(1.0, np.abs(V).max()))
+
+
+def test_cached_chebyshev_matrices_follow_the_pinned_mask():
+    """Two calls with different pinned sets on the same Operators each match their own exponential."""
+    V, F = _noisy(grid(8, 6))
+    n = len(V)
+    ops = Operators(F, n)
+    for pinned in (np.arange(n) < 5, ops.boundary_vertices, None):
+        Pf = ops.P.toarray()
+        if pinned is not None:
+            Pf[pinned] = np.eye(n)[pinned]
+        E = sl.expm(-4.0 * (np.eye(n) - Pf)) @ V
+        Y, _ = heat((V, F), time=4.0, method="chebyshev", tol=1e-11, pinned=pinned, operators=ops)
+        np.testing.assert_allclose(Y, E, rtol=0, atol=1e-9)
+    assert sum(k[0] == "chebyshev_heat" for k in ops.cache) == 3
+
+
+def test_default_tolerance_is_closer_to_exp_than_euler_at_tau_half():
+    """The documented reason for tol=1e-3: the polynomial's response error at T = 40 is below
+    the Euler scheme's (1 - tau x)^(T/tau) error, on the whole interval."""
+    from meshdenoise.plugins.heat import DEFAULT_TOL
+
+    x = np.linspace(0, 1.5, 30001)
+    a = chebyshev_coefficients(40.0, DEFAULT_TOL, 1.5)
+    cheb = np.abs(np.polynomial.chebyshev.chebval(1 - 2 * x / 1.5, a) - np.exp(-40 * x)).max()
+    euler = np.abs((1 - 0.5 * x) ** 80 - np.exp(-40 * x)).max()
+    assert cheb <= DEFAULT_TOL < euler

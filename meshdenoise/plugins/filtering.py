@@ -8,7 +8,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..gpu import BACKENDS, Backend, get_backend
-from ..operators import Operators
+from ..operators import Operators, gather_rows
 from ..registry import Param, register
 
 __all__ = ["filtering", "averaging_operator", "smoothing_steps", "step_matrix", "run_linear_steps", "WEIGHTS"]
@@ -150,16 +150,16 @@ def run_linear_steps(
     if steps == 0:
         return np.array(V, dtype=np.float64)
     Md = be.matrix(M)
-    X = be.asarray(V if order is None else V[order])
+    X = be.asarray(V) if order is None else be.asarray_owned(gather_rows(V, order))
     Y = be.zeros_like(X)
     for _ in range(steps):
         be.spmm(Md, X, out=Y)
         X, Y = Y, X
-    result = np.array(be.to_numpy(X), dtype=np.float64)
+    result = be.to_new_numpy(X)
     if order is not None:
-        back = np.empty_like(result)
-        back[order] = result
-        return back
+        inverse = np.empty_like(order)
+        inverse[order] = np.arange(order.size)
+        return gather_rows(result, inverse)
     return result
 
 
