@@ -19,6 +19,7 @@ install. Everything stays float64.
 
 from __future__ import annotations
 
+import warnings
 from typing import Any
 
 import numpy as np
@@ -173,14 +174,17 @@ class TorchBackend(Backend):
     def matrix(self, A):
         A = Backend.matrix(self, A)
         t = self.torch
-        return t.sparse_csr_tensor(
-            t.from_numpy(A.indptr.astype(np.int64)),
-            t.from_numpy(A.indices.astype(np.int64)),
-            t.from_numpy(A.data),
-            size=A.shape,
-            dtype=t.float64,
-            device=self.device,
-        )
+        with warnings.catch_warnings():  # torch flags CSR as beta at every construction; ours is canonical
+            warnings.filterwarnings("ignore", message="Sparse CSR tensor support is in beta", category=UserWarning)
+            return t.sparse_csr_tensor(
+                t.from_numpy(A.indptr.astype(np.int64)),
+                t.from_numpy(A.indices.astype(np.int64)),
+                t.from_numpy(A.data),
+                size=A.shape,
+                dtype=t.float64,
+                device=self.device,
+                check_invariants=False,  # scipy's sorted CSR; said explicitly so torch does not warn
+            )
 
     def scaled(self, M, factor):
         return M * factor

@@ -236,6 +236,26 @@ def test_generic_backend_path_equals_default(name):
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-13)
 
 
+def test_torch_backend_matches_cpu_or_says_what_to_install():
+    """With torch installed (its CPU build runs the same calls as on CUDA) every backend-generic
+    filter agrees with the default path; without it, asking for it is a clear ValueError."""
+    V, F = _noisy(torus(14, 9))
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        with pytest.raises(ValueError, match="backend='torch' needs PyTorch"):
+            heat((V, F), time=5.0, method="chebyshev", backend="torch")
+        return
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no torch warning leaks to the user
+        for kwargs in [{"time": 5.0, "method": "chebyshev"}, {"time": 5.0, "tau": 0.5}]:
+            np.testing.assert_allclose(heat((V, F), backend="torch", **kwargs)[0], heat((V, F), **kwargs)[0], atol=1e-13)
+        kw = {"iterations": 7, "lam": 0.4, "weights": "meshlab", "pinned": "boundary"}
+        np.testing.assert_allclose(filtering((V, F), backend="torch", **kw)[0], filtering((V, F), **kw)[0], atol=1e-13)
+
+
 def test_backend_errors_are_clear():
     with pytest.raises(ValueError, match="backend = 'tpu' is unknown"):
         get_backend("tpu")
