@@ -124,7 +124,6 @@ class ChebyshevHeat:
             two_m = two_m + sp.diags(np.full(P.shape[0], 2.0 - 4.0 / self.upper))
         two_m = sp.csr_matrix(two_m)
         two_m.sort_indices()
-        self.M = be.scaled(be.matrix(two_m), 0.5)
         self._two_m = {1.0: be.matrix(two_m)}
         self._two_m[-1.0] = be.scaled(self._two_m[1.0], -1.0)  # shares the index arrays
 
@@ -137,8 +136,9 @@ class ChebyshevHeat:
             return be.to_new_numpy(X0)
         res = be.zeros_like(X0)
         older = X0  # holds sign[k-1] * U_{k-1}; X0 is ours to overwrite
-        newer = be.spmm(self.M, X0)  # U_1
-        be.axpy2(a[0], X0, a[1], newer, res)
+        newer = be.spmm(self._two_m[1.0], X0)  # 2 U_1: no third matrix kept for one product
+        be.axpy2(a[0], X0, a[1] / 2, newer, res)
+        be.axpy(-0.5, newer, newer)
         sign = [1.0, 1.0]  # sign[k] of the stored U_k: period 1, 1, -1, -1 lets the kernel only add
         pending = None  # a term left for the next pass over res: one pass adds two terms
         for k in range(1, len(a) - 1):
