@@ -16,10 +16,13 @@ from meshdenoise.auto import (
     _solve_point,
     choose_parameters,
     denoise,
+    TAUBIN_LAMBDAS,
+    _gauss_winsor_moments,
     estimate_noise,
     gcv,
     probe_block,
     sure,
+    taubin_mu_for,
 )
 from meshdenoise.geometry import vertex_normals
 from meshdenoise.operators import get_operators
@@ -51,6 +54,52 @@ def test_estimate_noise_on_the_elephant(elephant, rho):
     V, F = elephant
     Vn, _ = add_normal_noise((V, F), rho, seed=3)
     assert estimate_noise((Vn, F)) == pytest.approx(rho, rel=0.05)
+
+
+@pytest.mark.parametrize(
+    "shape, rho, tol",
+    [
+        (lambda: icosphere(3), 0.01, 0.10),  # coarse sphere (642 vertices), 0.07 edge lengths: measured 0.99-1.08
+        (lambda: torus(24, 12), 0.01, 0.25),  # coarse torus (288 vertices), 0.12 edge lengths: measured up to 1.22
+    ],
+)
+def test_estimate_noise_on_coarse_curved_meshes(shape, rho, tol):
+    """Coarse curved meshes: the clean surface's own fourth difference adds to the noise (over, not under)."""
+    V, F = shape()
+    for seed in range(3):
+        Vn, _ = add_normal_noise((V, F), rho, seed=seed)
+        assert estimate_noise((Vn, F)) == pytest.approx(rho, rel=tol)
+
+
+def _impulsive(V, F, rho, fraction, seed, student=None):
+    """Normal noise of scale rho on a random ``fraction`` of the vertices (or Student-t): x0 + rho e N."""
+    rng = np.random.default_rng(seed)
+    N = vertex_normals(V, F)
+    if student:
+        e = rng.standard_t(student, len(V)) / np.sqrt(student / (student - 2))  # unit variance
+    else:
+        e = rng.standard_normal(len(V)) * (rng.random(len(V)) < fraction)
+    Vn = V + (rho * e)[:, None] * N
+    return Vn, float(np.sqrt(np.mean(np.sum((Vn - V) ** 2, axis=1))))  # the rms actually added
+
+
+@pytest.mark.parametrize("shape, rho", [(lambda: icosphere(4), 0.02), (lambda: torus(60, 30), 0.03)])
+def test_estimate_noise_reads_the_rms_of_impulsive_noise(shape, rho):
+    """Half the vertices hit (0.25-0.35 edge lengths rms): the MAD alone reads 0.76 of the rms (measured)."""
+    V, F = shape()
+    for seed in range(2):
+        Vn, rms = _impulsive(V, F, rho, 0.5, seed)
+        assert estimate_noise((Vn, F)) == pytest.approx(rms, rel=0.08)
+
+
+def test_gauss_winsor_moments_match_numerical_integration():
+    from scipy.integrate import quad
+
+    phi = lambda z: np.exp(-0.5 * z * z) / np.sqrt(2 * np.pi)  # noqa: E731
+    for k in (1.0, 2.5, 4.0):
+        m2 = quad(lambda z: min(z * z, k * k) * phi(z), -40, 40, points=[-k, k])[0]
+        m4 = quad(lambda z: min(z * z, k * k) ** 2 * phi(z), -40, 40, points=[-k, k])[0]
+        assert _gauss_winsor_moments(k) == pytest.approx((m2, m4), rel=1e-9)
 
 
 def test_estimate_noise_is_zero_without_noise_on_a_plane():
@@ -163,7 +212,10 @@ class _Dense:
         I = sp.identity(len(V), format="csr")
         mus = np.logspace(-4, 4, 161)
         if method in ("filtering", "taubin", "heat"):
-            steps = {"filtering": [P], "taubin": [(I - 0.53 * (P - I)) @ (I + 0.5 * (P - I))],
+            # taubin: the automatic rule's lambdas, mu = 1 / (k_PB - 1/lambda) with the defaults' pass band
+            kpb = 1 / 0.5 - 1 / 0.53
+            steps = {"filtering": [P], "taubin": [(I + (1 / (kpb - 1 / lam)) * (P - I)) @ (I + lam * (P - I))
+                                                  for lam in (0.5, 0.25, 0.125)],
                      "heat": [I + tau * (P - I) for tau in (0.25, 0.5, 1.0)]}[method]
             best = -np.inf
             for S in steps:
@@ -208,6 +260,31 @@ def test_auto_parameters_within_half_a_db_of_the_oracle(method, dense_case):
     best = d.best_snr(method)
     assert got > snr(d.V, d.Vn) + 2.0  # it denoises
     assert got >= best - 0.5, (params, got, best)
+
+
+def test_taubin_mu_keeps_the_pass_band():
+    """Taubin's gain (1 - lam k)(1 - mu k) equals 1 at k = k_PB: the frequency passed unchanged."""
+    kpb = 1 / 0.5 - 1 / 0.53
+    assert taubin_mu_for(0.5, kpb) == pytest.approx(-0.53, rel=1e-12)
+    for lam in TAUBIN_LAMBDAS:
+        mu = taubin_mu_for(lam, kpb)
+        assert -1 <= mu < 0
+        assert (1 - lam * kpb) * (1 - mu * kpb) == pytest.approx(1.0, rel=1e-12)
+    with pytest.raises(ValueError, match="pass_band"):
+        taubin_mu_for(0.5, 1.5)
+
+
+def test_taubin_weak_noise_within_half_a_db_of_the_oracle_with_finer_steps():
+    """Weak noise on a coarse mesh: one default Taubin iteration (lam 0.5) already oversmooths; finer steps help."""
+    V, F = icosphere(3)
+    Vn, _ = add_normal_noise((V, F), 0.004, seed=1)  # 0.03 edge lengths
+    params = choose_parameters((Vn, F), "taubin")
+    assert {"iterations", "lam", "mu"} <= set(params)
+    got = snr(V, apply_filter("taubin", (Vn, F), **params)[0])
+    best = _Dense(V, F, Vn).best_snr("taubin")
+    assert got >= best - 0.5, (params, got, best)
+    held = choose_parameters((Vn, F), "taubin", lam=0.5)  # a given lam is held, mu at its default
+    assert held["lam"] == 0.5 and "mu" not in held
 
 
 def test_two_stage_monte_carlo_sure_on_a_noisy_box():
