@@ -381,6 +381,42 @@ def test_sobolev_axes_per_axis_sure_matches_the_dense_weighted_risk():
     assert s * np.sum(Q * (H @ Q)) == pytest.approx(np.sum(np.diag(H) * c), rel=0.03)
 
 
+def test_sobolev_axes_share_correction_reads_the_true_axis_noise_energy():
+    """Above an edge length of noise, the residual-energy shares beat the smoothed normals' shares.
+
+    Truth from the clean normals and a dense B: the b-weighted share of axis d,
+    sum_j b_j (N_j . e_d)^2 / sum_j b_j, b_j = sum_i B_ij^2. Torus (288 vertices) at 3 edge
+    lengths, 8 seeds: measured mean worst-axis |log ratio| 0.18 (normals) vs 0.10 (corrected).
+    """
+    from meshdenoise.auto import _axis_share_correction, _best_mu, _best_on_path, _mean_edge_length
+    from meshdenoise.plugins.sobolev_axes import normal_frame
+
+    V, F = torus(24, 12)
+    n = len(V)
+    ops = get_operators(F, n)
+    P, L = _dense_P(F, n)
+    B = (np.eye(n) - P) @ (np.eye(n) - P)
+    b = (B**2).sum(axis=0)
+    rho = 3.0 * _mean_edge_length(V, ops)
+    N0 = vertex_normals(V, F)
+    err_normals, err_corrected = [], []
+    for seed in range(8):
+        Vn, _ = add_normal_noise((V, F), rho, seed=seed)
+        E, _ = normal_frame(Vn, F, ops, 3)
+        smooth = _best_on_path(_iterative_path(Vn, ops, _averaging_step(ops.P, 1.0)), n, rho, "sure").X
+        Xs = _best_mu(Vn, sp.csr_matrix(L @ L), rho, "sure", None, center=1.0).X
+        c = (vertex_normals(Xs, F) @ E) ** 2
+        a = _axis_share_correction(Vn, ops, E, c, rho, smooth)
+        truth = b @ (N0 @ E) ** 2
+        for shares, out in ((b @ c, err_normals), (b @ (c * a), err_corrected)):
+            out.append(np.abs(np.log((shares / shares.sum()) / (truth / truth.sum()))).max())
+    assert np.mean(err_corrected) < 0.13
+    assert np.mean(err_corrected) < 0.75 * np.mean(err_normals)
+    # below half an edge length of noise the normals are kept (no correction)
+    Vn, _ = add_normal_noise((V, F), 0.2 * rho / 3.0, seed=0)
+    assert np.array_equal(_axis_share_correction(Vn, ops, E, c, 0.2 * rho / 3.0, Vn), np.ones(3))
+
+
 @pytest.mark.parametrize("method", ["filtering", "sobolev"])
 def test_oracle_criterion_matches_brute_force(method):
     V, F = icosphere(3)
