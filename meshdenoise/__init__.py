@@ -22,6 +22,7 @@ from .plugins.sinkhorn import sinkhorn
 from .plugins.normal_filtering import two_stage
 from .plugins.sobolev import SobolevSolver, sobolev
 from .plugins.sobolev_axes import sobolev_axes
+from .plugins.sobolev_normal import sobolev_normal
 from .plugins.sobolev_bilaplacian import sobolev_bilaplacian
 from .plugins.taubin import taubin
 from .quality_metrics import max_distance, mean_distance, normal_error_deg, volume_change
@@ -54,6 +55,7 @@ __all__ = [
     "taubin",
     "sobolev_bilaplacian",
     "sobolev_axes",
+    "sobolev_normal",
     "two_stage",
     "normal_error_deg",
     "mean_distance",
