@@ -748,6 +748,96 @@ def _choose_sobolev_axes(ctx: _Context) -> dict:
     return {**chosen, "frame_steps": steps}, _Point(0, 0.0, 0.0, ctx.V, total)
 
 
+SOBOLEV_NORMAL_BETAS = (1.0, 2.0, 3.0, 5.0, 8.0, 12.0)  # candidate tangential weights
+SOBOLEV_NORMAL_PROBES = 8  # Hutchinson probes of the divergence (the same for every candidate)
+
+
+def _choose_sobolev_normal(ctx: _Context) -> dict:
+    """``mu`` and ``beta`` of ``sobolev_normal``: SURE with the divergence along the estimated normals.
+
+    For a given ``mu`` the normals :math:`\\hat N` (of :math:`(I + \\mu L^p)^{-1} X`) are held
+    fixed, so the filter is the linear map :math:`H = (W + \\mu L^p \\otimes I_3)^{-1} W`
+    on the stacked coordinates, and with the model's noise covariance
+    :math:`\\Sigma_i = \\rho^2 N_i N_i^T`, the true normals replaced by :math:`\\hat N_i`,
+
+    .. math:: \\mathrm{SURE}(\\mu, \\beta) = \\|HX - X\\|_F^2 - \\rho^2 \\sum_i \\|\\hat N_i\\|^2
+              + 2\\rho^2\\, \\mathrm{tr}(\\hat\\Sigma H), \\qquad
+              \\mathrm{tr}(\\hat\\Sigma H) \\approx \\frac1m \\sum_k b_k^T H b_k, \\quad b_{k,i} = z_{ki} \\hat N_i,
+
+    Hutchinson's estimator with Rademacher :math:`z_k` (:math:`\\mathbb E\\, b^T H b = \\sum_i \\hat N_i^T H_{ii} \\hat N_i`),
+    exact (one probe per vertex) on small meshes; the probes are solved with the
+    coordinates in one block conjugate-gradient run. The dependence of :math:`\\hat N` on the
+    noise is ignored (it comes from a heavily smoothed surface). Search: ``mu`` by
+    :func:`_search_log` at ``beta = 3``, then ``beta`` over ``SOBOLEV_NORMAL_BETAS`` at that
+    ``mu``, then ``mu`` again at the best ``beta``. ``beta = 1`` is the isotropic filter.
+    """
+    from .plugins.sobolev_axes import _solver
+    from .plugins.sobolev_normal import _apply_weight, normal_weighted_solve
+
+    spec = get_filter("sobolev_normal")
+    full = spec.resolve(ctx.given, where="choose_parameters(method='sobolev_normal')")
+    if ctx.criterion == "gcv":
+        raise ValueError("choose_parameters: sobolev_normal is not a linear smoother; use criterion 'sure' or 'oracle'")
+    n, order = ctx.ops.n, full["order"]
+    if ctx.rho == 0 and ctx.reference is None:
+        return {"mu": 0.0, "beta": float(full["beta"])}, _Point(0, 0.0, float(n), ctx.V, 0.0)
+    exact = ctx.exact if ctx.exact is not None else n <= EXACT_TRACE_MAX
+    if ctx.reference is None:
+        # noise directions: normals Nn of the SURE-best bi-Laplacian estimate Xs; the true ones (the clean mesh's
+        # vertex normals) spread around them by tau = E sin^2(angle), read from the tangential residual X - Xs
+        L = ctx.ops.L
+        Xs = _best_mu(ctx.V, sp.csr_matrix(L @ L), ctx.rho, "sure", ctx.exact, center=_mu_guess(ctx, 2)).X
+        Nn = vertex_normals(Xs, ctx.F)
+        R = ctx.V - Xs
+        tangential = R - Nn * np.sum(Nn * R, axis=1, keepdims=True)
+        tau = min(float(np.sum(tangential**2)) / (ctx.rho**2 * max(float(np.sum(Nn * Nn)), 1.0)), 1.0)
+        if exact:
+            z = np.eye(3 * n).reshape(n, 3, 3 * n)
+            s = 1.0
+        else:
+            z = np.random.default_rng(0).choice([-1.0, 1.0], size=(n, 3, SOBOLEV_NORMAL_PROBES))
+            s = 1.0 / SOBOLEV_NORMAL_PROBES
+        zn = np.sum(Nn[:, :, None] * z, axis=1, keepdims=True) * Nn[:, :, None]
+        B = math.sqrt(1.0 - tau) * zn + math.sqrt(tau / 2.0) * (z - zn)  # probes b = Sigma^{1/2} z / rho
+        noise_sq = ctx.rho**2 * float(np.sum(B * B)) * s
+        log.info("sobolev_normal: tangential share of the noise tau = %.4g", tau)
+    evaluated: dict[tuple, _Point] = {}
+
+    def evaluate(mu: float, beta: float) -> _Point:
+        key = (round(math.log10(mu), 9), float(beta))
+        if key not in evaluated:
+            S = _solver(ctx.ops, order, mu, None)
+            X0 = S.solve(ctx.V)
+            N = vertex_normals(X0, ctx.F)
+            if ctx.reference is not None:
+                X = X0 if beta == 1.0 else normal_weighted_solve(ctx.ops, N, beta, mu, order, _apply_weight(N, beta, ctx.V), x0=X0)
+                p = _Point(mu, float(np.sum((X - ctx.V) ** 2)), 0.0, X)
+                p.score = float(np.sum((X - ctx.reference) ** 2))
+            else:
+                if beta == 1.0:
+                    X = X0
+                    HB = S.solve(B.reshape(n, -1)).reshape(B.shape)
+                else:
+                    rhs = np.concatenate([ctx.V[:, :, None], B], axis=2)
+                    out = normal_weighted_solve(ctx.ops, N, beta, mu, order, _apply_weight(N, beta, rhs))
+                    X, HB = out[:, :, 0], out[:, :, 1:]
+                tr = s * float(np.sum(B * HB))
+                p = _Point(mu, float(np.sum((X - ctx.V) ** 2)), tr, X)
+                p.score = p.residual_sq - noise_sq + 2.0 * ctx.rho**2 * tr
+            evaluated[key] = (p, beta)
+        return evaluated[key][0]
+
+    beta = float(full["beta"]) if "beta" in ctx.given else 3.0
+    held_mu = "mu" in ctx.given
+    mu = float(full["mu"]) if held_mu else float(_search_log(lambda m: evaluate(m, beta), _mu_guess(ctx, order), golden_steps=6).value)
+    if "beta" not in ctx.given:
+        beta = min(SOBOLEV_NORMAL_BETAS, key=lambda b: evaluate(mu, b).score)
+        if not held_mu:
+            mu = float(_search_log(lambda m: evaluate(m, beta), mu, golden_steps=6).value)
+    best = evaluate(mu, beta)
+    return {"mu": float(mu), "beta": float(beta)}, best
+
+
 # method -> (the parameters its rule chooses, the rule)
 AUTO_METHODS: dict[str, tuple[tuple[str, ...], Callable]] = {
     "filtering": (("iterations",), _choose_filtering),
@@ -758,6 +848,7 @@ AUTO_METHODS: dict[str, tuple[tuple[str, ...], Callable]] = {
     "sinkhorn": (("t", "iterations"), _choose_sinkhorn),
     "two_stage": (("iterations",), _choose_two_stage),
     "sobolev_axes": (("mu1", "mu2", "mu3"), _choose_sobolev_axes),
+    "sobolev_normal": (("mu", "beta"), _choose_sobolev_normal),
 }
 
 
