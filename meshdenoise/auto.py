@@ -772,7 +772,7 @@ def _choose_sobolev_normal(ctx: _Context) -> dict:
     ``mu``, then ``mu`` again at the best ``beta``. ``beta = 1`` is the isotropic filter.
     """
     from .plugins.sobolev_axes import _solver
-    from .plugins.sobolev_normal import _apply_weight, normal_weighted_solve
+    from .plugins.sobolev_normal import _apply_weight, _correction_rhs, coherent_normals, normal_weighted_solve
 
     spec = get_filter("sobolev_normal")
     full = spec.resolve(ctx.given, where="choose_parameters(method='sobolev_normal')")
@@ -808,9 +808,9 @@ def _choose_sobolev_normal(ctx: _Context) -> dict:
         if key not in evaluated:
             S = _solver(ctx.ops, order, mu, None)
             X0 = S.solve(ctx.V)
-            N = vertex_normals(X0, ctx.F)
+            N = coherent_normals(X0, ctx.F)
             if ctx.reference is not None:
-                X = X0 if beta == 1.0 else normal_weighted_solve(ctx.ops, N, beta, mu, order, _apply_weight(N, beta, ctx.V), x0=X0)
+                X = X0 if beta == 1.0 else X0 + normal_weighted_solve(ctx.ops, N, beta, mu, order, _correction_rhs(N, beta, ctx.V, X0))
                 p = _Point(mu, float(np.sum((X - ctx.V) ** 2)), 0.0, X)
                 p.score = float(np.sum((X - ctx.reference) ** 2))
             else:
@@ -818,9 +818,9 @@ def _choose_sobolev_normal(ctx: _Context) -> dict:
                     X = X0
                     HB = S.solve(B.reshape(n, -1)).reshape(B.shape)
                 else:
-                    rhs = np.concatenate([ctx.V[:, :, None], B], axis=2)
-                    out = normal_weighted_solve(ctx.ops, N, beta, mu, order, _apply_weight(N, beta, rhs))
-                    X, HB = out[:, :, 0], out[:, :, 1:]
+                    rhs = np.concatenate([_correction_rhs(N, beta, ctx.V, X0)[:, :, None], _apply_weight(N, beta, B)], axis=2)
+                    out = normal_weighted_solve(ctx.ops, N, beta, mu, order, rhs)
+                    X, HB = X0 + out[:, :, 0], out[:, :, 1:]
                 tr = s * float(np.sum(B * HB))
                 p = _Point(mu, float(np.sum((X - ctx.V) ** 2)), tr, X)
                 p.score = p.residual_sq - noise_sq + 2.0 * ctx.rho**2 * tr

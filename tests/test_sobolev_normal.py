@@ -9,6 +9,7 @@ from meshdenoise import add_normal_noise, snr
 from meshdenoise.auto import SOBOLEV_NORMAL_BETAS, _choose_sobolev_normal, _Context, choose_parameters
 from meshdenoise.geometry import vertex_normals
 from meshdenoise.operators import get_operators
+from meshdenoise.plugins.sobolev_normal import coherent_normals
 from meshdenoise.registry import apply_filter
 from meshdenoise.shapes import icosphere, torus
 
@@ -36,7 +37,7 @@ def test_sobolev_normal_matches_a_dense_generalised_least_squares_solve():
     n = len(V)
     L3 = np.linalg.matrix_power(_dense_L(F, n), 3)
     mu, beta = 0.4, 4.0
-    N = vertex_normals(np.linalg.solve(np.eye(n) + mu * L3, Vn), F)
+    N = coherent_normals(np.linalg.solve(np.eye(n) + mu * L3, Vn), F)
     W, A = _dense_system(N, beta, mu, L3)
     expected = np.linalg.solve(A, W @ Vn.ravel()).reshape(n, 3)
     got = apply_filter("sobolev_normal", (Vn, F), mu=mu, beta=beta, order=3)[0]
@@ -60,7 +61,7 @@ def test_sobolev_normal_pinned_vertices_solve_the_reduced_dense_system():
     Ai = np.eye(n) + mu * L2  # isotropic pass, pinned rows kept
     X0 = Vn.copy()
     X0[free] = np.linalg.solve(Ai[np.ix_(free, free)], Vn[free] - Ai[np.ix_(free, pinned)] @ Vn[pinned])
-    N = vertex_normals(X0, F)
+    N = coherent_normals(X0, F)
     W, A = _dense_system(N, beta, mu, L2)
     f3 = (3 * free[:, None] + np.arange(3)).ravel()
     p3 = (3 * pinned[:, None] + np.arange(3)).ravel()
@@ -92,7 +93,7 @@ def test_sobolev_normal_sure_equals_the_dense_risk_estimate():
         S[3 * i:3 * i + 3, 3 * i:3 * i + 3] = rho**2 * ((1 - tau) * P + tau / 2 * (np.eye(3) - P))
     ops = get_operators(F, n)
     for mu, beta in [(0.3, 1.0), (0.3, 5.0), (2.0, 3.0)]:
-        N = vertex_normals(np.linalg.solve(np.eye(n) + mu * L3, Vn), F)
+        N = coherent_normals(np.linalg.solve(np.eye(n) + mu * L3, Vn), F)
         W, A = _dense_system(N, beta, mu, L3)
         H = np.linalg.solve(A, W)
         x = Vn.ravel()
@@ -115,3 +116,15 @@ def test_sobolev_normal_automatic_choice_is_close_to_the_oracle():
     assert got > best - 0.5
     with pytest.raises(ValueError, match="not a linear smoother"):
         choose_parameters((Vn, F), "sobolev_normal", criterion="gcv")
+
+
+def test_coherent_normals_are_the_unit_normals_on_a_smooth_mesh_and_shrink_on_folds():
+    V, F = icosphere(2)
+    np.testing.assert_allclose(coherent_normals(V, F), vertex_normals(V, F), atol=1e-12)
+    # a vertex with 3 faces, two of them folded back: |s| = 1 < 3/2, N = s / 1.5
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [-1, -1, 0]])
+    F = np.array([[0, 1, 2], [0, 2, 3], [0, 1, 3]])  # normals +z, +z, -z... (loop: check by hand below)
+    n_f = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    n_f /= np.linalg.norm(n_f, axis=1, keepdims=True)
+    s0 = n_f.sum(0)
+    np.testing.assert_allclose(coherent_normals(V, F)[0], s0 / max(np.linalg.norm(s0), 1.5), atol=1e-12)
