@@ -752,8 +752,8 @@ SOBOLEV_NORMAL_BETAS = (1.0, 2.0, 3.0, 5.0, 8.0, 12.0)  # candidate tangential w
 SOBOLEV_NORMAL_PROBES = 8  # Hutchinson probes of the divergence (the same for every candidate)
 
 
-def _choose_sobolev_normal(ctx: _Context) -> dict:
-    """``mu`` and ``beta`` of ``sobolev_normal``: SURE for fixed normals, with a spread noise covariance.
+def _choose_sobolev_gls(ctx: _Context) -> dict:
+    """``mu`` and ``beta`` of ``sobolev_gls``: SURE for fixed normals, with a spread noise covariance.
 
     For a given ``mu`` the filter's normals :math:`\\hat N` (of :math:`(I + \\mu L^p)^{-1} X`)
     are held fixed, so it is the linear map :math:`H = (W + \\mu L^p \\otimes I_3)^{-1} W` on the
@@ -783,12 +783,12 @@ def _choose_sobolev_normal(ctx: _Context) -> dict:
     ``SOBOLEV_NORMAL_BETAS`` at that ``mu``, then ``mu`` again at the best ``beta``.
     """
     from .plugins.sobolev_axes import _solver
-    from .plugins.sobolev_normal import _apply_weight, _correction_rhs, coherent_normals, normal_weighted_solve
+    from .plugins.sobolev_gls import _apply_weight, _correction_rhs, coherent_normals, normal_weighted_solve
 
-    spec = get_filter("sobolev_normal")
-    full = spec.resolve(ctx.given, where="choose_parameters(method='sobolev_normal')")
+    spec = get_filter("sobolev_gls")
+    full = spec.resolve(ctx.given, where="choose_parameters(method='sobolev_gls')")
     if ctx.criterion == "gcv":
-        raise ValueError("choose_parameters: sobolev_normal is not a linear smoother; use criterion 'sure' or 'oracle'")
+        raise ValueError("choose_parameters: sobolev_gls is not a linear smoother; use criterion 'sure' or 'oracle'")
     n, order = ctx.ops.n, full["order"]
     if ctx.rho == 0 and ctx.reference is None:
         return {"mu": 0.0, "beta": float(full["beta"])}, _Point(0, 0.0, float(n), ctx.V, 0.0)
@@ -811,7 +811,7 @@ def _choose_sobolev_normal(ctx: _Context) -> dict:
         zn = np.sum(Nn[:, :, None] * z, axis=1, keepdims=True) * Nn[:, :, None]
         B = math.sqrt(1.0 - tau) * zn + math.sqrt(tau / 2.0) * (z - zn)  # probes b = Sigma^{1/2} z / rho
         noise_sq = ctx.rho**2 * float(np.sum(B * B)) * s
-        log.info("sobolev_normal: tangential share of the noise tau = %.4g", tau)
+        log.info("sobolev_gls: tangential share of the noise tau = %.4g", tau)
     evaluated: dict[tuple, _Point] = {}
 
     def evaluate(mu: float, beta: float) -> _Point:
@@ -859,7 +859,7 @@ AUTO_METHODS: dict[str, tuple[tuple[str, ...], Callable]] = {
     "sinkhorn": (("t", "iterations"), _choose_sinkhorn),
     "two_stage": (("iterations",), _choose_two_stage),
     "sobolev_axes": (("mu1", "mu2", "mu3"), _choose_sobolev_axes),
-    "sobolev_normal": (("mu", "beta"), _choose_sobolev_normal),
+    "sobolev_gls": (("mu", "beta"), _choose_sobolev_gls),
 }
 
 
@@ -882,7 +882,7 @@ def choose_parameters(
     from :func:`estimate_noise`, or GCV with ``criterion="gcv"``; traces by Hutchinson
     probes carried along the run (exact below ``EXACT_TRACE_MAX`` vertices).
     ``sobolev_axes`` minimises one SURE per principal axis of the normals (mu1, mu2, mu3);
-    ``sobolev_normal`` minimises SURE over mu and beta for its normals held fixed;
+    ``sobolev_gls`` minimises SURE over mu and beta for its normals held fixed;
     ``two_stage`` (nonlinear) minimises Monte-Carlo SURE over its outer iterations.
 
     Parameters

@@ -190,9 +190,9 @@ class _Dense:
             cX, cV = self.cX @ E, self.cV @ E  # eigen-coefficients of the frame coordinates
             err = sum(min(np.sum((cX[:, d] / (1 + mu * self.k**3) - cV[:, d]) ** 2) for mu in mus) for d in range(3))
             return -20 * np.log10(np.sqrt(err) / self.norm)
-        if method == "sobolev_normal":  # brute force over a grid (the filter itself is checked against dense solves)
+        if method == "sobolev_gls":  # brute force over a grid (the filter itself is checked against dense solves)
             return max(
-                snr(V, apply_filter("sobolev_normal", (Vn, self.F), mu=float(mu), beta=beta)[0])
+                snr(V, apply_filter("sobolev_gls", (Vn, self.F), mu=float(mu), beta=beta)[0])
                 for mu in np.logspace(-4, 4, 33) for beta in (1.0, 2.0, 3.0, 5.0, 8.0, 12.0)
             )
         raise AssertionError(method)
@@ -208,11 +208,11 @@ def dense_case(request):
 @pytest.mark.parametrize("method", sorted(set(AUTO_METHODS) - {"two_stage"}))  # two_stage: on a box, below
 def test_auto_parameters_within_half_a_db_of_the_oracle(method, dense_case):
     d = dense_case
-    if method == "sobolev_normal" and d.F.shape[0] == icosphere(3)[1].shape[0]:
-        pytest.xfail("sobolev_normal on the sphere: 39.70 dB (exact traces) against 40.20 by brute force, open issue")
-    # Hutchinson, as on large meshes; sobolev_normal's 8 probes (SOBOLEV_NORMAL_PROBES) are too few for this
+    if method == "sobolev_gls" and d.F.shape[0] == icosphere(3)[1].shape[0]:
+        pytest.xfail("sobolev_gls on the sphere: 39.70 dB (exact traces) against 40.20 by brute force, open issue")
+    # Hutchinson, as on large meshes; sobolev_gls's 8 probes (SOBOLEV_NORMAL_PROBES) are too few for this
     # 642-vertex sphere (measured: 38.87 dB against 40.20 by brute force), so it gets its exact traces here
-    params = choose_parameters((d.Vn, d.F), method, exact_trace=None if method == "sobolev_normal" else False)
+    params = choose_parameters((d.Vn, d.F), method, exact_trace=None if method == "sobolev_gls" else False)
     got = snr(d.V, apply_filter(method, (d.Vn, d.F), **params)[0])
     best = d.best_snr(method)
     assert got > snr(d.V, d.Vn) + 2.0  # it denoises

@@ -1,4 +1,4 @@
-"""sobolev_normal: the filter against dense 3n x 3n solves, its SURE against a dense risk, its choice against the oracle."""
+"""sobolev_gls: the filter against dense 3n x 3n solves, its SURE against a dense risk, its choice against the oracle."""
 
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from meshdenoise import add_normal_noise, snr
-from meshdenoise.auto import SOBOLEV_NORMAL_BETAS, _choose_sobolev_normal, _Context, choose_parameters
+from meshdenoise.auto import SOBOLEV_NORMAL_BETAS, _choose_sobolev_gls, _Context, choose_parameters
 from meshdenoise.geometry import vertex_normals
 from meshdenoise.operators import get_operators
-from meshdenoise.plugins.sobolev_normal import coherent_normals
+from meshdenoise.plugins.sobolev_gls import coherent_normals
 from meshdenoise.registry import apply_filter
 from meshdenoise.shapes import icosphere, torus
 
@@ -31,7 +31,7 @@ def _dense_system(N, beta, mu, Lp):
     return W, W + mu * np.kron(Lp, np.eye(3))
 
 
-def test_sobolev_normal_matches_a_dense_generalised_least_squares_solve():
+def test_sobolev_gls_matches_a_dense_generalised_least_squares_solve():
     V, F = torus(12, 6)
     Vn, _ = add_normal_noise((V, F), 0.03, seed=1)
     n = len(V)
@@ -40,18 +40,18 @@ def test_sobolev_normal_matches_a_dense_generalised_least_squares_solve():
     N = coherent_normals(np.linalg.solve(np.eye(n) + mu * L3, Vn), F)
     W, A = _dense_system(N, beta, mu, L3)
     expected = np.linalg.solve(A, W @ Vn.ravel()).reshape(n, 3)
-    got = apply_filter("sobolev_normal", (Vn, F), mu=mu, beta=beta, order=3)[0]
+    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=3)[0]
     np.testing.assert_allclose(got, expected, atol=1e-8)
     # beta = 1 is the isotropic polyharmonic filter
-    iso = apply_filter("sobolev_normal", (Vn, F), mu=mu, beta=1.0)[0]
+    iso = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=1.0)[0]
     np.testing.assert_allclose(iso, np.linalg.solve(np.eye(n) + mu * L3, Vn), atol=1e-10)
     # rotation and translation equivariant
     R = np.linalg.qr(np.random.default_rng(2).standard_normal((3, 3)))[0]
-    moved = apply_filter("sobolev_normal", (Vn @ R.T + 5.0, F), mu=mu, beta=beta)[0]
+    moved = apply_filter("sobolev_gls", (Vn @ R.T + 5.0, F), mu=mu, beta=beta)[0]
     np.testing.assert_allclose(moved, got @ R.T + 5.0, atol=1e-7)
 
 
-def test_sobolev_normal_pinned_vertices_solve_the_reduced_dense_system():
+def test_sobolev_gls_pinned_vertices_solve_the_reduced_dense_system():
     V, F = icosphere(2)
     Vn, _ = add_normal_noise((V, F), 0.03, seed=3)
     n = len(V)
@@ -68,12 +68,12 @@ def test_sobolev_normal_pinned_vertices_solve_the_reduced_dense_system():
     x = Vn.ravel()
     y = x.copy()
     y[f3] = np.linalg.solve(A[np.ix_(f3, f3)], (W @ x)[f3] - A[np.ix_(f3, p3)] @ x[p3])
-    got = apply_filter("sobolev_normal", (Vn, F), mu=mu, beta=beta, order=2, pinned=pinned)[0]
+    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=2, pinned=pinned)[0]
     assert np.array_equal(got[pinned], Vn[pinned])
     np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
 
 
-def test_sobolev_normal_sure_equals_the_dense_risk_estimate():
+def test_sobolev_gls_sure_equals_the_dense_risk_estimate():
     """With exact traces the rule's SURE(mu, beta) is ||HX - X||^2 - tr S + 2 tr(S H), H and S built densely."""
     V, F = icosphere(2)
     rho = 0.03
@@ -99,23 +99,23 @@ def test_sobolev_normal_sure_equals_the_dense_risk_estimate():
         x = Vn.ravel()
         expected = np.sum((H @ x - x) ** 2) - np.trace(S) + 2 * np.trace(S @ H)
         ctx = _Context(Vn, F, ops, rho, "sure", True, {"mu": mu, "beta": beta})
-        chosen, point = _choose_sobolev_normal(ctx)
+        chosen, point = _choose_sobolev_gls(ctx)
         assert chosen == {"mu": mu, "beta": beta}
         assert point.score == pytest.approx(expected, rel=1e-6)
 
 
-def test_sobolev_normal_automatic_choice_is_close_to_the_oracle():
+def test_sobolev_gls_automatic_choice_is_close_to_the_oracle():
     V, F = icosphere(4)
     Vn, _ = add_normal_noise((V, F), 0.05, seed=0)
-    auto = choose_parameters((Vn, F), "sobolev_normal")
-    oracle = choose_parameters((Vn, F), "sobolev_normal", criterion="oracle", reference=V)
+    auto = choose_parameters((Vn, F), "sobolev_gls")
+    oracle = choose_parameters((Vn, F), "sobolev_gls", criterion="oracle", reference=V)
     assert set(auto) == {"mu", "beta"} and auto["beta"] in SOBOLEV_NORMAL_BETAS
-    got = snr(V, apply_filter("sobolev_normal", (Vn, F), **auto)[0])
-    best = snr(V, apply_filter("sobolev_normal", (Vn, F), **oracle)[0])
+    got = snr(V, apply_filter("sobolev_gls", (Vn, F), **auto)[0])
+    best = snr(V, apply_filter("sobolev_gls", (Vn, F), **oracle)[0])
     assert got > snr(V, Vn) + 10
     assert got > best - 0.5
     with pytest.raises(ValueError, match="not a linear smoother"):
-        choose_parameters((Vn, F), "sobolev_normal", criterion="gcv")
+        choose_parameters((Vn, F), "sobolev_gls", criterion="gcv")
 
 
 def test_coherent_normals_are_the_unit_normals_on_a_smooth_mesh_and_shrink_on_folds():

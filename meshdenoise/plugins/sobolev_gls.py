@@ -11,7 +11,7 @@ from ..operators import Operators
 from ..registry import Param, register
 from .sobolev_axes import _solver, laplacian_power
 
-__all__ = ["sobolev_normal", "normal_weighted_solve", "coherent_normals"]
+__all__ = ["sobolev_gls", "normal_weighted_solve", "coherent_normals"]
 
 CG_TOL = 1e-9  # relative residual of the preconditioned conjugate gradient
 CG_MAXITER = 300
@@ -103,7 +103,7 @@ def normal_weighted_solve(
         rz = rz_new
     else:
         warnings.warn(
-            f"sobolev_normal: conjugate gradients did not reach a relative residual of {CG_TOL:g} in {CG_MAXITER} "
+            f"sobolev_gls: conjugate gradients did not reach a relative residual of {CG_TOL:g} in {CG_MAXITER} "
             f"iterations (beta = {beta:g}); a smaller beta converges faster",
             UserWarning,
             stacklevel=3,
@@ -112,7 +112,7 @@ def normal_weighted_solve(
 
 
 @register(
-    "sobolev_normal",
+    "sobolev_gls",
     summary="Polyharmonic Sobolev with the data term weighted beta times more across the estimated normals",
     params=[
         Param("mu", float, 1000.0, low=0.0, help="weight of the penalty ||L^{p/2} Y||^2 (0 returns the input)"),
@@ -121,7 +121,7 @@ def normal_weighted_solve(
     ],
     linear=False,
 )
-def sobolev_normal(V, F, *, ops, fixed, mu, beta, order):
+def sobolev_gls(V, F, *, ops, fixed, mu, beta, order):
     """Polyharmonic Sobolev smoothing whose data term trusts the tangential directions more.
 
     The paper's noise moves each vertex along its normal only, so a denoiser should
@@ -176,8 +176,8 @@ def sobolev_normal(V, F, *, ops, fixed, mu, beta, order):
     >>> from meshdenoise.shapes import grid
     >>> V, F = grid(6, 6)
     >>> Vn = V + [0, 0, 0.01] * np.random.default_rng(0).standard_normal((len(V), 1))
-    >>> V1, _ = sobolev_normal((Vn, F), mu=5.0, beta=10.0)
-    >>> Vi, _ = sobolev_normal((Vn, F), mu=5.0, beta=1.0)  # isotropic: drifts along the plane
+    >>> V1, _ = sobolev_gls((Vn, F), mu=5.0, beta=10.0)
+    >>> Vi, _ = sobolev_gls((Vn, F), mu=5.0, beta=1.0)  # isotropic: drifts along the plane
     >>> drift = lambda Y: np.abs(Y[:, :2] - Vn[:, :2]).max()
     >>> bool(V1[:, 2].std() < 0.5 * Vn[:, 2].std()), bool(drift(V1) < 0.5 * drift(Vi))
     (True, True)
