@@ -1,0 +1,130 @@
+"""sobolev_gls: the filter against dense 3n x 3n solves, its SURE against a dense risk, its choice against the oracle."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from meshdenoise import add_normal_noise, snr
+from meshdenoise.auto import SOBOLEV_GLS_BETAS, _choose_sobolev_gls, _Context, choose_parameters
+from meshdenoise.geometry import vertex_normals
+from meshdenoise.operators import get_operators
+from meshdenoise.plugins.sobolev_gls import coherent_normals
+from meshdenoise.registry import apply_filter
+from meshdenoise.shapes import icosphere, torus
+
+
+def _dense_L(F, n):
+    W = np.zeros((n, n))
+    for a, b, c in F:  # a loop written for the test, independent of operators.py
+        for i, j in ((a, b), (b, c), (c, a)):
+            W[i, j] = W[j, i] = 1.0
+    return np.diag(W.sum(1)) - W
+
+
+def _dense_system(N, beta, mu, Lp):
+    """W (3n x 3n, index 3i + d) and A = W + mu L^p (x) I_3."""
+    n = len(N)
+    W = np.zeros((3 * n, 3 * n))
+    for i in range(n):
+        W[3 * i:3 * i + 3, 3 * i:3 * i + 3] = beta * np.eye(3) - (beta - 1) * np.outer(N[i], N[i])
+    return W, W + mu * np.kron(Lp, np.eye(3))
+
+
+def test_sobolev_gls_matches_a_dense_generalised_least_squares_solve():
+    V, F = torus(12, 6)
+    Vn, _ = add_normal_noise((V, F), 0.03, seed=1)
+    n = len(V)
+    L3 = np.linalg.matrix_power(_dense_L(F, n), 3)
+    mu, beta = 0.4, 4.0
+    N = coherent_normals(np.linalg.solve(np.eye(n) + mu * L3, Vn), F)
+    W, A = _dense_system(N, beta, mu, L3)
+    expected = np.linalg.solve(A, W @ Vn.ravel()).reshape(n, 3)
+    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=3)[0]
+    np.testing.assert_allclose(got, expected, atol=1e-8)
+    # beta = 1 is the isotropic polyharmonic filter
+    iso = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=1.0)[0]
+    np.testing.assert_allclose(iso, np.linalg.solve(np.eye(n) + mu * L3, Vn), atol=1e-10)
+    # rotation and translation equivariant
+    R = np.linalg.qr(np.random.default_rng(2).standard_normal((3, 3)))[0]
+    moved = apply_filter("sobolev_gls", (Vn @ R.T + 5.0, F), mu=mu, beta=beta)[0]
+    np.testing.assert_allclose(moved, got @ R.T + 5.0, atol=1e-7)
+
+
+def test_sobolev_gls_pinned_vertices_solve_the_reduced_dense_system():
+    V, F = icosphere(2)
+    Vn, _ = add_normal_noise((V, F), 0.03, seed=3)
+    n = len(V)
+    L2 = np.linalg.matrix_power(_dense_L(F, n), 2)
+    mu, beta, pinned = 0.7, 6.0, np.arange(7)
+    free = np.setdiff1d(np.arange(n), pinned)
+    Ai = np.eye(n) + mu * L2  # isotropic pass, pinned rows kept
+    X0 = Vn.copy()
+    X0[free] = np.linalg.solve(Ai[np.ix_(free, free)], Vn[free] - Ai[np.ix_(free, pinned)] @ Vn[pinned])
+    N = coherent_normals(X0, F)
+    W, A = _dense_system(N, beta, mu, L2)
+    f3 = (3 * free[:, None] + np.arange(3)).ravel()
+    p3 = (3 * pinned[:, None] + np.arange(3)).ravel()
+    x = Vn.ravel()
+    y = x.copy()
+    y[f3] = np.linalg.solve(A[np.ix_(f3, f3)], (W @ x)[f3] - A[np.ix_(f3, p3)] @ x[p3])
+    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=2, pinned=pinned)[0]
+    assert np.array_equal(got[pinned], Vn[pinned])
+    np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
+
+
+def test_sobolev_gls_sure_equals_the_dense_risk_estimate():
+    """With exact traces the rule's SURE(mu, beta) is ||HX - X||^2 - tr S + 2 tr(S H), H and S built densely."""
+    V, F = icosphere(2)
+    rho = 0.03
+    Vn, _ = add_normal_noise((V, F), rho, seed=4)
+    n = len(V)
+    L = _dense_L(F, n)
+    L3 = np.linalg.matrix_power(L, 3)
+    # noise directions: normals of the SURE-best bi-Laplacian estimate (chosen by its own rule, solved densely)
+    mu2 = choose_parameters((Vn, F), "sobolev_bilaplacian", noise=rho, exact_trace=True)["mu"]
+    Xs = np.linalg.solve(np.eye(n) + mu2 * L @ L, Vn)
+    Nn = vertex_normals(Xs, F)
+    R = Vn - Xs
+    tau = min(np.sum((R - Nn * np.sum(Nn * R, 1, keepdims=True)) ** 2) / (rho**2 * np.sum(Nn * Nn)), 1.0)
+    S = np.zeros((3 * n, 3 * n))
+    for i in range(n):
+        P = np.outer(Nn[i], Nn[i])
+        S[3 * i:3 * i + 3, 3 * i:3 * i + 3] = rho**2 * ((1 - tau) * P + tau / 2 * (np.eye(3) - P))
+    ops = get_operators(F, n)
+    for mu, beta in [(0.3, 1.0), (0.3, 5.0), (2.0, 3.0)]:
+        N = coherent_normals(np.linalg.solve(np.eye(n) + mu * L3, Vn), F)
+        W, A = _dense_system(N, beta, mu, L3)
+        H = np.linalg.solve(A, W)
+        x = Vn.ravel()
+        expected = np.sum((H @ x - x) ** 2) - np.trace(S) + 2 * np.trace(S @ H)
+        ctx = _Context(Vn, F, ops, rho, "sure", True, {"mu": mu, "beta": beta})
+        chosen, point = _choose_sobolev_gls(ctx)
+        assert chosen == {"mu": mu, "beta": beta}
+        assert point.score == pytest.approx(expected, rel=1e-6)
+
+
+def test_sobolev_gls_automatic_choice_is_close_to_the_oracle():
+    V, F = icosphere(4)
+    Vn, _ = add_normal_noise((V, F), 0.05, seed=0)
+    auto = choose_parameters((Vn, F), "sobolev_gls")
+    oracle = choose_parameters((Vn, F), "sobolev_gls", criterion="oracle", reference=V)
+    assert set(auto) == {"mu", "beta"} and auto["beta"] in SOBOLEV_GLS_BETAS
+    got = snr(V, apply_filter("sobolev_gls", (Vn, F), **auto)[0])
+    best = snr(V, apply_filter("sobolev_gls", (Vn, F), **oracle)[0])
+    assert got > snr(V, Vn) + 10
+    assert got > best - 0.5
+    with pytest.raises(ValueError, match="not a linear smoother"):
+        choose_parameters((Vn, F), "sobolev_gls", criterion="gcv")
+
+
+def test_coherent_normals_are_the_unit_normals_on_a_smooth_mesh_and_shrink_on_folds():
+    V, F = icosphere(2)
+    np.testing.assert_allclose(coherent_normals(V, F), vertex_normals(V, F), atol=1e-12)
+    # a vertex with 3 faces, two of them folded back: |s| = 1 < 3/2, N = s / 1.5
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [-1, -1, 0]])
+    F = np.array([[0, 1, 2], [0, 2, 3], [0, 1, 3]])  # normals +z, +z, -z... (loop: check by hand below)
+    n_f = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    n_f /= np.linalg.norm(n_f, axis=1, keepdims=True)
+    s0 = n_f.sum(0)
+    np.testing.assert_allclose(coherent_normals(V, F)[0], s0 / max(np.linalg.norm(s0), 1.5), atol=1e-12)
