@@ -175,7 +175,7 @@ def chebyshev_heat(
 
 @register(
     "heat",
-    summary="Heat diffusion to time T by explicit Euler: X <- X - tau (I - D^-1 W) X, ceil(T/tau) steps",
+    summary="Heat diffusion to time T: Euler X <- X - tau (I - D^-1 W) X, ceil(T/tau) steps, or exp(-T (I - D^-1 W)) X by Chebyshev",
     params=[
         Param("tau", float, 0.5, low=0.0, high=2.0, low_open=True, help="Euler step (stable up to 2/lambda_max)"),
         Param("time", float, 10.0, low=0.0, help="diffusion time T"),
