@@ -437,9 +437,12 @@ def gather_rows(X: np.ndarray, index: np.ndarray) -> np.ndarray:
     """
     n = len(index)
     X2 = np.ascontiguousarray(X, dtype=np.float64).reshape(X.shape[0], -1)
+    if n and (index.min() < -X2.shape[0] or index.max() >= X2.shape[0]):
+        raise IndexError(f"gather_rows: index out of range for {X2.shape[0]} rows")
     if n < _THREADED_NNZ:
         return np.ascontiguousarray(X2[index].reshape((n,) + X.shape[1:]))
     dtype = np.int32 if max(n, X2.shape[0]) < 2**31 - 1 else np.int64
+    index = np.where(index < 0, index + X2.shape[0], index)  # numpy's negative indices, as fancy indexing
     G = sp.csr_matrix((np.ones(n), index.astype(dtype), np.arange(n + 1, dtype=dtype)), shape=(n, X2.shape[0]))
     return spmm(G, X2).reshape((n,) + X.shape[1:])
 

@@ -183,6 +183,12 @@ def test_gather_rows_equals_fancy_indexing(n):
     got = op_module.gather_rows(X, index)
     np.testing.assert_array_equal(got, X[index])
     assert got.flags.c_contiguous and not np.shares_memory(got, X)
+    index[:3] = [-1, -n, 0]  # negative indices count from the end, as in numpy
+    np.testing.assert_array_equal(op_module.gather_rows(X, index), X[index])
+    for bad in (n, -n - 1):
+        index[5] = bad
+        with pytest.raises(IndexError, match="out of range"):
+            op_module.gather_rows(X, index)
 
 
 @pytest.mark.parametrize("backend", ["cpu", "scipy"])
