@@ -2,19 +2,15 @@
 
 from __future__ import annotations
 
-from collections import OrderedDict
-
 import numpy as np
 import scipy.sparse as sp
 
 from ..geometry import vertex_normals
-from ..operators import Operators, mask_key
+from ..operators import Operators
 from ..registry import Param, register
-from .sobolev_bilaplacian import SPDSolver
+from ..solvers import SPDSolver, cached_solver
 
 __all__ = ["sobolev_axes", "normal_frame", "laplacian_power"]
-
-_FACTORS_PER_TOPOLOGY = 6
 
 
 def laplacian_power(ops: Operators, order: int) -> sp.csr_matrix:
@@ -60,16 +56,11 @@ def normal_frame(X: np.ndarray, F: np.ndarray, ops: Operators, steps: int) -> tu
 
 
 def _solver(ops: Operators, order: int, mu: float, fixed: np.ndarray | None) -> SPDSolver:
-    factors = ops.cache.setdefault("sobolev_axes", OrderedDict())
-    key = (order, float(mu), mask_key(fixed if fixed is not None and fixed.any() else None))
-    if key in factors:
-        factors.move_to_end(key)
-        return factors[key]
-    solver = SPDSolver(sp.identity(ops.n, format="csr") + mu * laplacian_power(ops, order), fixed)
-    factors[key] = solver
-    while len(factors) > _FACTORS_PER_TOPOLOGY:
-        factors.popitem(last=False)
-    return solver
+    """The cached Cholesky factor of ``I + mu L^order`` (pinned rows as Dirichlet data) on this topology."""
+    return cached_solver(
+        ops, f"sobolev_axes-p{order}", mu, fixed,
+        lambda: SPDSolver(sp.identity(ops.n, format="csr") + mu * laplacian_power(ops, order), fixed),
+    )
 
 
 @register(
