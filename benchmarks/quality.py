@@ -2,7 +2,8 @@
 
 Usage::
 
-    python benchmarks/quality.py [--quick] [--seeds 5] [--jobs 2] [--out DIR]
+    python benchmarks/quality.py [--quick] [--seeds 5] [--jobs 2] [--rows ...] [--methods ...]
+                                 [--out DIR] [--resume [--redo METHOD ...]]
 
 Rows: the paper's meshes at its noise levels (elephant 0.015, 0.2; Nefertiti 0.015, 0.2, 1),
 pymeshlab's sample bunny with normal noise at 0.5 % and 2 % of its bounding-box diagonal
@@ -23,8 +24,15 @@ count with the least mean face-normal error, read along the same run), the refer
 for the feature targets. ``two_stage`` (built for sharp features; two Monte-Carlo
 SURE runs of a nonlinear filter) runs on the benchmark pairs only.
 
-``--jobs 2`` measures the (row, seed) tasks in 2 processes: no timing is reported
-in the table, so parallel runs do not distort it; wall and CPU time are printed.
+``--jobs 2`` measures the (row, seed) tasks in 2 processes, a fresh one per task (so the
+caches of one task do not pile up in a long-lived worker): no timing is reported in the
+table, so parallel runs do not distort it; wall and CPU time are printed.
+
+Each (row, seed) task is written to ``OUT/tasks/`` when it completes. ``--resume`` takes
+what is stored there and measures only what is missing (after a killed run, or to add
+rows); ``--resume --redo METHOD`` measures one method again after a change to it and
+keeps the rest. Every measurement records the commit it ran on, and each row of the
+table names them.
 
 The summary gives, per row, the margin of our best automatic method over the paper's
 best (its Table 1) and over the best oracle-tuned MeshLab/Open3D filter, and each
@@ -180,51 +188,118 @@ def _fmt_params(p: dict) -> str:
     return ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in p.items())
 
 
+def _task_file(store: Path, row_label: str, seed_idx: int) -> Path:
+    slug = "".join(c if c.isalnum() else "_" for c in row_label).strip("_")
+    return store / f"{slug}-seed{seed_idx}.json"
+
+
+def _commit() -> str:
+    """The code version a measurement comes from: the commit, marked ``+dirty`` with local changes."""
+    import subprocess
+
+    root = Path(__file__).resolve().parent.parent
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "meshdenoise", "benchmarks"],
+                               cwd=root, capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
+
+
 def _measure(task: tuple) -> tuple:
-    """One (row, seed): every method's metrics and parameters, and the task's CPU seconds."""
-    row_idx, seed_idx, quick, seeds, ours = task
+    """One (row, seed): the labels not taken from the store, measured; the task's CPU seconds and peak memory.
+
+    ``stored`` holds the labels measured earlier (``--resume``); those are not measured again.
+    The task is written to the store as soon as it is complete, so a killed run loses one task.
+    """
+    import resource
+
+    row_idx, seed_idx, quick, seeds, ours, stored, store = task
     cpu0 = time.process_time()
+    commit = _commit()
     row = _cached_rows(quick, seeds)[row_idx]
     V0, F, Vn = row["V"], row["F"], row["noisy"][seed_idx]
-    per = {"noisy": (_metrics(V0, Vn, F), {})}
+    per = dict(stored)
+
+    def put(label, X, params):
+        per[label] = (_metrics(V0, X, F), params, commit)
+
+    if "noisy" not in per:
+        put("noisy", Vn, {})
     rho = auto.estimate_noise((Vn, F))
     for m in ours:
         if m in FEATURE_ONLY and not row["features"]:
             continue
-        p_auto = auto.choose_parameters((Vn, F), m, noise=rho)
-        per[f"{m} auto"] = (_metrics(V0, apply_filter(m, (Vn, F), **p_auto)[0], F), p_auto)
-        p_or = auto.choose_parameters((Vn, F), m, criterion="oracle", reference=V0)
-        per[f"{m} oracle"] = (_metrics(V0, apply_filter(m, (Vn, F), **p_or)[0], F), p_or)
+        if f"{m} auto" not in per:
+            p_auto = auto.choose_parameters((Vn, F), m, noise=rho)
+            put(f"{m} auto", apply_filter(m, (Vn, F), **p_auto)[0], p_auto)
+        if f"{m} oracle" not in per:
+            p_or = auto.choose_parameters((Vn, F), m, criterion="oracle", reference=V0)
+            put(f"{m} oracle", apply_filter(m, (Vn, F), **p_or)[0], p_or)
     for name, steps in LIBRARY.items():
+        if f"{name} oracle" in per:
+            continue
         found = _library_oracle(steps, V0, Vn, F, track_normals=row["features"])
         k, X = found["snr"]
-        per[f"{name} oracle"] = (_metrics(V0, X, F), {"iterations": k})
+        put(f"{name} oracle", X, {"iterations": k})
         if "normal" in found:
             k, X = found["normal"]
-            per[f"{name} normal-oracle"] = (_metrics(V0, X, F), {"iterations": k})
-    return row_idx, seed_idx, per, rho, time.process_time() - cpu0
+            put(f"{name} normal-oracle", X, {"iterations": k})
+    task_cpu = time.process_time() - cpu0
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    if store is not None:
+        record = {"row": row["row"], "seed": seed_idx, "rho_estimated": rho, "per": per}
+        with atomic_path(_task_file(store, row["row"], seed_idx)) as tmp:
+            Path(tmp).write_text(json.dumps(record, indent=1))
+    return row_idx, seed_idx, per, rho, task_cpu, peak_mb
 
 
-def run(quick: bool, seeds: int, methods: list[str] | None, jobs: int = 1, only: list[str] | None = None) -> dict:
+def _load_stored(store: Path, row_label: str, seed_idx: int, redo: set[str]) -> dict:
+    """Labels stored for this (row, seed), without those of the methods in ``redo``."""
+    path = _task_file(store, row_label, seed_idx)
+    if not path.exists():
+        return {}
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise SystemExit(f"--resume: cannot read the stored task {path}: {exc}") from exc
+    return {label: tuple(v) for label, v in data["per"].items() if label.rsplit(" ", 1)[0] not in redo}
+
+
+def run(quick: bool, seeds: int, methods: list[str] | None, jobs: int = 1, only: list[str] | None = None,
+        store: Path | None = None, resume: bool = False, redo: list[str] | None = None) -> dict:
     ours = methods or sorted(auto.AUTO_METHODS)
     rows = _cached_rows(quick, seeds)
     keep = [r for r, row in enumerate(rows) if not only or any(o.lower() in row["row"].lower() for o in only)]
     if not keep:
         raise SystemExit(f"--rows {only}: no row matches; rows are: {', '.join(row['row'] for row in rows)}")
-    tasks = [(r, s, quick, seeds, ours) for r in keep for s in range(len(rows[r]["noisy"]))]
+    unknown = sorted(set(redo or ()) - set(ours))
+    if unknown:
+        raise SystemExit(f"--redo {unknown}: not among the methods measured ({', '.join(ours)})")
+    if store is not None:
+        store.mkdir(parents=True, exist_ok=True)
+    tasks = []
+    for r in keep:
+        for s in range(len(rows[r]["noisy"])):
+            stored = _load_stored(store, rows[r]["row"], s, set(redo or ())) if resume and store is not None else {}
+            tasks.append((r, s, quick, seeds, ours, stored, store))
     tasks.sort(key=lambda t: -rows[t[0]]["V"].shape[0])  # largest first: better balance over processes
     done: dict[int, dict] = {}
-    cpu = 0.0
+    cpu, peak = 0.0, 0.0
     if jobs == 1:
         outputs = map(_measure, tasks)
     else:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor
 
-        pool = ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("fork"))
+        # a fresh process per task: a worker's caches (factorisations, pymeshlab and Open3D state) do not pile
+        # up across tasks (a long-lived forked worker reached 11 GB on the elephant rows and was killed)
+        pool = ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn"), max_tasks_per_child=1)
         outputs = pool.map(_measure, tasks)
-    for row_idx, seed_idx, per, rho, task_cpu in outputs:
+    for row_idx, seed_idx, per, rho, task_cpu, peak_mb in outputs:
         cpu += task_cpu
+        peak = max(peak, peak_mb)
         done.setdefault(row_idx, {})[seed_idx] = (per, rho, task_cpu)
         row = rows[row_idx]
         if len(done[row_idx]) == len(row["noisy"]):
@@ -234,12 +309,14 @@ def run(quick: bool, seeds: int, methods: list[str] | None, jobs: int = 1, only:
     if jobs != 1:
         pool.shutdown()
     results = [done[r] for r in keep]
-    return {"rows": results, "methods": ours, "cpu_seconds_tasks": cpu}
+    return {"rows": results, "methods": ours, "cpu_seconds_tasks": cpu, "peak_rss_mb": peak}
 
 
 def _entry(row: dict, measured: list, ours: list[str]) -> dict:
     V0 = row["V"]
-    labels = list(measured[0][0])
+    wanted = ["noisy"] + [f"{m} {kind}" for m in ours for kind in ("auto", "oracle")]
+    wanted += [f"{n} {kind}" for n in LIBRARY for kind in ("oracle", "normal-oracle")]
+    labels = [label for label in wanted if all(label in m[0] for m in measured)]  # stored extras left out
     entry = {"row": row["row"], "seeds": len(measured), "paper_best": row["paper"], "features": row["features"], "methods": {}}
     for label in labels:
         runs = [m[0][label] for m in measured]
@@ -252,6 +329,7 @@ def _entry(row: dict, measured: list, ours: list[str]) -> dict:
     entry["rho_estimated"] = float(np.mean([m[1] for m in measured]))
     entry["rho_true_rms"] = float(np.sqrt(np.mean(np.sum((row["noisy"][0] - V0) ** 2, axis=1))))
     entry["cpu_seconds"] = float(sum(m[2] for m in measured))
+    entry["commits"] = sorted({m[0][label][2] for m in measured for label in labels})
     _summarise(entry, [m for m in ours if f"{m} auto" in entry["methods"]])
     return entry
 
@@ -280,7 +358,8 @@ def _summarise(entry: dict, ours: list[str]) -> None:
 
 def _row_markdown(entry: dict) -> str:
     lines = [f"\n### {entry['row']}  ({entry['seeds']} seed(s); rho estimated {entry['rho_estimated']:.4g}, "
-             f"true rms {entry['rho_true_rms']:.4g}; {entry['cpu_seconds']:.0f} s CPU)\n"]
+             f"true rms {entry['rho_true_rms']:.4g}; {entry['cpu_seconds']:.0f} s CPU; "
+             f"code {', '.join(entry['commits'])})\n"]
     extra = [(k, h) for k, h in EXTRA_METRICS if f"{k}_mean" in entry["methods"]["noisy"]]
     head = "| method | SNR (dB) | " + " | ".join(h for _, h in extra) + (" | " if extra else "") + "parameters |"
     lines += [head, "|" + "---|" * (3 + len(extra))]
@@ -329,19 +408,28 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--rows", nargs="*", help="only the rows whose label contains one of these (case-insensitive)")
     ap.add_argument("--jobs", type=int, default=1, help="processes over (row, seed) tasks (default 1)")
     ap.add_argument("--out", default="benchmark_results/quality", help="output folder")
+    ap.add_argument("--resume", action="store_true",
+                    help="take the (row, seed, method) results already in OUT/tasks (a killed run, or other methods "
+                         "measured earlier) and measure only what is missing; each row names the commits its numbers come from")
+    ap.add_argument("--redo", nargs="*", default=[], metavar="METHOD",
+                    help="with --resume: measure these methods again (after a change to them) and keep the rest")
     args = ap.parse_args(argv)
+    if args.redo and not args.resume:
+        raise SystemExit("--redo only makes sense with --resume")
     if args.seeds < 1:
         raise SystemExit(f"--seeds must be >= 1, got {args.seeds}")
     seeds = 1 if args.quick else args.seeds
     if args.jobs < 1:
         raise SystemExit(f"--jobs must be >= 1, got {args.jobs}")
     t0, c0 = time.perf_counter(), time.process_time()
-    res = run(args.quick, seeds, args.methods, args.jobs, args.rows)
+    res = run(args.quick, seeds, args.methods, args.jobs, args.rows, store=Path(args.out) / "tasks",
+              resume=args.resume, redo=args.redo)
     res["seconds"] = time.perf_counter() - t0
     res["cpu_seconds"] = res["cpu_seconds_tasks"] + (time.process_time() - c0 if args.jobs > 1 else 0.0)
     res["command"] = "python benchmarks/quality.py " + " ".join(argv if argv is not None else sys.argv[1:])
     summary = _summary_table(res)
-    timing = f"total {res['seconds']:.0f} s wall, {res['cpu_seconds']:.0f} s CPU ({args.jobs} process(es))"
+    timing = (f"total {res['seconds']:.0f} s wall, {res['cpu_seconds']:.0f} s CPU of the tasks measured in this run "
+              f"({args.jobs} process(es)); peak memory of a measuring process {res['peak_rss_mb']:.0f} MB")
     print("\n## Summary\n\n" + summary + "\n\n" + timing)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -1,0 +1,94 @@
+"""benchmarks/quality.py: tasks stored as they complete, --resume and --redo keep what they should."""
+
+import importlib.util
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from meshdenoise.metrics import snr
+from meshdenoise.noise import add_normal_noise
+from meshdenoise.shapes import icosphere
+
+
+def _quality_module():
+    path = Path(__file__).resolve().parent.parent / "benchmarks" / "quality.py"
+    spec = importlib.util.spec_from_file_location("quality_benchmark", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+@pytest.fixture
+def quality(monkeypatch):
+    """The benchmark on one small generated row (2 seeds) with one cheap library filter."""
+    q = _quality_module()
+    V, F = icosphere(2)
+    noisy = [add_normal_noise((V, F), 0.02, seed=s)[0] for s in range(2)]
+    row = {"row": "sphere rho=0.02", "V": V, "F": F, "noisy": noisy, "paper": None, "features": False}
+    monkeypatch.setattr(q, "_cached_rows", lambda quick, seeds: [row])
+    monkeypatch.setattr(q, "LIBRARY", {"Open3D simple": q.LIBRARY["Open3D simple"]})
+    return q, row
+
+
+def test_tasks_are_stored_and_resume_measures_only_what_is_asked(quality, tmp_path, monkeypatch):
+    q, row = quality
+    store = tmp_path / "tasks"
+    first = q.run(False, 2, ["filtering", "sobolev"], store=store)
+    files = sorted(p.name for p in store.iterdir())
+    assert files == ["sphere_rho_0_02-seed0.json", "sphere_rho_0_02-seed1.json"]
+    stored = json.loads((store / files[0]).read_text())["per"]
+    # the stored SNR is the SNR of the noisy input computed independently
+    assert stored["noisy"][0]["snr"] == pytest.approx(snr(row["V"], row["noisy"][0]))
+    methods = first["rows"][0]["methods"]
+    assert set(methods) == {"noisy", "filtering auto", "filtering oracle", "sobolev auto", "sobolev oracle", "Open3D simple oracle"}
+
+    calls = []
+    real_choose = q.auto.choose_parameters
+
+    def counting(mesh, method, **kw):
+        calls.append(method)
+        return real_choose(mesh, method, **kw)
+
+    monkeypatch.setattr(q.auto, "choose_parameters", counting)
+    library_runs = []
+    real_oracle = q._library_oracle
+    monkeypatch.setattr(q, "_library_oracle", lambda *a, **k: library_runs.append(1) or real_oracle(*a, **k))
+
+    again = q.run(False, 2, ["filtering", "sobolev"], store=store, resume=True)
+    assert calls == [] and library_runs == []  # everything came from the store
+    assert again["rows"][0]["methods"] == methods
+
+    redone = q.run(False, 2, ["filtering", "sobolev"], store=store, resume=True, redo=["sobolev"])
+    assert sorted(calls) == ["sobolev"] * 4 and library_runs == []  # auto + oracle, 2 seeds
+    assert redone["rows"][0]["methods"] == methods  # same code, same numbers
+
+    calls.clear()
+    added = q.run(False, 2, ["filtering", "sobolev", "taubin"], store=store, resume=True)
+    assert sorted(calls) == ["taubin"] * 4
+    assert {k: v for k, v in added["rows"][0]["methods"].items() if not k.startswith("taubin")} == methods
+
+
+def test_redo_names_a_measured_method(quality, tmp_path):
+    q, _ = quality
+    with pytest.raises(SystemExit, match="--redo"):
+        q.run(False, 2, ["filtering"], store=tmp_path, resume=True, redo=["sobolev"])
+    with pytest.raises(SystemExit, match="only makes sense with --resume"):
+        q.main(["--redo", "sobolev", "--out", str(tmp_path)])
+
+
+def test_a_damaged_stored_task_is_named(quality, tmp_path):
+    q, _ = quality
+    (tmp_path / "sphere_rho_0_02-seed0.json").write_text("{not json")
+    with pytest.raises(SystemExit, match="sphere_rho_0_02-seed0.json"):
+        q.run(False, 2, ["filtering"], store=tmp_path, resume=True)
+
+
+def test_rows_name_the_code_they_were_measured_on(quality, tmp_path):
+    q, _ = quality
+    res = q.run(False, 2, ["filtering"], store=tmp_path)
+    commits = res["rows"][0]["commits"]
+    assert len(commits) == 1 and commits[0] == q._commit()
+    assert commits[0] in q._row_markdown(res["rows"][0])
+    assert np.isfinite(res["peak_rss_mb"]) and res["peak_rss_mb"] > 0
