@@ -1,5 +1,9 @@
 """Per-face and per-vertex geometry on the array core: normals, areas, volume, cotangent Laplacian.
 
+Three vertex normals, each for a reason: :func:`vertex_normals` (the paper's, unit face
+normals averaged), :func:`area_normals` (area-weighted: collapsed faces get no vote) and
+:func:`coherent_normals` (shortened where the faces around a vertex disagree).
+
 All functions take ``V (n, 3) float64`` and ``F (m, 3) int`` and are vectorised.
 A zero-area face has a zero normal (not NaN) and contributes nothing to vertex normals.
 """
@@ -13,6 +17,8 @@ __all__ = [
     "face_normals",
     "face_areas",
     "vertex_normals",
+    "area_normals",
+    "coherent_normals",
     "signed_volume",
     "cotangent_laplacian",
     "lumped_mass",
@@ -86,6 +92,47 @@ def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
            [0., 0., 0.]])
     """
     return _normalize_rows(_scatter_faces_to_vertices(face_normals(V, F), F, V.shape[0]))
+
+
+def area_normals(X: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals :math:`n_i \\propto \\sum_{f \\ni i} (x_b - x_a) \\times (x_c - x_a)`, shape (n, 3).
+
+    A degenerate (collapsed) face of a strongly smoothed mesh has a cross product near
+    zero and so no vote, whereas its unit normal (:func:`vertex_normals`)
+    is rounding noise. A vertex whose faces all vanish gets a zero normal.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> V = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 1e-20]])
+    >>> area_normals(V, np.array([[0, 1, 2], [1, 3, 2]]))[0].tolist()
+    [0.0, 0.0, 1.0]
+    """
+    return _normalize_rows(_scatter_faces_to_vertices(_cross(X, F), F, X.shape[0]))
+
+
+def coherent_normals(X: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Vertex normals shortened where the faces around a vertex disagree.
+
+    .. math:: s_i = \\sum_{f \\ni i} n_f, \\qquad N_i = \\frac{s_i}{\\max(\\|s_i\\|, k_i / 2)}
+
+    with :math:`k_i` the number of faces at vertex ``i``: the paper's unit vertex normal
+    where the unit face normals roughly agree (:math:`\\|s_i\\| \\ge k_i/2`), shrinking
+    continuously to 0 where they cancel (a folded, over-smoothed patch), whose direction
+    would otherwise be set by rounding. ``|N_i| <= 1``, so :math:`W_i \\succeq I`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> V = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5]])
+    >>> coherent_normals(V, np.array([[0, 1, 2], [0, 2, 1]]))[0]  # two opposite faces cancel
+    array([0., 0., 0.])
+    """
+    n = X.shape[0]
+    s = _scatter_faces_to_vertices(face_normals(X, F), F, n)
+    k = np.bincount(F.ravel(), minlength=n).astype(np.float64)
+    norm = np.maximum(np.linalg.norm(s, axis=1), 0.5 * k)
+    return np.divide(s, norm[:, None], out=np.zeros_like(s), where=norm[:, None] > 0)
 
 
 def signed_volume(V: np.ndarray, F: np.ndarray, origin: np.ndarray | None = None) -> float:

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 import meshdenoise as md
-from meshdenoise.geometry import face_normals, vertex_normals
+from meshdenoise.geometry import area_normals, face_normals, vertex_normals
 from meshdenoise.shapes import icosphere
 
 from .conftest import make_mesh, vertices_of
@@ -25,6 +25,29 @@ def test_vertex_normals_match_loop_and_point_outwards_on_sphere():
     N = vertex_normals(V, F)
     np.testing.assert_allclose(N, normals_by_loop(V, F), atol=1e-14)
     assert (np.einsum("ij,ij->i", N, V) > 0.99).all()
+
+
+def test_area_normals_match_a_loop_over_faces_and_ignore_collapsed_faces():
+    """Area weighting against a per-face loop on an irregular mesh, Open3D's area-weighted normals,
+    and a collapsed face (cross product 1e-20) that gets no vote where its unit normal would get a full one."""
+    import open3d as o3d
+
+    V, F = icosphere(2)
+    V = V * np.array([1.0, 0.6, 1.7]) + 0.02 * np.random.default_rng(3).standard_normal(V.shape)
+    S = np.zeros_like(V)
+    for f in F:
+        c = np.cross(V[f[1]] - V[f[0]], V[f[2]] - V[f[0]])  # twice the area times the unit normal
+        S[f] += c
+    expected = S / np.linalg.norm(S, axis=1, keepdims=True)
+    np.testing.assert_allclose(area_normals(V, F), expected, atol=1e-14)
+    assert np.abs(area_normals(V, F) - vertex_normals(V, F)).max() > 1e-3  # the weighting matters here
+    m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F))
+    m.compute_vertex_normals(normalized=True)  # Open3D sums the unnormalised face normals
+    np.testing.assert_allclose(area_normals(V, F), np.asarray(m.vertex_normals), atol=1e-12)
+    Vd = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [1, 0.5, 1e-12]])
+    Fd = np.array([[0, 1, 2], [1, 3, 2], [1, 3, 4]])  # the last face is a sliver standing on its edge (normal +-x)
+    np.testing.assert_allclose(area_normals(Vd, Fd)[1], [0.0, 0.0, 1.0], atol=1e-11)
+    assert abs(vertex_normals(Vd, Fd)[1, 2] - 1.0) > 1e-3  # the unit-normal average is tilted by it
 
 
 def test_noise_is_along_normals_with_std_rho_and_reproducible():

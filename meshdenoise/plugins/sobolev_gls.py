@@ -6,7 +6,7 @@ import warnings
 
 import numpy as np
 
-from ..geometry import _scatter_faces_to_vertices, face_normals
+from ..geometry import coherent_normals  # re-exported: the filter's normals
 from ..operators import Operators
 from ..registry import Param, register
 from .sobolev_axes import _solver, laplacian_power
@@ -15,30 +15,6 @@ __all__ = ["sobolev_gls", "normal_weighted_solve", "coherent_normals"]
 
 CG_TOL = 1e-9  # relative residual of the preconditioned conjugate gradient
 CG_MAXITER = 300
-
-
-def coherent_normals(X: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """Vertex normals shortened where the faces around a vertex disagree.
-
-    .. math:: s_i = \\sum_{f \\ni i} n_f, \\qquad N_i = \\frac{s_i}{\\max(\\|s_i\\|, k_i / 2)}
-
-    with :math:`k_i` the number of faces at vertex ``i``: the paper's unit vertex normal
-    where the unit face normals roughly agree (:math:`\\|s_i\\| \\ge k_i/2`), shrinking
-    continuously to 0 where they cancel (a folded, over-smoothed patch), whose direction
-    would otherwise be set by rounding. ``|N_i| <= 1``, so :math:`W_i \\succeq I`.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> V = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0], [5, 5, 5]])
-    >>> coherent_normals(V, np.array([[0, 1, 2], [0, 2, 1]]))[0]  # two opposite faces cancel
-    array([0., 0., 0.])
-    """
-    n = X.shape[0]
-    s = _scatter_faces_to_vertices(face_normals(X, F), F, n)
-    k = np.bincount(F.ravel(), minlength=n).astype(np.float64)
-    norm = np.maximum(np.linalg.norm(s, axis=1), 0.5 * k)
-    return np.divide(s, norm[:, None], out=np.zeros_like(s), where=norm[:, None] > 0)
 
 
 def _apply_weight(N: np.ndarray, beta: float, Y: np.ndarray) -> np.ndarray:

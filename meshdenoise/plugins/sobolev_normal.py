@@ -4,28 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..geometry import _cross, _normalize_rows, _scatter_faces_to_vertices
+from ..geometry import area_normals  # re-exported: the filter's normals
 from ..registry import Param, register
 from .sobolev_axes import _solver
 
 __all__ = ["sobolev_normal", "project_update", "area_normals"]
-
-
-def area_normals(X: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """Area-weighted vertex normals :math:`n_i \\propto \\sum_{f \\ni i} (x_b - x_a) \\times (x_c - x_a)`, shape (n, 3).
-
-    A degenerate (collapsed) face of a strongly smoothed mesh has a cross product near
-    zero and so no vote, whereas its unit normal (:func:`meshdenoise.geometry.vertex_normals`)
-    is rounding noise. A vertex whose faces all vanish gets a zero normal.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> V = np.array([[0., 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 1e-20]])
-    >>> area_normals(V, np.array([[0, 1, 2], [1, 3, 2]]))[0].tolist()
-    [0.0, 0.0, 1.0]
-    """
-    return _normalize_rows(_scatter_faces_to_vertices(_cross(X, F), F, X.shape[0]))
 
 
 def project_update(X: np.ndarray, Y: np.ndarray, N: np.ndarray, tangential: float) -> np.ndarray:
