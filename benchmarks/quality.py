@@ -25,8 +25,9 @@ for the feature targets. ``two_stage`` (built for sharp features; two Monte-Carl
 SURE runs of a nonlinear filter) runs on the benchmark pairs only.
 
 ``--jobs 2`` measures the (row, seed) tasks in 2 processes, a fresh one per task (so the
-caches of one task do not pile up in a long-lived worker): no timing is reported in the
-table, so parallel runs do not distort it; wall and CPU time are printed.
+caches of one task do not pile up in a long-lived worker; ``--isolate`` does the same with
+one process): no timing is reported in the table, so parallel runs do not distort it; wall
+and CPU time are printed.
 
 Each (row, seed) task is written to ``OUT/tasks/`` when it completes. ``--resume`` takes
 what is stored there and measures only what is missing (after a killed run, or to add
@@ -268,7 +269,7 @@ def _load_stored(store: Path, row_label: str, seed_idx: int, redo: set[str]) -> 
 
 
 def run(quick: bool, seeds: int, methods: list[str] | None, jobs: int = 1, only: list[str] | None = None,
-        store: Path | None = None, resume: bool = False, redo: list[str] | None = None) -> dict:
+        store: Path | None = None, resume: bool = False, redo: list[str] | None = None, isolate: bool = False) -> dict:
     ours = methods or sorted(auto.AUTO_METHODS)
     rows = _cached_rows(quick, seeds)
     keep = [r for r, row in enumerate(rows) if not only or any(o.lower() in row["row"].lower() for o in only)]
@@ -287,7 +288,8 @@ def run(quick: bool, seeds: int, methods: list[str] | None, jobs: int = 1, only:
     tasks.sort(key=lambda t: -rows[t[0]]["V"].shape[0])  # largest first: better balance over processes
     done: dict[int, dict] = {}
     cpu, peak = 0.0, 0.0
-    if jobs == 1:
+    pooled = jobs > 1 or isolate
+    if not pooled:
         outputs = map(_measure, tasks)
     else:
         import multiprocessing as mp
@@ -306,7 +308,7 @@ def run(quick: bool, seeds: int, methods: list[str] | None, jobs: int = 1, only:
             entry = _entry(row, [done[row_idx][s] for s in range(len(row["noisy"]))], ours)
             done[row_idx] = entry
             print(_row_markdown(entry), flush=True)
-    if jobs != 1:
+    if pooled:
         pool.shutdown()
     results = [done[r] for r in keep]
     return {"rows": results, "methods": ours, "cpu_seconds_tasks": cpu, "peak_rss_mb": peak}
@@ -407,6 +409,8 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--methods", nargs="*", help="our methods (default: every one with an automatic rule)")
     ap.add_argument("--rows", nargs="*", help="only the rows whose label contains one of these (case-insensitive)")
     ap.add_argument("--jobs", type=int, default=1, help="processes over (row, seed) tasks (default 1)")
+    ap.add_argument("--isolate", action="store_true",
+                    help="with --jobs 1 too, measure each (row, seed) in a fresh process (always so with --jobs > 1)")
     ap.add_argument("--out", default="benchmark_results/quality", help="output folder")
     ap.add_argument("--resume", action="store_true",
                     help="take the (row, seed, method) results already in OUT/tasks (a killed run, or other methods "
@@ -423,9 +427,9 @@ def main(argv: list[str] | None = None) -> None:
         raise SystemExit(f"--jobs must be >= 1, got {args.jobs}")
     t0, c0 = time.perf_counter(), time.process_time()
     res = run(args.quick, seeds, args.methods, args.jobs, args.rows, store=Path(args.out) / "tasks",
-              resume=args.resume, redo=args.redo)
+              resume=args.resume, redo=args.redo, isolate=args.isolate)
     res["seconds"] = time.perf_counter() - t0
-    res["cpu_seconds"] = res["cpu_seconds_tasks"] + (time.process_time() - c0 if args.jobs > 1 else 0.0)
+    res["cpu_seconds"] = res["cpu_seconds_tasks"] + (time.process_time() - c0 if args.jobs > 1 or args.isolate else 0.0)
     res["command"] = "python benchmarks/quality.py " + " ".join(argv if argv is not None else sys.argv[1:])
     summary = _summary_table(res)
     timing = (f"total {res['seconds']:.0f} s wall, {res['cpu_seconds']:.0f} s CPU of the tasks measured in this run "
