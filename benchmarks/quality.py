@@ -195,12 +195,14 @@ def _task_file(store: Path, row_label: str, seed_idx: int) -> Path:
 
 
 def _commit() -> str:
-    """The code version a measurement comes from: the commit, marked ``+dirty`` with local changes."""
+    """The code version a measurement comes from: the last commit changing the package or the benchmarks
+    (commits to the documentation alone do not change it), marked ``+dirty`` with local changes there."""
     import subprocess
 
     root = Path(__file__).resolve().parent.parent
     try:
-        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True, check=True).stdout.strip()
+        head = subprocess.run(["git", "log", "-1", "--format=%h", "--", "meshdenoise", "benchmarks"],
+                              cwd=root, capture_output=True, text=True, check=True).stdout.strip()
         dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "meshdenoise", "benchmarks"],
                                cwd=root, capture_output=True, text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
