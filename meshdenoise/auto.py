@@ -918,7 +918,7 @@ def _projected_divergence(V: np.ndarray, F: np.ndarray, out: np.ndarray, Bp: np.
 
 
 def _choose_sobolev_normal(ctx: _Context) -> dict:
-    """``mu`` and ``order`` (in {2, 3}) of ``sobolev_normal`` by GCV with a Monte-Carlo divergence; ``tangential`` from rho.
+    """``mu`` and ``order`` (in {2, 3}) of ``sobolev_normal`` by GCV or Monte-Carlo SURE; ``tangential`` from rho.
 
     The filter :math:`f(X) = X + \\Pi(Y)(Y - X)`, :math:`Y = H X`, :math:`H = (I + \\mu L^p)^{-1}`,
     is not linear (the projector :math:`\\Pi` uses the normals of ``Y``), so the trace of
@@ -930,13 +930,16 @@ def _choose_sobolev_normal(ctx: _Context) -> dict:
               \\mathrm{GCV} = \\frac{n \\|f(X) - X\\|^2}{(n - d)^2}
 
     (Craven and Wahba 1979; Li 1985 for its asymptotic optimality with an unknown variance),
-    over the ``n`` normal coordinates: below half an edge length of noise (``tangential`` = 0)
-    the update is along the normals only, one coordinate per vertex. GCV needs no ``rho``,
-    which SURE (:math:`\\|f(X) - X\\|^2 - n\\rho^2 + 2\\rho^2 d`) needs and which
+    over the ``n`` normal coordinates, used when ``tangential`` = 0 (below half an edge length
+    of noise): the update is then along the normals only, one coordinate per vertex. GCV needs
+    no ``rho``, which SURE (:math:`\\|f(X) - X\\|^2 - n\\rho^2 + 2\\rho^2 d`) needs and which
     :func:`estimate_noise` over-estimates where the clean mesh has its own vertex-scale detail
-    (Nefertiti at rho = 0.015: 0.0205; an over-estimate adds :math:`2(\\hat\\rho^2 - \\rho^2) d`
-    and picks a larger mu: SURE lost 0.77 dB there, GCV 0.41). ``rho`` only sets
-    :math:`\\delta` and ``tangential``.
+    and the noise is far below an edge length (Nefertiti at rho = 0.015: 0.0205 for 0.0153; an
+    over-estimate adds :math:`2(\\hat\\rho^2 - \\rho^2) d` and picks a larger mu: SURE lost
+    0.77 dB there, GCV 0.40). With ``tangential`` > 0 the update also moves vertices along the
+    surface, the residual is no longer one coordinate per vertex, and Monte-Carlo SURE is used
+    (there rho comes from the residual energy and is accurate; GCV lost 0.27 dB on the bunny at
+    0.5 %, ``tangential`` 0.64, where SURE loses 0.02).
 
     ``H`` is linear, so :math:`f(X + \\delta b) = Y + \\delta H b` projected on the normals of
     that point: one factorisation per ``mu`` serves the ``3 + 3K`` right-hand sides. Using
@@ -944,7 +947,7 @@ def _choose_sobolev_normal(ctx: _Context) -> dict:
     smoothing (Nefertiti rho = 0.2: divergence 70.7 vs trace 53.7 at the best mu).
     ``tangential`` = :func:`_tangential_share` of the noise per edge length of that mesh
     (normals of ``Y`` are meaningless above one edge length of noise). ``mu`` by the log
-    search of ``sobolev`` for each order; the smaller GCV wins.
+    search of ``sobolev`` for each order; the smaller score wins.
     """
     from .plugins.sobolev_axes import laplacian_power
     from .plugins.sobolev_normal import area_normals, project_update
@@ -959,6 +962,7 @@ def _choose_sobolev_normal(ctx: _Context) -> dict:
     smooth = _best_on_path(_iterative_path(ctx.V, ctx.ops, _averaging_step(ctx.ops.P, 1.0), ctx.exact), n, ctx.rho, "sure").X
     t = float(full["tangential"]) if "tangential" in ctx.given else _tangential_share(ctx.rho, _mean_edge_length(smooth, ctx.ops))
     orders = [int(full["order"])] if "order" in ctx.given else list(SOBOLEV_NORMAL_ORDERS)
+    use_gcv = ctx.reference is None and t == 0.0  # normal-only update: n coordinates; rho not needed
     K = SOBOLEV_NORMAL_PROBES
     Nh = vertex_normals(smooth, ctx.F)
     z = np.random.default_rng(0).choice([-1.0, 1.0], size=(n, K))
@@ -976,7 +980,7 @@ def _choose_sobolev_normal(ctx: _Context) -> dict:
             X = project_update(ctx.V, Y, area_normals(Y, ctx.F), t)
             div = float(n) if ctx.reference is not None else _projected_divergence(ctx.V, ctx.F, out, Bp, t, delta)
             p = _Point(mu, float(np.sum((X - ctx.V) ** 2)), div, X)
-            p.score = _score(p, n, ctx.rho, ctx.criterion) if ctx.reference is not None else gcv(p.residual_sq, div, n)
+            p.score = gcv(p.residual_sq, div, n) if use_gcv else _score(p, n, ctx.rho, ctx.criterion)
             return p
 
         p = _search_log(evaluate, _mu_guess(ctx, order))

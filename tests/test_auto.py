@@ -510,7 +510,7 @@ def test_sobolev_normal_monte_carlo_divergence_matches_the_per_vertex_brute_forc
 
 
 def test_sobolev_normal_scores_by_gcv_over_the_normal_coordinates():
-    """The rule's score is n ||f(X) - X||^2 / (n - div)^2, f(X) from a dense solve and the test's own projection."""
+    """Tangential share 0: the rule's score is n ||f(X) - X||^2 / (n - div)^2, f(X) from a dense solve and the test's own projection."""
     from meshdenoise.auto import _choose_sobolev_normal, _Context
 
     V, F = icosphere(3)
@@ -524,6 +524,13 @@ def test_sobolev_normal_scores_by_gcv_over_the_normal_coordinates():
     assert np.allclose(point.X, X, atol=1e-9)
     assert 0 < point.trace < n
     assert point.score == pytest.approx(n * np.sum((X - Vn) ** 2) / (n - point.trace) ** 2, rel=1e-9)
+    # a tangential share > 0 moves vertices along the surface too: Monte-Carlo SURE, with rho
+    ctx = _Context(Vn, F, get_operators(F, n), rho, "sure", None, {"order": 2, "tangential": 0.5})
+    chosen, point = _choose_sobolev_normal(ctx)
+    Y = np.linalg.solve(np.eye(n) + chosen["mu"] * L @ L, Vn)
+    X = _project_dense(Vn, Y, _normals_dense(Y, F), 0.5)
+    assert np.allclose(point.X, X, atol=1e-9)
+    assert point.score == pytest.approx(np.sum((X - Vn) ** 2) - n * rho**2 + 2 * rho**2 * point.trace, rel=1e-9)
 
 
 def test_sobolev_normal_choice_does_not_follow_an_overestimated_noise_level():
