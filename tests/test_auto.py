@@ -509,6 +509,43 @@ def test_sobolev_normal_monte_carlo_divergence_matches_the_per_vertex_brute_forc
     assert brute > 1.2 * np.trace(H)
 
 
+def test_sobolev_normal_scores_by_gcv_over_the_normal_coordinates():
+    """Tangential share 0: the rule's score is n ||f(X) - X||^2 / (n - div)^2, f(X) from a dense solve and the test's own projection."""
+    from meshdenoise.auto import _choose_sobolev_normal, _Context
+
+    V, F = icosphere(3)
+    n, rho = len(V), 0.01
+    Vn, _ = add_normal_noise((V, F), rho, seed=5)
+    _, L = _dense_P(F, n)
+    ctx = _Context(Vn, F, get_operators(F, n), rho, "sure", None, {"order": 2, "tangential": 0.0})
+    chosen, point = _choose_sobolev_normal(ctx)
+    Y = np.linalg.solve(np.eye(n) + chosen["mu"] * L @ L, Vn)
+    X = _project_dense(Vn, Y, _normals_dense(Y, F), 0.0)
+    assert np.allclose(point.X, X, atol=1e-9)
+    assert 0 < point.trace < n
+    assert point.score == pytest.approx(n * np.sum((X - Vn) ** 2) / (n - point.trace) ** 2, rel=1e-9)
+    # a tangential share > 0 moves vertices along the surface too: Monte-Carlo SURE, with rho
+    ctx = _Context(Vn, F, get_operators(F, n), rho, "sure", None, {"order": 2, "tangential": 0.5})
+    chosen, point = _choose_sobolev_normal(ctx)
+    Y = np.linalg.solve(np.eye(n) + chosen["mu"] * L @ L, Vn)
+    X = _project_dense(Vn, Y, _normals_dense(Y, F), 0.5)
+    assert np.allclose(point.X, X, atol=1e-9)
+    assert point.score == pytest.approx(np.sum((X - Vn) ** 2) - n * rho**2 + 2 * rho**2 * point.trace, rel=1e-9)
+
+
+def test_sobolev_normal_choice_does_not_follow_an_overestimated_noise_level():
+    """GCV needs no rho: told 1.4 rho (as estimate_noise reads a coarse curved mesh's own detail), mu stays.
+
+    rho enters only through the finite-difference step 0.1 rho of the divergence (and the
+    tangential share, 0 here: 0.1 edge lengths). SURE's penalty 2 rho^2 div would grow by 1.96x.
+    """
+    V, F = icosphere(3)
+    rho = 0.01
+    Vn, _ = add_normal_noise((V, F), rho, seed=6)
+    mu = [choose_parameters((Vn, F), "sobolev_normal", noise=r)["mu"] for r in (rho, 1.4 * rho)]
+    assert mu[1] == pytest.approx(mu[0], rel=0.05)
+
+
 @pytest.mark.parametrize("method", ["filtering", "sobolev"])
 def test_oracle_criterion_matches_brute_force(method):
     V, F = icosphere(3)

@@ -6,12 +6,19 @@ import numpy as np
 import pytest
 
 from meshdenoise import add_normal_noise, snr
-from meshdenoise.auto import SOBOLEV_GLS_BETAS, _choose_sobolev_gls, _Context, choose_parameters
+from meshdenoise.auto import (
+    SOBOLEV_GLS_BETAS,
+    SOBOLEV_GLS_SPREAD_SAMPLES,
+    _choose_sobolev_gls,
+    _Context,
+    _normal_spread,
+    choose_parameters,
+)
 from meshdenoise.geometry import vertex_normals
 from meshdenoise.operators import get_operators
 from meshdenoise.plugins.sobolev_gls import coherent_normals
 from meshdenoise.registry import apply_filter
-from meshdenoise.shapes import icosphere, torus
+from meshdenoise.shapes import grid, icosphere, torus
 
 
 def _dense_L(F, n):
@@ -20,6 +27,16 @@ def _dense_L(F, n):
         for i, j in ((a, b), (b, c), (c, a)):
             W[i, j] = W[j, i] = 1.0
     return np.diag(W.sum(1)) - W
+
+
+def _unit_normals(X, F):
+    """Unit vertex normals written again: unit face normals summed per vertex (a loop), normalised."""
+    N = np.zeros_like(X)
+    for a, b, c in F:
+        fn = np.cross(X[b] - X[a], X[c] - X[a])
+        for i in (a, b, c):
+            N[i] += fn / np.linalg.norm(fn)
+    return N / np.linalg.norm(N, axis=1, keepdims=True)
 
 
 def _dense_system(N, beta, mu, Lp):
@@ -85,8 +102,12 @@ def test_sobolev_gls_sure_equals_the_dense_risk_estimate():
     mu2 = choose_parameters((Vn, F), "sobolev_bilaplacian", noise=rho, exact_trace=True)["mu"]
     Xs = np.linalg.solve(np.eye(n) + mu2 * L @ L, Vn)
     Nn = vertex_normals(Xs, F)
-    R = Vn - Xs
-    tau = min(np.sum((R - Nn * np.sum(Nn * R, 1, keepdims=True)) ** 2) / (rho**2 * np.sum(Nn * Nn)), 1.0)
+    # the normals' spread tau: the parametric bootstrap written again densely, with the test's own face-normal sums
+    H2 = np.linalg.inv(np.eye(n) + mu2 * L @ L)
+    eps = np.random.default_rng(0).standard_normal((n, SOBOLEV_GLS_SPREAD_SAMPLES))
+    tau = np.mean([np.mean(1 - np.sum(_unit_normals(H2 @ (Xs + rho * eps[:, [k]] * Nn), F) * Nn, 1) ** 2)
+                   for k in range(SOBOLEV_GLS_SPREAD_SAMPLES)])
+    assert 0 < tau < 0.1  # a fine sphere at 0.2 edge lengths of noise: the normals are good
     S = np.zeros((3 * n, 3 * n))
     for i in range(n):
         P = np.outer(Nn[i], Nn[i])
@@ -102,6 +123,59 @@ def test_sobolev_gls_sure_equals_the_dense_risk_estimate():
         chosen, point = _choose_sobolev_gls(ctx)
         assert chosen == {"mu": mu, "beta": beta}
         assert point.score == pytest.approx(expected, rel=1e-6)
+
+
+def _plane(m=12, z=1.0):
+    V, F = grid(m, m)
+    V = np.array(V, dtype=float)
+    V[:, 2] = z
+    return V, F
+
+
+def test_normal_spread_of_noise_smoothed_to_a_tilted_plane_matches_the_regression_closed_form():
+    """Known spread: H projects each column on span{1, x, y} (a least-squares plane fit).
+
+    On a flat grid at height 1, H Xs = Xs, and the smoothed noise rho H(eps N) = (0, 0, a x + b y + c)
+    tilts the whole plane by the regression slopes (a, b) of rho eps on (x, y): every vertex normal
+    is (-a, -b, 1) / sqrt(1 + a^2 + b^2), sin^2 = (a^2 + b^2) / (1 + a^2 + b^2) ~ a^2 + b^2, and
+    E[a^2 + b^2] = rho^2 ((A^T A)^{-1}_{xx} + (A^T A)^{-1}_{yy}), A = [1, x, y] (ordinary least squares).
+    """
+    V, F = _plane()
+    A = np.column_stack([np.ones(len(V)), V[:, 0], V[:, 1]])
+    Q, _ = np.linalg.qr(A)
+    rho = 0.02
+    expected = rho**2 * (np.linalg.inv(A.T @ A)[1, 1] + np.linalg.inv(A.T @ A)[2, 2])
+    got = _normal_spread(V, F, lambda Y: Q @ (Q.T @ Y), rho, samples=4000, seed=5)
+    assert got == pytest.approx(expected, rel=0.08)  # Monte-Carlo error of 4000 draws: ~2 %
+    assert _normal_spread(V, F, lambda Y: Y, 0.0, samples=3) == 0.0  # no noise, no smoothing: no spread
+
+
+def test_normal_spread_counts_the_smoothing_bias_of_the_normals():
+    """rho = 0: only the bias. H = I + c x 1^T / n turns the plane z = 1 into z = 1 + c x (x centred), sin^2 = c^2 / (1 + c^2)."""
+    V, F = _plane()
+    V[:, :2] -= V[:, :2].mean(axis=0)
+    n, c = len(V), 0.3
+    H = np.eye(n) + c * np.outer(V[:, 0], np.ones(n)) / n
+    assert np.allclose(H @ V[:, :2], V[:, :2])  # x and y stay (centred grid), z tilts
+    got = _normal_spread(V, F, lambda Y: H @ Y, 0.0, samples=2)
+    assert got == pytest.approx(c**2 / (1 + c**2), rel=1e-9)
+
+
+def test_normal_spread_ignores_the_tangential_irregularity_of_the_sampling():
+    """The old estimate (tangential residual X - Xs) read in-plane sampling jitter as normal spread; this one does not.
+
+    A jittered flat grid, no noise: the in-plane drift of a smoother moves no normal, so tau = 0
+    (the tangential residual of a Laplacian step is large).
+    """
+    V, F = _plane(16)
+    rng = np.random.default_rng(3)
+    V[:, :2] += 0.2 * (V[1, 0] - V[0, 0]) * rng.uniform(-1, 1, (len(V), 2))
+    L = _dense_L(F, len(V))
+    H = np.linalg.inv(np.eye(len(V)) + 0.5 * L @ L)
+    drift = H @ V - V
+    assert np.sum(drift[:, :2] ** 2) > 100 * np.sum(drift[:, 2] ** 2)  # the residual is tangential, and not small
+    assert np.sum(drift[:, :2] ** 2) / len(V) > 1e-3 * (V[1, 0] - V[0, 0]) ** 2
+    assert _normal_spread(V, F, lambda Y: H @ Y, 0.0, samples=2) == pytest.approx(0.0, abs=1e-20)
 
 
 def test_sobolev_gls_automatic_choice_is_close_to_the_oracle():
