@@ -622,8 +622,9 @@ def _choose_taubin(ctx: _Context) -> dict:
 
 def _choose_sobolev_bilaplacian(ctx: _Context) -> dict:
     """``mu`` of :math:`(I + \\mu L^2) Y = X`: SURE over log mu, starting at :math:`(k/\\bar d)^2`."""
-    L = ctx.ops.L
-    p = _best_mu(ctx.V, sp.csr_matrix(L @ L), ctx.rho, ctx.criterion, ctx.exact, center=_mu_guess(ctx, 2))
+    from .plugins.sobolev_axes import laplacian_power
+
+    p = _best_mu(ctx.V, laplacian_power(ctx.ops, 2), ctx.rho, ctx.criterion, ctx.exact, center=_mu_guess(ctx, 2))
     return {"mu": float(p.value)}, p
 
 
@@ -818,9 +819,8 @@ def _choose_sobolev_axes(ctx: _Context) -> dict:
     E, _ = normal_frame(ctx.V, ctx.F, ctx.ops, steps)
     # noise directions: normals of the SURE-best bi-Laplacian estimate (smoother than `steps` averagings,
     # whose normals at 0.4 edge lengths of noise are still noisy and would bias the per-axis shares)
-    L = ctx.ops.L
     rho_sure = ctx.rho if ctx.rho is not None else 0.0
-    Xs = _best_mu(ctx.V, sp.csr_matrix(L @ L), rho_sure, "sure", ctx.exact, center=_mu_guess(ctx, 2)).X
+    Xs = _best_mu(ctx.V, laplacian_power(ctx.ops, 2), rho_sure, "sure", ctx.exact, center=_mu_guess(ctx, 2)).X
     c = (vertex_normals(Xs, ctx.F) @ E) ** 2  # (n, 3) noise share of each axis per vertex
     if ctx.rho:
         c = c * _axis_share_correction(ctx.V, ctx.ops, E, c, ctx.rho, smooth)[None, :]
@@ -1070,7 +1070,7 @@ def _choose_sobolev_gls(ctx: _Context) -> dict:
     Search: ``mu`` by :func:`_search_log` at ``beta = 3``, then ``beta`` over
     ``SOBOLEV_GLS_BETAS`` at that ``mu``, then ``mu`` again at the best ``beta``.
     """
-    from .plugins.sobolev_axes import _solver
+    from .plugins.sobolev_axes import _solver, laplacian_power
     from .plugins.sobolev_gls import _apply_weight, _correction_rhs, coherent_normals, normal_weighted_solve
 
     spec = get_filter("sobolev_gls")
@@ -1083,12 +1083,11 @@ def _choose_sobolev_gls(ctx: _Context) -> dict:
     exact = ctx.exact if ctx.exact is not None else n <= EXACT_TRACE_MAX
     if ctx.reference is None:
         # noise directions: normals Nn of the SURE-best bi-Laplacian estimate Xs; the true ones (the clean mesh's
-        # vertex normals) spread around them by tau = E sin^2(angle), read from the tangential residual X - Xs
-        L = ctx.ops.L
-        best_s = _best_mu(ctx.V, sp.csr_matrix(L @ L), ctx.rho, "sure", ctx.exact, center=_mu_guess(ctx, 2))
+        # vertex normals) spread around them by tau = E sin^2(angle), by a parametric bootstrap (_normal_spread)
+        M2 = laplacian_power(ctx.ops, 2)  # cached per topology
+        best_s = _best_mu(ctx.V, M2, ctx.rho, "sure", ctx.exact, center=_mu_guess(ctx, 2))
         Xs, mu_s = best_s.X, best_s.value
         Nn = vertex_normals(Xs, ctx.F)
-        M2 = sp.csr_matrix(L @ L)
         tau = _normal_spread(Xs, ctx.F, lambda Y: _solve_shifted(M2, mu_s, Y), ctx.rho, SOBOLEV_GLS_SPREAD_SAMPLES)
         if exact:
             z = np.eye(3 * n).reshape(n, 3, 3 * n)
