@@ -1033,6 +1033,29 @@ def _normal_spread(
     return min(max(total / samples, 0.0), 1.0)
 
 
+def _normals_divergence(
+    X0: np.ndarray, F: np.ndarray, r: np.ndarray, N: np.ndarray, beta: float, S: Any, B: np.ndarray, AiB: np.ndarray
+) -> float:
+    """The part of :math:`\\sum_k b_k^T J b_k` of ``sobolev_gls`` that comes from its normals following the input.
+
+    With :math:`A = W(N) + \\mu L^p \\otimes I_3`, :math:`W = I + (\\beta - 1) P`, :math:`P = I - N N^T`, the
+    output is :math:`X = X_0 + A^{-1} (\\beta - 1) P (V - X_0)`; differentiating through
+    :math:`N = N(X_0)`, :math:`X_0 = S V`, along :math:`b` adds
+
+    .. math:: A^{-1} g(b), \\qquad g(b) = -(\\beta - 1)\\, \\big[\\dot N (N \\cdot r) + N (\\dot N \\cdot r)\\big],
+              \\quad \\dot N = N'(X_0)[S b], \\quad r = V - X
+
+    to the fixed-normal Jacobian, so :math:`b^T A^{-1} g(b) = (A^{-1} b)^T g(b)` (``A`` symmetric; ``AiB`` holds
+    :math:`A^{-1} b_k`, solved with the rest). ``B``, ``AiB`` (n, 3, k); returns the sum over ``k``.
+    """
+    from .geometry import coherent_normals_derivative
+
+    n, _, k = B.shape
+    dN = coherent_normals_derivative(X0, F, S.solve(B.reshape(n, -1)).reshape(n, 3, k))
+    g = dN * np.sum(N * r, axis=1)[:, None, None] + N[:, :, None] * np.sum(dN * r[:, :, None], axis=1, keepdims=True)
+    return -(beta - 1.0) * float(np.sum(AiB * g))
+
+
 def _choose_sobolev_gls(ctx: _Context) -> dict:
     """``mu`` and ``beta`` of ``sobolev_gls``: SURE for fixed normals, with a spread noise covariance.
 
@@ -1098,6 +1121,9 @@ def _choose_sobolev_gls(ctx: _Context) -> dict:
         zn = np.sum(Nn[:, :, None] * z, axis=1, keepdims=True) * Nn[:, :, None]
         B = math.sqrt(1.0 - tau) * zn + math.sqrt(tau / 2.0) * (z - zn)  # probes b = Sigma^{1/2} z / rho
         noise_sq = ctx.rho**2 * float(np.sum(B * B)) * s
+        # below half an edge length of noise the normals hardly move and GCV (no rho) scores the n normal
+        # coordinates, as for sobolev_normal; rho is over-read there on small meshes (Nefertiti 0.015)
+        use_gcv = _tangential_share(ctx.rho, _mean_edge_length(Xs, ctx.ops)) == 0.0
         log.info("sobolev_gls: tangential share of the noise tau = %.4g", tau)
     evaluated: dict[tuple, _Point] = {}
 
@@ -1115,13 +1141,15 @@ def _choose_sobolev_gls(ctx: _Context) -> dict:
                 if beta == 1.0:
                     X = X0
                     HB = S.solve(B.reshape(n, -1)).reshape(B.shape)
+                    tr = s * float(np.sum(B * HB))
                 else:
-                    rhs = np.concatenate([_correction_rhs(N, beta, ctx.V, X0)[:, :, None], _apply_weight(N, beta, B)], axis=2)
+                    m = B.shape[2]
+                    rhs = np.concatenate([_correction_rhs(N, beta, ctx.V, X0)[:, :, None], _apply_weight(N, beta, B), B], axis=2)
                     out = normal_weighted_solve(ctx.ops, N, beta, mu, order, rhs)
-                    X, HB = X0 + out[:, :, 0], out[:, :, 1:]
-                tr = s * float(np.sum(B * HB))
+                    X, HB, AiB = X0 + out[:, :, 0], out[:, :, 1:1 + m], out[:, :, 1 + m:]
+                    tr = s * (float(np.sum(B * HB)) + _normals_divergence(X0, ctx.F, ctx.V - X, N, beta, S, B, AiB))
                 p = _Point(mu, float(np.sum((X - ctx.V) ** 2)), tr, X)
-                p.score = p.residual_sq - noise_sq + 2.0 * ctx.rho**2 * tr
+                p.score = gcv(p.residual_sq, tr, n) if use_gcv else p.residual_sq - noise_sq + 2.0 * ctx.rho**2 * tr
             evaluated[key] = (p, beta)
         return evaluated[key][0]
 

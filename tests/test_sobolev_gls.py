@@ -90,12 +90,28 @@ def test_sobolev_gls_pinned_vertices_solve_the_reduced_dense_system():
     np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
 
 
-def test_sobolev_gls_sure_equals_the_dense_risk_estimate():
-    """With exact traces the rule's SURE(mu, beta) is ||HX - X||^2 - tr S + 2 tr(S H), H and S built densely."""
+def _dense_gls(x, F, L3, mu, beta):
+    """The filter written densely: isotropic pass, its coherent normals, the 3n x 3n weighted solve."""
+    n = L3.shape[0]
+    X = x.reshape(n, 3)
+    N = coherent_normals(np.linalg.solve(np.eye(n) + mu * L3, X), F)
+    W, A = _dense_system(N, beta, mu, L3)
+    return np.linalg.solve(A, W @ x)
+
+
+@pytest.mark.parametrize("rho, gcv_regime", [(0.03, True), (0.2, False)])
+def test_sobolev_gls_risk_equals_the_dense_estimate_with_the_normals_jacobian(rho, gcv_regime):
+    """With exact traces the rule's score is built from the full Jacobian J of the filter (normals included).
+
+    J is taken by central differences of a dense re-implementation (3n solves of the 3n x 3n system):
+    SURE = ||f(x) - x||^2 - tr S + 2 tr(S J) above half an edge length of noise, and
+    GCV = n ||f(x) - x||^2 / (n - tr(S J) / rho^2)^2 below it (the normal-only regime).
+    """
     V, F = icosphere(2)
-    rho = 0.03
     Vn, _ = add_normal_noise((V, F), rho, seed=4)
     n = len(V)
+    h = np.mean([np.linalg.norm(V[a] - V[b]) for f in F for a, b in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0]))])
+    assert (rho < h / 2) == gcv_regime  # 0.03 is 0.2 edge lengths; 0.2 is 1.3
     L = _dense_L(F, n)
     L3 = np.linalg.matrix_power(L, 3)
     # noise directions: normals of the SURE-best bi-Laplacian estimate (chosen by its own rule, solved densely)
@@ -107,22 +123,32 @@ def test_sobolev_gls_sure_equals_the_dense_risk_estimate():
     eps = np.random.default_rng(0).standard_normal((n, SOBOLEV_GLS_SPREAD_SAMPLES))
     tau = np.mean([np.mean(1 - np.sum(_unit_normals(H2 @ (Xs + rho * eps[:, [k]] * Nn), F) * Nn, 1) ** 2)
                    for k in range(SOBOLEV_GLS_SPREAD_SAMPLES)])
-    assert 0 < tau < 0.1  # a fine sphere at 0.2 edge lengths of noise: the normals are good
+    assert 0 < tau < (0.1 if gcv_regime else 0.5)
     S = np.zeros((3 * n, 3 * n))
     for i in range(n):
         P = np.outer(Nn[i], Nn[i])
         S[3 * i:3 * i + 3, 3 * i:3 * i + 3] = rho**2 * ((1 - tau) * P + tau / 2 * (np.eye(3) - P))
     ops = get_operators(F, n)
+    x = Vn.ravel()
     for mu, beta in [(0.3, 1.0), (0.3, 5.0), (2.0, 3.0)]:
-        N = coherent_normals(np.linalg.solve(np.eye(n) + mu * L3, Vn), F)
-        W, A = _dense_system(N, beta, mu, L3)
-        H = np.linalg.solve(A, W)
-        x = Vn.ravel()
-        expected = np.sum((H @ x - x) ** 2) - np.trace(S) + 2 * np.trace(S @ H)
+        fx = _dense_gls(x, F, L3, mu, beta)
+        step = 1e-6
+        J = np.empty((3 * n, 3 * n))
+        for j in range(3 * n):  # central differences, one coordinate at a time
+            e = np.zeros(3 * n)
+            e[j] = step
+            J[:, j] = (_dense_gls(x + e, F, L3, mu, beta) - _dense_gls(x - e, F, L3, mu, beta)) / (2 * step)
+        resid = np.sum((fx - x) ** 2)
+        tr = np.trace(S @ J)
+        expected = n * resid / (n - tr / rho**2) ** 2 if gcv_regime else resid - np.trace(S) + 2 * tr
         ctx = _Context(Vn, F, ops, rho, "sure", True, {"mu": mu, "beta": beta})
         chosen, point = _choose_sobolev_gls(ctx)
         assert chosen == {"mu": mu, "beta": beta}
         assert point.score == pytest.approx(expected, rel=1e-6)
+        if beta > 1:  # the normals' part of the Jacobian is there and matters at this precision
+            W, A = _dense_system(coherent_normals(np.linalg.solve(np.eye(n) + mu * L3, Vn), F), beta, mu, L3)
+            fixed = np.trace(S @ np.linalg.solve(A, W))
+            assert abs(fixed - tr) > 1e-4 * abs(tr)
 
 
 def _plane(m=12, z=1.0):
@@ -202,3 +228,30 @@ def test_coherent_normals_are_the_unit_normals_on_a_smooth_mesh_and_shrink_on_fo
     n_f /= np.linalg.norm(n_f, axis=1, keepdims=True)
     s0 = n_f.sum(0)
     np.testing.assert_allclose(coherent_normals(V, F)[0], s0 / max(np.linalg.norm(s0), 1.5), atol=1e-12)
+
+
+def test_coherent_normals_derivative_matches_central_differences_on_both_branches():
+    """The analytic derivative against central differences of coherent_normals itself.
+
+    A noisy sphere (every vertex on the unit branch) and a folded pair of faces (the k/2 branch,
+    where the faces disagree), plus a zero-area face whose vertex keeps a zero derivative.
+    """
+    from meshdenoise.geometry import coherent_normals_derivative
+
+    rng = np.random.default_rng(5)
+    V, F = icosphere(2)
+    V = V + 0.05 * rng.standard_normal(V.shape)
+    folded = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0.2, 0.1, 0.3]])
+    Ff = np.array([[0, 1, 2], [0, 2, 3]])
+    for X, FF in ((V, F), (folded, Ff)):
+        Y = rng.standard_normal((len(X), 3, 4))
+        got = coherent_normals_derivative(X, FF, Y, chunk=3)
+        e = 1e-6
+        fd = np.stack([(coherent_normals(X + e * Y[:, :, j], FF) - coherent_normals(X - e * Y[:, :, j], FF)) / (2 * e)
+                       for j in range(4)], axis=2)
+        np.testing.assert_allclose(got, fd, atol=1e-6)
+        assert np.abs(got).max() > 0.1
+    k_half = np.linalg.norm(coherent_normals(folded, Ff), axis=1) < 1 - 1e-9
+    assert k_half[0]  # vertex 0 is on the k/2 branch: its two faces are 60+ degrees apart
+    flat = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]])  # a zero-area face
+    assert not coherent_normals_derivative(flat, np.array([[0, 1, 2]]), rng.standard_normal((3, 3, 2))).any()
