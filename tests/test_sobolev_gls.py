@@ -99,8 +99,8 @@ def _dense_gls(x, F, L3, mu, beta):
     return np.linalg.solve(A, W @ x)
 
 
-@pytest.mark.parametrize("rho, gcv_regime", [(0.03, True), (0.2, False)])
-def test_sobolev_gls_risk_equals_the_dense_estimate_with_the_normals_jacobian(rho, gcv_regime):
+@pytest.mark.parametrize("rho, gcv_regime, mu, beta", [(0.03, True, 0.3, 5.0), (0.2, False, 2.0, 3.0)])
+def test_sobolev_gls_risk_equals_the_dense_estimate_with_the_normals_jacobian(rho, gcv_regime, mu, beta):
     """With exact traces the rule's score is built from the full Jacobian J of the filter (normals included).
 
     J is taken by central differences of a dense re-implementation (3n solves of the 3n x 3n system):
@@ -130,14 +130,17 @@ def test_sobolev_gls_risk_equals_the_dense_estimate_with_the_normals_jacobian(rh
         S[3 * i:3 * i + 3, 3 * i:3 * i + 3] = rho**2 * ((1 - tau) * P + tau / 2 * (np.eye(3) - P))
     ops = get_operators(F, n)
     x = Vn.ravel()
-    for mu, beta in [(0.3, 1.0), (0.3, 5.0), (2.0, 3.0)]:
+    for beta in (1.0, beta):  # beta = 1: the isotropic filter, linear (J = its matrix)
         fx = _dense_gls(x, F, L3, mu, beta)
-        step = 1e-6
-        J = np.empty((3 * n, 3 * n))
-        for j in range(3 * n):  # central differences, one coordinate at a time
-            e = np.zeros(3 * n)
-            e[j] = step
-            J[:, j] = (_dense_gls(x + e, F, L3, mu, beta) - _dense_gls(x - e, F, L3, mu, beta)) / (2 * step)
+        if beta == 1.0:
+            J = np.kron(np.linalg.inv(np.eye(n) + mu * L3), np.eye(3))
+        else:
+            step = 1e-6
+            J = np.empty((3 * n, 3 * n))
+            for j in range(3 * n):  # central differences, one coordinate at a time
+                e = np.zeros(3 * n)
+                e[j] = step
+                J[:, j] = (_dense_gls(x + e, F, L3, mu, beta) - _dense_gls(x - e, F, L3, mu, beta)) / (2 * step)
         resid = np.sum((fx - x) ** 2)
         tr = np.trace(S @ J)
         expected = n * resid / (n - tr / rho**2) ** 2 if gcv_regime else resid - np.trace(S) + 2 * tr
