@@ -48,6 +48,12 @@ def _scatter_faces_to_vertices(values: np.ndarray, F: np.ndarray, n: int) -> np.
     )
 
 
+def vertex_face_incidence(F: np.ndarray, n: int) -> sp.csr_matrix:
+    """The (n, m) 0/1 matrix with a 1 where vertex ``i`` is a corner of face ``f``: ``M @ values`` sums faces onto vertices."""
+    m = F.shape[0]
+    return sp.csr_matrix((np.ones(3 * m), (F.ravel(), np.repeat(np.arange(m), 3))), shape=(n, m))
+
+
 def face_areas(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     """Triangle areas, shape (m,).
 
@@ -181,8 +187,7 @@ def coherent_normals_derivative(X: np.ndarray, F: np.ndarray, Y: np.ndarray, chu
     unit = s_norm > half_k  # vertices whose normal is normalised (else divided by k/2)
     N = np.divide(s, s_norm[:, None], out=np.zeros_like(s), where=unit[:, None])
     scale = np.divide(1.0, np.where(unit, s_norm, half_k), out=np.zeros(n), where=np.where(unit, s_norm, half_k) > 0)
-    rows = F.T.ravel()
-    incidence = sp.csr_matrix((np.ones(rows.size), (rows, np.tile(np.arange(F.shape[0]), 3))), shape=(n, F.shape[0]))
+    incidence = vertex_face_incidence(F, n)
     out = np.empty((n, 3, k))
     for j0 in range(0, k, chunk):  # over blocks of directions, each vectorised over faces
         Yj = Y[:, :, j0:j0 + chunk]

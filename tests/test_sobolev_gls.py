@@ -48,15 +48,22 @@ def _dense_system(N, beta, mu, Lp):
     return W, W + mu * np.kron(Lp, np.eye(3))
 
 
+def _dense_gls(x, F, L3, mu, beta):
+    """The filter written densely: isotropic pass, its coherent normals, the 3n x 3n weighted solve."""
+    n = L3.shape[0]
+    X = x.reshape(n, 3)
+    N = coherent_normals(np.linalg.solve(np.eye(n) + mu * L3, X), F)
+    W, A = _dense_system(N, beta, mu, L3)
+    return np.linalg.solve(A, W @ x)
+
+
 def test_sobolev_gls_matches_a_dense_generalised_least_squares_solve():
     V, F = torus(12, 6)
     Vn, _ = add_normal_noise((V, F), 0.03, seed=1)
     n = len(V)
     L3 = np.linalg.matrix_power(_dense_L(F, n), 3)
     mu, beta = 0.4, 4.0
-    N = coherent_normals(np.linalg.solve(np.eye(n) + mu * L3, Vn), F)
-    W, A = _dense_system(N, beta, mu, L3)
-    expected = np.linalg.solve(A, W @ Vn.ravel()).reshape(n, 3)
+    expected = _dense_gls(Vn.ravel(), F, L3, mu, beta).reshape(n, 3)
     got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=3)[0]
     np.testing.assert_allclose(got, expected, atol=1e-8)
     # beta = 1 is the isotropic polyharmonic filter
@@ -88,15 +95,6 @@ def test_sobolev_gls_pinned_vertices_solve_the_reduced_dense_system():
     got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=2, pinned=pinned)[0]
     assert np.array_equal(got[pinned], Vn[pinned])
     np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
-
-
-def _dense_gls(x, F, L3, mu, beta):
-    """The filter written densely: isotropic pass, its coherent normals, the 3n x 3n weighted solve."""
-    n = L3.shape[0]
-    X = x.reshape(n, 3)
-    N = coherent_normals(np.linalg.solve(np.eye(n) + mu * L3, X), F)
-    W, A = _dense_system(N, beta, mu, L3)
-    return np.linalg.solve(A, W @ x)
 
 
 @pytest.mark.parametrize("rho, gcv_regime, mu, beta", [(0.03, True, 0.3, 5.0), (0.2, False, 2.0, 3.0)])

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from ..geometry import face_areas, face_normals
+from ..geometry import face_areas, face_normals, vertex_face_incidence
 from ..operators import Operators
 from ..registry import Param, register
 
@@ -39,7 +39,7 @@ class FaceNeighbourhood:
         m = F.shape[0]
         self.m = m
         face_of_corner = np.repeat(np.arange(m), 3)
-        M = sp.csr_matrix((np.ones(3 * m), (F.ravel(), face_of_corner)), shape=(n, m))
+        M = vertex_face_incidence(F, n)
         A = sp.csr_matrix(M.T @ M)
         A.sort_indices()
         self.rows = np.repeat(np.arange(m), np.diff(A.indptr))
