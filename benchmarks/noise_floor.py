@@ -21,7 +21,7 @@ import scipy.sparse as sp
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from meshdenoise import add_normal_noise  # noqa: E402
-from meshdenoise.auto import _MAD, _mean_edge_length, estimate_noise  # noqa: E402
+from meshdenoise.tuning.noise_level import MAD as _MAD, estimate_noise, mean_edge_length as _mean_edge_length  # noqa: E402
 from meshdenoise.data import data_file  # noqa: E402
 from meshdenoise.geometry import vertex_normals  # noqa: E402
 from meshdenoise.io import load_arrays  # noqa: E402

@@ -12,7 +12,7 @@ benchmark pairs (Fandisk0.3, Block0.4, Bunny0.2, Twelve0.5Impulsive; their own n
 
 Columns, per method: SNR (dB) and, when the metrics registry has them, mean face-normal
 angular error (deg) and volume change (%). Methods: every filter with an automatic rule
-(``meshdenoise.auto.AUTO_METHODS``) with automatic parameters (``auto``) and with the
+(``meshdenoise.auto_filters()``) with automatic parameters (``auto``) and with the
 parameters that are best in hindsight over the same search space (``oracle``);
 MeshLab's Laplacian, HC Laplacian (repeated k times), Taubin and two-step smoothing
 and Open3D's simple, Laplacian and Taubin filters, each with its number of iterations
@@ -272,7 +272,7 @@ def _load_stored(store: Path, row_label: str, seed_idx: int, redo: set[str]) -> 
 
 def run(quick: bool, seeds: int, methods: list[str] | None, jobs: int = 1, only: list[str] | None = None,
         store: Path | None = None, resume: bool = False, redo: list[str] | None = None, isolate: bool = False) -> dict:
-    ours = methods or sorted(auto.AUTO_METHODS)
+    ours = methods or auto.auto_filters()
     rows = _cached_rows(quick, seeds)
     keep = [r for r, row in enumerate(rows) if not only or any(o.lower() in row["row"].lower() for o in only)]
     if not keep:

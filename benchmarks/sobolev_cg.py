@@ -28,7 +28,8 @@ from speed import SIZES, benchmark_mesh, cache_dir, timed  # noqa: E402
 from meshdenoise.metrics import snr  # noqa: E402
 from meshdenoise.noise import add_normal_noise  # noqa: E402
 from meshdenoise.operators import Operators  # noqa: E402
-from meshdenoise.plugins.sobolev import SobolevSolver, cg_iteration_cap, sobolev, sobolev_cg_solver  # noqa: E402
+from meshdenoise.plugins.sobolev import SobolevSolver, cg_iteration_cap, sobolev  # noqa: E402
+from meshdenoise.solvers import shifted_solver  # noqa: E402
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -54,7 +55,7 @@ def main(argv: list[str] | None = None) -> int:
     t = timed(lambda: sobolev((Vn, F), mu=mu, solver="cg", tol=tol, operators=ops), args.repeats)
     line("CG: sobolev(solver='cg') call, median (1st builds I + mu L)", t)
     Y_cg = sobolev((Vn, F), mu=mu, solver="cg", tol=tol, operators=ops)[0]
-    cg = sobolev_cg_solver(ops, mu)
+    cg = shifted_solver(ops, mu, 1, None, "cg")
     print(f"  CG iterations from x0 = X: {cg.iterations}, relative residuals {np.array2string(cg.relres, precision=2)}")
     line("CG: one solve, system cached", timed(lambda: cg.solve(Vn, tol=tol, x0=Vn), args.repeats))
     moved = Vn + 1e-3 * np.random.default_rng(1).normal(size=Vn.shape)  # coordinates close to the last ones

@@ -26,7 +26,8 @@ from .plugins.sobolev_normal import sobolev_normal
 from .plugins.sobolev_bilaplacian import sobolev_bilaplacian
 from .plugins.taubin import taubin
 from .quality_metrics import max_distance, mean_distance, normal_error_deg, volume_change
-from .auto import choose_parameters, denoise, estimate_noise
+from .tuning import auto_filters, choose_parameters, denoise, estimate_noise
+from .cache import clear_caches
 from .io import MeshFile, MeshFileError, load_mesh, save_mesh
 from .meshinfo import mesh_info
 from .metrics import compute_metrics
@@ -65,6 +66,8 @@ __all__ = [
     "estimate_noise",
     "choose_parameters",
     "denoise",
+    "auto_filters",
+    "clear_caches",
     "mesh_info",
     "load_pipeline",
     "run_pipeline",

@@ -18,7 +18,6 @@ from __future__ import annotations
 import hashlib
 import os
 import threading
-from collections import OrderedDict
 from functools import cached_property
 
 import numpy as np
@@ -26,7 +25,9 @@ import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 from scipy.sparse.linalg import eigsh
 
-__all__ = ["Operators", "get_operators", "topology_key", "clear_cache", "spmm", "spmm_threads", "gather_rows"]
+from .cache import ByteLRU, nbytes
+
+__all__ = ["Operators", "get_operators", "topology_key", "clear_cache", "trim_cache", "CACHE_BYTES", "spmm", "spmm_threads", "gather_rows"]
 
 try:  # scipy's C kernel y += A x for CSR A and dense (n, k) x: writes into y, releases the GIL
     from scipy.sparse._sparsetools import csr_matvecs as _csr_matvecs
@@ -36,8 +37,8 @@ _kernel_ok: bool | None = None  # checked once against A @ X before first use
 _pool = None
 _THREADED_NNZ = 1 << 20  # below this a thread hand-off costs more than it saves
 
-_CACHE_SIZE = 8
-_cache: OrderedDict[tuple, "Operators"] = OrderedDict()
+CACHE_BYTES = 1 << 30  # operators of recent topologies, with their stored factorisations, up to 1 GiB
+_cache = ByteLRU(CACHE_BYTES)  # topology key -> Operators
 _lock = threading.Lock()
 
 
@@ -88,6 +89,18 @@ class Operators:
         self.F.setflags(write=False)
         self.n = int(n)
         self.cache: dict = {}
+
+    @property
+    def nbytes(self) -> int:
+        """Approximate memory held: the matrices built so far and the work stored in :attr:`cache`
+        (factorisations estimated from their matrices' nonzeros)."""
+        return nbytes(self.__dict__)
+
+    def clear(self) -> None:
+        """Drop everything built or stored on this object (it is rebuilt lazily on next use)."""
+        F, n = self.F, self.n
+        self.__dict__.clear()
+        self.F, self.n, self.cache = F, n, {}
 
     # --- edges -----------------------------------------------------------------------
     @cached_property
@@ -460,8 +473,10 @@ def _thread_pool():
 def get_operators(F: np.ndarray, n: int) -> Operators:
     """The cached :class:`Operators` for faces ``F`` on ``n`` vertices.
 
-    The cache holds the last few topologies; the same faces (by content) return the
-    same object, with its lazily built matrices and stored factorisations.
+    The cache holds the most recent topologies up to :data:`CACHE_BYTES` (matrices and
+    stored factorisations counted; :func:`clear_cache` empties it); the same faces (by
+    content) return the same object, with its lazily built matrices and stored
+    factorisations. Hold the returned object to keep its work past eviction.
 
     Examples
     --------
@@ -471,20 +486,20 @@ def get_operators(F: np.ndarray, n: int) -> Operators:
     True
     """
     key = topology_key(F, n)
-    with _lock:
-        ops = _cache.get(key)
-        if ops is not None:
-            _cache.move_to_end(key)
-            return ops
-    ops = Operators(F, n)
-    with _lock:
-        _cache[key] = ops
-        while len(_cache) > _CACHE_SIZE:
-            _cache.popitem(last=False)
+    ops = _cache.lookup(key)
+    if ops is None:
+        _cache.max_bytes = CACHE_BYTES
+        ops = _cache.put(key, Operators(F, n))
     return ops
+
+
+def trim_cache() -> None:
+    """Evict the least recently used topologies while the cache is over :data:`CACHE_BYTES`
+    (called after work was stored on an :class:`Operators`, which grows it)."""
+    _cache.max_bytes = CACHE_BYTES
+    _cache.trim()
 
 
 def clear_cache() -> None:
     """Forget every cached topology (operators and factorisations)."""
-    with _lock:
-        _cache.clear()
+    _cache.clear()

@@ -24,7 +24,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["Param", "FilterSpec", "register", "get_filter", "list_filters", "apply_filter", "REGISTRY"]
+__all__ = ["Param", "AutoRule", "FilterSpec", "register", "get_filter", "list_filters", "apply_filter", "REGISTRY"]
 
 
 @dataclass(frozen=True)
@@ -127,8 +127,21 @@ class Param:
 
 
 @dataclass(frozen=True)
+class AutoRule:
+    """A filter's automatic rule: which parameters it chooses, and how.
+
+    ``choose(ctx)`` takes a :class:`~meshdenoise.tuning.context.TuningContext` and returns
+    ``(chosen parameters, best point)`` (a :class:`~meshdenoise.tuning.risk.Point`); it
+    chooses the parameters in ``tunes`` that ``ctx.given`` does not hold.
+    """
+
+    tunes: tuple[str, ...]
+    choose: Callable[[Any], tuple[dict, Any]]
+
+
+@dataclass(frozen=True)
 class FilterSpec:
-    """A registered filter: its name, parameters, array core and public function."""
+    """A registered filter: its name, parameters, array core, automatic rule and public function."""
 
     name: str
     summary: str
@@ -136,6 +149,8 @@ class FilterSpec:
     core: Callable
     linear: bool = False
     translation_equivariant: bool = True
+    auto: AutoRule | None = None
+    scale_free: bool = False
     public: Callable | None = field(default=None, compare=False)
 
     def param(self, name: str) -> Param:
@@ -168,8 +183,18 @@ def register(
     summary: str,
     linear: bool = False,
     translation_equivariant: bool = True,
+    auto: AutoRule | None = None,
+    scale_free: bool = False,
 ) -> Callable[[Callable], Callable]:
     """Register an array-core filter and return its public, mesh-type-agnostic function.
+
+    ``auto`` is the filter's automatic rule (:class:`AutoRule`), used by
+    :func:`meshdenoise.choose_parameters` and :func:`meshdenoise.denoise`; its ``tunes``
+    must name parameters of the filter. ``scale_free=True`` says the filter commutes with
+    scaling (no parameter in length units): the core then runs on ``V / s`` and its result
+    is multiplied by ``s``, a power of two near the mesh's size, which is exact in floating
+    point and keeps squared lengths and cross products of huge or tiny meshes (1e80, 1e-80)
+    from overflowing or underflowing.
 
     The core is called as ``core(V, F, ops=ops, fixed=fixed, **params)`` with ``V``
     read-only ``(n, 3) float64``, ``F (m, 3) int64``, ``ops`` the cached
@@ -178,9 +203,13 @@ def register(
     """
     if name in REGISTRY:
         raise ValueError(f"a filter named {name!r} is already registered")
+    if auto is not None:
+        unknown = set(auto.tunes) - {p.name for p in params}
+        if not isinstance(auto, AutoRule) or unknown:
+            raise ValueError(f"register({name!r}): auto= must be an AutoRule tuning the filter's parameters, got {auto!r}")
 
     def decorate(core: Callable) -> Callable:
-        spec = FilterSpec(name, summary, tuple(params), core, linear, translation_equivariant)
+        spec = FilterSpec(name, summary, tuple(params), core, linear, translation_equivariant, auto, scale_free)
 
         @functools.wraps(core)
         def public(mesh, **kwargs):
@@ -221,9 +250,12 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
     elif not isinstance(ops, Operators) or ops.n != V.shape[0] or not np.array_equal(ops.F, F):
         raise ValueError(f"filter '{spec.name}': operators= was built for another topology than this mesh")
     fixed = fixed_mask(ops, options.get("pinned"), options.get("region"), data)
-    V_in = V.view()
+    scale = power_of_two_scale(V) if spec.scale_free else 1.0
+    V_in = V.view() if scale == 1.0 else V / scale
     V_in.flags.writeable = False  # a core must return new arrays, never write into its input
     V_out = np.array(spec.core(V_in, F, ops=ops, fixed=fixed, **values), dtype=np.float64)
+    if scale != 1.0:
+        V_out *= scale
     if fixed is not None:
         V_out[fixed] = V[fixed]
     if preserve_volume:
@@ -234,6 +266,28 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
             "this is a bug or an unstable parameter: please report it with the mesh"
         )
     return data.write(V_out)
+
+
+def power_of_two_scale(V: np.ndarray) -> float:
+    """A power of two near the longest side of the bounding box of ``V`` (1.0 for an empty or one-point mesh).
+
+    Dividing by it is exact in floating point, so a scale-free filter run on ``V / s``
+    and scaled back gives its usual result bit for bit, on any mesh size.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> power_of_two_scale(np.array([[0.0, 0, 0], [3e80, 4e80, 0]])) == 2.0 ** round(np.log2(4e80))
+    True
+    >>> power_of_two_scale(np.array([[0.0, 0, 0], [3e-300, 1e-300, 0]])) == 2.0 ** round(np.log2(3e-300))
+    True
+    """
+    if V.size == 0:
+        return 1.0
+    d = float(np.max(V.max(axis=0) - V.min(axis=0)))  # no squares: a norm would overflow at 1e200, underflow at 1e-200
+    if not (d > 0 and math.isfinite(d)):
+        return 1.0
+    return 2.0 ** round(math.log2(d))
 
 
 def get_filter(name: str) -> FilterSpec:

@@ -18,9 +18,13 @@ import numpy as np
 import scipy.sparse as sp
 from cholespy import CholeskySolverD, MatrixType
 
-from .operators import Operators, mask_key, spmm
+from .cache import FACTOR_BYTES_PER_NNZ, nbytes
+from .operators import Operators, mask_key, spmm, trim_cache
 
-__all__ = ["DirichletSystem", "SPDSolver", "CGSolver", "block_cg", "cached_solver"]
+__all__ = [
+    "DirichletSystem", "SPDSolver", "CGSolver", "block_cg", "cached_solver", "laplacian_power", "shifted_solver",
+    "SHIFTED_METHODS",
+]
 
 FACTORS_PER_FAMILY = 4  # a parameter sweep keeps only the last few factorisations of each filter
 
@@ -49,6 +53,11 @@ class DirichletSystem:
         A.sort_indices()
         self.A = A
         self.size = A.shape[0]
+
+    @property
+    def nbytes(self) -> int:
+        """Approximate memory held (matrices; a factorisation is estimated from its matrix)."""
+        return nbytes(self.A) + nbytes(getattr(self, "_coupling", None))
 
     def _columns(self, X: np.ndarray) -> np.ndarray:
         """``X`` as float64 ``(n, k)``, checked against the system's size."""
@@ -97,6 +106,12 @@ class SPDSolver(DirichletSystem):
             if self.size
             else None
         )
+
+    @property
+    def nbytes(self) -> int:
+        """Approximate memory held: the reduced matrix plus an estimate of its Cholesky factor
+        (cholespy does not report it: :data:`~meshdenoise.cache.FACTOR_BYTES_PER_NNZ` per nonzero)."""
+        return super().nbytes + FACTOR_BYTES_PER_NNZ * int(self.A.nnz)
 
     def solve(self, X: np.ndarray) -> np.ndarray:
         """``Y`` of the shape of ``X`` (n,) or (n, k), with ``(A Y)_f = X_f`` and ``Y_p = X_p``."""
@@ -323,4 +338,74 @@ def cached_solver(
     factors[key] = solver
     while len(factors) > FACTORS_PER_FAMILY:
         factors.popitem(last=False)
+    trim_cache()  # the topology grew: keep the module's operators cache under its byte limit
     return solver
+
+
+def laplacian_power(ops: Operators, order: int) -> sp.csr_matrix:
+    """:math:`L^p` for the graph Laplacian ``L = D - W`` of this topology, ``order`` = p >= 1 (sorted CSR, stored on ``ops``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from meshdenoise.operators import Operators
+    >>> ops = Operators(np.array([[0, 1, 2]]), 3)
+    >>> bool(np.allclose(laplacian_power(ops, 2).toarray(), ops.L.toarray() @ ops.L.toarray()))
+    True
+    """
+    if isinstance(order, (bool, np.bool_)) or not isinstance(order, (int, np.integer)) or order < 1:
+        raise ValueError(f"laplacian_power: order must be an int >= 1, got {order!r}")
+    powers = ops.cache.setdefault("laplacian_powers", {})
+    if order not in powers:
+        M = sp.csr_matrix(ops.L)
+        for _ in range(order - 1):
+            M = sp.csr_matrix(M @ ops.L)
+        M.sort_indices()
+        powers[order] = M
+    return powers[order]
+
+
+SHIFTED_METHODS = ("cholesky", "cg")
+
+
+def shifted_solver(
+    ops: Operators, mu: float, order: int = 1, fixed: np.ndarray | None = None, method: str = "cholesky"
+) -> SPDSolver | CGSolver:
+    """The solver of :math:`(I + \\mu L^p) Y = X` on this topology (pinned rows as Dirichlet data), stored on ``ops``.
+
+    The one place the package builds this family of systems: the Sobolev filters of every
+    order and the automatic-parameter searches share its factorisations (the last
+    :data:`FACTORS_PER_FAMILY` per (order, method), least recently used first out).
+
+    Parameters
+    ----------
+    ops : Operators
+    mu : float, > 0
+    order : int, >= 1
+        The power ``p`` of ``L = D - W``.
+    fixed : ndarray of bool, shape (n,), optional
+        Vertices held at their input value.
+    method : {"cholesky", "cg"}
+        A sparse Cholesky factorisation (:class:`SPDSolver`), or Jacobi-preconditioned
+        block conjugate gradients with no factorisation (:class:`CGSolver`).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from meshdenoise.operators import Operators
+    >>> ops = Operators(np.array([[0, 1, 2], [0, 2, 3]]), 4)
+    >>> X = np.eye(4)[:, :3]
+    >>> A = np.eye(4) + 0.5 * ops.L.toarray() @ ops.L.toarray()
+    >>> bool(np.allclose(A @ shifted_solver(ops, 0.5, order=2).solve(X), X))
+    True
+    """
+    if not (isinstance(mu, (int, float, np.integer, np.floating)) and mu > 0 and np.isfinite(mu)):
+        raise ValueError(f"shifted_solver: mu must be a finite number > 0, got {mu!r}")
+    if method not in SHIFTED_METHODS:
+        raise ValueError(f"shifted_solver: method must be one of {SHIFTED_METHODS}, got {method!r}")
+    mu = float(mu)
+    cls = SPDSolver if method == "cholesky" else CGSolver
+    return cached_solver(
+        ops, f"shifted-p{order}-{method}", mu, fixed,
+        lambda: cls(sp.identity(ops.n, format="csr") + mu * laplacian_power(ops, order), fixed),
+    )

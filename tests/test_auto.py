@@ -9,21 +9,10 @@ import pytest
 import scipy.sparse as sp
 
 from meshdenoise import add_normal_noise, snr
-from meshdenoise.auto import (
-    AUTO_METHODS,
-    _averaging_step,
-    _iterative_path,
-    _solve_point,
-    choose_parameters,
-    denoise,
-    TAUBIN_LAMBDAS,
-    _gauss_winsor_moments,
-    estimate_noise,
-    gcv,
-    probe_block,
-    sure,
-    taubin_mu_for,
-)
+from meshdenoise.auto import auto_filters, choose_parameters, denoise, estimate_noise, gcv, probe_block, sure
+from meshdenoise.plugins.taubin import TAUBIN_LAMBDAS, taubin_mu_for
+from meshdenoise.tuning.noise_level import _gauss_winsor_moments
+from meshdenoise.tuning.search import averaging_step, iterative_path, solve_point
 from meshdenoise.geometry import vertex_normals
 from meshdenoise.operators import get_operators
 from meshdenoise.registry import apply_filter
@@ -129,7 +118,7 @@ def test_path_traces_and_residuals_match_dense_matrices():
     P, L = _dense_P(F, n)
     ops = get_operators(F, n)
     lam = 0.5
-    path = _iterative_path(Vn, ops, _averaging_step(ops.P, lam), exact=True)
+    path = iterative_path(Vn, ops, averaging_step(ops.P, lam), exact=True)
     H = np.eye(n)
     for k in range(6):
         p = next(path)
@@ -138,7 +127,7 @@ def test_path_traces_and_residuals_match_dense_matrices():
         assert p.residual_sq == pytest.approx(np.sum((H @ Vn - Vn) ** 2), rel=1e-12)
         H = H + lam * (P @ H - H)
     Z, s = probe_block(n, exact=True)
-    p = _solve_point(Vn, ops.L, 0.7, Z, s)
+    p = solve_point(Vn, ops, 1, 0.7, Z, s)
     Hs = np.linalg.inv(np.eye(n) + 0.7 * L)
     assert p.trace == pytest.approx(np.trace(Hs), rel=1e-10)
     assert np.allclose(p.X, Hs @ Vn, atol=1e-12)
@@ -283,7 +272,7 @@ def dense_case(request):
     return _Dense(V, F, Vn)
 
 
-@pytest.mark.parametrize("method", sorted(set(AUTO_METHODS) - {"two_stage"}))  # two_stage: on a box, below
+@pytest.mark.parametrize("method", sorted(set(auto_filters()) - {"two_stage"}))  # two_stage: on a box, below
 def test_auto_parameters_within_half_a_db_of_the_oracle(method, dense_case):
     d = dense_case
     # Hutchinson traces, as on large meshes (sobolev_gls: 8 probes; with its normals' Jacobian in the
@@ -422,7 +411,9 @@ def test_sobolev_axes_share_correction_reads_the_true_axis_noise_energy():
     sum_j b_j (N_j . e_d)^2 / sum_j b_j, b_j = sum_i B_ij^2. Torus (288 vertices) at 3 edge
     lengths, 8 seeds: measured mean worst-axis |log ratio| 0.18 (normals) vs 0.10 (corrected).
     """
-    from meshdenoise.auto import _axis_share_correction, _best_mu, _best_on_path, _mean_edge_length
+    from meshdenoise.plugins.sobolev_axes import _axis_share_correction
+    from meshdenoise.tuning.noise_level import mean_edge_length
+    from meshdenoise.tuning.search import best_on_path, best_shifted
     from meshdenoise.plugins.sobolev_axes import normal_frame
 
     V, F = torus(24, 12)
@@ -431,14 +422,14 @@ def test_sobolev_axes_share_correction_reads_the_true_axis_noise_energy():
     P, L = _dense_P(F, n)
     B = (np.eye(n) - P) @ (np.eye(n) - P)
     b = (B**2).sum(axis=0)
-    rho = 3.0 * _mean_edge_length(V, ops)
+    rho = 3.0 * mean_edge_length(V, ops)
     N0 = vertex_normals(V, F)
     err_normals, err_corrected = [], []
     for seed in range(8):
         Vn, _ = add_normal_noise((V, F), rho, seed=seed)
         E, _ = normal_frame(Vn, F, ops, 3)
-        smooth = _best_on_path(_iterative_path(Vn, ops, _averaging_step(ops.P, 1.0)), n, rho, "sure").X
-        Xs = _best_mu(Vn, sp.csr_matrix(L @ L), rho, "sure", None, center=1.0).X
+        smooth = best_on_path(iterative_path(Vn, ops, averaging_step(ops.P, 1.0)), n, rho, "sure").X
+        Xs = best_shifted(Vn, ops, 2, rho, "sure", None, center=1.0).X
         c = (vertex_normals(Xs, F) @ E) ** 2
         a = _axis_share_correction(Vn, ops, E, c, rho, smooth)
         truth = b @ (N0 @ E) ** 2
@@ -478,7 +469,7 @@ def test_sobolev_normal_monte_carlo_divergence_matches_the_per_vertex_brute_forc
     divergence exceeds tr(H) by a third (the normals of Y are not the noise's, and they
     respond to it), which the rule must count and a fixed-normal trace would miss.
     """
-    from meshdenoise.auto import _projected_divergence
+    from meshdenoise.plugins.sobolev_normal import _projected_divergence
 
     V, F = nefertiti
     n = len(V)
@@ -508,22 +499,23 @@ def test_sobolev_normal_monte_carlo_divergence_matches_the_per_vertex_brute_forc
 
 def test_sobolev_normal_scores_by_gcv_over_the_normal_coordinates():
     """Tangential share 0: the rule's score is n ||f(X) - X||^2 / (n - div)^2, f(X) from a dense solve and the test's own projection."""
-    from meshdenoise.auto import _choose_sobolev_normal, _Context
+    from meshdenoise.plugins.sobolev_normal import choose_sobolev_normal
+    from meshdenoise.tuning import TuningContext
 
     V, F = icosphere(3)
     n, rho = len(V), 0.01
     Vn, _ = add_normal_noise((V, F), rho, seed=5)
     _, L = _dense_P(F, n)
-    ctx = _Context(Vn, F, get_operators(F, n), rho, "sure", None, {"order": 2, "tangential": 0.0})
-    chosen, point = _choose_sobolev_normal(ctx)
+    ctx = TuningContext(Vn, F, get_operators(F, n), rho, "sure", None, {"order": 2, "tangential": 0.0})
+    chosen, point = choose_sobolev_normal(ctx)
     Y = np.linalg.solve(np.eye(n) + chosen["mu"] * L @ L, Vn)
     X = _project_dense(Vn, Y, _normals_dense(Y, F), 0.0)
     assert np.allclose(point.X, X, atol=1e-9)
     assert 0 < point.trace < n
     assert point.score == pytest.approx(n * np.sum((X - Vn) ** 2) / (n - point.trace) ** 2, rel=1e-9)
     # a tangential share > 0 moves vertices along the surface too: Monte-Carlo SURE, with rho
-    ctx = _Context(Vn, F, get_operators(F, n), rho, "sure", None, {"order": 2, "tangential": 0.5})
-    chosen, point = _choose_sobolev_normal(ctx)
+    ctx = TuningContext(Vn, F, get_operators(F, n), rho, "sure", None, {"order": 2, "tangential": 0.5})
+    chosen, point = choose_sobolev_normal(ctx)
     Y = np.linalg.solve(np.eye(n) + chosen["mu"] * L @ L, Vn)
     X = _project_dense(Vn, Y, _normals_dense(Y, F), 0.5)
     assert np.allclose(point.X, X, atol=1e-9)

@@ -113,7 +113,10 @@ def test_bad_constraint_specs():
 
 
 def test_sobolev_factor_cache_keys_on_the_mask():
-    from meshdenoise.plugins.sobolev import sobolev_solver
+    from meshdenoise.solvers import shifted_solver
+
+    def sobolev_solver(ops, mu, fixed):
+        return shifted_solver(ops, mu, 1, fixed)
 
     V, Vn, F = noisy_sphere(subdivisions=2)
     ops = get_operators(F, len(V))

@@ -109,14 +109,16 @@ def test_sobolev_on_elephant_matches_spsolve(elephant):
 
 def test_sobolev_factorisation_is_cached_and_reused(monkeypatch):
     V, Vn, F = noisy_sphere(subdivisions=3)
+    from meshdenoise import solvers
+
     built = []
-    original = sobolev_module.SobolevSolver.__init__
+    original = solvers.SPDSolver.__init__
 
     def counting_init(self, *args, **kwargs):
         built.append(1)
         original(self, *args, **kwargs)
 
-    monkeypatch.setattr(sobolev_module.SobolevSolver, "__init__", counting_init)
+    monkeypatch.setattr(solvers.SPDSolver, "__init__", counting_init)
     mu = 1.2345  # a value no other test uses, so the cache starts without it
     a = md.sobolev((Vn, F), mu=mu)[0]
     b = md.sobolev((V, F), mu=mu)[0]  # other coordinates, same faces: only the triangular solves
@@ -124,7 +126,7 @@ def test_sobolev_factorisation_is_cached_and_reused(monkeypatch):
     md.sobolev((V, F), mu=2 * mu)
     assert len(built) == 2
     assert not np.allclose(a, b)
-    solver = sobolev_module.sobolev_solver(get_operators(F, len(V)), mu)
+    solver = solvers.shifted_solver(get_operators(F, len(V)), mu)
     np.testing.assert_allclose(solver.solve(Vn), a, atol=1e-14)
 
 

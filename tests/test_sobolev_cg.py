@@ -122,7 +122,7 @@ def test_sobolev_cg_default_cap_is_not_reached(recwarn):
     ops = get_operators(F, len(Vn))
     solver_cap = cg_iteration_cap(ops, 50.0, 1e-10)
     sobolev((Vn, F), mu=50.0, solver="cg")
-    used = ops.cache["sobolev_cg"][(50.0, None)].iterations
+    used = ops.cache["shifted-p1-cg"][(50.0, None)].iterations
     assert 0 < used < solver_cap and not [w for w in recwarn if issubclass(w.category, UserWarning)]
 
 
@@ -139,7 +139,7 @@ def test_default_solver_is_cholesky_bit_identical():
 @pytest.mark.parametrize(
     "params,error,message",
     [
-        ({"solver": "lu"}, ValueError, "'solver' = 'lu'.*one of 'cholesky', 'cg'"),
+        ({"solver": "lu"}, ValueError, "'solver' = 'lu'.*one of 'auto', 'cholesky', 'cg'"),
         ({"solver": "cg", "tol": 0.0}, ValueError, r"'tol' = 0.0 .*0 < tol <= 0.01"),
         ({"solver": "cg", "tol": 0.5}, ValueError, r"'tol' = 0.5 .*0 < tol <= 0.01"),
         ({"solver": "cg", "tol": "small"}, TypeError, "'tol'.*float"),
@@ -167,3 +167,19 @@ def test_block_cg_rejects_non_positive_diagonal():
     A = sp.csr_matrix(np.diag([1.0, 0.0, 2.0]))
     with pytest.raises(ValueError, match="diagonal entry 1 is 0.0"):
         block_cg(A, np.ones(3))
+
+
+def test_auto_solver_takes_cg_for_a_one_off_solve_on_a_large_mesh(monkeypatch):
+    from meshdenoise.plugins import sobolev as sobolev_module
+
+    Vn, F = _noisy(icosphere(3))
+    ops = get_operators(F, len(Vn))
+    assert sobolev_module.choose_solver(ops, 1.0, None, 1e-10) == "cholesky"  # small mesh: keep a factor
+    monkeypatch.setattr(sobolev_module, "AUTO_CG_MIN_VERTICES", 10)
+    assert sobolev_module.choose_solver(ops, 1.0, None, 1e-10) == "cg"
+    assert sobolev_module.choose_solver(ops, 1e6, None, 1e-10) == "cholesky"  # sqrt(mu) iterations: too many
+    auto = sobolev((Vn, F), mu=0.913)[0]
+    assert (0.913, None) in ops.cache["shifted-p1-cg"] and (0.913, None) not in ops.cache.get("shifted-p1-cholesky", {})
+    exact = sobolev((Vn, F), mu=0.913, solver="cholesky")[0]
+    np.testing.assert_allclose(auto, exact, rtol=0, atol=1e-8 * np.abs(exact).max())
+    assert sobolev_module.choose_solver(ops, 0.913, None, 1e-10) == "cholesky"  # the factor is stored now: reuse it

@@ -6,14 +6,10 @@ import numpy as np
 import pytest
 
 from meshdenoise import add_normal_noise, snr
-from meshdenoise.auto import (
-    SOBOLEV_GLS_BETAS,
-    SOBOLEV_GLS_SPREAD_SAMPLES,
-    _choose_sobolev_gls,
-    _Context,
-    _normal_spread,
-    choose_parameters,
-)
+from meshdenoise.auto import choose_parameters
+from meshdenoise.plugins.sobolev_gls import SOBOLEV_GLS_BETAS, SOBOLEV_GLS_SPREAD_SAMPLES, choose_sobolev_gls
+from meshdenoise.tuning import TuningContext
+from meshdenoise.tuning.noise_level import normal_spread
 from meshdenoise.geometry import vertex_normals
 from meshdenoise.operators import get_operators
 from meshdenoise.plugins.sobolev_gls import coherent_normals
@@ -142,8 +138,8 @@ def test_sobolev_gls_risk_equals_the_dense_estimate_with_the_normals_jacobian(rh
         resid = np.sum((fx - x) ** 2)
         tr = np.trace(S @ J)
         expected = n * resid / (n - tr / rho**2) ** 2 if gcv_regime else resid - np.trace(S) + 2 * tr
-        ctx = _Context(Vn, F, ops, rho, "sure", True, {"mu": mu, "beta": beta})
-        chosen, point = _choose_sobolev_gls(ctx)
+        ctx = TuningContext(Vn, F, ops, rho, "sure", True, {"mu": mu, "beta": beta})
+        chosen, point = choose_sobolev_gls(ctx)
         assert chosen == {"mu": mu, "beta": beta}
         assert point.score == pytest.approx(expected, rel=1e-6)
         if beta > 1:  # the normals' part of the Jacobian is there and matters at this precision
@@ -172,9 +168,9 @@ def test_normal_spread_of_noise_smoothed_to_a_tilted_plane_matches_the_regressio
     Q, _ = np.linalg.qr(A)
     rho = 0.02
     expected = rho**2 * (np.linalg.inv(A.T @ A)[1, 1] + np.linalg.inv(A.T @ A)[2, 2])
-    got = _normal_spread(V, F, lambda Y: Q @ (Q.T @ Y), rho, samples=4000, seed=5)
+    got = normal_spread(V, F, lambda Y: Q @ (Q.T @ Y), rho, samples=4000, seed=5)
     assert got == pytest.approx(expected, rel=0.08)  # Monte-Carlo error of 4000 draws: ~2 %
-    assert _normal_spread(V, F, lambda Y: Y, 0.0, samples=3) == 0.0  # no noise, no smoothing: no spread
+    assert normal_spread(V, F, lambda Y: Y, 0.0, samples=3) == 0.0  # no noise, no smoothing: no spread
 
 
 def test_normal_spread_counts_the_smoothing_bias_of_the_normals():
@@ -184,7 +180,7 @@ def test_normal_spread_counts_the_smoothing_bias_of_the_normals():
     n, c = len(V), 0.3
     H = np.eye(n) + c * np.outer(V[:, 0], np.ones(n)) / n
     assert np.allclose(H @ V[:, :2], V[:, :2])  # x and y stay (centred grid), z tilts
-    got = _normal_spread(V, F, lambda Y: H @ Y, 0.0, samples=2)
+    got = normal_spread(V, F, lambda Y: H @ Y, 0.0, samples=2)
     assert got == pytest.approx(c**2 / (1 + c**2), rel=1e-9)
 
 
@@ -202,7 +198,7 @@ def test_normal_spread_ignores_the_tangential_irregularity_of_the_sampling():
     drift = H @ V - V
     assert np.sum(drift[:, :2] ** 2) > 100 * np.sum(drift[:, 2] ** 2)  # the residual is tangential, and not small
     assert np.sum(drift[:, :2] ** 2) / len(V) > 1e-3 * (V[1, 0] - V[0, 0]) ** 2
-    assert _normal_spread(V, F, lambda Y: H @ Y, 0.0, samples=2) == pytest.approx(0.0, abs=1e-20)
+    assert normal_spread(V, F, lambda Y: H @ Y, 0.0, samples=2) == pytest.approx(0.0, abs=1e-20)
 
 
 def test_sobolev_gls_automatic_choice_is_close_to_the_oracle():

@@ -1,10 +1,34 @@
 """Filter families, one module each. Importing this package registers every filter.
 
-Every module in this folder is imported, so a new filter family is one new file.
+Each module registers its filters with :func:`meshdenoise.registry.register`: the array
+core, its :class:`~meshdenoise.registry.Param` list and its automatic rule
+(:class:`~meshdenoise.registry.AutoRule`). A new filter is one new module, named after
+the filter it registers, added to ``MODULES`` below (tests/test_registry_layout.py
+checks that every module of this folder is listed).
 """
 
-import importlib
-import pkgutil
+from . import (  # noqa: F401  (imported for their registrations)
+    filtering,
+    heat,
+    normal_filtering,
+    sinkhorn,
+    sobolev,
+    sobolev_axes,
+    sobolev_bilaplacian,
+    sobolev_gls,
+    sobolev_normal,
+    taubin,
+)
 
-for _module in sorted(m.name for m in pkgutil.iter_modules(__path__) if not m.name.startswith("_")):
-    importlib.import_module(f"{__name__}.{_module}")
+MODULES = (
+    "filtering",
+    "heat",
+    "normal_filtering",
+    "sinkhorn",
+    "sobolev",
+    "sobolev_axes",
+    "sobolev_bilaplacian",
+    "sobolev_gls",
+    "sobolev_normal",
+    "taubin",
+)

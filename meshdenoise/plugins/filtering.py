@@ -9,7 +9,10 @@ import scipy.sparse as sp
 
 from ..gpu import BACKENDS, Backend, get_backend
 from ..operators import Operators, gather_rows
-from ..registry import Param, register
+from ..registry import AutoRule, Param, register
+from ..tuning.context import TuningContext
+from ..tuning.risk import Point
+from ..tuning.search import averaging_step, best_on_path, iterative_path
 
 __all__ = ["filtering", "averaging_operator", "smoothing_steps", "step_matrix", "run_linear_steps", "WEIGHTS"]
 
@@ -191,8 +194,28 @@ def smoothing_steps(
         yield X
 
 
+# ----------------------------------------------------------------------------- automatic rule
+def _check_linear_weights(ctx: TuningContext, method: str) -> None:
+    w = ctx.given.get("weights", "uniform")
+    if w == "inverse_distance":
+        raise ValueError(
+            f"choose_parameters: method '{method}' with weights='inverse_distance' is not a linear smoother; "
+            "automatic parameters need weights 'uniform', 'meshlab' or 'open3d'"
+        )
+
+
+def choose_filtering(ctx: TuningContext) -> tuple[dict, Point]:
+    """``iterations`` of ``X <- X + lam (A X - X)``: SURE along one run (``H_k = (I + lam(A - I))^k``)."""
+    _check_linear_weights(ctx, "filtering")
+    lam = float(ctx.given.get("lam", 1.0))
+    A = averaging_operator(ctx.ops, ctx.given.get("weights", "uniform"), None, ctx.given.get("boundary", True))
+    p = best_on_path(iterative_path(ctx.V, ctx.ops, averaging_step(A, lam), ctx.exact), ctx.ops.n, ctx.rho, ctx.criterion)
+    return {"iterations": int(p.value)}, p
+
+
 @register(
     "filtering",
+    auto=AutoRule(("iterations",), choose_filtering),
     summary="Linear filtering: average each vertex with its neighbours, k times (X <- D^-1 W X)",
     params=[
         Param("iterations", int, 10, low=0, help="number of averaging steps k"),

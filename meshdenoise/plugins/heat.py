@@ -10,7 +10,10 @@ from scipy.special import ive
 
 from ..gpu import BACKENDS, Backend, get_backend
 from ..operators import Operators, mask_key
-from ..registry import Param, register
+from ..registry import AutoRule, Param, register
+from ..tuning.context import TuningContext
+from ..tuning.risk import Point
+from ..tuning.search import averaging_step, best_on_path, iterative_path
 from .filtering import run_linear_steps, step_matrix, use_locality_order
 
 __all__ = ["heat", "heat_steps", "stable_tau", "chebyshev_coefficients", "chebyshev_heat", "ChebyshevHeat"]
@@ -173,8 +176,27 @@ def chebyshev_heat(
     return ChebyshevHeat(P, upper, backend)(X, time, tol)
 
 
+# ----------------------------------------------------------------------------- automatic rule
+def choose_heat(ctx: TuningContext) -> tuple[dict, Point]:
+    """``time`` (and ``tau`` unless given) of explicit-Euler heat diffusion.
+
+    For each candidate ``tau`` in (0.25, 0.5, 1) the SURE curve over ``time = k tau`` is
+    read along one run; the (tau, time) of the smallest SURE wins. Smaller steps follow
+    :math:`e^{-T(I - P)}` more closely; tau = 1 is plain averaging, whose high-frequency
+    gain :math:`(1 - \\lambda)^k` alternates in sign on bipartite-like meshes.
+    """
+    taus = [float(ctx.given["tau"])] if "tau" in ctx.given else [0.25, 0.5, 1.0]
+    best, best_tau = None, None
+    for tau in taus:
+        p = best_on_path(iterative_path(ctx.V, ctx.ops, averaging_step(ctx.ops.P, tau), ctx.exact), ctx.ops.n, ctx.rho, ctx.criterion)
+        if best is None or p.score < best.score:
+            best, best_tau = p, tau
+    return {"tau": best_tau, "time": float(best.value * best_tau)}, best
+
+
 @register(
     "heat",
+    auto=AutoRule(("tau", "time"), choose_heat),
     summary="Heat diffusion to time T: Euler X <- X - tau (I - D^-1 W) X, ceil(T/tau) steps, or exp(-T (I - D^-1 W)) X by Chebyshev",
     params=[
         Param("tau", float, 0.5, low=0.0, high=2.0, low_open=True, help="Euler step (stable up to 2/lambda_max)"),

@@ -2,14 +2,80 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 from ..ot import ot_denoise
-from ..registry import Param, register
+from ..registry import AutoRule, Param, get_filter, register
+from ..tuning.context import TuningContext
+from ..tuning.memo import MEMO, digest
+from ..tuning.risk import Point, probe_block
+from ..tuning.search import search_log
 
 __all__ = ["sinkhorn"]
 
 
+# ----------------------------------------------------------------------------- automatic rule
+SINKHORN_MAX_ITERATIONS = 8
+
+
+def choose_sinkhorn(ctx: TuningContext) -> tuple[dict, Point]:
+    """``t`` and ``iterations`` of the OT filter with the uniform measure and graph Laplacian.
+
+    That configuration is linear: :math:`T = G = (I + \\tfrac{t}{s} L)^{-s}` (the
+    Sinkhorn scaling of a doubly stochastic kernel is 1), and ``k`` twiced iterations
+    give :math:`H_k = (2G - G^2)^k = (I - (I - G)^2)^k`. For each ``t`` the SURE curve over
+    ``k = 1 .. SINKHORN_MAX_ITERATIONS`` is read along one run (probes carried through the
+    same Cholesky solves); ``t`` minimises the best of it (:func:`~meshdenoise.tuning.search.search_log`, starting at
+    the ``sobolev`` guess). A given ``iterations`` is held.
+    """
+    from ..ot import MeshHeatKernel
+
+    spec = get_filter("sinkhorn")
+    full = spec.resolve(ctx.given, where="choose_parameters(method='sinkhorn')")
+    if full["laplacian"] != "graph" or full["measure"] != "uniform" or not full["debias"]:
+        raise ValueError(
+            "choose_parameters: sinkhorn is a linear smoother only with laplacian='graph', measure='uniform' and "
+            f"debias=True (got laplacian={full['laplacian']!r}, measure={full['measure']!r}, debias={full['debias']!r}); "
+            "automatic parameters need that configuration"
+        )
+    steps = full["steps"]
+    held = ctx.given.get("iterations")
+    ks = [held] if held is not None else list(range(1, SINKHORN_MAX_ITERATIONS + 1))
+    n = ctx.ops.n
+    Z, s = probe_block(n, ctx.exact)
+    best_k: dict[float, int] = {}
+
+    key = digest(ctx.F, ctx.V, Z, steps, max(ks))
+
+    def path(t: float) -> list:
+        K = MeshHeatKernel(ctx.V, ctx.F, t, laplacian="graph", mass="uniform", steps=steps)
+        Y, out = np.hstack([ctx.V, Z]), []
+        for _ in range(max(ks)):
+            GY = K.solve(Y)
+            Y = 2.0 * GY - K.solve(GY)
+            X = Y[:, :3].copy()
+            out.append((X, float(np.sum((X - ctx.V) ** 2)), s * float(np.sum(Z * Y[:, 3:]))))
+        return out
+
+    def evaluate(t: float) -> Point:
+        best = None
+        for k, (X, res, tr) in enumerate(MEMO.get(("sinkhorn", key, float(t)), lambda: path(t)), start=1):
+            if k in ks:
+                p = Point(t, res, tr, X)
+                p.score = ctx.score(p)
+                if best is None or p.score < best.score:
+                    best, best_k[t] = p, k
+        return best
+
+    if held == 0:
+        return {"t": float(spec.param("t").default)}, Point(0, 0.0, float(n), ctx.V, 0.0)
+    p = search_log(evaluate, ctx.mu_guess(1))
+    return {"t": float(p.value), "iterations": int(best_k[p.value])}, p
+
+
 @register(
     "sinkhorn",
+    auto=AutoRule(("t", "iterations"), choose_sinkhorn),
     summary="OT: move each vertex to its barycentric projection under the Sinkhorn-scaled heat-kernel plan",
     params=[
         Param("t", float, 10.0, low=0.0, low_open=True, help="diffusion time of the heat kernel (I + tL)^-1"),

@@ -3,24 +3,26 @@
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
 
-from ..operators import Operators
-from ..registry import Param, register
-from ..solvers import SPDSolver, cached_solver
+from ..registry import AutoRule, Param, register
+from ..tuning.context import TuningContext
+from ..tuning.risk import Point
+from ..tuning.search import best_shifted
+from ..solvers import shifted_solver
 
-__all__ = ["sobolev_bilaplacian", "bilaplacian_solver"]
+__all__ = ["sobolev_bilaplacian", "choose_sobolev_bilaplacian"]
 
 
-def bilaplacian_solver(ops: Operators, mu: float, fixed: np.ndarray | None = None) -> SPDSolver:
-    """The cached factorisation of ``I + mu L^2`` for this topology, ``mu`` and fixed mask."""
-    return cached_solver(
-        ops, "sobolev_bilaplacian", mu, fixed, lambda: SPDSolver(sp.identity(ops.n, format="csr") + mu * (ops.L @ ops.L), fixed)
-    )
+# ----------------------------------------------------------------------------- automatic rule
+def choose_sobolev_bilaplacian(ctx: TuningContext) -> tuple[dict, Point]:
+    """``mu`` of :math:`(I + \\mu L^2) Y = X`: SURE over log mu, starting at :math:`(k/\\bar d)^2`."""
+    p = best_shifted(ctx.V, ctx.ops, 2, ctx.rho, ctx.criterion, ctx.exact, center=ctx.mu_guess(2))
+    return {"mu": float(p.value)}, p
 
 
 @register(
     "sobolev_bilaplacian",
+    auto=AutoRule(("mu",), choose_sobolev_bilaplacian),
     summary="Higher-order Sobolev regularisation: solve (I + mu L^2) Y = X by cached sparse Cholesky",
     params=[Param("mu", float, 1.0, low=0.0, help="weight of the bending term ||L Y||^2 (0 returns the input)")],
     linear=True,
@@ -69,4 +71,4 @@ def sobolev_bilaplacian(V, F, *, ops, fixed, mu):
     """
     if mu == 0:
         return np.array(V, dtype=np.float64)
-    return bilaplacian_solver(ops, mu, fixed).solve(V)
+    return shifted_solver(ops, mu, 2, fixed).solve(V)

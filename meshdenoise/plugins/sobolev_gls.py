@@ -2,14 +2,25 @@
 
 from __future__ import annotations
 
+import logging
+import math
+
 import warnings
+from typing import Any
 
 import numpy as np
 
 from ..geometry import coherent_normals  # re-exported: the filter's normals
+from ..geometry import coherent_normals_derivative, vertex_normals
 from ..operators import Operators
-from ..registry import Param, register
-from .sobolev_axes import _solver, laplacian_power
+from ..registry import AutoRule, Param, get_filter, register
+from ..solvers import laplacian_power, shifted_solver
+from ..tuning.context import TuningContext
+from ..tuning.noise_level import mean_edge_length, normal_spread, normal_trust
+from ..tuning.risk import Point, gcv
+from ..tuning.search import best_shifted, search_log, solve_shifted
+
+log = logging.getLogger("meshdenoise.auto")
 
 __all__ = ["sobolev_gls", "normal_weighted_solve", "coherent_normals"]
 
@@ -41,7 +52,7 @@ def normal_weighted_solve(
     many = B.ndim == 3
     Bk = B if many else B[:, :, None]
     n, _, k = Bk.shape
-    S = _solver(ops, order, mu, fixed)
+    S = shifted_solver(ops, mu, order, fixed)
     M = laplacian_power(ops, order)
 
     def A(Y):  # (n, 3, k)
@@ -87,8 +98,165 @@ def normal_weighted_solve(
     return Y if many else Y[:, :, 0]
 
 
+# ----------------------------------------------------------------------------- automatic rule
+SOBOLEV_GLS_BETAS = (1.0, 2.0, 3.0, 5.0, 8.0, 12.0)  # candidate tangential weights
+SOBOLEV_GLS_PROBES = 8  # Hutchinson probes of the divergence (the same for every candidate)
+SOBOLEV_GLS_EXACT_MAX = 400  # exact traces up to this many vertices: 3n right-hand sides through CG per candidate
+SOBOLEV_GLS_SPREAD_SAMPLES = 4  # simulated noise draws of the parametric bootstrap of the normals' spread
+
+
+
+
+def _normals_divergence(
+    X0: np.ndarray, F: np.ndarray, r: np.ndarray, N: np.ndarray, beta: float, S: Any, B: np.ndarray, AiB: np.ndarray
+) -> float:
+    """The part of :math:`\\sum_k b_k^T J b_k` of ``sobolev_gls`` that comes from its normals following the input.
+
+    With :math:`A = W(N) + \\mu L^p \\otimes I_3`, :math:`W = I + (\\beta - 1) P`, :math:`P = I - N N^T`, the
+    output is :math:`X = X_0 + A^{-1} (\\beta - 1) P (V - X_0)`; differentiating through
+    :math:`N = N(X_0)`, :math:`X_0 = S V`, along :math:`b` adds
+
+    .. math:: A^{-1} g(b), \\qquad g(b) = -(\\beta - 1)\\, \\big[\\dot N (N \\cdot r) + N (\\dot N \\cdot r)\\big],
+              \\quad \\dot N = N'(X_0)[S b], \\quad r = V - X
+
+    to the fixed-normal Jacobian, so :math:`b^T A^{-1} g(b) = (A^{-1} b)^T g(b)` (``A`` symmetric; ``AiB`` holds
+    :math:`A^{-1} b_k`, solved with the rest). ``B``, ``AiB`` (n, 3, k); returns the sum over ``k``.
+    """
+    n, _, k = B.shape
+    dN = coherent_normals_derivative(X0, F, S.solve(B.reshape(n, -1)).reshape(n, 3, k))
+    g = dN * np.sum(N * r, axis=1)[:, None, None] + N[:, :, None] * np.sum(dN * r[:, :, None], axis=1, keepdims=True)
+    return -(beta - 1.0) * float(np.sum(AiB * g))
+
+
+def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
+    """``mu`` and ``beta`` of ``sobolev_gls``: SURE (GCV at low noise) with the filter's full divergence.
+
+    The filter is :math:`f(X) = X_0 + A^{-1} (\\beta - 1) P (X - X_0)`, :math:`X_0 = (I + \\mu L^p)^{-1} X`,
+    :math:`A = W + \\mu L^p \\otimes I_3`, with :math:`W = I + (\\beta - 1) P` and :math:`P = I - \\hat N \\hat N^T`
+    built from the normals :math:`\\hat N` of :math:`X_0`. For fixed normals it is the linear map
+    :math:`H = A^{-1} W`; its Jacobian :math:`J` adds the normals following the input
+    (:func:`_normals_divergence`, through the analytic derivative of
+    :func:`~meshdenoise.geometry.coherent_normals`). With the normals held fixed the divergence is
+    under-counted where they follow the noise, and SURE picked ``mu`` too small (Nefertiti at
+    rho = 1, 3 edge lengths of noise: auto loss 0.63 dB over 5 seeds, 0.35 with :math:`J`).
+    The model's noise covariance is :math:`\\rho^2 N_i N_i^T` with
+    :math:`N_i` the *clean* mesh's vertex normals, unknown; they are modelled as spread
+    around the normals :math:`\\bar N_i` of the SURE-best bi-Laplacian estimate
+    :math:`X_s = H_s X` (as in :func:`_choose_sobolev_axes`) with mean :math:`\\sin^2` angle :math:`\\tau`:
+
+    .. math:: \\hat\\Sigma_i = \\rho^2 \\big[(1 - \\tau) \\bar N_i \\bar N_i^T
+              + \\tfrac{\\tau}{2} (I - \\bar N_i \\bar N_i^T)\\big],
+
+    :math:`\\tau` by a parametric bootstrap (:func:`~meshdenoise.tuning.noise_level.normal_spread`): noise of the model drawn on
+    :math:`X_s`, smoothed by :math:`H_s`, and the spread of the resulting normals around
+    :math:`\\bar N` (``SOBOLEV_GLS_SPREAD_SAMPLES`` draws; it follows the clean normals' spread
+    around :math:`\\bar N`, measured: Fandisk0.3 0.020 vs 0.021, Block0.4 0.022 vs 0.025, Nefertiti
+    rho = 0.2 0.080 vs 0.080, elephant rho = 0.2 0.121 vs 0.126). Without :math:`\\tau` the
+    tangential noise that a large ``beta`` keeps is not counted and SURE picks ``beta`` too large
+    (elephant at rho = 0.2: 26.9 dB instead of 28.3). It was first read from the tangential
+    residual :math:`X - X_s`, which also holds the shape's own tangential residual (the drift of
+    irregular sampling): 0.113 on Fandisk0.3 where the clean normals' spread is 0.021, so ``beta``
+    came out too small on low-noise meshes (Bunny0.2: beta 5, 52.23 dB against 53.02 for the
+    oracle's beta = 12).
+    Then
+
+    .. math:: \\mathrm{SURE}(\\mu, \\beta) = \\|HX - X\\|_F^2 - \\mathrm{tr}\\,\\hat\\Sigma
+              + 2\\, \\mathrm{tr}(\\hat\\Sigma H), \\qquad
+              \\mathrm{tr}(\\hat\\Sigma J) \\approx \\frac1m \\sum_k b_k^T J b_k, \\quad b_{k,i} = \\hat\\Sigma_i^{1/2} z_{k,i},
+
+    (:math:`\\|HX - X\\|` standing for :math:`\\|f(X) - X\\|`), Hutchinson's estimator with Rademacher
+    :math:`z_{k,i} \\in \\{\\pm 1\\}^3` (``SOBOLEV_GLS_PROBES`` of them; exact, one probe per coordinate,
+    up to ``SOBOLEV_GLS_EXACT_MAX`` vertices: 3n right-hand sides per candidate). :math:`A^{-1} b_k`
+    is solved with the coordinates in one block conjugate-gradient run and serves both parts:
+    :math:`b^T A^{-1} W b = (A^{-1} b)^T W b`. Below half an edge length of noise
+    (:func:`_tangential_share` 0) the update is along the normals and the score is GCV over the
+    normal coordinates, as for ``sobolev_normal``:
+
+    .. math:: \\mathrm{GCV} = \\frac{d\\, \\|f(X) - X\\|_F^2}{(d - \\mathrm{tr}(\\hat\\Sigma J) / \\rho^2)^2},
+              \\qquad d = \\mathrm{tr}\\, \\hat\\Sigma / \\rho^2 = n,
+
+    :math:`d` taken by the same probes as the trace, so that their errors cancel as :math:`J \\to I`
+    (with :math:`n` itself, 8 probes drove the search to ``mu`` = 0 on a 642-vertex sphere). GCV
+    needs no noise level, which :func:`estimate_noise` over-reads on small meshes at low noise
+    (Nefertiti rho = 0.015: auto loss 0.75 dB with SURE, 0.23 with GCV, 5 seeds).
+    Search: ``mu`` by :func:`~meshdenoise.tuning.search.search_log` at ``beta = 3``, then ``beta`` over
+    ``SOBOLEV_GLS_BETAS`` at that ``mu``, then ``mu`` again at the best ``beta``.
+    """
+    spec = get_filter("sobolev_gls")
+    full = spec.resolve(ctx.given, where="choose_parameters(method='sobolev_gls')")
+    if ctx.criterion.name == "gcv":
+        raise ValueError("choose_parameters: sobolev_gls is not a linear smoother; use criterion 'sure' or 'oracle'")
+    n, order = ctx.ops.n, full["order"]
+    if ctx.rho == 0 and ctx.reference is None:
+        return {"mu": 0.0, "beta": float(full["beta"])}, Point(0, 0.0, float(n), ctx.V, 0.0)
+    exact = ctx.exact if ctx.exact is not None else n <= SOBOLEV_GLS_EXACT_MAX
+    if ctx.reference is None:
+        # noise directions: normals Nn of the SURE-best bi-Laplacian estimate Xs; the true ones (the clean mesh's
+        # vertex normals) spread around them by tau = E sin^2(angle), by a parametric bootstrap (_normal_spread)
+        best_s = best_shifted(ctx.V, ctx.ops, 2, ctx.rho, "sure", ctx.exact, center=ctx.mu_guess(2))
+        Xs, mu_s = best_s.X, best_s.value
+        Nn = vertex_normals(Xs, ctx.F)
+        tau = normal_spread(Xs, ctx.F, lambda Y: solve_shifted(ctx.ops, 2, mu_s, Y), ctx.rho, SOBOLEV_GLS_SPREAD_SAMPLES)
+        if exact:
+            z = np.eye(3 * n).reshape(n, 3, 3 * n)
+            s = 1.0
+        else:
+            z = np.random.default_rng(0).choice([-1.0, 1.0], size=(n, 3, SOBOLEV_GLS_PROBES))
+            s = 1.0 / SOBOLEV_GLS_PROBES
+        zn = np.sum(Nn[:, :, None] * z, axis=1, keepdims=True) * Nn[:, :, None]
+        B = math.sqrt(1.0 - tau) * zn + math.sqrt(tau / 2.0) * (z - zn)  # probes b = Sigma^{1/2} z / rho
+        noise_sq = ctx.rho**2 * float(np.sum(B * B)) * s
+        # below half an edge length of noise the normals hardly move and GCV (no rho) scores the n normal
+        # coordinates, as for sobolev_normal; rho is over-read there on small meshes (Nefertiti 0.015)
+        use_gcv = normal_trust(ctx.rho, mean_edge_length(Xs, ctx.ops)) == 0.0
+        # GCV's n - tr(H) is tr(Sigma (I - J)) / rho^2; n taken by the same probes as tr, so that their errors
+        # cancel as J -> I (with n itself, 8 probes' error drove the search to mu -> 0 on a 642-vertex sphere)
+        noise_dof = noise_sq / ctx.rho**2
+        log.info("sobolev_gls: tangential share of the noise tau = %.4g", tau)
+    evaluated: dict[tuple, Point] = {}
+
+    def evaluate(mu: float, beta: float) -> Point:
+        key = (round(math.log10(mu), 9), float(beta))
+        if key not in evaluated:
+            S = shifted_solver(ctx.ops, mu, order)
+            X0 = S.solve(ctx.V)
+            N = coherent_normals(X0, ctx.F)
+            if ctx.reference is not None:
+                X = X0 if beta == 1.0 else X0 + normal_weighted_solve(ctx.ops, N, beta, mu, order, _correction_rhs(N, beta, ctx.V, X0))
+                p = Point(mu, float(np.sum((X - ctx.V) ** 2)), 0.0, X)
+                p.score = float(np.sum((X - ctx.reference) ** 2))
+            else:
+                if beta == 1.0:
+                    X = X0
+                    HB = S.solve(B.reshape(n, -1)).reshape(B.shape)
+                    tr = s * float(np.sum(B * HB))
+                else:
+                    # A^-1 b only: b^T A^-1 W b = (A^-1 b)^T W b (A symmetric), and the normals' part needs A^-1 b too
+                    rhs = np.concatenate([_correction_rhs(N, beta, ctx.V, X0)[:, :, None], B], axis=2)
+                    out = normal_weighted_solve(ctx.ops, N, beta, mu, order, rhs)
+                    X, AiB = X0 + out[:, :, 0], out[:, :, 1:]
+                    fixed_normals = float(np.sum(AiB * _apply_weight(N, beta, B)))
+                    tr = s * (fixed_normals + _normals_divergence(X0, ctx.F, ctx.V - X, N, beta, S, B, AiB))
+                p = Point(mu, float(np.sum((X - ctx.V) ** 2)), tr, X)
+                p.score = gcv(p.residual_sq, tr, noise_dof) if use_gcv else p.residual_sq - noise_sq + 2.0 * ctx.rho**2 * tr
+            evaluated[key] = (p, beta)
+        return evaluated[key][0]
+
+    beta = float(full["beta"]) if "beta" in ctx.given else 3.0
+    held_mu = "mu" in ctx.given
+    mu = float(full["mu"]) if held_mu else float(search_log(lambda m: evaluate(m, beta), ctx.mu_guess(order), golden_steps=6).value)
+    if "beta" not in ctx.given:
+        beta = min(SOBOLEV_GLS_BETAS, key=lambda b: evaluate(mu, b).score)
+        if not held_mu:
+            mu = float(search_log(lambda m: evaluate(m, beta), mu, golden_steps=6).value)
+    best = evaluate(mu, beta)
+    return {"mu": float(mu), "beta": float(beta)}, best
+
+
 @register(
     "sobolev_gls",
+    scale_free=True,
+    auto=AutoRule(("mu", "beta"), choose_sobolev_gls),
     summary="Polyharmonic Sobolev with the data term weighted beta times more across the estimated normals",
     params=[
         Param("mu", float, 1000.0, low=0.0, help="weight of the penalty ||L^{p/2} Y||^2 (0 returns the input)"),
@@ -161,7 +329,7 @@ def sobolev_gls(V, F, *, ops, fixed, mu, beta, order):
     X = np.array(V, dtype=np.float64)
     if F.shape[0] == 0 or mu == 0:
         return X
-    X0 = _solver(ops, order, mu, fixed).solve(X)
+    X0 = shifted_solver(ops, mu, order, fixed).solve(X)
     if beta == 1.0:
         return X0
     N = coherent_normals(X0, F)

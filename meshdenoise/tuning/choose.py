@@ -1,0 +1,174 @@
+"""Choosing a filter's parameters from the noisy mesh alone, and denoising with them.
+
+:func:`choose_parameters` finds the filter in the registry, builds a
+:class:`~meshdenoise.tuning.context.TuningContext` (noise level from
+:func:`~meshdenoise.tuning.noise_level.estimate_noise` unless given) and calls the rule the
+filter registered (``register(..., auto=AutoRule(...))``); nothing here knows a filter.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from typing import Any
+
+import numpy as np
+
+from ..adapters import read_mesh
+from ..operators import get_operators
+from ..registry import COMMON_OPTIONS, apply_filter, get_filter, list_filters
+from .context import TuningContext
+from .noise_level import estimate_noise
+from .risk import Criterion
+
+__all__ = ["choose_parameters", "denoise", "auto_filters"]
+
+log = logging.getLogger("meshdenoise.auto")
+
+
+def auto_filters() -> list[str]:
+    """Names of the registered filters that have an automatic rule, sorted.
+
+    Examples
+    --------
+    >>> {"filtering", "sobolev", "two_stage"} <= set(auto_filters())
+    True
+    """
+    return [spec.name for spec in list_filters() if spec.auto is not None]
+
+
+def choose_parameters(
+    mesh: Any,
+    method: str = "sobolev",
+    *,
+    noise: float | None = None,
+    criterion: str = "sure",
+    exact_trace: bool | None = None,
+    reference: Any = None,
+    **given: Any,
+) -> dict:
+    """Choose a filter's parameters from the noisy mesh alone.
+
+    Linear filters (``filtering``: iterations; ``heat``: time and tau; ``sobolev``,
+    ``sobolev_bilaplacian``: mu; ``taubin``: iterations; ``sinkhorn`` in its linear
+    configuration: t and iterations) minimise SURE (module docstring) with the noise level
+    from :func:`estimate_noise`, or GCV with ``criterion="gcv"``; traces by Hutchinson
+    probes carried along the run (exact below ``EXACT_TRACE_MAX`` vertices).
+    ``sobolev_axes`` minimises one SURE per principal axis of the normals (mu1, mu2, mu3);
+    ``sobolev_gls`` minimises SURE over mu and beta for its normals held fixed;
+    ``two_stage`` (nonlinear) minimises Monte-Carlo SURE over its outer iterations.
+
+    Parameters
+    ----------
+    mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
+    method : str
+        A registered filter with an automatic rule (:func:`auto_filters`).
+    noise : float, optional
+        The noise level rho if known; estimated otherwise.
+    criterion : {"sure", "gcv", "oracle"}
+        ``"oracle"`` needs ``reference`` (the clean mesh) and minimises the true error
+        over the same search space: the best parameters in hindsight, for benchmarks.
+    exact_trace : bool, optional
+        Force exact traces (identity probes) or Hutchinson ones.
+    reference : mesh or (n, 3) array, optional
+        The clean mesh, only for ``criterion="oracle"``.
+    **given
+        Parameters held fixed (e.g. ``weights="meshlab"`` for filtering, ``tau`` for heat);
+        the method's tuned parameters that are not given are chosen.
+
+    Returns
+    -------
+    dict
+        The filter's parameters, ready for ``apply_filter(method, mesh, **params)``
+        (given ones included).
+
+    Examples
+    --------
+    >>> from meshdenoise.shapes import icosphere
+    >>> from meshdenoise import add_normal_noise
+    >>> V, F = icosphere(3)
+    >>> Vn, _ = add_normal_noise((V, F), rho=0.02, seed=0)
+    >>> sorted(choose_parameters((Vn, F), method="sobolev"))
+    ['mu']
+    """
+    if not isinstance(method, str):
+        raise TypeError(f"choose_parameters: method must be a filter name (str), got {method!r}")
+    spec = get_filter(method)  # KeyError with suggestions for an unknown name
+    if spec.auto is None:
+        raise ValueError(
+            f"choose_parameters: no automatic rule for filter '{method}'; "
+            f"automatic parameters exist for: {', '.join(auto_filters())}"
+        )
+    if criterion not in ("sure", "gcv", "oracle"):
+        raise ValueError(f"choose_parameters: criterion must be 'sure', 'gcv' or 'oracle', got {criterion!r}")
+    if (criterion == "oracle") != (reference is not None):
+        raise ValueError("choose_parameters: reference= (the clean mesh) goes with criterion='oracle', and only with it")
+    spec.resolve(given, where=f"choose_parameters(method='{method}')")  # names/types/ranges of held values
+    data = read_mesh(mesh)
+    V, F = data.V, data.F
+    ops = get_operators(F, V.shape[0])
+    if noise is None:
+        rho = estimate_noise((V, F)) if criterion != "gcv" else None
+    else:
+        if isinstance(noise, (bool, np.bool_)) or not isinstance(noise, (int, float, np.integer, np.floating)):
+            raise TypeError(f"choose_parameters: noise must be a number, got {noise!r}")
+        if not (math.isfinite(noise) and noise >= 0):
+            raise ValueError(f"choose_parameters: parameter 'noise' = {noise!r} is out of range: noise >= 0")
+        rho = float(noise)
+    Y = None
+    if criterion == "oracle":
+        from ..metrics import coordinates
+
+        Y = coordinates(reference)
+        if Y.shape != V.shape:
+            raise ValueError(f"choose_parameters: reference has {Y.shape[0]} vertices, the mesh {V.shape[0]}")
+    ctx = TuningContext(V, F, ops, rho, Criterion(criterion, Y), exact_trace, dict(given))
+    chosen, point = spec.auto.choose(ctx)
+    params = {**chosen, **given}
+    log.info("choose_parameters(%s): %s (rho=%s, %s score %.6g)", method, params, rho, criterion, point.score)
+    return params
+
+
+def denoise(
+    mesh: Any, method: str = "sobolev", *, noise: float | None = None, return_params: bool = False, **params: Any
+) -> Any:
+    """Denoise with ``method``; parameters not given are chosen by :func:`choose_parameters`.
+
+    Parameters
+    ----------
+    mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
+    method : str
+        A registered filter.
+    noise : float, optional
+        The noise level if known (else :func:`estimate_noise`), used only when choosing.
+    return_params : bool
+        Also return the parameters used (given and chosen).
+    **params
+        Filter parameters (held fixed) and the common options (``pinned``, ``region``,
+        ``preserve_volume``, ``operators``). With none of the filter's own parameters
+        given, all of them are chosen automatically; the chosen values are logged
+        (logger ``meshdenoise.auto``) and returned with ``return_params=True``.
+
+    Returns
+    -------
+    Same type as ``mesh`` (a MeshSet is changed in place), or ``(mesh, params)``.
+
+    Examples
+    --------
+    >>> from meshdenoise.shapes import icosphere
+    >>> from meshdenoise import add_normal_noise, snr
+    >>> V, F = icosphere(3)
+    >>> Vn, _ = add_normal_noise((V, F), rho=0.02, seed=0)
+    >>> (Vd, Fd), used = denoise((Vn, F), method="sobolev", return_params=True)
+    >>> bool(snr(V, Vd) > snr(V, Vn))
+    True
+    """
+    spec = get_filter(method)
+    options = {k: params.pop(k) for k in list(params) if k in COMMON_OPTIONS}
+    if spec.auto is not None and set(spec.auto.tunes) - set(params):
+        chosen = choose_parameters(mesh, method, noise=noise, **params)
+        log.info("denoise(%s): automatic parameters %s", method, chosen)
+    else:
+        chosen = dict(params)
+    out = apply_filter(method, mesh, **chosen, **options)
+    return (out, chosen) if return_params else out
