@@ -372,7 +372,8 @@ def spmm(
     accumulate : bool
         Add ``A X`` to ``out`` instead of overwriting it.
     threads : int, optional
-        Default :func:`spmm_threads` for products with at least 2^20 non-zeros, else 1.
+        Default :func:`spmm_threads` for products of at least 3 x 2^20 non-zeros x columns
+        (a 3-column product of 2^20 non-zeros; wide blocks of trace probes thread sooner), else 1.
 
     Returns
     -------
@@ -413,7 +414,7 @@ def spmm(
     if not accumulate:
         Y.fill(0.0)  # the kernel adds into its output
     if threads is None:
-        threads = spmm_threads() if A.nnz >= _THREADED_NNZ else 1
+        threads = spmm_threads() if A.nnz * k >= 3 * _THREADED_NNZ else 1  # work, not only non-zeros
     threads = max(1, min(int(threads), n))
     if threads == 1:
         _csr_matvecs(n, A.shape[1], k, A.indptr, A.indices, A.data, X2.ravel(), Y.ravel())

@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..geometry import vertex_normals
 from ..operators import Operators
@@ -13,7 +12,7 @@ from ..registry import AutoRule, Param, get_filter, register
 from ..solvers import shifted_solver
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
-from ..tuning.noise_level import mean_edge_length, normal_trust
+from ..tuning.noise_level import fourth_difference, mean_edge_length, normal_trust
 from ..tuning.risk import Point, probe_block
 from ..tuning.search import best_shifted, solve_shifted
 
@@ -71,8 +70,7 @@ def _axis_share_correction(V: np.ndarray, ops: Operators, E: np.ndarray, c: np.n
     w = normal_trust(rho, mean_edge_length(smooth, ops))
     if w == 0:
         return np.ones(3)
-    A = sp.identity(ops.n, format="csr") - ops.P
-    B = sp.csr_matrix(A @ A)
+    B = fourth_difference(ops)
     b = np.asarray(B.multiply(B).sum(axis=0)).ravel()
     T = np.sum(np.asarray(B @ (V @ E)) ** 2, axis=0)
     P = b @ c

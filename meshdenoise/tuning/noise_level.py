@@ -17,7 +17,7 @@ from ..geometry import vertex_normals
 from ..operators import Operators, get_operators
 from .search import sure_smoothed
 
-__all__ = ["estimate_noise", "mean_edge_length", "normal_trust", "normal_spread", "WINSOR_K", "MAD"]
+__all__ = ["estimate_noise", "fourth_difference", "mean_edge_length", "normal_trust", "normal_spread", "WINSOR_K", "MAD"]
 
 MAD = 0.6744897501960817  # median |N(0, 1)|
 
@@ -47,6 +47,15 @@ def _gauss_winsor_moments(k: float) -> tuple[float, float]:
     return m2, m4
 
 
+def fourth_difference(ops: Operators) -> sp.csr_matrix:
+    """:math:`B = (I - D^{-1}W)^2` of this topology (stored on ``ops``): a fourth-order difference, blind to
+    the smooth part of a surface, whose output on a noisy mesh is almost only noise."""
+    if "fourth_difference" not in ops.cache:
+        A = sp.identity(ops.n, format="csr") - ops.P
+        ops.cache["fourth_difference"] = sp.csr_matrix(A @ A)
+    return ops.cache["fourth_difference"]
+
+
 def _normal_residual_scale(V: np.ndarray, ops: Operators, N: np.ndarray) -> tuple[float, float, float]:
     """Robust estimates of rho from the normal component of :math:`B X`, :math:`B = (I - P)^2`.
 
@@ -71,8 +80,7 @@ def _normal_residual_scale(V: np.ndarray, ops: Operators, N: np.ndarray) -> tupl
       in standard errors :math:`\\sqrt{24/m}` (``m`` usable vertices).
     """
     n = ops.n
-    A = sp.identity(n, format="csr") - ops.P
-    B = sp.csr_matrix(A @ A).tocoo()
+    B = fourth_difference(ops).tocoo()
     g = np.einsum("ij,ij->i", N[B.row], N[B.col])
     c = np.sqrt(np.bincount(B.row, weights=(B.data * g) ** 2, minlength=n))
     r = np.einsum("ij,ij->i", np.asarray(B.tocsr() @ V), N)
@@ -98,8 +106,7 @@ def _residual_energy_scale(V: np.ndarray, ops: Operators) -> float:
     normals are: exact under strong noise, where no normal can be trusted. The clean
     surface adds its own (small, positive) energy, so this errs upward on weak noise.
     """
-    A = sp.identity(ops.n, format="csr") - ops.P
-    B = sp.csr_matrix(A @ A)
+    B = fourth_difference(ops)
     c2 = np.asarray(B.multiply(B).sum(axis=1)).ravel()
     ok = (c2 > 1e-24) & ~ops.isolated
     if ok.sum() < 3:
