@@ -7,6 +7,7 @@ from collections.abc import Iterator
 import numpy as np
 
 from ..plugins.filtering import smoothing_steps
+from ..tuning.search import past_minimum
 from .batch import NoisyBatch
 from .result import SearchResult
 
@@ -22,10 +23,9 @@ def snr_along_run(batch: NoisyBatch, steps: Iterator[np.ndarray], n_steps: int) 
     return out
 
 
-def run_until_past_peak(
-    batch: NoisyBatch, steps: Iterator[np.ndarray], max_steps: int, min_steps: int = 20
-) -> tuple[np.ndarray, bool]:
-    """SNR per seed along ``steps`` until the step count is twice (and 20 past) the best mean so far.
+def run_until_past_peak(batch: NoisyBatch, steps: Iterator[np.ndarray], max_steps: int) -> tuple[np.ndarray, bool]:
+    """SNR per seed along ``steps`` until past the best mean SNR (the tuning walks' rule,
+    :func:`~meshdenoise.tuning.search.past_minimum`: twice the best step count and 20 more).
 
     Returns the (k + 1, S) SNR array and whether ``max_steps`` stopped the run first.
     """
@@ -37,7 +37,7 @@ def run_until_past_peak(
         rows.append(batch.snr_stack(next(steps)))
         if rows[-1].mean() > best:
             best_k, best = k, rows[-1].mean()
-        if k >= max(2 * best_k, best_k + min_steps):
+        if past_minimum(k, best_k):
             return np.array(rows), False
     return np.array(rows), True
 
@@ -46,7 +46,7 @@ def search_filtering(batch: NoisyBatch, max_iterations: int = 5000) -> SearchRes
     """Best number of averaging steps ``X <- D^-1 W X``, reading the SNR after each step of a single run.
 
     All seeds are smoothed together (one sparse product per step on the stacked (n, 3 S)
-    coordinates). The run stops at twice the best step count so far (at least 20 past it).
+    coordinates). The run stops at twice the best step count so far plus 20 (:func:`~meshdenoise.tuning.search.past_minimum`).
 
     Examples
     --------

@@ -23,6 +23,7 @@ __all__ = [
     "averaging_step",
     "iterative_path",
     "best_on_path",
+    "past_minimum",
     "search_log",
     "solve_shifted",
     "solve_point",
@@ -61,13 +62,31 @@ def iterative_path(
         k += 1
 
 
+PAST_MINIMUM_FACTOR, PAST_MINIMUM_MARGIN = 2, 20
+
+
+def past_minimum(k: int, k_best: int) -> bool:
+    """The one stopping rule of every walk along an iterative run: ``k >= 2 k_best + 20``.
+
+    The score curves of the smoothers here are unimodal in practice (bias grows, variance
+    falls, both monotone), so a walk twice as long as the best step count, and 20 past
+    it, has passed the minimum. Used by :func:`best_on_path` and by the paper's
+    SNR-along-a-run searches (:mod:`meshdenoise.reproduce`).
+
+    Examples
+    --------
+    >>> past_minimum(20, 0), past_minimum(29, 5), past_minimum(30, 5)
+    (True, False, True)
+    """
+    return k >= PAST_MINIMUM_FACTOR * k_best + PAST_MINIMUM_MARGIN
+
+
 def best_on_path(
     path: Iterator[Point], n: int, rho: float | None, criterion: Criterion | str, max_steps: int = 20000
 ) -> Point:
     """Walk a path until its score has risen well past its minimum; return the minimum.
 
-    Stops when ``k >= 2 k_best + 20`` and the score exceeds the minimum: SURE curves of
-    the smoothers here are unimodal in practice (bias grows, variance falls, both monotone).
+    Stops when :func:`past_minimum` and the score exceeds the minimum.
     """
     criterion = as_criterion(criterion)
     best: Point | None = None
@@ -75,7 +94,7 @@ def best_on_path(
         p.score = criterion.score(p, n, rho)
         if best is None or p.score < best.score:
             best = p
-        if p.value >= 2 * best.value + 20 and p.score > best.score:
+        if past_minimum(p.value, best.value) and p.score > best.score:
             return best
         if p.value >= max_steps:
             warnings.warn(
