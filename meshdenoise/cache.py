@@ -26,7 +26,8 @@ FACTOR_BYTES_PER_NNZ = 120
 
 
 def nbytes(value: Any, _depth: int = 0) -> int:
-    """Approximate memory held by ``value``: arrays, sparse matrices, containers, objects with ``nbytes``.
+    """Approximate memory held by ``value``: arrays, sparse matrices, containers, objects with ``nbytes``
+    or with attributes (their ``vars()``, a few levels deep).
 
     Examples
     --------
@@ -48,6 +49,8 @@ def nbytes(value: Any, _depth: int = 0) -> int:
         return sum(nbytes(v, _depth + 1) for v in value.values())
     if isinstance(value, (list, tuple)):
         return sum(nbytes(v, _depth + 1) for v in value)
+    if hasattr(value, "__dict__") and not isinstance(value, type):
+        return nbytes(vars(value), _depth + 1)  # a helper object stored on a topology (face adjacency, ...)
     return 0
 
 

@@ -112,3 +112,12 @@ def test_tuning_memo_is_bounded_and_cleared():
     assert len(MEMO) > 0 and MEMO.total_bytes() <= MEMO_BYTES
     clear_caches()
     assert len(MEMO) == 0
+
+
+def test_nbytes_looks_inside_plain_objects():
+    class Holder:
+        def __init__(self):
+            self.a = np.zeros(10)
+            self.b = {"c": np.zeros(5)}
+
+    assert nbytes(Holder()) == 120
