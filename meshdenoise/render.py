@@ -30,6 +30,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,6 +45,7 @@ __all__ = [
     "Camera",
     "RenderResult",
     "frame_camera",
+    "camera_around",
     "vertex_error",
     "error_colors",
     "render_mesh",
@@ -131,6 +133,31 @@ def frame_camera(
     >>> cam.project(np.array([[0.0, 0, 0]]), (100, 100))[0, :2].tolist()
     [50.0, 50.0]
     """
+    pts = np.vstack([np.asarray(v, dtype=np.float64).reshape(-1, 3) for v in vertex_sets])
+    center = (pts.min(axis=0) + pts.max(axis=0)) / 2.0
+    radius = float(np.linalg.norm(pts - center, axis=1).max()) or 1.0
+    return camera_around(center, radius, size, view, fov, margin)
+
+
+def camera_around(
+    center: Sequence[float],
+    radius: float,
+    size: tuple[int, int] = (400, 400),
+    view: tuple[float, float] = (0.0, 0.0),
+    fov: float = 30.0,
+    margin: float = 1.08,
+) -> Camera:
+    """A camera looking at ``center`` from ``view`` so that the ball of ``radius`` around it fills the picture.
+
+    See :func:`frame_camera` (which calls this with the bounding sphere of the meshes); used
+    directly to zoom on a detail.
+
+    Examples
+    --------
+    >>> cam = camera_around((0.0, 0.0, 0.0), 1.0, size=(100, 100))
+    >>> round(cam.eye[2], 3)
+    4.173
+    """
     w, h = _check_size(size)
     if not 0 < fov < 170:
         raise ValueError(f"fov must be in (0, 170) degrees, got {fov!r}")
@@ -138,9 +165,10 @@ def frame_camera(
         raise ValueError(f"margin must be >= 1, got {margin!r}")
     if len(view) != 2:
         raise ValueError(f"view must be (azimuth, elevation) in degrees, got {view!r}")
-    pts = np.vstack([np.asarray(v, dtype=np.float64).reshape(-1, 3) for v in vertex_sets])
-    center = (pts.min(axis=0) + pts.max(axis=0)) / 2.0
-    radius = float(np.linalg.norm(pts - center, axis=1).max()) or 1.0
+    center = np.asarray(center, dtype=np.float64)
+    radius = float(radius)
+    if center.shape != (3,) or not np.isfinite(center).all() or not (np.isfinite(radius) and radius > 0):
+        raise ValueError(f"camera_around needs a finite centre (3,) and a radius > 0, got {center!r}, {radius!r}")
     half_v = np.radians(fov) / 2.0
     half_h = np.arctan(np.tan(half_v) * w / h)
     dist = radius / np.sin(min(half_v, half_h)) * margin
@@ -276,12 +304,19 @@ _CHILD = r"""
 import sys
 sys.path.insert(0, sys.argv[3])
 from meshdenoise.render import _open3d_child
-_open3d_child(sys.argv[1], sys.argv[2])
+_open3d_child(sys.argv[1], sys.argv[2], int(sys.argv[4]))
 """
 
 
-def _open3d_child(job_path: str, out_path: str) -> None:
-    """Child process: draw every panel of ``job_path`` (npz) unlit with Open3D, save the pictures."""
+def _open3d_child(job_path: str, out_dir: str, first: int = 0) -> None:
+    """Child process: draw panels ``first``, ``first + 1``, ... of ``job_path`` (npz) unlit with one Open3D renderer.
+
+    Each picture is saved as ``out_dir/frame{k}.npy`` as soon as it is drawn; the child prints
+    ``MESHDENOISE_READY`` once the renderer exists and ``MESHDENOISE_FRAME k`` after each
+    picture, so the parent can tell a renderer that never starts from a slow frame, and keep
+    the pictures drawn before a stall.
+    """
+    started = time.perf_counter()
     import open3d as o3d
     import open3d.visualization.rendering as rendering
 
@@ -290,74 +325,199 @@ def _open3d_child(job_path: str, out_path: str) -> None:
     renderer = rendering.OffscreenRenderer(w, h)
     scene = renderer.scene
     scene.set_background([*BACKGROUND, 1.0])
-    scene.view.set_post_processing(False)  # no tone mapping: pixels are the colours given
+    view = scene.view
+    view.set_post_processing(False)  # no tone mapping: pixels are the colours given
+    # nothing is lit (shading is baked into the colours): no shadow map pass, no SSAO, no MSAA.
+    # The shadow pass alone made a frame of a 164k-vertex mesh 4x slower on llvmpipe.
+    view.set_shadowing(False)
+    view.set_ambient_occlusion(False)
+    view.set_antialiasing(False)
+    scene.scene.enable_sun_light(False)
+    scene.scene.enable_indirect_light(False)
+    print(f"MESHDENOISE_READY {time.perf_counter() - started:.2f} s", flush=True)
     center, eye, up = job["center"], job["eye"], job["up"]
     fov, near, far = (float(x) for x in job["lens"])
-    images = []
+    renderer.setup_camera(fov, center, eye, up, near, far)
     material = rendering.MaterialRecord()
     material.shader = "defaultUnlit"  # the lit shader stalls for minutes on llvmpipe; shading is baked in
-    for k in range(int(job["count"])):
-        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(job[f"V{k}"]),
-                                         o3d.utility.Vector3iVector(job[f"F{k}"].astype(np.int32)))
-        mesh.vertex_colors = o3d.utility.Vector3dVector(job[f"C{k}"].astype(np.float64))
+    for k in range(first, int(job["count"])):
+        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(job[f"V{k}"].astype(np.float64)),
+                                         o3d.utility.Vector3iVector(job[f"F{int(job['faces'][k])}"]))
+        mesh.vertex_colors = o3d.utility.Vector3dVector(job[f"C{k}"].astype(np.float64) / 255.0)
         scene.clear_geometry()
         scene.add_geometry("mesh", mesh, material)
-        renderer.setup_camera(fov, center, eye, up, near, far)
-        images.append(np.asarray(renderer.render_to_image())[:, :, :3].copy())
+        image = np.asarray(renderer.render_to_image())[:, :, :3].copy()
+        np.save(os.path.join(out_dir, f"frame{k}.npy"), image)
+        print(f"MESHDENOISE_FRAME {k} {time.perf_counter() - started:.2f} s", flush=True)
+    print("MESHDENOISE_RENDERED", flush=True)
     scene.clear_geometry()  # a renderer destroyed while showing geometry aborts the process
-    np.savez(out_path, *images)
-    print("MESHDENOISE_RENDERED", len(images), flush=True)
 
 
 def _render_timeout() -> float:
-    text = os.environ.get("MESHDENOISE_RENDER_TIMEOUT", "60")
+    return _seconds("MESHDENOISE_RENDER_TIMEOUT", "60")
+
+
+def _seconds(name: str, default: str) -> float:
+    text = os.environ.get(name, default)
     try:
         value = float(text)
     except ValueError:
-        raise ValueError(f"MESHDENOISE_RENDER_TIMEOUT must be a number of seconds, got {text!r}") from None
+        raise ValueError(f"{name} must be a number of seconds, got {text!r}") from None
     if value <= 0:
-        raise ValueError(f"MESHDENOISE_RENDER_TIMEOUT must be > 0 seconds, got {text!r}")
+        raise ValueError(f"{name} must be > 0 seconds, got {text!r}")
     return value
 
 
+# Why Open3D cannot be used in this process, once known: then 'auto' goes to matplotlib at once.
+_OPEN3D_VERDICT: str | None = None
+STARTUP_SECONDS = "20"  # default MESHDENOISE_RENDER_STARTUP: import, Filament and the Vulkan device, loaded machine
+FRAME_SECONDS = 5.0  # a frame's allowance: this plus FRAME_SECONDS_PER_TRIANGLE per triangle
+FRAME_SECONDS_PER_TRIANGLE = 1e-5  # measured 2 s for 1.3M triangles at 400x400 under a load of 15 on 2 cores
+ATTEMPTS = 2  # a stalled frame is drawn again by a fresh child (stalls come at random); then matplotlib
+
+
+def _vulkan_missing() -> str | None:
+    """Why Open3D's headless renderer cannot start here (no Vulkan loader or driver), or None; no process started."""
+    import ctypes.util
+    import glob
+
+    if os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES"):
+        return None  # drivers named explicitly: let the renderer try
+    if sys.platform != "linux":
+        return None
+    if ctypes.util.find_library("vulkan") is None:
+        return "the Vulkan loader libvulkan.so.1 is not installed"
+    dirs = ["/usr/share/vulkan/icd.d", "/etc/vulkan/icd.d", "/usr/local/share/vulkan/icd.d",
+            *(os.path.join(d, "vulkan/icd.d") for d in os.environ.get("XDG_DATA_DIRS", "").split(":") if d)]
+    if not any(glob.glob(os.path.join(d, "*.json")) for d in dirs):
+        return "no Vulkan driver is installed (no ICD file in /usr/share/vulkan/icd.d)"
+    return None
+
+
+class _Stall(Exception):
+    """The child stopped reporting: the message says what it was waiting for."""
+
+
+def _run_child(job_path: Path, out_dir: Path, first: int, jobs: list[dict], startup: float, until: float) -> str:
+    """Run one child from panel ``first``; its log. ``_Stall`` when a limit passes, ``RenderError`` when it fails."""
+    import queue
+    import threading
+
+    package_parent = str(Path(__file__).resolve().parent.parent)
+    proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(job_path), str(out_dir), package_parent, str(first)],
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    lines: queue.Queue = queue.Queue()
+    log: list[str] = []
+
+    def pump() -> None:
+        for line in proc.stdout:
+            lines.put(line)
+        lines.put(None)
+
+    threading.Thread(target=pump, daemon=True).start()
+    start = time.monotonic()
+    verbose = bool(os.environ.get("MESHDENOISE_RENDER_LOG"))  # the child's log with times, on stderr
+    deadline = start + startup
+    waiting_for = f"the renderer to start ({startup:g} s allowed, MESHDENOISE_RENDER_STARTUP)"
+    line = ""
+    try:
+        while True:
+            left = min(deadline, until) - time.monotonic()
+            try:
+                line = lines.get(timeout=max(left, 0.0))
+            except queue.Empty:
+                if time.monotonic() >= until:
+                    waiting_for = f"all pictures within MESHDENOISE_RENDER_TIMEOUT, at {waiting_for}"
+                raise _Stall(f"waited for {waiting_for}") from None
+            if line is None or line.startswith("MESHDENOISE_RENDERED"):
+                break
+            log.append(line)
+            if verbose:
+                sys.stderr.write(f"[{time.monotonic() - start:6.2f} s] {line}")
+            if line.startswith(("MESHDENOISE_READY", "MESHDENOISE_FRAME")):
+                done = first if line.startswith("MESHDENOISE_READY") else int(line.split()[1]) + 1
+                if done < len(jobs):
+                    allowance = FRAME_SECONDS + FRAME_SECONDS_PER_TRIANGLE * jobs[done]["F"].shape[0]
+                    deadline = time.monotonic() + allowance
+                    waiting_for = f"frame {done + 1} of {len(jobs)} ({allowance:.0f} s allowed)"
+                else:
+                    deadline = time.monotonic() + 30.0
+                    waiting_for = "the child to finish"
+    finally:
+        if proc.poll() is None:  # stalled, or done: Filament's teardown takes seconds and is not needed
+            proc.kill()
+        proc.wait()
+    text = "".join(log)
+    if line is None and not all((out_dir / f"frame{k}.npy").is_file() for k in range(first, len(jobs))):
+        tail = " | ".join(ln.strip() for ln in text.strip().splitlines()[-3:])
+        raise RenderError(
+            f"Open3D's OffscreenRenderer failed (exit status {proc.returncode}: {tail or 'no output'}); "
+            "it needs the Debian packages libvulkan1 mesa-vulkan-drivers libegl1 libgl1 "
+            "(scripts/install-system-deps.sh)")
+    return text
+
+
 def _draw_open3d(jobs: list[dict], size, camera: Camera, timeout: float) -> tuple[list[np.ndarray], str]:
-    """Draw the panels with Open3D's OffscreenRenderer in a child process, bounded by ``timeout`` seconds.
+    """Draw the panels with one Open3D OffscreenRenderer in a child process, under time limits.
 
     A child process because on a software Vulkan driver a missing library aborts the
     process (it does not raise) and a frame can stall for minutes (seen with Open3D 0.20 on
-    Mesa 22 llvmpipe); the parent then falls back instead of hanging or dying.
+    Mesa 22 llvmpipe); the parent then falls back instead of hanging or dying. Without a
+    Vulkan loader or driver no child is started at all. The child must report its renderer
+    ready within ``MESHDENOISE_RENDER_STARTUP`` seconds (default 20), each frame within
+    :data:`FRAME_SECONDS` plus :data:`FRAME_SECONDS_PER_TRIANGLE` per triangle, and
+    everything within ``timeout``; a stalled frame is drawn again once by a fresh child,
+    keeping the pictures already drawn. Panels sharing one face array send it once;
+    coordinates go as float32 and colours as bytes.
     """
     import open3d as o3d
 
+    missing = _vulkan_missing()
+    if missing:
+        raise RenderError(f"Open3D's OffscreenRenderer cannot start: {missing} (the Debian packages libvulkan1 "
+                          "mesa-vulkan-drivers; scripts/install-system-deps.sh)")
+    startup = _seconds("MESHDENOISE_RENDER_STARTUP", STARTUP_SECONDS)
+    until = time.monotonic() + timeout
     with tempfile.TemporaryDirectory(prefix="meshdenoise-render-") as tmp:
-        job_path, out_path = Path(tmp) / "job.npz", Path(tmp) / "out.npz"
+        out_dir = Path(tmp)
+        job_path = out_dir / "job.npz"
         arrays = {"size": np.array(size), "center": np.array(camera.center), "eye": np.array(camera.eye),
                   "up": np.array(camera.up), "lens": np.array([camera.fov, camera.near, camera.far]),
                   "count": np.array(len(jobs))}
+        faces: list[np.ndarray] = []
+        which = []
         for k, job in enumerate(jobs):
-            arrays.update({f"V{k}": job["V"], f"F{k}": job["F"], f"C{k}": job["colors"]})
+            F = job["F"]
+            same = next((i for i, G in enumerate(faces) if G is F or (G.shape == F.shape and np.array_equal(G, F))),
+                        None)
+            if same is None:
+                faces.append(F)
+                same = len(faces) - 1
+                arrays[f"F{same}"] = F.astype(np.int32)
+            which.append(same)
+            arrays[f"V{k}"] = job["V"].astype(np.float32)
+            arrays[f"C{k}"] = np.round(np.clip(job["colors"], 0.0, 1.0) * 255).astype(np.uint8)
+        arrays["faces"] = np.array(which)
         np.savez(job_path, **arrays)
-        package_parent = str(Path(__file__).resolve().parent.parent)
-        try:
-            proc = subprocess.run([sys.executable, "-c", _CHILD, str(job_path), str(out_path), package_parent],
-                                  capture_output=True, text=True, timeout=timeout)
-        except subprocess.TimeoutExpired:
-            raise RenderError(
-                f"Open3D's OffscreenRenderer did not finish {len(jobs)} picture(s) of {size[0]}x{size[1]} in "
-                f"{timeout:g} s (MESHDENOISE_RENDER_TIMEOUT)") from None
-        log = proc.stdout + proc.stderr
-        if proc.returncode != 0 or not out_path.is_file():
-            tail = " | ".join(line.strip() for line in log.strip().splitlines()[-3:])
-            raise RenderError(
-                f"Open3D's OffscreenRenderer failed (exit status {proc.returncode}: {tail or 'no output'}); "
-                "it needs the Debian packages libvulkan1 mesa-vulkan-drivers libegl1 libgl1 "
-                "(scripts/install-system-deps.sh)")
-        with np.load(out_path) as out:
-            images = [out[f"arr_{k}"] for k in range(len(jobs))]
-    device = next((ln.split(":", 1)[1].strip() for ln in log.splitlines() if "device driver:" in ln), "")
-    backend = next((ln.split(":", 1)[1].strip() for ln in log.splitlines() if "resolved backend:" in ln), "")
+        stalls = []
+        text = ""
+        for _ in range(ATTEMPTS):
+            first = next((k for k in range(len(jobs)) if not (out_dir / f"frame{k}.npy").is_file()), len(jobs))
+            try:
+                text = _run_child(job_path, out_dir, first, jobs, startup, until)
+                break
+            except _Stall as exc:
+                stalls.append(str(exc))
+                if time.monotonic() >= until or "to start" in str(exc):
+                    break  # out of time, or the renderer never starts here: no second try
+        if stalls and not all((out_dir / f"frame{k}.npy").is_file() for k in range(len(jobs))):
+            raise RenderError("Open3D's OffscreenRenderer did not finish: " + "; then ".join(stalls))
+        images = [np.load(out_dir / f"frame{k}.npy") for k in range(len(jobs))]
+    device = next((ln.split(":", 1)[1].strip() for ln in text.splitlines() if "device driver:" in ln), "")
+    backend = next((ln.split(":", 1)[1].strip() for ln in text.splitlines() if "resolved backend:" in ln), "")
     extra = ", ".join(x for x in (f"Filament {backend}" if backend else "", device) if x)
-    return images, f"Open3D {o3d.__version__} OffscreenRenderer" + (f" ({extra})" if extra else "")
+    retried = f", {len(stalls)} stalled frame(s) drawn again" if stalls else ""
+    return images, f"Open3D {o3d.__version__} OffscreenRenderer" + (f" ({extra}{retried})" if extra or retried else "")
 
 
 def _draw_matplotlib(job: dict, size, camera: Camera) -> np.ndarray:
@@ -398,12 +558,17 @@ def _draw(jobs: list[dict], size, camera: Camera, backend: str) -> tuple[list[np
         if env not in BACKENDS:
             raise ValueError(f"MESHDENOISE_RENDER_BACKEND must be one of {BACKENDS}, got {env!r}")
         backend = env
+    global _OPEN3D_VERDICT
     reason = "requested"
-    if backend in ("auto", "open3d"):
+    if backend == "auto" and _OPEN3D_VERDICT is not None:  # failed before in this process: do not wait again
+        reason = f"Open3D failed earlier in this process: {_OPEN3D_VERDICT}"
+        warnings.warn(f"{reason}; drawing with the matplotlib software rasteriser instead", UserWarning, stacklevel=3)
+    elif backend in ("auto", "open3d"):
         try:
             images, detail = _draw_open3d(jobs, size, camera, _render_timeout())
             return images, "open3d", detail
         except RenderError as exc:
+            _OPEN3D_VERDICT = str(exc)
             if backend == "open3d":
                 raise
             reason = str(exc)
@@ -490,13 +655,19 @@ class RenderResult:
         Where each panel lies in the PNG.
     titles : list of str
     errors : list of ndarray
-        The per-vertex errors of the heat-map panels, in order.
+        The per-vertex values of the heat-map panels, in order (of the vertices in view when zoomed).
     error_mode : str or None
-        ``'vertex'`` or ``'nearest'`` (see :func:`vertex_error`), None without a reference.
+        ``'vertex'`` or ``'nearest'`` (see :func:`vertex_error`), None without heat maps.
     vmax : float or None
         The top of the colour bar.
     camera : Camera
         The camera shared by every panel.
+    heat : {'error', 'change'} or None
+        What the heat maps show: the error against ``reference``, or (``show_change``) the
+        displacement of each later mesh from the first.
+    percentile : float or None
+        The percentile of the shown values the colour bar tops at (None when ``vmax`` was given).
+    zoom : (centre (3,), radius in mesh units) or None
     """
 
     path: Path
@@ -509,6 +680,60 @@ class RenderResult:
     error_mode: str | None = None
     vmax: float | None = None
     camera: Camera | None = None
+    heat: str | None = None
+    percentile: float | None = None
+    zoom: tuple[tuple[float, float, float], float] | None = None
+
+
+def _zoom_ball(zoom, V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, float]:
+    """``zoom = (centre, radius)`` -> (centre point (3,), radius in mesh units).
+
+    ``centre`` is a vertex index of the first mesh or a point (3,); ``radius`` is in mean
+    edge lengths of the first mesh.
+    """
+    from .noise import mean_edge_length
+
+    try:
+        centre, radius = zoom
+    except (TypeError, ValueError):
+        raise ValueError(f"zoom must be (centre, radius): a vertex index or a point (x, y, z), and a radius in "
+                         f"mean edge lengths; got {zoom!r}") from None
+    if isinstance(radius, (bool, np.bool_)) or not isinstance(radius, (int, float, np.integer, np.floating)) \
+            or not (np.isfinite(radius) and radius > 0):
+        raise ValueError(f"zoom radius must be a number > 0 (mean edge lengths), got {radius!r}")
+    if isinstance(centre, (int, np.integer)) and not isinstance(centre, (bool, np.bool_)):
+        if not 0 <= centre < V.shape[0]:
+            raise ValueError(f"zoom centre: vertex {centre} does not exist (the first mesh has {V.shape[0]} vertices)")
+        point = V[int(centre)]
+    else:
+        try:
+            point = np.asarray(centre, dtype=np.float64)
+        except (TypeError, ValueError):
+            point = np.zeros(0)
+        if point.shape != (3,) or not np.isfinite(point).all():
+            raise ValueError(f"zoom centre must be a vertex index or a finite point (x, y, z), got {centre!r}")
+    return point, float(radius) * mean_edge_length(V, F)
+
+
+def _crop(V: np.ndarray, F: np.ndarray, centre: np.ndarray, radius: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The faces with a vertex within ``radius`` of ``centre``, compacted: (V', F', kept vertex indices)."""
+    near = np.sum((V - centre) ** 2, axis=1) <= radius**2
+    faces = F[near[F].any(axis=1)]
+    keep = np.unique(faces)
+    index = np.full(V.shape[0], -1, dtype=np.int64)
+    index[keep] = np.arange(keep.size)
+    return V[keep], index[faces], keep
+
+
+def _bar_top(values: Sequence[np.ndarray], percentile: float) -> float:
+    """The ``percentile`` of all shown values; the maximum when that is 0; a tiny scale when all are 0."""
+    every = np.concatenate([np.ravel(v) for v in values]) if values else np.zeros(0)
+    if every.size == 0:
+        return 1e-12
+    top = float(np.percentile(every, percentile))
+    if top <= 0:
+        top = float(every.max())
+    return top if top > 0 else 1e-12
 
 
 def render_comparison(
@@ -524,20 +749,26 @@ def render_comparison(
     vmax: float | None = None,
     cmap: str = "viridis",
     backend: str = "auto",
+    show_change: bool = False,
+    percentile: float | None = None,
+    zoom: tuple[Any, float] | None = None,
 ) -> RenderResult:
-    """Meshes side by side from one camera, then error heat maps against ``reference``, in one PNG.
+    """Meshes side by side from one camera, then heat maps of their error or change, in one PNG.
 
     For ``meshes = [noisy, denoised]`` and a clean ``reference`` this is the before /
     after / error picture: two lit panels and a heat map of the denoised mesh's error with
-    a colour bar in mesh units. The camera frames all meshes (and the reference) together,
-    so the same mesh gives the same panel wherever it appears.
+    a colour bar in mesh units. Without a reference (a real scan has none),
+    ``show_change=True`` draws instead the displacement of the later meshes from the first
+    (before / after / how far each vertex moved). The camera frames all meshes (and the
+    reference) together, so the same mesh gives the same panel wherever it appears.
 
     Parameters
     ----------
     meshes : sequence of meshes
         ``(V, F)`` tuples, any type :func:`meshdenoise.adapters.read_mesh` accepts, or file paths.
     out_png : path
-        Written atomically (temporary file, then rename); must end in ``.png``.
+        Written atomically (temporary file, then rename) with the mode of any other output
+        (0666 minus the umask, or the replaced file's); must end in ``.png``.
     reference : mesh, optional
         The clean mesh the errors are measured against (see :func:`vertex_error`).
     titles : sequence of str, optional
@@ -547,16 +778,28 @@ def render_comparison(
     view : (azimuth, elevation)
         Degrees; see :func:`frame_camera`.
     error_of : {'last', 'all'}
-        Heat maps of the last mesh only, or of every mesh (one shared colour bar).
+        Heat maps of the last mesh only, or of every mesh (every later mesh with
+        ``show_change``); one shared colour bar.
     error_mode : {'auto', 'vertex', 'nearest'}
-        See :func:`vertex_error`.
+        See :func:`vertex_error`; with ``show_change`` the first mesh plays the reference.
     vmax : float, optional
-        Top of the colour bar; default the largest error shown. Larger errors get the top
-        colour and the bar an arrow.
+        Top of the colour bar; default the ``percentile`` of the values shown. Larger values
+        get the top colour and the bar an arrow.
     cmap : str
         A matplotlib colour map (perceptually uniform ones, e.g. viridis, read best).
     backend : {'auto', 'open3d', 'matplotlib'}
         ``'auto'``: Open3D, else matplotlib with a warning (see the module's notes).
+    show_change : bool
+        Without ``reference``: heat maps of the displacement from the first mesh.
+    percentile : float in (0, 100], optional
+        Where the colour bar tops when ``vmax`` is not given: 100 (the maximum) for errors
+        against a reference, 99 for a change (a few outliers would otherwise leave the
+        rest of the map dark). Written on the colour bar.
+    zoom : (centre, radius), optional
+        Look at a detail: ``centre`` a vertex index of the first mesh or a point (x, y, z),
+        ``radius`` in mean edge lengths of the first mesh. Only the faces with a vertex in
+        that ball are drawn, filling the picture; heat-map statistics and the colour bar are
+        those of the vertices in view.
 
     Returns
     -------
@@ -572,6 +815,9 @@ def render_comparison(
     ...                         size=(48, 48), backend="matplotlib")
     >>> res.titles, res.error_mode, round(res.vmax, 6), out.is_file()
     (['mesh 1', 'mesh 2', 'error of mesh 2'], 'vertex', 0.01, True)
+    >>> res = render_comparison([(V, F), (V * 1.02, F)], out, show_change=True, size=(48, 48), backend="matplotlib")
+    >>> res.titles[-1], res.heat, res.percentile, round(res.vmax, 6)
+    ('change: mesh 1 → mesh 2', 'change', 99.0, 0.02)
     """
     size = _check_size(size)
     if isinstance(meshes, (str, os.PathLike)) or (isinstance(meshes, tuple) and len(meshes) == 2
@@ -582,6 +828,12 @@ def render_comparison(
         raise ValueError("render_comparison needs at least one mesh")
     if error_of not in ("last", "all"):
         raise ValueError(f"error_of must be 'last' or 'all', got {error_of!r}")
+    if percentile is not None and (isinstance(percentile, (bool, np.bool_))
+                                   or not isinstance(percentile, (int, float, np.integer, np.floating))
+                                   or not 0 < percentile <= 100):
+        raise ValueError(f"percentile must be a number in (0, 100], got {percentile!r}")
+    if vmax is not None and not (np.isfinite(vmax) and vmax > 0):
+        raise ValueError(f"vmax must be a finite number > 0, got {vmax!r}")
     out_png = Path(out_png)
     if out_png.suffix.lower() != ".png":
         raise ValueError(f"{out_png}: the picture is written as PNG, so the name must end in .png")
@@ -592,32 +844,62 @@ def render_comparison(
         raise ValueError(f"titles: {len(titles)} given for {len(meshes)} meshes")
     arrays = [_arrays(m, f"mesh {i + 1}") for i, m in enumerate(meshes)]
     ref = _arrays(reference, "reference") if reference is not None else None
-    camera = frame_camera([V for V, _ in arrays] + ([ref[0]] if ref else []), size, view)
 
-    jobs, panel_titles = [_job(V, F, camera) for V, F in arrays], list(titles)
-    errors, mode_used = [], None
+    # heat maps: (index of the mesh, per-vertex values, title)
+    heat, maps, mode_used = None, [], None
     if ref is not None:
-        targets = range(len(arrays)) if error_of == "all" else [len(arrays) - 1]
-        for k in targets:
+        heat = "error"
+        for k in (range(len(arrays)) if error_of == "all" else [len(arrays) - 1]):
             err, mode_used = vertex_error(arrays[k], ref, error_mode)
+            maps.append((k, err, f"error of {titles[k]}"))
+    elif show_change and len(arrays) > 1:
+        heat = "change"
+        for k in (range(1, len(arrays)) if error_of == "all" else [len(arrays) - 1]):
+            err, mode_used = vertex_error(arrays[k], arrays[0], error_mode)
+            maps.append((k, err, f"change: {titles[0]} → {titles[k]}"))
+
+    ball = None
+    if zoom is not None:
+        centre, radius = _zoom_ball(zoom, *arrays[0])
+        ball = (tuple(float(c) for c in centre), radius)
+        camera = camera_around(centre, radius, size, view)
+        cropped = [_crop(V, F, centre, radius * 1.2) for V, F in arrays]
+        if all(c[1].shape[0] == 0 for c in cropped):
+            raise ValueError(f"zoom: no face has a vertex within {radius:.4g} (mesh units) of {tuple(centre)}")
+        shown = [(c[0], c[1]) for c in cropped]
+        maps = [(k, err[cropped[k][2]], title) for k, err, title in maps]
+    else:
+        camera = frame_camera([V for V, _ in arrays] + ([ref[0]] if ref else []), size, view)
+        shown = arrays
+    used_percentile = None
+    if maps:
+        if vmax is None:
+            used_percentile = float(percentile if percentile is not None else (100.0 if heat == "error" else 99.0))
+            vmax = _bar_top([err for _, err, _ in maps], used_percentile)
+        vmax = float(vmax)
+    jobs = [_job(V, F, camera) for V, F in shown if F.shape[0]]
+    panel_titles = [t for t, (_, F) in zip(titles, shown) if F.shape[0]]
+    errors = []
+    for k, err, title in maps:
+        if shown[k][1].shape[0]:
+            jobs.append(_job(*shown[k], camera, err, vmax, cmap))
+            panel_titles.append(title)
             errors.append(err)
-        vmax = _default_vmax(errors) if vmax is None else float(vmax)
-        if not np.isfinite(vmax) or vmax <= 0:
-            raise ValueError(f"vmax must be a finite number > 0, got {vmax!r}")
-        for k, err in zip(targets, errors):
-            jobs.append(_job(*arrays[k], camera, err, vmax, cmap))
-            panel_titles.append(f"error of {titles[k]}")
     panels, which, detail = _draw(jobs, size, camera, backend)
-    boxes = _compose(out_png, panels, panel_titles, errors, vmax, cmap, mode_used)
+    if heat == "change":
+        label = "distance to the first mesh" if mode_used == "nearest" else "displacement from the first mesh"
+    else:
+        label = "distance to reference" if mode_used == "nearest" else "vertex displacement"
+    boxes = _compose(out_png, panels, panel_titles, errors, vmax, cmap, label, used_percentile)
     return RenderResult(out_png, which, detail, panels, boxes, panel_titles, errors, mode_used,
-                        vmax if ref is not None else None, camera)
+                        vmax if maps else None, camera, heat, used_percentile, ball)
 
 
 TITLE_BAND = 40  # pixels above the panels for titles
 BAR_BAND = 110  # pixels right of the panels for the colour bar
 
 
-def _compose(out_png: Path, panels, titles, errors, vmax, cmap, mode) -> list[tuple[int, int, int, int]]:
+def _compose(out_png: Path, panels, titles, errors, vmax, cmap, label, percentile) -> list[tuple[int, int, int, int]]:
     """Paste the panels pixel for pixel (``figimage``, no resampling) with titles and a colour bar."""
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
@@ -638,7 +920,7 @@ def _compose(out_png: Path, panels, titles, errors, vmax, cmap, mode) -> list[tu
         x0 = k * (w + gap)
         fig.figimage(img, xo=x0, yo=0, origin="upper")
         boxes.append((TITLE_BAND, x0, h, w))
-        lines = [title]
+        lines = [title.replace("$", r"\$")]  # a file name is text, never mathtext
         if k >= n_geometry:
             e = errors[k - n_geometry]
             lines.append(f"max {e.max():.3g}, RMS {np.sqrt(np.mean(e**2)):.3g}")
@@ -652,8 +934,20 @@ def _compose(out_png: Path, panels, titles, errors, vmax, cmap, mode) -> list[tu
                            extend="max" if over else "neither")
         bar.ax.tick_params(labelsize=8)
         bar.ax.yaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:.3g}"))  # no offset text to clip
-        label = "distance to reference" if mode == "nearest" else "vertex displacement"
-        bar.set_label(label + " (mesh units)", fontsize=7)
+        top = "maximum" if percentile is None or percentile >= 100 else f"{_ordinal(percentile)} percentile"
+        if percentile is None:
+            top = "given vmax"
+        bar.set_label(f"{label} (mesh units)\ntop = {top}", fontsize=7)
     with atomic_path(out_png) as tmp:
         fig.savefig(tmp, dpi=100, format="png", facecolor="white")
     return boxes
+
+
+def _ordinal(p: float) -> str:
+    """'99th', '95th', '99.5th', '1st', '2nd', '3rd', '12th'."""
+    text = f"{p:g}"
+    if not float(p).is_integer():
+        return text + "th"
+    n = int(p)
+    suffix = "th" if 10 <= n % 100 <= 20 else {1: "st", 2: "nd", 3: "rd"}.get(n % 10, "th")
+    return f"{n}{suffix}"
