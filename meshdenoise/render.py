@@ -279,6 +279,18 @@ def _arrays(mesh: Any, what: str) -> tuple[np.ndarray, np.ndarray]:
     return data.V, data.F
 
 
+def new_file_mode(path: str | os.PathLike) -> int:
+    """The permission bits an output written to ``path`` gets: the replaced file's, else 0666 minus the umask.
+
+    As :class:`meshdenoise.io.atomic_path` gives every output (a temporary file from
+    ``mkstemp`` is private, 0600, and would keep that mode through the rename).
+    """
+    from .io import _UMASK
+
+    path = Path(path)
+    return path.stat().st_mode & 0o7777 if path.exists() else 0o666 & ~_UMASK
+
+
 # --- backends ------------------------------------------------------------------------------------
 class RenderError(RuntimeError):
     """Open3D's OffscreenRenderer failed or did not finish in time; the message says which and why."""
