@@ -314,26 +314,26 @@ def _shade(V: np.ndarray, F: np.ndarray, camera: Camera, base=MESH_COLOR) -> np.
 
 _CHILD = r"""
 import sys
-sys.path.insert(0, sys.argv[3])
+sys.path.insert(0, sys.argv[1])
 from meshdenoise.render import _open3d_child
-_open3d_child(sys.argv[1], sys.argv[2], int(sys.argv[4]))
+_open3d_child(int(sys.argv[2]), int(sys.argv[3]))
 """
 
 
-def _open3d_child(job_path: str, out_dir: str, first: int = 0) -> None:
-    """Child process: draw panels ``first``, ``first + 1``, ... of ``job_path`` (npz) unlit with one Open3D renderer.
+def _open3d_child(w: int, h: int) -> None:
+    """Child process: make one Open3D renderer of ``w`` x ``h``, then draw the panels of the job named on stdin.
 
-    Each picture is saved as ``out_dir/frame{k}.npy`` as soon as it is drawn; the child prints
-    ``MESHDENOISE_READY`` once the renderer exists and ``MESHDENOISE_FRAME k`` after each
-    picture, so the parent can tell a renderer that never starts from a slow frame, and keep
-    the pictures drawn before a stall.
+    Prints ``MESHDENOISE_READY`` once the renderer exists, then reads one line
+    ``job.npz<TAB>out_dir<TAB>first`` and draws panels ``first``, ``first + 1``, ... unlit,
+    saving each as ``out_dir/frame{k}.npy`` and printing ``MESHDENOISE_FRAME k`` as soon as
+    it is drawn: the parent tells a renderer that never starts from a slow frame and keeps
+    the pictures drawn before a stall. The renderer starts while the parent still prepares
+    the panels.
     """
     started = time.perf_counter()
     import open3d as o3d
     import open3d.visualization.rendering as rendering
 
-    job = np.load(job_path)
-    w, h = (int(x) for x in job["size"])
     renderer = rendering.OffscreenRenderer(w, h)
     scene = renderer.scene
     scene.set_background([*BACKGROUND, 1.0])
@@ -347,12 +347,17 @@ def _open3d_child(job_path: str, out_dir: str, first: int = 0) -> None:
     scene.scene.enable_sun_light(False)
     scene.scene.enable_indirect_light(False)
     print(f"MESHDENOISE_READY {time.perf_counter() - started:.2f} s", flush=True)
+    line = sys.stdin.readline().rstrip("\n")
+    if not line:
+        return
+    job_path, out_dir, first = line.split("\t")
+    job = np.load(job_path)
     center, eye, up = job["center"], job["eye"], job["up"]
     fov, near, far = (float(x) for x in job["lens"])
     renderer.setup_camera(fov, center, eye, up, near, far)
     material = rendering.MaterialRecord()
     material.shader = "defaultUnlit"  # the lit shader stalls for minutes on llvmpipe; shading is baked in
-    for k in range(first, int(job["count"])):
+    for k in range(int(first), int(job["count"])):
         mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(job[f"V{k}"].astype(np.float64)),
                                          o3d.utility.Vector3iVector(job[f"F{int(job['faces'][k])}"]))
         mesh.vertex_colors = o3d.utility.Vector3dVector(job[f"C{k}"].astype(np.float64) / 255.0)
@@ -410,79 +415,106 @@ class _Stall(Exception):
     """The child stopped reporting: the message says what it was waiting for."""
 
 
-def _run_child(job_path: Path, out_dir: Path, first: int, jobs: list[dict], startup: float, until: float) -> str:
-    """Run one child from panel ``first``; its log. ``_Stall`` when a limit passes, ``RenderError`` when it fails."""
-    import queue
-    import threading
+class _Child:
+    """One renderer process of ``size``, started at once; :meth:`run` gives it a job; :meth:`close` ends it."""
 
-    package_parent = str(Path(__file__).resolve().parent.parent)
-    proc = subprocess.Popen([sys.executable, "-c", _CHILD, str(job_path), str(out_dir), package_parent, str(first)],
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    lines: queue.Queue = queue.Queue()
-    log: list[str] = []
+    def __init__(self, size: tuple[int, int]):
+        import queue
+        import threading
 
-    def pump() -> None:
-        for line in proc.stdout:
-            lines.put(line)
-        lines.put(None)
+        package_parent = str(Path(__file__).resolve().parent.parent)
+        self.proc = subprocess.Popen([sys.executable, "-c", _CHILD, package_parent, str(size[0]), str(size[1])],
+                                     stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
+                                     text=True)
+        self.started = time.monotonic()
+        self.lines: queue.Queue = queue.Queue()
+        self.ready = False
 
-    threading.Thread(target=pump, daemon=True).start()
-    start = time.monotonic()
-    verbose = bool(os.environ.get("MESHDENOISE_RENDER_LOG"))  # the child's log with times, on stderr
-    deadline = start + startup
-    waiting_for = f"the renderer to start ({startup:g} s allowed, MESHDENOISE_RENDER_STARTUP)"
-    line = ""
-    try:
-        while True:
-            left = min(deadline, until) - time.monotonic()
+        def pump() -> None:
+            for line in self.proc.stdout:
+                self.lines.put(line)
+            self.lines.put(None)
+
+        threading.Thread(target=pump, daemon=True).start()
+
+    def close(self) -> None:
+        """Kill the child if it still runs (after its pictures, Filament's teardown takes seconds and is not needed)."""
+        if self.proc.poll() is None:
+            self.proc.kill()
+        self.proc.wait()
+        for stream in (self.proc.stdin, self.proc.stdout):
             try:
-                line = lines.get(timeout=max(left, 0.0))
-            except queue.Empty:
-                if time.monotonic() >= until:
-                    waiting_for = f"all pictures within MESHDENOISE_RENDER_TIMEOUT, at {waiting_for}"
-                raise _Stall(f"waited for {waiting_for}") from None
-            if line is None or line.startswith("MESHDENOISE_RENDERED"):
-                break
-            log.append(line)
-            if verbose:
-                sys.stderr.write(f"[{time.monotonic() - start:6.2f} s] {line}")
-            if line.startswith(("MESHDENOISE_READY", "MESHDENOISE_FRAME")):
-                done = first if line.startswith("MESHDENOISE_READY") else int(line.split()[1]) + 1
-                if done < len(jobs):
-                    allowance = FRAME_SECONDS + FRAME_SECONDS_PER_TRIANGLE * jobs[done]["F"].shape[0]
-                    deadline = time.monotonic() + allowance
-                    waiting_for = f"frame {done + 1} of {len(jobs)} ({allowance:.0f} s allowed)"
-                else:
-                    deadline = time.monotonic() + 30.0
-                    waiting_for = "the child to finish"
-    finally:
-        if proc.poll() is None:  # stalled, or done: Filament's teardown takes seconds and is not needed
-            proc.kill()
-        proc.wait()
-    text = "".join(log)
-    if line is None and not all((out_dir / f"frame{k}.npy").is_file() for k in range(first, len(jobs))):
-        tail = " | ".join(ln.strip() for ln in text.strip().splitlines()[-3:])
-        raise RenderError(
-            f"Open3D's OffscreenRenderer failed (exit status {proc.returncode}: {tail or 'no output'}); "
-            "it needs the Debian packages libvulkan1 mesa-vulkan-drivers libegl1 libgl1 "
-            "(scripts/install-system-deps.sh)")
-    return text
+                stream.close()
+            except OSError:  # pragma: no cover - a broken pipe to a killed child
+                pass
+
+    def run(self, job_path: Path, out_dir: Path, first: int, jobs: list[dict], startup: float, until: float) -> str:
+        """Draw panels ``first``... of the job; the log. ``_Stall`` when a limit passes, ``RenderError`` on failure."""
+        import queue
+
+        try:
+            self.proc.stdin.write(f"{job_path}\t{out_dir}\t{first}\n")
+            self.proc.stdin.flush()
+        except OSError:
+            pass  # the child is gone: its log says why
+        verbose = bool(os.environ.get("MESHDENOISE_RENDER_LOG"))  # the child's log with times, on stderr
+        log: list[str] = []
+        deadline = self.started + startup
+        waiting_for = f"the renderer to start ({startup:g} s allowed, MESHDENOISE_RENDER_STARTUP)"
+        if self.ready:  # pragma: no cover - a child runs one job
+            deadline = time.monotonic() + 30.0
+        line = ""
+        try:
+            while True:
+                try:
+                    line = self.lines.get(timeout=max(min(deadline, until) - time.monotonic(), 0.0))
+                except queue.Empty:
+                    if time.monotonic() >= until:
+                        waiting_for = f"all pictures within MESHDENOISE_RENDER_TIMEOUT, at {waiting_for}"
+                    raise _Stall(f"waited for {waiting_for}") from None
+                if line is None or line.startswith("MESHDENOISE_RENDERED"):
+                    break
+                log.append(line)
+                if verbose:
+                    sys.stderr.write(f"[{time.monotonic() - self.started:6.2f} s] {line}")
+                if line.startswith(("MESHDENOISE_READY", "MESHDENOISE_FRAME")):
+                    self.ready = True
+                    done = first if line.startswith("MESHDENOISE_READY") else int(line.split()[1]) + 1
+                    if done < len(jobs):
+                        allowance = FRAME_SECONDS + FRAME_SECONDS_PER_TRIANGLE * jobs[done]["F"].shape[0]
+                        deadline = time.monotonic() + allowance
+                        waiting_for = f"frame {done + 1} of {len(jobs)} ({allowance:.0f} s allowed)"
+                    else:
+                        deadline = time.monotonic() + 30.0
+                        waiting_for = "the child to finish"
+        finally:
+            self.close()
+        text = "".join(log)
+        if line is None and not all((out_dir / f"frame{k}.npy").is_file() for k in range(first, len(jobs))):
+            tail = " | ".join(ln.strip() for ln in text.strip().splitlines()[-3:])
+            raise RenderError(
+                f"Open3D's OffscreenRenderer failed (exit status {self.proc.returncode}: {tail or 'no output'}); "
+                "it needs the Debian packages libvulkan1 mesa-vulkan-drivers libegl1 libgl1 "
+                "(scripts/install-system-deps.sh)")
+        return text
 
 
-def _draw_open3d(jobs: list[dict], size, camera: Camera, timeout: float) -> tuple[list[np.ndarray], str]:
+def _draw_open3d(jobs: list[dict], size, camera: Camera, timeout: float,
+                 child: _Child | None = None) -> tuple[list[np.ndarray], str]:
     """Draw the panels with one Open3D OffscreenRenderer in a child process, under time limits.
 
     A child process because on a software Vulkan driver a missing library aborts the
     process (it does not raise) and a frame can stall for minutes (seen with Open3D 0.20 on
     Mesa 22 llvmpipe); the parent then falls back instead of hanging or dying. Without a
-    Vulkan loader or driver no child is started at all. The child must report its renderer
-    ready within ``MESHDENOISE_RENDER_STARTUP`` seconds (default 20), each frame within
-    :data:`FRAME_SECONDS` plus :data:`FRAME_SECONDS_PER_TRIANGLE` per triangle, and
-    everything within ``timeout``; a stalled frame is drawn again once by a fresh child,
-    keeping the pictures already drawn. Panels sharing one face array send it once;
-    coordinates go as float32 and colours as bytes.
+    Vulkan loader or driver no child is started at all. The child (``child``, when
+    :func:`render_comparison` started it early so that it starts up while the panels are
+    prepared) must report its renderer ready within ``MESHDENOISE_RENDER_STARTUP`` seconds
+    (default 20) of its start, each frame within :data:`FRAME_SECONDS` plus
+    :data:`FRAME_SECONDS_PER_TRIANGLE` per triangle, and everything within ``timeout``; a
+    stalled frame is drawn again once by a fresh child, keeping the pictures already drawn.
+    Panels sharing one face array send it once; coordinates go as float32, colours as bytes.
     """
-    import open3d as o3d
+    from importlib.metadata import version
 
     missing = _vulkan_missing()
     if missing:
@@ -515,13 +547,17 @@ def _draw_open3d(jobs: list[dict], size, camera: Camera, timeout: float) -> tupl
         text = ""
         for _ in range(ATTEMPTS):
             first = next((k for k in range(len(jobs)) if not (out_dir / f"frame{k}.npy").is_file()), len(jobs))
+            child = child or _Child(size)
             try:
-                text = _run_child(job_path, out_dir, first, jobs, startup, until)
+                text = child.run(job_path, out_dir, first, jobs, startup, until)
                 break
             except _Stall as exc:
                 stalls.append(str(exc))
                 if time.monotonic() >= until or "to start" in str(exc):
                     break  # out of time, or the renderer never starts here: no second try
+            finally:
+                child.close()
+                child = None
         if stalls and not all((out_dir / f"frame{k}.npy").is_file() for k in range(len(jobs))):
             raise RenderError("Open3D's OffscreenRenderer did not finish: " + "; then ".join(stalls))
         images = [np.load(out_dir / f"frame{k}.npy") for k in range(len(jobs))]
@@ -529,7 +565,51 @@ def _draw_open3d(jobs: list[dict], size, camera: Camera, timeout: float) -> tupl
     backend = next((ln.split(":", 1)[1].strip() for ln in text.splitlines() if "resolved backend:" in ln), "")
     extra = ", ".join(x for x in (f"Filament {backend}" if backend else "", device) if x)
     retried = f", {len(stalls)} stalled frame(s) drawn again" if stalls else ""
-    return images, f"Open3D {o3d.__version__} OffscreenRenderer" + (f" ({extra}{retried})" if extra or retried else "")
+    detail = f"{extra}{retried}".lstrip(", ")
+    return images, f"Open3D {version('open3d')} OffscreenRenderer" + (f" ({detail})" if detail else "")
+
+
+def _resolve_backend(backend: str) -> str:
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if backend == "auto":
+        env = os.environ.get("MESHDENOISE_RENDER_BACKEND", "auto")
+        if env not in BACKENDS:
+            raise ValueError(f"MESHDENOISE_RENDER_BACKEND must be one of {BACKENDS}, got {env!r}")
+        backend = env
+    return backend
+
+
+def _prestart(backend: str, size: tuple[int, int]) -> _Child | None:
+    """The Open3D child, started now when it will be used, so that it starts while the panels are prepared."""
+    backend = _resolve_backend(backend)
+    if backend == "matplotlib" or (backend == "auto" and _OPEN3D_VERDICT is not None) or _vulkan_missing():
+        return None
+    return _Child(size)
+
+
+def _draw(jobs: list[dict], size, camera: Camera, backend: str,
+          child: _Child | None = None) -> tuple[list[np.ndarray], str, str]:
+    """Pictures of the jobs with the chosen backend; 'auto' falls back to matplotlib with a warning."""
+    global _OPEN3D_VERDICT
+    backend = _resolve_backend(backend)
+    reason = "requested"
+    if backend == "auto" and _OPEN3D_VERDICT is not None:  # failed before in this process: do not wait again
+        reason = f"Open3D failed earlier in this process: {_OPEN3D_VERDICT}"
+        warnings.warn(f"{reason}; drawing with the matplotlib software rasteriser instead", UserWarning, stacklevel=3)
+    elif backend in ("auto", "open3d"):
+        try:
+            images, detail = _draw_open3d(jobs, size, camera, _render_timeout(), child)
+            return images, "open3d", detail
+        except RenderError as exc:
+            _OPEN3D_VERDICT = str(exc)
+            if backend == "open3d":
+                raise
+            reason = str(exc)
+            warnings.warn(f"{reason}; drawing with the matplotlib software rasteriser instead "
+                          "(set MESHDENOISE_RENDER_BACKEND=matplotlib to skip Open3D)", UserWarning, stacklevel=3)
+    images = [_draw_matplotlib(job, size, camera) for job in jobs]
+    return images, "matplotlib", f"matplotlib {_mpl_version()} software rasteriser ({reason})"
 
 
 def _draw_matplotlib(job: dict, size, camera: Camera) -> np.ndarray:
@@ -559,35 +639,6 @@ def _draw_matplotlib(job: dict, size, camera: Camera) -> np.ndarray:
         ax.add_collection(PolyCollection(tri[:, :, :2], facecolors=rgb, edgecolors=rgb, linewidths=0.3))
     fig.canvas.draw()
     return np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy()
-
-
-def _draw(jobs: list[dict], size, camera: Camera, backend: str) -> tuple[list[np.ndarray], str, str]:
-    """Pictures of the jobs with the chosen backend; 'auto' falls back to matplotlib with a warning."""
-    if backend not in BACKENDS:
-        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    if backend == "auto":
-        env = os.environ.get("MESHDENOISE_RENDER_BACKEND", "auto")
-        if env not in BACKENDS:
-            raise ValueError(f"MESHDENOISE_RENDER_BACKEND must be one of {BACKENDS}, got {env!r}")
-        backend = env
-    global _OPEN3D_VERDICT
-    reason = "requested"
-    if backend == "auto" and _OPEN3D_VERDICT is not None:  # failed before in this process: do not wait again
-        reason = f"Open3D failed earlier in this process: {_OPEN3D_VERDICT}"
-        warnings.warn(f"{reason}; drawing with the matplotlib software rasteriser instead", UserWarning, stacklevel=3)
-    elif backend in ("auto", "open3d"):
-        try:
-            images, detail = _draw_open3d(jobs, size, camera, _render_timeout())
-            return images, "open3d", detail
-        except RenderError as exc:
-            _OPEN3D_VERDICT = str(exc)
-            if backend == "open3d":
-                raise
-            reason = str(exc)
-            warnings.warn(f"{reason}; drawing with the matplotlib software rasteriser instead "
-                          "(set MESHDENOISE_RENDER_BACKEND=matplotlib to skip Open3D)", UserWarning, stacklevel=3)
-    images = [_draw_matplotlib(job, size, camera) for job in jobs]
-    return images, "matplotlib", f"matplotlib {_mpl_version()} software rasteriser ({reason})"
 
 
 def _mpl_version() -> str:
@@ -854,6 +905,17 @@ def render_comparison(
     titles = [str(t) for t in titles]
     if len(titles) != len(meshes):
         raise ValueError(f"titles: {len(titles)} given for {len(meshes)} meshes")
+    child = _prestart(backend, size)  # Open3D starts up while the meshes are read and the panels prepared
+    try:
+        return _render_comparison(meshes, out_png, reference, titles, size, view, error_of, error_mode, vmax, cmap,
+                                  backend, show_change, percentile, zoom, child)
+    finally:
+        if child is not None:
+            child.close()
+
+
+def _render_comparison(meshes, out_png, reference, titles, size, view, error_of, error_mode, vmax, cmap, backend,
+                       show_change, percentile, zoom, child) -> RenderResult:
     arrays = [_arrays(m, f"mesh {i + 1}") for i, m in enumerate(meshes)]
     ref = _arrays(reference, "reference") if reference is not None else None
 
@@ -897,7 +959,7 @@ def render_comparison(
             jobs.append(_job(*shown[k], camera, err, vmax, cmap))
             panel_titles.append(title)
             errors.append(err)
-    panels, which, detail = _draw(jobs, size, camera, backend)
+    panels, which, detail = _draw(jobs, size, camera, backend, child)
     if heat == "change":
         label = "distance to the first mesh" if mode_used == "nearest" else "displacement from the first mesh"
     else:
