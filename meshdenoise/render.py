@@ -3,20 +3,20 @@
 Two rasterisers draw the same camera:
 
 ``open3d``
-    Open3D's :class:`~open3d.visualization.rendering.OffscreenRenderer` (Filament). On a
-    machine without a GPU it runs on Mesa's software Vulkan driver (lavapipe/llvmpipe),
-    from the Debian packages ``libvulkan1`` and ``mesa-vulkan-drivers``. It runs in a child
-    process with a time limit (``MESHDENOISE_RENDER_TIMEOUT``, default 60 s): there a
-    missing driver aborts the process instead of raising, and with Open3D 0.20 on Mesa 22
-    llvmpipe a frame now and then stalls for 10 s to minutes.
+    Open3D's :class:`~open3d.visualization.rendering.OffscreenRenderer` (Filament): one
+    renderer draws every panel, unlit, without shadow, SSAO or MSAA passes. On a machine
+    without a GPU it runs on Mesa's software Vulkan driver (lavapipe/llvmpipe), from the
+    Debian packages ``libvulkan1`` and ``mesa-vulkan-drivers``. It runs in a child process,
+    started before the panels are prepared, under time limits (``MESHDENOISE_RENDER_STARTUP``,
+    default 20 s, for the renderer to start; a per-frame allowance; ``MESHDENOISE_RENDER_TIMEOUT``,
+    default 60 s, in all): there a missing driver aborts the process instead of raising, and
+    with Open3D 0.20 on Mesa 22 llvmpipe a frame now and then stalls (it is drawn again once
+    by a fresh child). Without a Vulkan loader or driver no child starts, and a failure is
+    remembered for the rest of the process, so the fallback comes at once.
 ``matplotlib``
-    A pure-software fallback: the same pinhole camera in numpy, triangles drawn back to
-    front (painter's algorithm) by matplotlib's Agg. Occlusion is by whole triangles, so it
-    is coarser where surfaces interpenetrate.
-
-``backend="auto"`` (the default) tries Open3D and falls back to matplotlib with a
-``UserWarning`` saying why; :attr:`RenderResult.backend` and ``backend_detail`` say which
-path ran. ``MESHDENOISE_RENDER_BACKEND=open3d|matplotlib`` forces one.
+    A pure-software fallback: the same pinhole camera and a z-buffer in numpy (pixel centres
+    sampled, perspective-correct depth and colours), composed and coloured with matplotlib.
+    Deterministic; about as fast as Open3D on llvmpipe.
 
 Both backends draw unlit colours computed here: the geometry panels are shaded by a light
 from the camera's upper left (Lambert, two-sided), the heat maps are not shaded at all, so
@@ -612,33 +612,83 @@ def _draw(jobs: list[dict], size, camera: Camera, backend: str,
     return images, "matplotlib", f"matplotlib {_mpl_version()} software rasteriser ({reason})"
 
 
-def _draw_matplotlib(job: dict, size, camera: Camera) -> np.ndarray:
-    """Painter's algorithm: project with ``camera``, draw triangles far to near with Agg."""
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.collections import PolyCollection
-    from matplotlib.figure import Figure
+ZBUFFER_CHUNK = 1_000_000  # candidate pixels per vectorised batch (about 100 MB of temporaries)
 
+
+def _draw_matplotlib(job: dict, size, camera: Camera) -> np.ndarray:
+    """The software rasteriser: a z-buffer in numpy, pixel centres sampled, colours of the matplotlib colour map.
+
+    Every triangle in front of the near plane is projected with ``camera``; the pixels whose
+    centres fall inside it (barycentric coordinates >= 0) get its perspective-correct depth
+    and attribute, and each pixel keeps the nearest. Geometry panels interpolate the shaded
+    vertex colours; heat maps interpolate the scalar and colour it afterwards (Gouraud),
+    as the colour bar reads. Vectorised in batches of :data:`ZBUFFER_CHUNK` candidate
+    pixels: a triangle smaller than a pixel costs one candidate at most, so a 600k-vertex
+    mesh takes about a second, where the painter's algorithm this replaces took 34 s.
+    """
     V, F = job["V"], job["F"]
     w, h = size
+    heat = job.get("scalar") is not None
+    attr = np.asarray(job["scalar"], dtype=np.float64)[:, None] if heat else np.asarray(job["colors"], np.float64)
     proj = camera.project(V, size)
-    tri = proj[F]
-    keep = (tri[:, :, 2] > camera.near).all(axis=1)
-    F, tri = F[keep], tri[keep]
-    order = np.argsort(-tri[:, :, 2].mean(axis=1), kind="stable")
-    F, tri = F[order], tri[order]
-    fig = Figure(figsize=(w / 100.0, h / 100.0), dpi=100, facecolor=BACKGROUND)
-    FigureCanvasAgg(fig)
-    ax = fig.add_axes([0, 0, 1, 1])
-    ax.set_axis_off()
-    ax.set_xlim(0, w)
-    ax.set_ylim(h, 0)
-    if job.get("scalar") is not None:  # heat map: the scalar interpolated (Gouraud), then coloured
-        ax.tripcolor(proj[:, 0], proj[:, 1], F, job["scalar"], shading="gouraud", cmap=job["cmap"], norm=job["norm"])
+    zv = proj[:, 2]
+    F = F[(zv[F] > camera.near).all(axis=1)]
+    x = proj[:, 0] - 0.5  # pixel (c, r) has its centre at (c + 0.5, r + 0.5): integer coordinates after the shift
+    y = proj[:, 1] - 0.5
+    xs, ys = x[F], y[F]
+    x0 = np.maximum(np.ceil(xs.min(axis=1)), 0).astype(np.int64)
+    x1 = np.minimum(np.floor(xs.max(axis=1)), w - 1).astype(np.int64)
+    y0 = np.maximum(np.ceil(ys.min(axis=1)), 0).astype(np.int64)
+    y1 = np.minimum(np.floor(ys.max(axis=1)), h - 1).astype(np.int64)
+    nx, ny = x1 - x0 + 1, y1 - y0 + 1
+    some = (nx > 0) & (ny > 0)
+    F, x0, y0, nx, ny = F[some], x0[some], y0[some], nx[some], ny[some]
+    count = nx * ny
+    depth = np.full(w * h, np.inf)
+    value = np.zeros((w * h, attr.shape[1]))
+    ends = np.cumsum(count)
+    start = 0
+    while start < F.shape[0]:
+        base = ends[start - 1] if start else 0
+        stop = max(int(np.searchsorted(ends, base + ZBUFFER_CHUNK, side="right")), start + 1)
+        sl = slice(start, stop)
+        c = count[sl]
+        face = np.repeat(np.arange(start, stop), c)
+        offset = np.arange(int(c.sum())) - np.repeat(np.cumsum(c) - c, c)
+        px = x0[face] + offset % nx[face]
+        py = y0[face] + offset // nx[face]
+        a, b, d = F[face, 0], F[face, 1], F[face, 2]
+        det = (y[b] - y[d]) * (x[a] - x[d]) + (x[d] - x[b]) * (y[a] - y[d])
+        ok = det != 0
+        det = np.where(ok, det, 1.0)
+        l0 = ((y[b] - y[d]) * (px - x[d]) + (x[d] - x[b]) * (py - y[d])) / det
+        l1 = ((y[d] - y[a]) * (px - x[d]) + (x[a] - x[d]) * (py - y[d])) / det
+        l2 = 1.0 - l0 - l1
+        inside = ok & (l0 >= -1e-9) & (l1 >= -1e-9) & (l2 >= -1e-9)
+        l0, l1, l2, a, b, d = l0[inside], l1[inside], l2[inside], a[inside], b[inside], d[inside]
+        pix = (py * w + px)[inside]
+        inv = l0 / zv[a] + l1 / zv[b] + l2 / zv[d]  # 1/z is linear on the screen
+        z = 1.0 / inv
+        order = np.lexsort((z, pix))  # per pixel, nearest first
+        pix, z = pix[order], z[order]
+        first = np.concatenate([[True], pix[1:] != pix[:-1]]) if pix.size else np.zeros(0, bool)
+        sel = order[first]
+        pix, z = pix[first], z[first]
+        better = z < depth[pix]
+        sel, pix = sel[better], pix[better]
+        depth[pix] = z[better]
+        wa, wb, wd = (l0[sel] / zv[a[sel]], l1[sel] / zv[b[sel]], l2[sel] / zv[d[sel]])
+        value[pix] = (wa[:, None] * attr[a[sel]] + wb[:, None] * attr[b[sel]] + wd[:, None] * attr[d[sel]]) \
+            / inv[sel][:, None]
+        start = stop
+    hit = np.isfinite(depth)
+    image = np.empty((w * h, 3))
+    image[:] = BACKGROUND
+    if heat:
+        image[hit] = job["cmap"](job["norm"](value[hit, 0]))[:, :3]
     else:
-        rgb = np.clip(job["colors"][F].mean(axis=1), 0.0, 1.0)
-        ax.add_collection(PolyCollection(tri[:, :, :2], facecolors=rgb, edgecolors=rgb, linewidths=0.3))
-    fig.canvas.draw()
-    return np.asarray(fig.canvas.buffer_rgba())[:, :, :3].copy()
+        image[hit] = np.clip(value[hit], 0.0, 1.0)
+    return np.round(image.reshape(h, w, 3) * 255).astype(np.uint8)
 
 
 def _mpl_version() -> str:

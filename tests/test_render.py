@@ -321,3 +321,30 @@ def test_a_stalled_frame_is_retried_once_then_falls_back_fast(fresh_verdict, mon
         render_comparison([icosphere(1)], tmp_path / "b.png", size=(32, 32))
     text = str(caught[0].message)
     assert "waited for the renderer to start (1 s allowed" in text and "then" not in text
+
+
+def test_software_zbuffer_keeps_the_nearest_surface_and_covers_exactly_the_pixel_centres_inside():
+    from matplotlib.path import Path as MplPath
+
+    from meshdenoise.render import _draw_matplotlib
+
+    square = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    quad = np.array([[0, 1, 2], [0, 2, 3]])
+    far_v, near_v = square - [0.6, 0.6, 0], square - [0.2, 0.2, -0.5]  # the near square is 0.5 closer to the eye
+    V = np.vstack([far_v, near_v])
+    colors = np.array([[1.0, 0, 0]] * 4 + [[0, 0, 1.0]] * 4)
+    cam = frame_camera([V], (80, 80))
+    both = []
+    for F in (np.vstack([quad, quad + 4]), np.vstack([quad + 4, quad])):  # drawing order must not matter
+        both.append(_draw_matplotlib({"V": V, "F": F, "colors": colors}, (80, 80), cam))
+    assert np.array_equal(both[0], both[1])
+    img = both[0]
+    centres = np.stack(np.meshgrid(np.arange(80) + 0.5, np.arange(80) + 0.5), -1).reshape(-1, 2)
+    proj = cam.project(V, (80, 80))[:, :2]
+    inside_far = MplPath(proj[:4]).contains_points(centres).reshape(80, 80)
+    inside_near = MplPath(proj[4:]).contains_points(centres).reshape(80, 80)
+    blue = (img[:, :, 2] > 200) & (img[:, :, 0] < 50)
+    red = (img[:, :, 0] > 200) & (img[:, :, 2] < 50)
+    assert (blue != inside_near).sum() <= 4  # only pixel centres on an edge may differ
+    assert (red != (inside_far & ~inside_near)).sum() <= 4
+    assert (inside_far & inside_near).sum() > 100  # the overlap is real, and blue there
