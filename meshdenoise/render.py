@@ -987,7 +987,7 @@ def _render_comparison(meshes, out_png, reference, titles, size, view, error_of,
         centre, radius = _zoom_ball(zoom, *arrays[0])
         ball = (tuple(float(c) for c in centre), radius)
         camera = camera_around(centre, radius, size, view)
-        cropped = [_crop(V, F, centre, radius * 1.2) for V, F in arrays]
+        cropped = [_crop(V, F, centre, radius) for V, F in arrays]
         if all(c[1].shape[0] == 0 for c in cropped):
             raise ValueError(f"zoom: no face has a vertex within {radius:.4g} (mesh units) of {tuple(centre)}")
         shown = [(c[0], c[1]) for c in cropped]

@@ -201,7 +201,7 @@ def test_zoom_on_a_vertex_crops_a_ball_and_fills_the_picture(tmp_path):
                             zoom=(centre, 6.0), backend="matplotlib")
     point, radius = res.zoom
     assert point == pytest.approx(tuple(V[centre])) and radius == pytest.approx(6 * h, rel=1e-9)
-    near = np.linalg.norm(V - V[centre], axis=1) <= 1.2 * radius  # the faces drawn: those with a vertex near
+    near = np.linalg.norm(V - V[centre], axis=1) <= radius  # the faces drawn: those with a vertex in the ball
     kept = np.unique(F[near[F].any(axis=1)])
     assert res.errors[0].shape == kept.shape
     np.testing.assert_allclose(res.errors[0], np.abs(noisy - V)[kept, 2], atol=1e-15)

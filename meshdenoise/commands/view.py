@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import sys
+import warnings
 from pathlib import Path
 
 import click
@@ -75,14 +76,18 @@ def _render(meshes, png, reference, titles, size, view, error_mode, vmax, backen
     from ..render import render_comparison
 
     try:
-        result = render_comparison(list(meshes), png, reference=reference, titles=titles,
-                                   size=_parse_size(size), view=_parse_view(view), error_of=error_of,
-                                   error_mode=error_mode, vmax=vmax, backend=backend, show_change=reference is None,
-                                   percentile=percentile, zoom=_parse_zoom(zoom))
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", UserWarning)
+            result = render_comparison(list(meshes), png, reference=reference, titles=titles,
+                                       size=_parse_size(size), view=_parse_view(view), error_of=error_of,
+                                       error_mode=error_mode, vmax=vmax, backend=backend,
+                                       show_change=reference is None, percentile=percentile, zoom=_parse_zoom(zoom))
     except click.BadParameter:
         raise
     except (ValueError, TypeError, MeshFileError) as exc:
         raise click.UsageError(str(exc)) from None
+    for w in caught:  # one line each, not Python's warning format with a source line
+        click.echo(f"warning: {w.message}", err=True)
     click.echo(f"wrote {result.path} ({len(result.panels)} panels) with {result.backend_detail}")
     if result.zoom is not None:
         (x, y, z), r = result.zoom
