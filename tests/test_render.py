@@ -348,3 +348,20 @@ def test_software_zbuffer_keeps_the_nearest_surface_and_covers_exactly_the_pixel
     assert (blue != inside_near).sum() <= 4  # only pixel centres on an edge may differ
     assert (red != (inside_far & ~inside_near)).sum() <= 4
     assert (inside_far & inside_near).sum() > 100  # the overlap is real, and blue there
+
+
+def test_show_png_without_reference_adds_the_change_of_every_later_mesh(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from meshdenoise.cli import cli
+    from meshdenoise.io import save_arrays
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    V, F = icosphere(2)
+    for name, s in (("a", 1.0), ("b", 1.01), ("c", 1.02)):
+        save_arrays(tmp_path / f"{name}.ply", V * s, F)
+    res = CliRunner().invoke(cli, ["show", *(str(tmp_path / f"{n}.ply") for n in "abc"), "--png",
+                                   str(tmp_path / "s.png"), "--size", "40x40", "--backend", "matplotlib"])
+    assert res.exit_code == 0, res.output
+    assert "5 panels" in res.output and "displacement from the first mesh" in res.output
