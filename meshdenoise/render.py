@@ -643,6 +643,14 @@ def _draw_matplotlib(job: dict, size, camera: Camera) -> np.ndarray:
     nx, ny = x1 - x0 + 1, y1 - y0 + 1
     some = (nx > 0) & (ny > 0)
     F, x0, y0, nx, ny = F[some], x0[some], y0[some], nx[some], ny[some]
+    rows = np.maximum(1, ZBUFFER_CHUNK // nx)  # a triangle larger than a batch is cut into bands of rows
+    pieces = -(-ny // rows)
+    if (pieces > 1).any():
+        idx = np.repeat(np.arange(F.shape[0]), pieces)
+        k = np.arange(idx.size) - np.repeat(np.cumsum(pieces) - pieces, pieces)
+        band0 = y0[idx] + k * rows[idx]
+        ny = np.minimum(rows[idx], y0[idx] + ny[idx] - band0)
+        F, x0, nx, y0 = F[idx], x0[idx], nx[idx], band0
     count = nx * ny
     depth = np.full(w * h, np.inf)
     value = np.zeros((w * h, attr.shape[1]))

@@ -365,3 +365,15 @@ def test_show_png_without_reference_adds_the_change_of_every_later_mesh(tmp_path
                                    str(tmp_path / "s.png"), "--size", "40x40", "--backend", "matplotlib"])
     assert res.exit_code == 0, res.output
     assert "5 panels" in res.output and "displacement from the first mesh" in res.output
+
+
+def test_software_zbuffer_batches_do_not_change_the_picture(monkeypatch):
+    import meshdenoise.render as render
+
+    V, F = icosphere(1)  # few, large triangles: each covers hundreds of pixels
+    cam = frame_camera([V], (90, 90))
+    job = render._job(V, F, cam)
+    whole = render._draw_matplotlib(job, (90, 90), cam)
+    monkeypatch.setattr(render, "ZBUFFER_CHUNK", 37)  # smaller than one triangle: cut into bands of rows
+    assert np.array_equal(render._draw_matplotlib(job, (90, 90), cam), whole)
+    assert 0.3 < covered(whole).mean() < 0.8
