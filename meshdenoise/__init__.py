@@ -14,7 +14,7 @@ True
 from .adapters import to_arrays
 from .arrays import MeshValidationError
 from .metrics import snr
-from .noise import add_normal_noise
+from .noise import add_normal_noise, add_scanner_noise
 from .operators import Operators, get_operators
 from .plugins.filtering import filtering
 from .plugins.heat import heat
@@ -81,7 +81,7 @@ __all__ = [
     "heat",
     "sinkhorn",
     "sobolev",
-    "add_normal_noise",
+    "add_normal_noise", "add_scanner_noise",
     "snr",
     "apply_filter",
     "get_filter",

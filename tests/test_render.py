@@ -158,3 +158,222 @@ def test_render_cli_writes_before_after_error(tmp_path):
     assert "3 panels" in res.output and "matplotlib" in res.output and "0.01" in res.output
     png = matplotlib.image.imread(tmp_path / "out.png")
     assert png.shape[1] > 3 * 64
+
+
+# --- a scan's change without a reference, zoom, file mode, Open3D failing fast ---------------------
+def test_change_without_reference_is_the_displacement_from_the_first_mesh_on_a_99th_percentile_bar(tmp_path):
+    bumped, flat = bump_plane()
+    res = render_comparison([flat, bumped], tmp_path / "change.png", size=(121, 121), show_change=True,
+                            backend="matplotlib")
+    assert res.heat == "change" and res.error_mode == "vertex" and res.percentile == 99.0
+    assert res.titles == ["mesh 1", "mesh 2", "change: mesh 1 → mesh 2"]
+    height = 0.2 * np.exp(-(flat[0][:, 0] ** 2 + flat[0][:, 1] ** 2) / 0.02)  # the displacement, from the formula
+    np.testing.assert_allclose(res.errors[0], height, atol=1e-15)
+    assert res.vmax == pytest.approx(np.percentile(height, 99), rel=1e-12)
+    assert res.vmax < height.max()  # robust: the top 1 % saturate
+    heat = res.panels[-1]
+    edge = np.flatnonzero(covered(heat)[60]).max()  # the plane's right edge in this row
+    t = colormap_position(heat[60, 60:edge - 1])
+    assert t[0] > 0.97 and t[-1] < 0.05 and (np.diff(t) <= 0.03).all(), t
+    # a reference still wins: its error, topped at the maximum
+    ref = render_comparison([flat, bumped], tmp_path / "ref.png", reference=flat, size=(64, 64), show_change=True,
+                            backend="matplotlib")
+    assert ref.heat == "error" and ref.percentile == 100.0 and ref.vmax == pytest.approx(height.max())
+
+
+def test_change_of_every_later_mesh_shares_one_bar(tmp_path):
+    V, F = icosphere(2)
+    res = render_comparison([(V, F), (V * 1.01, F), (V * 1.03, F)], tmp_path / "all.png", size=(48, 48),
+                            show_change=True, error_of="all", percentile=50, backend="matplotlib")
+    assert len(res.panels) == 5 and [e.max() for e in res.errors] == pytest.approx([0.01, 0.03])
+    assert res.vmax == pytest.approx(np.percentile(np.concatenate(res.errors), 50))
+    with pytest.raises(ValueError, match=r"percentile must be a number in \(0, 100\], got 0"):
+        render_comparison([(V, F), (V, F)], tmp_path / "x.png", show_change=True, percentile=0)
+
+
+def test_zoom_on_a_vertex_crops_a_ball_and_fills_the_picture(tmp_path):
+    V, F = grid(81, 81)
+    sides, diagonals = 2 * 81 * 80, 80 * 80  # edges of the grid: sides of 1/80 and one diagonal per square
+    h = (sides + diagonals * np.sqrt(2)) / (sides + diagonals) / 80  # its mean edge length
+    centre = 40 * 81 + 40  # the middle vertex
+    noisy = V + [0, 0, 0.001] * np.random.default_rng(0).standard_normal((len(V), 1))
+    res = render_comparison([(V, F), (noisy, F)], tmp_path / "zoom.png", size=(64, 64), show_change=True,
+                            zoom=(centre, 6.0), backend="matplotlib")
+    point, radius = res.zoom
+    assert point == pytest.approx(tuple(V[centre])) and radius == pytest.approx(6 * h, rel=1e-9)
+    near = np.linalg.norm(V - V[centre], axis=1) <= radius  # the faces drawn: those with a vertex in the ball
+    kept = np.unique(F[near[F].any(axis=1)])
+    assert res.errors[0].shape == kept.shape
+    np.testing.assert_allclose(res.errors[0], np.abs(noisy - V)[kept, 2], atol=1e-15)
+    assert res.camera.project(V[centre][None], (64, 64))[0, :2] == pytest.approx([32, 32])
+    assert covered(res.panels[0]).mean() > 0.6  # the ball fills the panel: a disc
+    alone = render_comparison([(V, F)], tmp_path / "whole.png", size=(64, 64), backend="matplotlib")
+    assert covered(alone.panels[0]).mean() < covered(res.panels[0]).mean()
+    by_point = render_comparison([(V, F)], tmp_path / "p.png", size=(64, 64), zoom=(tuple(V[centre]), 6.0),
+                                 backend="matplotlib")
+    assert np.array_equal(by_point.panels[0], res.panels[0])
+
+
+def test_zoom_bad_values_are_named(tmp_path):
+    V, F = grid(5, 5)
+    with pytest.raises(ValueError, match="vertex 99 does not exist"):
+        render_comparison([(V, F)], tmp_path / "x.png", zoom=(99, 3))
+    with pytest.raises(ValueError, match="zoom radius must be a number > 0"):
+        render_comparison([(V, F)], tmp_path / "x.png", zoom=(0, 0))
+    with pytest.raises(ValueError, match="no face has a vertex within"):
+        render_comparison([(V, F)], tmp_path / "x.png", zoom=((10.0, 10.0, 10.0), 1))
+    with pytest.raises(ValueError, match="zoom must be"):
+        render_comparison([(V, F)], tmp_path / "x.png", zoom=5)
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_render_cli_without_reference_and_with_zoom(tmp_path):
+    from click.testing import CliRunner
+
+    from meshdenoise.cli import cli
+    from meshdenoise.io import save_arrays
+
+    V, F = icosphere(3)
+    save_arrays(tmp_path / "scan.ply", V, F)
+    save_arrays(tmp_path / "den.ply", V * 1.01, F)
+    base = ["render", str(tmp_path / "scan.ply"), str(tmp_path / "den.ply"), "--size", "48x48",
+            "--backend", "matplotlib"]
+    res = CliRunner().invoke(cli, [*base, "--png", str(tmp_path / "a.png")])
+    assert res.exit_code == 0, res.output
+    assert "3 panels" in res.output and "99th percentile" in res.output and "0.01" in res.output
+    res = CliRunner().invoke(cli, [*base, "--png", str(tmp_path / "b.png"), "--zoom", "0,3", "--percentile", "90"])
+    assert res.exit_code == 0, res.output
+    assert "zoomed on (-0.5257, 0.8507, 0), radius" in res.output and "90th percentile" in res.output
+    res = CliRunner().invoke(cli, [*base, "--png", str(tmp_path / "c.png"), "--zoom", "1,2,3"])
+    assert res.exit_code == 2 and "VERTEX,RADIUS or X,Y,Z,RADIUS" in res.output and "Traceback" not in res.output
+    res = CliRunner().invoke(cli, [*base, "--png", str(tmp_path / "c.png"), "--zoom", "5000,3"])
+    assert res.exit_code == 2 and "vertex 5000 does not exist" in res.output
+    assert not (tmp_path / "c.png").exists()
+
+
+def test_png_mode_follows_the_umask_like_other_outputs(tmp_path):
+    import os
+    import stat
+
+    from click.testing import CliRunner
+
+    from meshdenoise.cli import cli
+    from meshdenoise.io import _UMASK, save_mesh
+
+    expected = 0o666 & ~_UMASK  # 0644 under umask 022
+    V, F = icosphere(1)
+    render_comparison([(V, F)], tmp_path / "api.png", size=(32, 32), backend="matplotlib")
+    save_mesh(tmp_path / "mesh.ply", V, F)
+    assert stat.S_IMODE(os.stat(tmp_path / "api.png").st_mode) == expected
+    assert stat.S_IMODE(os.stat(tmp_path / "mesh.ply").st_mode) == expected
+    (tmp_path / "pipe.yaml").write_text(
+        f"inputs: {tmp_path / 'mesh.ply'}\noutput_dir: {tmp_path / 'out'}\nsteps:\n"
+        "  - render: {path: '{stem}.png', backend: matplotlib, size: [32, 32]}\n")
+    res = CliRunner().invoke(cli, ["run", str(tmp_path / "pipe.yaml"), "--serial"])
+    assert res.exit_code == 0, res.output
+    assert stat.S_IMODE(os.stat(tmp_path / "out" / "mesh.png").st_mode) == expected
+    os.chmod(tmp_path / "api.png", 0o640)  # a replaced picture keeps its mode
+    render_comparison([(V, F)], tmp_path / "api.png", size=(32, 32), backend="matplotlib")
+    assert stat.S_IMODE(os.stat(tmp_path / "api.png").st_mode) == 0o640
+
+
+@pytest.fixture
+def fresh_verdict(monkeypatch):
+    import meshdenoise.render as render
+
+    monkeypatch.setattr(render, "_OPEN3D_VERDICT", None)
+    return render
+
+
+def test_no_vulkan_falls_back_at_once_without_a_child(fresh_verdict, monkeypatch, tmp_path):
+    import subprocess
+    import time
+
+    render = fresh_verdict
+    monkeypatch.setattr(render, "_vulkan_missing", lambda: "no Vulkan driver is installed")
+    monkeypatch.setattr(subprocess, "Popen", lambda *a, **k: pytest.fail("no child may start"))
+    start = time.perf_counter()
+    with pytest.warns(UserWarning, match="cannot start: no Vulkan driver"):
+        res = render_comparison([icosphere(1)], tmp_path / "a.png", size=(32, 32))
+    assert res.backend == "matplotlib" and time.perf_counter() - start < 10
+    monkeypatch.setattr(render, "_vulkan_missing", lambda: pytest.fail("the verdict is remembered"))
+    with pytest.warns(UserWarning, match="failed earlier in this process"):
+        assert render_comparison([icosphere(1)], tmp_path / "b.png", size=(32, 32)).backend == "matplotlib"
+
+
+def test_a_stalled_frame_is_retried_once_then_falls_back_fast(fresh_verdict, monkeypatch, tmp_path):
+    import time
+
+    render = fresh_verdict
+    monkeypatch.setattr(render, "_vulkan_missing", lambda: None)
+    monkeypatch.setattr(render, "FRAME_SECONDS", 1.0)
+    # a child whose renderer starts and whose first frame never comes
+    monkeypatch.setattr(render, "_CHILD", "import time; print('MESHDENOISE_READY', flush=True); time.sleep(120)")
+    start = time.perf_counter()
+    with pytest.warns(UserWarning, match=r"waited for frame 1 of 1 \(1 s allowed\); then waited for frame 1 of 1"):
+        res = render_comparison([icosphere(1)], tmp_path / "a.png", size=(32, 32))
+    assert res.backend == "matplotlib" and time.perf_counter() - start < 30
+    # a renderer that never starts is not tried twice
+    render._OPEN3D_VERDICT = None
+    monkeypatch.setenv("MESHDENOISE_RENDER_STARTUP", "1")
+    monkeypatch.setattr(render, "_CHILD", "import time; time.sleep(120)")
+    with pytest.warns(UserWarning) as caught:
+        render_comparison([icosphere(1)], tmp_path / "b.png", size=(32, 32))
+    text = str(caught[0].message)
+    assert "waited for the renderer to start (1 s allowed" in text and "then" not in text
+
+
+def test_software_zbuffer_keeps_the_nearest_surface_and_covers_exactly_the_pixel_centres_inside():
+    from matplotlib.path import Path as MplPath
+
+    from meshdenoise.render import _draw_matplotlib
+
+    square = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+    quad = np.array([[0, 1, 2], [0, 2, 3]])
+    far_v, near_v = square - [0.6, 0.6, 0], square - [0.2, 0.2, -0.5]  # the near square is 0.5 closer to the eye
+    V = np.vstack([far_v, near_v])
+    colors = np.array([[1.0, 0, 0]] * 4 + [[0, 0, 1.0]] * 4)
+    cam = frame_camera([V], (80, 80))
+    both = []
+    for F in (np.vstack([quad, quad + 4]), np.vstack([quad + 4, quad])):  # drawing order must not matter
+        both.append(_draw_matplotlib({"V": V, "F": F, "colors": colors}, (80, 80), cam))
+    assert np.array_equal(both[0], both[1])
+    img = both[0]
+    centres = np.stack(np.meshgrid(np.arange(80) + 0.5, np.arange(80) + 0.5), -1).reshape(-1, 2)
+    proj = cam.project(V, (80, 80))[:, :2]
+    inside_far = MplPath(proj[:4]).contains_points(centres).reshape(80, 80)
+    inside_near = MplPath(proj[4:]).contains_points(centres).reshape(80, 80)
+    blue = (img[:, :, 2] > 200) & (img[:, :, 0] < 50)
+    red = (img[:, :, 0] > 200) & (img[:, :, 2] < 50)
+    assert (blue != inside_near).sum() <= 4  # only pixel centres on an edge may differ
+    assert (red != (inside_far & ~inside_near)).sum() <= 4
+    assert (inside_far & inside_near).sum() > 100  # the overlap is real, and blue there
+
+
+def test_show_png_without_reference_adds_the_change_of_every_later_mesh(tmp_path, monkeypatch):
+    from click.testing import CliRunner
+
+    from meshdenoise.cli import cli
+    from meshdenoise.io import save_arrays
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    V, F = icosphere(2)
+    for name, s in (("a", 1.0), ("b", 1.01), ("c", 1.02)):
+        save_arrays(tmp_path / f"{name}.ply", V * s, F)
+    res = CliRunner().invoke(cli, ["show", *(str(tmp_path / f"{n}.ply") for n in "abc"), "--png",
+                                   str(tmp_path / "s.png"), "--size", "40x40", "--backend", "matplotlib"])
+    assert res.exit_code == 0, res.output
+    assert "5 panels" in res.output and "displacement from the first mesh" in res.output
+
+
+def test_software_zbuffer_batches_do_not_change_the_picture(monkeypatch):
+    import meshdenoise.render as render
+
+    V, F = icosphere(1)  # few, large triangles: each covers hundreds of pixels
+    cam = frame_camera([V], (90, 90))
+    job = render._job(V, F, cam)
+    whole = render._draw_matplotlib(job, (90, 90), cam)
+    monkeypatch.setattr(render, "ZBUFFER_CHUNK", 37)  # smaller than one triangle: cut into bands of rows
+    assert np.array_equal(render._draw_matplotlib(job, (90, 90), cam), whole)
+    assert 0.3 < covered(whole).mean() < 0.8

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import sys
+import warnings
 from pathlib import Path
 
 import click
@@ -27,6 +28,22 @@ def _parse_view(text: str) -> tuple[float, float]:
     return az, el
 
 
+def _parse_zoom(text: str | None):
+    """'VERTEX,RADIUS' or 'X,Y,Z,RADIUS' (radius in mean edge lengths) -> (centre, radius)."""
+    if text is None:
+        return None
+    parts = text.split(",")
+    try:
+        if len(parts) == 2:
+            return int(parts[0]), float(parts[1])
+        if len(parts) == 4:
+            return tuple(float(x) for x in parts[:3]), float(parts[3])
+    except ValueError:
+        pass
+    raise click.BadParameter(f"expected VERTEX,RADIUS or X,Y,Z,RADIUS (radius in mean edge lengths), e.g. 1200,15; "
+                             f"got {text!r}", param_hint="'--zoom'")
+
+
 _common = [
     click.option("--size", default="400x400", show_default=True, help="Pixels of one panel, WIDTHxHEIGHT."),
     click.option("--view", default="0,0", show_default=True,
@@ -35,7 +52,13 @@ _common = [
                  help="vertex: displacement of vertex i from reference vertex i; nearest: distance to the "
                       "reference surface; auto: vertex when the faces are the same."),
     click.option("--vmax", type=click.FloatRange(min=0, min_open=True), default=None,
-                 help="Top of the colour bar (default: the largest error)."),
+                 help="Top of the colour bar (default: the --percentile of the values shown)."),
+    click.option("--percentile", type=click.FloatRange(min=0, max=100, min_open=True), default=None,
+                 help="Where the colour bar tops without --vmax: default 100 (the largest error) with --reference, "
+                      "99 for the change from the first mesh."),
+    click.option("--zoom", default=None, metavar="VERTEX,R | X,Y,Z,R",
+                 help="Look at a detail: the ball of radius R (mean edge lengths) around a vertex of the first "
+                      "mesh or a point; only it is drawn."),
     click.option("--backend", type=click.Choice(["auto", "open3d", "matplotlib"]), default="auto", show_default=True,
                  help="Rasteriser; auto tries Open3D's OffscreenRenderer, then matplotlib."),
 ]
@@ -47,20 +70,34 @@ def _with_common(f):
     return f
 
 
-def _render(meshes, png, reference, titles, size, view, error_mode, vmax, backend, error_of="last"):
+def _render(meshes, png, reference, titles, size, view, error_mode, vmax, backend, error_of="last",
+            percentile=None, zoom=None):
+    from ..io import MeshFileError
     from ..render import render_comparison
 
     try:
-        result = render_comparison(list(meshes), png, reference=reference, titles=titles,
-                                   size=_parse_size(size), view=_parse_view(view), error_of=error_of,
-                                   error_mode=error_mode, vmax=vmax, backend=backend)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always", UserWarning)
+            result = render_comparison(list(meshes), png, reference=reference, titles=titles,
+                                       size=_parse_size(size), view=_parse_view(view), error_of=error_of,
+                                       error_mode=error_mode, vmax=vmax, backend=backend,
+                                       show_change=reference is None, percentile=percentile, zoom=_parse_zoom(zoom))
     except click.BadParameter:
         raise
-    except (ValueError, TypeError) as exc:
+    except (ValueError, TypeError, MeshFileError) as exc:
         raise click.UsageError(str(exc)) from None
+    for w in caught:  # one line each, not Python's warning format with a source line
+        click.echo(f"warning: {w.message}", err=True)
     click.echo(f"wrote {result.path} ({len(result.panels)} panels) with {result.backend_detail}")
+    if result.zoom is not None:
+        (x, y, z), r = result.zoom
+        click.echo(f"zoomed on ({x:.4g}, {y:.4g}, {z:.4g}), radius {r:.4g} (mesh units)")
     if result.vmax is not None:
-        click.echo(f"colour bar 0 to {result.vmax:.4g} ({result.error_mode} error)")
+        what = "error" if result.heat == "error" else "displacement from the first mesh"
+        top = "maximum" if result.percentile in (None, 100.0) else f"{result.percentile:g}th percentile"
+        if result.percentile is None:
+            top = "--vmax"
+        click.echo(f"colour bar 0 to {result.vmax:.4g} ({result.error_mode} {what}; top = {top})")
 
 
 def _has_display() -> bool:
@@ -71,13 +108,17 @@ def _has_display() -> bool:
 @click.argument("meshes", nargs=-1, required=True, type=MESH)
 @click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Render to this PNG instead of opening a window (default without a display: show.png).")
-@click.option("--reference", type=MESH, default=None, help="Clean mesh: add error heat maps of every mesh.")
+@click.option("--reference", type=MESH, default=None,
+              help="Clean mesh: add error heat maps of every mesh (without it, the PNG shows how far each later "
+                   "mesh moved from the first).")
 @_with_common
-def show(meshes, png, reference, size, view, error_mode, vmax, backend):
+def show(meshes, png, reference, size, view, error_mode, vmax, percentile, zoom, backend):
     """Look at MESHES: Open3D's viewer with a display, else (or with --png) a headless PNG.
 
     In the viewer the meshes stand side by side along x (coloured by their error when
-    --reference is given); in the PNG they share one camera.
+    --reference is given); in the PNG they share one camera, followed by heat maps of the
+    error against --reference or, without one, of the displacement of every later mesh from
+    the first.
     """
     if png is None and _has_display():
         _open_viewer(meshes, reference, error_mode, vmax)
@@ -85,7 +126,8 @@ def show(meshes, png, reference, size, view, error_mode, vmax, backend):
     if png is None:
         png = Path("show.png")
         click.echo("no display found: rendering headless to show.png (use --png to choose)")
-    _render(meshes, png, reference, None, size, view, error_mode, vmax, backend, error_of="all")
+    _render(meshes, png, reference, None, size, view, error_mode, vmax, backend, error_of="all",
+            percentile=percentile, zoom=zoom)
 
 
 def _open_viewer(paths, reference, error_mode, vmax):
@@ -115,13 +157,21 @@ def _open_viewer(paths, reference, error_mode, vmax):
 @click.command()
 @click.argument("before", type=MESH)
 @click.argument("after", type=MESH)
-@click.option("--reference", type=MESH, required=True, help="The clean mesh the error is measured against.")
+@click.option("--reference", type=MESH, default=None,
+              help="The clean mesh the error is measured against; without it (a scan) the third panel is the "
+                   "displacement from BEFORE to AFTER.")
 @click.option("--png", type=click.Path(dir_okay=False, path_type=Path), required=True, help="PNG to write.")
 @_with_common
-def render(before, after, reference, png, size, view, error_mode, vmax, backend):
-    """Before / after / error of AFTER against --reference, side by side in one PNG."""
+def render(before, after, reference, png, size, view, error_mode, vmax, percentile, zoom, backend):
+    """Before / after / a heat map, side by side in one PNG.
+
+    The heat map is the error of AFTER against --reference, or without a reference the
+    displacement of every vertex from BEFORE to AFTER, on a colour bar topped at the 99th
+    percentile (--percentile, --vmax). --zoom VERTEX,R or X,Y,Z,R draws only a ball of
+    radius R mean edge lengths.
+    """
     _render([before, after], png, reference, [f"before: {before.name}", f"after: {after.name}"],
-            size, view, error_mode, vmax, backend)
+            size, view, error_mode, vmax, backend, percentile=percentile, zoom=zoom)
 
 
 @click.command()

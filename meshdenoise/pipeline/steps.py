@@ -379,7 +379,7 @@ def run_step(step: Step, ctx: RunContext) -> None:
         ctx.staged.append((path, V, F, colors if step.params["colors"] else None, step.params["binary"]))
         ctx.row.setdefault("outputs", []).append(str(path))
     elif step.kind == "render":
-        from ..render import render_comparison  # written separately; imported only when used
+        from ..render import new_file_mode, render_comparison  # written separately; imported only when used
 
         p = step.params
         V, F, _ = current_arrays(ctx.ms)
@@ -389,6 +389,7 @@ def run_step(step: Step, ctx: RunContext) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
         os.close(fd)
+        os.chmod(tmp, new_file_mode(path))  # mkstemp's 0600 would be kept by the rename
         ctx.staged_files.append((Path(tmp), path))
         result = render_comparison(
             [named[m] for m in p["meshes"]], tmp, reference=named[p["reference"]] if p["reference"] else None,
