@@ -17,9 +17,17 @@ Index arrays: ``indptr`` int64, ``indices`` int32 (int64 above 2^31 entries).
 
 from __future__ import annotations
 
-import numba
-import numpy as np
-from numba import njit, prange
+import os
+
+# Idle OpenMP threads sleep instead of spinning. On a busy machine (2 cores shared by many
+# jobs) spinning doubled the CPU time of a two_stage run and made 2 threads slower than 1;
+# passive waiting costs a few microseconds per parallel loop here, each loop taking
+# milliseconds. Read when OpenMP starts, so set before numba loads it; a user's value wins.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+from numba import njit, prange  # noqa: E402
 
 # OpenMP first: numba would otherwise try an old TBB (Open3D's) first and warn about its version.
 # Both are safe to call from several threads at once, unlike the workqueue fallback.
