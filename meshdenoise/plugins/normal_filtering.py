@@ -413,8 +413,12 @@ def two_stage(V, F, *, ops, fixed, iterations, normal_iterations, vertex_iterati
     ``sigma_s`` is relative to the mean distance between neighbouring face centroids,
     recomputed each outer iteration, so the defaults do not depend on the mesh's scale
     or resolution. ``sigma_r`` acts on unit-normal differences (dimensionless).
-    Everything is vectorised over sparse face pairs; the neighbourhoods are cached
-    per topology. Defaults reach 3.0 degrees of mean face-normal error on the
+    Each normal-filtering pass is three compiled, threaded loops over the face pairs and
+    each vertex step one loop over the corners (:mod:`meshdenoise.kernels`), on
+    preallocated buffers; the neighbourhoods are cached per topology (about 300 bytes
+    per vertex). The work is done on the coordinates divided by a power of two near the
+    mesh's extent (exact), so the result scales with the mesh: a mesh scaled by 1e80 or
+    1e-80 gives the same result, scaled. Defaults reach 3.0 degrees of mean face-normal error on the
     Fandisk0.3 benchmark (noisy: 28.4) and 3.6 on Block0.4 (noisy: 33.7).
 
     Parameters
