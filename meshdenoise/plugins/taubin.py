@@ -10,7 +10,6 @@ from ..registry import AutoRule, Param, get_filter, register
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import averaging_step, best_on_path, iterative_path
-from .filtering import _inverse_distance_operator
 
 __all__ = ["taubin", "meshlab_taubin_operator", "TAUBIN_WEIGHTS"]
 
@@ -156,7 +155,8 @@ def taubin(V, F, *, ops, fixed, iterations, lam, mu, weights):
       rounded to float32 as vcglib does.
     - ``"open3d"``: Open3D ``filter_smooth_taubin(iterations, lambda_filter=lam, mu=mu)``:
       inverse-distance weights :math:`1/(\\|x_i - x_j\\| + 10^{-12})`, recomputed
-      before every pass (not linear).
+      before every pass (not linear); each pass is one compiled loop over the edges,
+      faster than Open3D's own.
 
     trimesh's ``smoothing.filter_taubin(lamb, nu, iterations=k)`` counts every *pass* as
     an iteration and subtracts a positive ``nu``: it corresponds to ``iterations=k/2``,
@@ -198,18 +198,37 @@ def taubin(V, F, *, ops, fixed, iterations, lam, mu, weights):
     if weights == "meshlab":
         # vcglib passes lambda and mu as C++ float
         lam, mu = float(np.float32(lam)), float(np.float32(mu))
-    A = None
+    if weights == "open3d":
+        return _open3d_taubin(X, ops, fixed, iterations, lam, mu)
     if weights == "uniform":
         A = ops.with_fixed_rows(ops.P, fixed, "P")
-    elif weights == "meshlab":
+    else:
         A = ops.with_fixed_rows(meshlab_taubin_operator(ops), fixed, "meshlab_taubin")
     for _ in range(iterations):
         for f in (lam, mu):
-            if A is None:
-                AX = _inverse_distance_operator(ops, X) @ X
-                if fixed is not None:
-                    AX[fixed] = X[fixed]
-            else:
-                AX = A @ X
+            AX = A @ X
             X = X + f * (AX - X)
+    return X
+
+
+def _open3d_taubin(
+    X: np.ndarray, ops: Operators, fixed: np.ndarray | None, iterations: int, lam: float, mu: float
+) -> np.ndarray:
+    """Open3D-weight passes ``X <- X + f (A(X) X - X)``, ``A(X)_ij ∝ 1 / (|x_i - x_j| + 1e-12)``, compiled.
+
+    Each pass is one threaded loop over the rows of ``W`` (:func:`meshdenoise.kernels.inverse_distance_pass`)
+    from one preallocated (n, 3) buffer into the other: the weights are never stored.
+    ``X`` (n, 3) float64 is used as one of the buffers; returns the result (n, 3).
+    """
+    from .. import kernels
+
+    kernels.set_threads()
+    W = ops.W
+    mask = np.zeros(ops.n, dtype=bool) if fixed is None else np.ascontiguousarray(fixed, dtype=bool)
+    X = np.ascontiguousarray(X)
+    Y = np.empty_like(X)
+    for _ in range(iterations):
+        for f in (lam, mu):
+            kernels.inverse_distance_pass(X, W.indptr, W.indices, mask, float(f), Y)
+            X, Y = Y, X
     return X

@@ -1,0 +1,426 @@
+"""Scan-sized meshes: automatic parameters, filters and the command line at 100k to 1.6M vertices (issue 17).
+
+Meshes: the elephant (24,955 vertices, ``MESHDENOISE_DATA``) Loop-subdivided by Open3D's
+``subdivide_loop`` 1, 2 and 3 times (99,832, 399,340 and 1,597,372 vertices), with
+Gaussian noise of 0.5 mean edge length along the vertex normals
+(:func:`meshdenoise.add_normal_noise`, seed 0). Made once and cached under
+``~/.cache/meshdenoise/scale`` (``--cache-dir``): clean and noisy ``.npz`` and the noisy
+mesh as binary PLY for the command line.
+
+Per size and method, two cells, each a fresh subprocess killed after ``--timeout``
+seconds (recorded as ``> T s``; what finished before is kept):
+
+- *in process*: ``choose_parameters(mesh, method)`` (seconds), the filter at those
+  parameters on a cold operator cache (seconds), the SNR of its result against the clean
+  mesh, and the oracle's SNR: the best over a small grid of the method's main parameter
+  scored against the clean mesh (the automatic value included, so oracle >= auto). The
+  grid: iterative methods (``filtering``, ``taubin``, ``two_stage``) walk one run past
+  the chosen count; the others try the chosen value times 1/3 and 3.
+- *end to end*: ``meshdenoise denoise --method M --auto IN.ply OUT.ply`` (read, choose,
+  filter, write) as a subprocess: wall seconds and its peak resident memory
+  (``ru_maxrss`` of that child, from ``os.wait4``; Linux starts it at the parent's peak,
+  so this process stays small and makes the meshes in a child), also per vertex.
+
+And two pairs, each timed in one process with its peer (cold caches, wall and CPU
+seconds, growth of the resident high-water mark per vertex):
+
+- ``two_stage(iterations=1, normal_iterations=20, vertex_iterations=20)`` against
+  pymeshlab ``apply_coord_two_steps_smoothing(stepsmoothnum=1, stepnormalnum=20,
+  stepfitnum=20)`` (MeshLab's default counts per outer iteration);
+- ``taubin(iterations=10, lam=0.5, mu=-0.53, weights="open3d")`` against Open3D
+  ``filter_smooth_taubin(10, 0.5, -0.53)``, with the largest coordinate difference.
+
+The machine's load average is recorded per cell: on a shared machine wall times grow with
+it (CPU seconds are given for the pairs).
+
+Usage::
+
+    python benchmarks/scale.py --sizes 100k,400k --timeout 120 --out benchmarks/results/scale-100k-400k
+    python benchmarks/scale.py --sizes 1.6M --pairs-only
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+SIZES = {"100k": 1, "400k": 2, "1.6M": 3}  # label -> Loop subdivision levels
+METHODS = ("filtering", "heat", "taubin", "sobolev", "sobolev_bilaplacian", "sobolev_normal", "sobolev_gls", "two_stage")
+NOISE_EDGES = 0.5  # noise standard deviation in mean edge lengths
+TWO_STAGE_COUNTS = (1, 20, 20)  # outer, normal, vertex iterations (MeshLab's defaults per outer iteration)
+TAUBIN_ARGS = (10, 0.5, -0.53)
+CONTINUOUS = {  # main parameter of the methods without an iteration count to walk
+    "heat": "time",
+    "sobolev": "mu",
+    "sobolev_bilaplacian": "mu",
+    "sobolev_normal": "mu",
+    "sobolev_gls": "mu",
+}
+GRID = (1.0 / 3.0, 3.0)
+
+
+# --- meshes -------------------------------------------------------------------------------
+def cache_dir(arg: str | None) -> Path:
+    base = Path(arg) if arg else Path(os.environ.get("MESHDENOISE_CACHE") or Path.home() / ".cache" / "meshdenoise")
+    return base / "scale"
+
+
+def prepare(label: str, folder: Path) -> dict:
+    """Clean and noisy meshes of ``label`` (cached): paths and sizes."""
+    levels = SIZES[label]
+    folder.mkdir(parents=True, exist_ok=True)
+    npz, ply = folder / f"elephant-o3dloop{levels}.npz", folder / f"elephant-o3dloop{levels}-noisy.ply"
+    if not (npz.is_file() and ply.is_file()):
+        import open3d as o3d
+
+        from meshdenoise import add_normal_noise
+        from meshdenoise.data import data_file
+        from meshdenoise.io import load_arrays, save_mesh
+        from meshdenoise.operators import Operators
+
+        V, F = load_arrays(data_file("elephant-50kv.off"))
+        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F.astype(np.int32)))
+        if levels:
+            mesh = mesh.subdivide_loop(number_of_iterations=levels)
+        V, F = np.asarray(mesh.vertices).copy(), np.asarray(mesh.triangles).astype(np.int64)
+        e = Operators(F, len(V)).edges
+        h = float(np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1).mean())
+        rho = NOISE_EDGES * h
+        Vn, _ = add_normal_noise((V, F), rho, seed=0)
+        save_mesh(ply, Vn, F)
+        tmp = npz.with_name(npz.name + f".tmp{os.getpid()}.npz")
+        np.savez(tmp, V=V, F=F, Vn=Vn, rho=rho, h=h)
+        os.replace(tmp, npz)
+    with np.load(npz) as z:
+        n, m, rho, h = len(z["V"]), len(z["F"]), float(z["rho"]), float(z["h"])
+    return {"label": label, "npz": str(npz), "ply": str(ply), "n": n, "m": m, "rho": rho, "h": h}
+
+
+def load(npz: str):
+    with np.load(npz) as z:
+        return z["V"], z["F"], z["Vn"]
+
+
+# --- memory of this process (Linux) -------------------------------------------------------------
+def _status(field: str) -> int:
+    for line in Path("/proc/self/status").read_text().splitlines():
+        if line.startswith(field + ":"):
+            return int(line.split()[1]) * 1024
+    return 0
+
+
+def reset_peak() -> int:
+    """Reset the resident high-water mark to the current resident size; return that size (bytes)."""
+    try:
+        Path("/proc/self/clear_refs").write_text("5")
+    except OSError:
+        pass
+    return _status("VmRSS")
+
+
+def peak() -> int:
+    return _status("VmHWM")
+
+
+# --- children -----------------------------------------------------------------------------------
+def emit(**record) -> None:
+    print(json.dumps(record), flush=True)
+
+
+def timed(fn):
+    w, c = time.perf_counter(), time.process_time()
+    out = fn()
+    return out, time.perf_counter() - w, time.process_time() - c
+
+
+def child_inproc(npz: str, method: str) -> None:
+    """Choose, filter (cold), SNR, oracle grid; one JSON line per finished stage."""
+    import meshdenoise as md
+    from meshdenoise.operators import clear_cache
+
+    V, F, Vn = load(npz)
+    emit(stage="noisy", snr=md.snr(V, Vn))
+    params, wall, cpu = timed(lambda: md.choose_parameters((Vn, F), method))
+    params = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in params.items()}
+    emit(stage="choose", seconds=wall, cpu=cpu, params=params)
+    clear_cache()
+    (X, _), wall, cpu = timed(lambda: md.apply_filter(method, (Vn, F), **params))
+    auto_snr = md.snr(V, X)
+    emit(stage="filter", seconds=wall, cpu=cpu, snr=auto_snr)
+    del X
+    best = (auto_snr, params)
+    if method in CONTINUOUS:
+        name = CONTINUOUS[method]
+        for factor in GRID:
+            trial = {**params, name: params[name] * factor}
+            if method == "heat":  # a chosen iteration count belongs to the chosen time: let it follow
+                trial.pop("iterations", None)
+            s = md.snr(V, md.apply_filter(method, (Vn, F), **trial)[0])
+            if s > best[0]:
+                best = (s, trial)
+    else:  # iterative: walk one run, one step at a time, a few steps past the chosen count
+        k = int(params["iterations"])
+        stop = k + 3 if method == "two_stage" else max(2 * k, k + 5)
+        step = {**params, "iterations": 1}
+        X = Vn
+        for i in range(1, stop + 1):
+            X = md.apply_filter(method, (X, F), **step)[0]
+            s = md.snr(V, X)
+            if s > best[0]:
+                best = (s, {**params, "iterations": i})
+    emit(stage="oracle", snr=best[0], params=best[1])
+
+
+def child_pair(npz: str, which: str) -> None:
+    """Ours against the library peer in this one process: wall, CPU, high-water growth."""
+    import meshdenoise as md
+    from meshdenoise.operators import clear_cache
+    from meshdenoise.shapes import box
+
+    V, F, Vn = load(npz)
+    n = len(V)
+    if which == "two_stage":
+        import pymeshlab
+
+        it, nn, nv = TWO_STAGE_COUNTS
+        md.two_stage(box(4), iterations=1)  # load the compiled kernels (cached on disk) before timing
+        clear_cache()
+        base = reset_peak()
+        ours, wall, cpu = timed(lambda: md.two_stage((Vn, F), iterations=it, normal_iterations=nn, vertex_iterations=nv)[0])
+        emit(stage="ours", seconds=wall, cpu=cpu, peak_growth=peak() - base, bytes_per_vertex=(peak() - base) / n)
+        del ours
+        ms = pymeshlab.MeshSet()
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=Vn, face_matrix=F.astype(np.int32)))
+        base = reset_peak()
+        _, wall, cpu = timed(lambda: ms.apply_coord_two_steps_smoothing(stepsmoothnum=it, stepnormalnum=nn, stepfitnum=nv))
+        emit(stage="theirs", seconds=wall, cpu=cpu, peak_growth=peak() - base, bytes_per_vertex=(peak() - base) / n)
+    else:
+        import open3d as o3d
+
+        k, lam, mu = TAUBIN_ARGS
+        md.taubin(box(4), iterations=1, weights="open3d")
+        clear_cache()
+        base = reset_peak()
+        ours, wall, cpu = timed(lambda: md.taubin((Vn, F), iterations=k, lam=lam, mu=mu, weights="open3d")[0])
+        emit(stage="ours", seconds=wall, cpu=cpu, peak_growth=peak() - base, bytes_per_vertex=(peak() - base) / n)
+        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(Vn), o3d.utility.Vector3iVector(F.astype(np.int32)))
+        base = reset_peak()
+        out, wall, cpu = timed(lambda: mesh.filter_smooth_taubin(k, lambda_filter=lam, mu=mu))
+        emit(stage="theirs", seconds=wall, cpu=cpu, peak_growth=peak() - base, bytes_per_vertex=(peak() - base) / n)
+        emit(stage="difference", max_abs=float(np.abs(np.asarray(out.vertices) - ours).max()), scale=float(np.abs(Vn).max()))
+
+
+# --- running cells with a time limit --------------------------------------------------------------
+def run_limited(cmd: list[str], timeout: float) -> dict:
+    """Run ``cmd`` in its own session; kill it after ``timeout`` s. Wall time, peak RSS (``wait4``), stdout lines."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    with tempfile.TemporaryFile(mode="w+") as out, tempfile.TemporaryFile(mode="w+") as err:
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, stdout=out, stderr=err, env=env, start_new_session=True, cwd=str(ROOT))
+        timed_out = False
+        while True:
+            pid, status, usage = os.wait4(proc.pid, os.WNOHANG)
+            if pid:
+                break
+            if time.perf_counter() - t0 > timeout:
+                timed_out = True
+                os.killpg(proc.pid, signal.SIGKILL)
+                pid, status, usage = os.wait4(proc.pid, 0)
+                break
+            time.sleep(0.05)
+        wall = time.perf_counter() - t0
+        proc.returncode = 0  # reaped by wait4
+        out.seek(0)
+        err.seek(0)
+        records = [json.loads(line) for line in out.read().splitlines() if line.startswith("{")]
+        tail = err.read().strip().splitlines()[-3:]
+    return {
+        "wall": wall,
+        "timed_out": timed_out,
+        "exit": None if timed_out else os.waitstatus_to_exitcode(status),
+        "maxrss": usage.ru_maxrss * 1024,
+        "records": {r.pop("stage"): r for r in records},
+        "stderr_tail": tail,
+    }
+
+
+def me(*args: str) -> list[str]:
+    return [sys.executable, str(Path(__file__).resolve()), *args]
+
+
+def run_size(mesh: dict, methods: list[str], timeout: float, pairs: bool, e2e: bool, cells: bool, workdir: Path) -> dict:
+    result = {"mesh": mesh, "methods": {}, "pairs": {}}
+    for method in methods if cells or e2e else []:
+        row = {"load_before": os.getloadavg()[0]}
+        if cells:
+            row["inproc"] = run_limited(me("--child", "inproc", mesh["npz"], method), timeout)
+        if e2e:
+            out = workdir / f"out-{mesh['label']}-{method}.ply"
+            cli = "import sys; from meshdenoise.cli import main; sys.argv[0] = 'meshdenoise'; main()"
+            cmd = [sys.executable, "-c", cli, "denoise", "--method", method, "--auto", mesh["ply"], str(out)]
+            row["e2e"] = run_limited(cmd, timeout)
+            if out.exists():
+                out.unlink()
+        row["load_after"] = os.getloadavg()[0]
+        result["methods"][method] = row
+        print(format_row(mesh, method, row), flush=True)
+    if pairs:
+        for which in ("two_stage", "taubin"):
+            cell = run_limited(me("--child", "pair", mesh["npz"], which), max(timeout, 600.0))
+            cell["load"] = os.getloadavg()[0]
+            result["pairs"][which] = cell
+            print(format_pair(mesh, which, cell), flush=True)
+    return result
+
+
+# --- table --------------------------------------------------------------------------------------
+def _s(record: dict | None, key: str, cell: dict, timeout: float, fmt: str = "{:.1f}") -> str:
+    if record is not None and key in record:
+        return fmt.format(record[key])
+    if cell is not None and cell.get("timed_out"):
+        return f"> {timeout:.0f}"
+    return "fail" if cell is not None else "-"
+
+
+def format_row(mesh: dict, method: str, row: dict, timeout: float | None = None) -> str:
+    timeout = timeout if timeout is not None else ARGS_TIMEOUT
+    inproc = row.get("inproc")
+    rec = inproc["records"] if inproc else {}
+    e2e = row.get("e2e")
+    if e2e is None:
+        e2e_s = peak_s = bpv = "-"
+    elif e2e["timed_out"]:
+        e2e_s, peak_s, bpv = f"> {timeout:.0f}", "-", "-"
+    elif e2e["exit"] != 0:
+        e2e_s, peak_s, bpv = "fail", "-", "-"
+    else:
+        e2e_s = f"{e2e['wall']:.1f}"
+        peak_s = f"{e2e['maxrss'] / 2**20:.0f}"
+        bpv = f"{e2e['maxrss'] / mesh['n']:.0f}"
+    params = rec.get("choose", {}).get("params")
+    ptext = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in (params or {}).items())
+    return (
+        f"| {mesh['label']} | {method} | {_s(rec.get('choose'), 'seconds', inproc, timeout)} "
+        f"| {_s(rec.get('filter'), 'seconds', inproc, timeout, '{:.2f}')} | {e2e_s} | {peak_s} | {bpv} "
+        f"| {_s(rec.get('noisy'), 'snr', inproc, timeout, '{:.2f}')} | {_s(rec.get('filter'), 'snr', inproc, timeout, '{:.2f}')} "
+        f"| {_s(rec.get('oracle'), 'snr', inproc, timeout, '{:.2f}')} | {ptext} | {row['load_before']:.1f} |"
+    )
+
+
+def format_pair(mesh: dict, which: str, cell: dict) -> str:
+    rec = cell["records"]
+    ours, theirs = rec.get("ours"), rec.get("theirs")
+    peer = "pymeshlab two-step" if which == "two_stage" else "Open3D filter_smooth_taubin"
+    if not (ours and theirs):
+        return f"| {mesh['label']} | {which} vs {peer} | {'timed out' if cell['timed_out'] else 'failed'} | | | | | | | |"
+    diff = rec.get("difference")
+    dtext = f"{diff['max_abs'] / diff['scale']:.1e}" if diff else "-"
+    return (
+        f"| {mesh['label']} | {which} vs {peer} | {ours['seconds']:.2f} ({ours['cpu']:.2f}) "
+        f"| {theirs['seconds']:.2f} ({theirs['cpu']:.2f}) | {theirs['seconds'] / ours['seconds']:.2f} "
+        f"| {theirs['cpu'] / ours['cpu']:.2f} | {ours['bytes_per_vertex']:.0f} | {theirs['bytes_per_vertex']:.0f} "
+        f"| {dtext} | {cell['load']:.1f} |"
+    )
+
+
+ROW_HEADER = (
+    "| size | method | choose s | filter s | end-to-end s | peak MB | peak B/vertex | SNR noisy | SNR auto "
+    "| SNR oracle | chosen | load |\n|---|---|---|---|---|---|---|---|---|---|---|---|"
+)
+PAIR_HEADER = (
+    "| size | pair | ours s (CPU s) | peer s (CPU s) | peer / ours wall | peer / ours CPU | ours B/vertex "
+    "| peer B/vertex | max diff / max coord | load |\n|---|---|---|---|---|---|---|---|---|---|"
+)
+ARGS_TIMEOUT = 120.0
+
+
+def main(argv: list[str] | None = None) -> None:
+    global ARGS_TIMEOUT
+    argv = sys.argv[1:] if argv is None else argv
+    if argv[:1] == ["--child"]:
+        kind, a, b = argv[1:4]
+        if kind == "prepare":
+            emit(stage="mesh", **prepare(a, Path(b)))
+        else:
+            {"inproc": child_inproc, "pair": child_pair}[kind](a, b)
+        return
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--sizes", default="100k,400k", help="comma-separated, of " + ", ".join(SIZES))
+    ap.add_argument("--methods", default=",".join(METHODS), help="comma-separated filters")
+    ap.add_argument("--timeout", type=float, default=120.0, help="seconds per cell (a slower cell is recorded as '> T')")
+    ap.add_argument("--out", default=None, help="write OUT.txt (the tables) and OUT.json (everything)")
+    ap.add_argument("--cache-dir", default=None)
+    ap.add_argument("--no-pairs", action="store_true", help="skip the same-process comparisons with MeshLab / Open3D")
+    ap.add_argument("--pairs-only", action="store_true", help="only the same-process comparisons")
+    ap.add_argument("--no-e2e", action="store_true", help="skip the command-line cells")
+    args = ap.parse_args(argv)
+    ARGS_TIMEOUT = args.timeout
+    sizes = [s.strip() for s in args.sizes.split(",") if s.strip()]
+    methods = [m.strip() for m in args.methods.split(",") if m.strip()]
+    for s in sizes:
+        if s not in SIZES:
+            ap.error(f"--sizes: unknown size {s!r}; known: {', '.join(SIZES)}")
+    for m in methods:
+        if m not in METHODS:
+            ap.error(f"--methods: unknown method {m!r}; known: {', '.join(METHODS)}")
+    folder = cache_dir(args.cache_dir)
+    started = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
+    uptime_before = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    print(f"{started}; {uptime_before}", flush=True)
+    print(ROW_HEADER, flush=True)
+    results = []
+    with tempfile.TemporaryDirectory() as work:
+        for label in sizes:
+            # in a child, so that this process stays small: Linux starts a child's ru_maxrss at its parent's peak
+            made = run_limited(me("--child", "prepare", label, str(folder)), 3600.0)
+            if "mesh" not in made["records"]:
+                sys.exit(f"scale.py: could not make the {label} mesh: {' '.join(made['stderr_tail'])}")
+            mesh = made["records"]["mesh"]
+            print(f"<!-- {label}: n={mesh['n']} m={mesh['m']} rho={mesh['rho']:.4g} (mean edge {mesh['h']:.4g}) -->", flush=True)
+            results.append(
+                run_size(mesh, methods, args.timeout, not args.no_pairs, not (args.no_e2e or args.pairs_only),
+                         not args.pairs_only, Path(work))
+            )
+    uptime_after = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
+    meta = {
+        "started": started,
+        "uptime_before": uptime_before,
+        "uptime_after": uptime_after,
+        "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
+        "timeout": args.timeout,
+        "command": "python benchmarks/scale.py " + " ".join(argv),
+    }
+    text = [
+        f"# benchmarks/scale.py, {started}",
+        f"command: {meta['command']}",
+        f"machine: {os.cpu_count()} cores, shared with other jobs; uptime before: {uptime_before}; after: {uptime_after}",
+        f"noise: {NOISE_EDGES} mean edge length along the normals, seed 0; timeout per cell: {args.timeout:.0f} s",
+        "",
+    ]
+    if not args.pairs_only:
+        text += [ROW_HEADER] + [format_row(r["mesh"], m, row) for r in results for m, row in r["methods"].items()] + [""]
+    if not args.no_pairs:
+        text += [PAIR_HEADER] + [format_pair(r["mesh"], w, c) for r in results for w, c in r["pairs"].items()] + [""]
+    print("\n".join(text[5:]))
+    if args.out:
+        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+        Path(args.out + ".txt").write_text("\n".join(text) + "\n")
+        Path(args.out + ".json").write_text(json.dumps({"meta": meta, "results": results}, indent=1) + "\n")
+        print(f"wrote {args.out}.txt and {args.out}.json")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,444 @@
+"""Compiled (numba) kernels of the nonlinear filters: two-stage normal filtering and Open3D-weight Taubin.
+
+The linear filters are sparse products (:func:`meshdenoise.operators.spmm`); the nonlinear
+ones recompute their weights from the current coordinates at every pass, which in numpy
+means arrays of one value per face pair or per edge (tens of millions at scan size) and a
+sort per pass. Here each pass is one loop over faces (or vertices) in CSR order, threaded
+with numba's ``prange`` over rows, writing into preallocated buffers: no per-pass
+allocation, no sort, no Python loop over elements.
+
+Every kernel sums in the same order as the numpy/scipy code it replaces (CSR rows in
+index order, products ``a * x`` added to a zero start), so results agree with it to a few
+units in the last place. Compiled code is cached on disk (``cache=True``): the first call
+in a fresh install compiles (a few seconds), later processes load it.
+
+Index arrays: ``indptr`` int64, ``indices`` int32 (int64 above 2^31 entries).
+"""
+
+from __future__ import annotations
+
+import os
+
+# Idle OpenMP threads sleep instead of spinning. On a busy machine (2 cores shared by many
+# jobs) spinning doubled the CPU time of a two_stage run and made 2 threads slower than 1;
+# passive waiting costs a few microseconds per parallel loop here, each loop taking
+# milliseconds. Read when OpenMP starts, so set before numba loads it; a user's value wins.
+os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+
+import numba  # noqa: E402
+import numpy as np  # noqa: E402
+from numba import njit, prange  # noqa: E402
+
+# OpenMP first: numba would otherwise try an old TBB (Open3D's) first and warn about its version.
+# Both are safe to call from several threads at once, unlike the workqueue fallback.
+numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+
+__all__ = [
+    "set_threads",
+    "face_geometry",
+    "centroid_spacing_sums",
+    "spatial_weights",
+    "patch_scores",
+    "pick_guidance",
+    "bilateral_pass",
+    "fit_vertices",
+    "face_neighbour_lists",
+    "patch_edge_lists",
+    "inverse_distance_pass",
+]
+
+
+def set_threads() -> int:
+    """Use :func:`meshdenoise.operators.spmm_threads` threads (at most numba's pool size); returns the count."""
+    from .operators import spmm_threads
+
+    k = max(1, min(spmm_threads(), numba.config.NUMBA_NUM_THREADS))
+    numba.set_num_threads(k)
+    return k
+
+
+# --------------------------------------------------------------------------- face geometry
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def face_geometry(X, F, N, A, C):  # pragma: no cover - compiled
+    """Unit normals ``N`` (m, 3), areas ``A`` (m,) and centroids ``C`` (m, 3) of the faces, in place.
+
+    Same arithmetic as :func:`meshdenoise.geometry.face_normals` (numpy's ``cross``, then
+    division by the norm; zero for a zero-area face), ``face_areas`` and ``X[F].mean(1)``.
+    """
+    m = F.shape[0]
+    for f in prange(m):
+        a, b, c = F[f, 0], F[f, 1], F[f, 2]
+        u0 = X[b, 0] - X[a, 0]
+        u1 = X[b, 1] - X[a, 1]
+        u2 = X[b, 2] - X[a, 2]
+        v0 = X[c, 0] - X[a, 0]
+        v1 = X[c, 1] - X[a, 1]
+        v2 = X[c, 2] - X[a, 2]
+        n0 = u1 * v2 - u2 * v1
+        n1 = u2 * v0 - u0 * v2
+        n2 = u0 * v1 - u1 * v0
+        norm = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
+        A[f] = 0.5 * norm
+        if norm > 0:
+            N[f, 0] = n0 / norm
+            N[f, 1] = n1 / norm
+            N[f, 2] = n2 / norm
+        else:
+            N[f, 0] = 0.0
+            N[f, 1] = 0.0
+            N[f, 2] = 0.0
+        for d in range(3):
+            C[f, d] = (X[a, d] + X[b, d] + X[c, d]) / 3.0
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def centroid_spacing_sums(C, indptr, indices, out):  # pragma: no cover - compiled
+    """Per face ``i``: the sum of ``|c_i - c_j|`` over its neighbours ``j != i`` into ``out`` (m,); returns their count."""
+    m = C.shape[0]
+    count = 0
+    for i in prange(m):
+        s = 0.0
+        k_off = 0
+        for k in range(indptr[i], indptr[i + 1]):
+            j = indices[k]
+            if j == i:
+                continue
+            d0 = C[i, 0] - C[j, 0]
+            d1 = C[i, 1] - C[j, 1]
+            d2 = C[i, 2] - C[j, 2]
+            s += np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            k_off += 1
+        out[i] = s
+        count += k_off
+    return count
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def spatial_weights(C, A, indptr, indices, denom, S):  # pragma: no cover - compiled
+    """``S[k] = A_j exp(-|c_i - c_j|^2 / denom)`` for every pair ``k = (i, j)`` of the CSR pattern."""
+    m = C.shape[0]
+    for i in prange(m):
+        for k in range(indptr[i], indptr[i + 1]):
+            j = indices[k]
+            d0 = C[i, 0] - C[j, 0]
+            d1 = C[i, 1] - C[j, 1]
+            d2 = C[i, 2] - C[j, 2]
+            r2 = d0 * d0 + d1 * d1 + d2 * d2
+            S[k] = A[j] * np.exp(-r2 / denom) if r2 != 0.0 else A[j]  # exp(-0) is 1 exactly
+
+
+# --------------------------------------------------------------------------- guided filter
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def patch_scores(N, A, indptr, indices, edge_a, edge_b, patch_ptr, patch_edge, g, H, phi):  # pragma: no cover
+    """Mean normal ``g`` (m, 3) and inconsistency ``H`` (m,) of every patch (Zhang et al. 2015).
+
+    ``g_j = unit(sum_k A_k n_k)`` over the faces ``k`` of patch ``j`` (its CSR row),
+    ``H_j = max_k |n_k - g_j| * max_e phi_e / (1e-9 + sum_e phi_e)`` over the face pairs
+    ``e`` sharing an edge inside the patch (``patch_edge``, rows ``patch_ptr``), with
+    ``phi_e = |n_a - n_b|`` written to ``phi`` (E,).
+    """
+    m = N.shape[0]
+    for e in prange(edge_a.shape[0]):
+        a, b = edge_a[e], edge_b[e]
+        d0 = N[a, 0] - N[b, 0]
+        d1 = N[a, 1] - N[b, 1]
+        d2 = N[a, 2] - N[b, 2]
+        phi[e] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    for j in prange(m):
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        for k in range(indptr[j], indptr[j + 1]):
+            q = indices[k]
+            w = A[q]
+            s0 += w * N[q, 0]
+            s1 += w * N[q, 1]
+            s2 += w * N[q, 2]
+        norm = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+        if norm > 0:
+            s0 = s0 / norm
+            s1 = s1 / norm
+            s2 = s2 / norm
+        else:
+            s0 = 0.0
+            s1 = 0.0
+            s2 = 0.0
+        g[j, 0] = s0
+        g[j, 1] = s1
+        g[j, 2] = s2
+        spread2 = 0.0  # sqrt is monotone and correctly rounded: sqrt(max r^2) == max sqrt(r^2)
+        for k in range(indptr[j], indptr[j + 1]):
+            q = indices[k]
+            d0 = N[q, 0] - s0
+            d1 = N[q, 1] - s1
+            d2 = N[q, 2] - s2
+            r2 = d0 * d0 + d1 * d1 + d2 * d2
+            if r2 > spread2:
+                spread2 = r2
+        spread = np.sqrt(spread2)
+        largest = 0.0
+        total = 0.0
+        for t in range(patch_ptr[j], patch_ptr[j + 1]):
+            p = phi[patch_edge[t]]
+            if p > largest:
+                largest = p
+            total += p
+        H[j] = spread * largest / (1e-9 + total)
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def pick_guidance(H, factor, g, indptr, indices, label, G):  # pragma: no cover - compiled
+    """``G_i = g_j`` for the patch ``j`` around face ``i`` with the least ``rint(H_j * factor)``, ties to the least ``label[j]``.
+
+    ``H`` (m,) is overwritten by its quantised values. ``label`` (m,) is the faces' index in
+    the caller's order (the identity when the faces are not relabelled).
+    """
+    m = g.shape[0]
+    for j in prange(m):
+        H[j] = np.rint(H[j] * factor)
+    for i in prange(m):
+        best = -1
+        best_h = 0.0
+        for k in range(indptr[i], indptr[i + 1]):
+            j = indices[k]
+            h = H[j]
+            if best < 0 or h < best_h or (h == best_h and label[j] < label[best]):
+                best = j
+                best_h = h
+        G[i, 0] = g[best, 0]
+        G[i, 1] = g[best, 1]
+        G[i, 2] = g[best, 2]
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def bilateral_pass(N, G, S, indptr, indices, denom, out):  # pragma: no cover - compiled
+    """One Jacobi pass ``out_i = unit(sum_j S_ij exp(-|G_i - G_j|^2 / denom) n_j)``."""
+    m = N.shape[0]
+    for i in prange(m):
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        for k in range(indptr[i], indptr[i + 1]):
+            j = indices[k]
+            d0 = G[i, 0] - G[j, 0]
+            d1 = G[i, 1] - G[j, 1]
+            d2 = G[i, 2] - G[j, 2]
+            r2 = d0 * d0 + d1 * d1 + d2 * d2
+            w = S[k] * np.exp(-r2 / denom) if r2 != 0.0 else S[k]  # exp(-0) is 1 exactly
+            s0 += w * N[j, 0]
+            s1 += w * N[j, 1]
+            s2 += w * N[j, 2]
+        norm = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+        if norm > 0:
+            out[i, 0] = s0 / norm
+            out[i, 1] = s1 / norm
+            out[i, 2] = s2 / norm
+        else:
+            out[i, 0] = 0.0
+            out[i, 1] = 0.0
+            out[i, 2] = 0.0
+
+
+# --------------------------------------------------------------------------- vertex update
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def fit_vertices(X, F, N, corner_ptr, corners, scale, iterations, C):  # pragma: no cover - compiled
+    """``iterations`` Jacobi steps ``x_i += scale_i sum_{corners c of i} n_f (n_f . (c_f - x_i))``, in place on ``X``.
+
+    ``corners`` lists, per vertex (rows ``corner_ptr``), its corner indices ``3 f + k`` in
+    increasing order; ``C`` (m, 3) is scratch for the centroids.
+    """
+    m = F.shape[0]
+    n = X.shape[0]
+    for _ in range(iterations):
+        for f in prange(m):
+            a, b, c = F[f, 0], F[f, 1], F[f, 2]
+            for d in range(3):
+                C[f, d] = (X[a, d] + X[b, d] + X[c, d]) / 3.0
+        for v in prange(n):  # each vertex reads only its own x and the centroids: in place is Jacobi
+            x0 = X[v, 0]
+            x1 = X[v, 1]
+            x2 = X[v, 2]
+            a0 = 0.0
+            a1 = 0.0
+            a2 = 0.0
+            for t in range(corner_ptr[v], corner_ptr[v + 1]):
+                f = corners[t] // 3
+                s = N[f, 0] * (C[f, 0] - x0) + N[f, 1] * (C[f, 1] - x1) + N[f, 2] * (C[f, 2] - x2)
+                a0 += N[f, 0] * s
+                a1 += N[f, 1] * s
+                a2 += N[f, 2] * s
+            X[v, 0] = x0 + scale[v] * a0
+            X[v, 1] = x1 + scale[v] * a1
+            X[v, 2] = x2 + scale[v] * a2
+
+
+# --------------------------------------------------------------------------- topology
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def _merge3_count(F, vf_ptr, vf, counts, dummy):  # pragma: no cover - compiled
+    m = F.shape[0]
+    for f in prange(m):
+        counts[f] = _merge3(F, vf_ptr, vf, f, dummy, False)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _merge3(F, vf_ptr, vf, f, out, write):  # pragma: no cover - compiled
+    """Sorted union of the (sorted) face lists of the corners of face ``f``; its size, written to ``out`` if asked."""
+    a, b, c = F[f, 0], F[f, 1], F[f, 2]
+    pa, ea = vf_ptr[a], vf_ptr[a + 1]
+    pb, eb = vf_ptr[b], vf_ptr[b + 1]
+    pc, ec = vf_ptr[c], vf_ptr[c + 1]
+    if b == a:
+        pb = eb
+    if c == a or c == b:
+        pc = ec
+    big = np.iinfo(np.int64).max
+    size = 0
+    last = -1
+    while pa < ea or pb < eb or pc < ec:
+        x = vf[pa] if pa < ea else big
+        y = vf[pb] if pb < eb else big
+        z = vf[pc] if pc < ec else big
+        v = min(x, min(y, z))
+        if v == x:
+            pa += 1
+        if v == y:
+            pb += 1
+        if v == z:
+            pc += 1
+        if v != last:
+            if write:
+                out[size] = v
+            size += 1
+            last = v
+    return size
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def _merge3_fill(F, vf_ptr, vf, indptr, indices):  # pragma: no cover - compiled
+    m = F.shape[0]
+    for f in prange(m):
+        _merge3(F, vf_ptr, vf, f, indices[indptr[f] : indptr[f + 1]], True)
+
+
+def _csr_of_groups(groups: np.ndarray, size: int, index_dtype) -> tuple[np.ndarray, np.ndarray]:
+    """Rows ``0..size-1`` listing the positions ``t`` with ``groups[t] == row``, in increasing ``t``."""
+    counts = np.bincount(groups, minlength=size)
+    ptr = np.zeros(size + 1, dtype=np.int64)
+    np.cumsum(counts, out=ptr[1:])
+    members = np.argsort(groups, kind="stable").astype(index_dtype)
+    return ptr, members
+
+
+def face_neighbour_lists(F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """For each face, the sorted faces sharing at least one vertex with it (itself included), as CSR.
+
+    Returns ``indptr`` (m + 1,) int64 and ``indices`` (nnz,) int32 (int64 for huge meshes):
+    the pattern of ``M^T M`` for the vertex-face incidence ``M``, without forming it.
+    """
+    F = np.array(F, dtype=np.int64, order="C")  # one compiled variant: writable int64
+    m = F.shape[0]
+    index_dtype = np.int32 if max(m, n) < 2**31 - 1 else np.int64
+    vf_ptr, vf = _csr_of_groups(F.ravel(), n, np.int64)
+    vf //= 3  # corner -> face; sorted per vertex, a face twice for a degenerate one (merged away)
+    vf = vf.astype(index_dtype)
+    counts = np.zeros(m, dtype=np.int64)
+    _merge3_count(F, vf_ptr, vf, counts, np.empty(0, dtype=index_dtype))
+    indptr = np.zeros(m + 1, dtype=np.int64)
+    np.cumsum(counts, out=indptr[1:])
+    indices = np.empty(int(indptr[-1]), dtype=index_dtype)
+    _merge3_fill(F, vf_ptr, vf, indptr, indices)
+    return indptr, indices
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def _patch_edges(indptr, indices, a_ptr, a_edges, a_other, patch_ptr, patch_edge, write):  # pragma: no cover
+    m = indptr.shape[0] - 1
+    for j in prange(m):
+        lo, hi = indptr[j], indptr[j + 1]
+        size = 0
+        start = patch_ptr[j] if write else 0
+        for k in range(lo, hi):
+            a = indices[k]
+            for t in range(a_ptr[a], a_ptr[a + 1]):
+                e = a_edges[t]
+                b = a_other[t]
+                # b in this patch? (binary search in the sorted row)
+                l, h = lo, hi
+                while l < h:
+                    mid = (l + h) >> 1
+                    if indices[mid] < b:
+                        l = mid + 1
+                    else:
+                        h = mid
+                if l < hi and indices[l] == b:
+                    if write:
+                        # insertion into the sorted run patch_edge[start : start + size]
+                        p = start + size
+                        while p > start and patch_edge[p - 1] > e:
+                            patch_edge[p] = patch_edge[p - 1]
+                            p -= 1
+                        patch_edge[p] = e
+                    size += 1
+        if not write:
+            patch_ptr[j + 1] = size
+
+
+def patch_edge_lists(
+    indptr: np.ndarray, indices: np.ndarray, edge_a: np.ndarray, edge_b: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """For each patch ``j`` (CSR row of faces), the edge pairs ``e`` with both faces in it, increasing, as CSR."""
+    m = indptr.shape[0] - 1
+    index_dtype = np.int32 if edge_a.size < 2**31 - 1 else np.int64
+    a_ptr, a_edges = _csr_of_groups(edge_a, m, np.int64)
+    a_other = edge_b[a_edges].astype(indices.dtype)  # the other face of each edge pair, beside it
+    a_edges = a_edges.astype(index_dtype)
+    patch_ptr = np.zeros(m + 1, dtype=np.int64)
+    _patch_edges(indptr, indices, a_ptr, a_edges, a_other, patch_ptr, np.empty(0, dtype=index_dtype), False)
+    np.cumsum(patch_ptr, out=patch_ptr)
+    patch_edge = np.empty(int(patch_ptr[-1]), dtype=index_dtype)
+    _patch_edges(indptr, indices, a_ptr, a_edges, a_other, patch_ptr, patch_edge, True)
+    return patch_ptr, patch_edge
+
+
+# --------------------------------------------------------------------------- Open3D Taubin
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def inverse_distance_pass(X, indptr, indices, fixed, f, Y):  # pragma: no cover - compiled
+    """``Y = X + f (A X - X)`` with Open3D's weights ``A_ij ∝ 1 / (|x_i - x_j| + 1e-12)`` (rows normalised).
+
+    A fixed vertex (``fixed[i]``) or one without neighbours keeps its position exactly.
+    """
+    n = X.shape[0]
+    for i in prange(n):
+        lo, hi = indptr[i], indptr[i + 1]
+        x0 = X[i, 0]
+        x1 = X[i, 1]
+        x2 = X[i, 2]
+        s = 0.0
+        if not fixed[i]:
+            for k in range(lo, hi):
+                j = indices[k]
+                d0 = x0 - X[j, 0]
+                d1 = x1 - X[j, 1]
+                d2 = x2 - X[j, 2]
+                s += 1.0 / (np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) + 1e-12)
+        if s == 0.0:
+            Y[i, 0] = x0
+            Y[i, 1] = x1
+            Y[i, 2] = x2
+            continue
+        inv = 1.0 / s
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        for k in range(lo, hi):
+            j = indices[k]
+            d0 = x0 - X[j, 0]
+            d1 = x1 - X[j, 1]
+            d2 = x2 - X[j, 2]
+            c = inv * (1.0 / (np.sqrt(d0 * d0 + d1 * d1 + d2 * d2) + 1e-12))
+            a0 += c * X[j, 0]
+            a1 += c * X[j, 1]
+            a2 += c * X[j, 2]
+        Y[i, 0] = x0 + f * (a0 - x0)
+        Y[i, 1] = x1 + f * (a1 - x1)
+        Y[i, 2] = x2 + f * (a2 - x2)
