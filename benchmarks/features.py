@@ -18,7 +18,7 @@ import numpy as np
 
 from meshdenoise.data import data_dir
 from meshdenoise.io import load_arrays
-from meshdenoise.plugins.normal_filtering import two_stage
+from meshdenoise.plugins.two_stage import two_stage
 from meshdenoise.quality_metrics import normal_error_deg
 
 MESHES = ("Fandisk0.3", "Block0.4")

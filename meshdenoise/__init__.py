@@ -19,7 +19,7 @@ from .operators import Operators, get_operators
 from .plugins.filtering import filtering
 from .plugins.heat import heat
 from .plugins.sinkhorn import sinkhorn
-from .plugins.normal_filtering import two_stage
+from .plugins.two_stage import two_stage
 from .plugins.sobolev import SobolevSolver, sobolev
 from .plugins.sobolev_axes import sobolev_axes
 from .plugins.sobolev_normal import sobolev_normal

@@ -3,7 +3,7 @@
 A filter is written once, as an array-core function::
 
     @register("filtering", params=[Param("iterations", int, 10, low=0)], summary="...")
-    def filtering(V, F, *, ops, fixed, iterations):
+    def filtering(V, F, *, ops, pinned, iterations):
         '''numpydoc docstring shown to users'''
         return new_V
 
@@ -196,9 +196,9 @@ def register(
     point and keeps squared lengths and cross products of huge or tiny meshes (1e80, 1e-80)
     from overflowing or underflowing.
 
-    The core is called as ``core(V, F, ops=ops, fixed=fixed, **params)`` with ``V``
+    The core is called as ``core(V, F, ops=ops, pinned=pinned, **params)`` with ``V``
     read-only ``(n, 3) float64``, ``F (m, 3) int64``, ``ops`` the cached
-    :class:`~meshdenoise.operators.Operators` and ``fixed`` a boolean mask of the
+    :class:`~meshdenoise.operators.Operators` and ``pinned`` a boolean mask of the
     vertices that must not move (or ``None``). It returns the new ``(n, 3)`` array.
     """
     if name in REGISTRY:
@@ -249,17 +249,17 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
         ops = get_operators(F, V.shape[0])
     elif not isinstance(ops, Operators) or ops.n != V.shape[0] or not np.array_equal(ops.F, F):
         raise ValueError(f"filter '{spec.name}': operators= was built for another topology than this mesh")
-    fixed = fixed_mask(ops, options.get("pinned"), options.get("region"), data)
+    pinned = fixed_mask(ops, options.get("pinned"), options.get("region"), data)
     scale = power_of_two_scale(V) if spec.scale_free else 1.0
     V_in = V.view() if scale == 1.0 else V / scale
     V_in.flags.writeable = False  # a core must return new arrays, never write into its input
-    V_out = np.array(spec.core(V_in, F, ops=ops, fixed=fixed, **values), dtype=np.float64)
+    V_out = np.array(spec.core(V_in, F, ops=ops, pinned=pinned, **values), dtype=np.float64)
     if scale != 1.0:
         V_out *= scale
-    if fixed is not None:
-        V_out[fixed] = V[fixed]
+    if pinned is not None:
+        V_out[pinned] = V[pinned]
     if preserve_volume:
-        V_out = restore_volume(V, V_out, F, fixed)
+        V_out = restore_volume(V, V_out, F, pinned)
     if not np.isfinite(V_out).all():
         raise FloatingPointError(
             f"filter '{spec.name}' with {values} produced non-finite coordinates; "

@@ -135,7 +135,7 @@ def test_taubin_pinned_vertices_stay_and_bad_mu_is_refused():
 
 # --- two-stage normal filtering ---------------------------------------------------------------
 from meshdenoise.geometry import face_areas, face_normals  # noqa: E402
-from meshdenoise.plugins.normal_filtering import (  # noqa: E402
+from meshdenoise.plugins.two_stage import (  # noqa: E402
     bilateral_normals,
     face_neighbourhood,
     fit_vertices_to_normals,

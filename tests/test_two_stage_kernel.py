@@ -16,7 +16,7 @@ import scipy.sparse as sp
 from meshdenoise import add_normal_noise
 from meshdenoise.geometry import face_areas, face_normals
 from meshdenoise.operators import Operators, get_operators
-from meshdenoise.plugins.normal_filtering import (
+from meshdenoise.plugins.two_stage import (
     FaceNeighbourhood,
     bilateral_normals,
     face_neighbourhood,

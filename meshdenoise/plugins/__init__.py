@@ -10,7 +10,6 @@ checks that every module of this folder is listed).
 from . import (  # noqa: F401  (imported for their registrations)
     filtering,
     heat,
-    normal_filtering,
     sinkhorn,
     sobolev,
     sobolev_axes,
@@ -18,12 +17,12 @@ from . import (  # noqa: F401  (imported for their registrations)
     sobolev_gls,
     sobolev_normal,
     taubin,
+    two_stage,
 )
 
 MODULES = (
     "filtering",
     "heat",
-    "normal_filtering",
     "sinkhorn",
     "sobolev",
     "sobolev_axes",
@@ -31,4 +30,5 @@ MODULES = (
     "sobolev_gls",
     "sobolev_normal",
     "taubin",
+    "two_stage",
 )

@@ -72,13 +72,13 @@ def _inverse_distance_operator(ops: Operators, X: np.ndarray) -> sp.csr_matrix:
 
 
 def averaging_operator(
-    ops: Operators, weights: str = "uniform", fixed: np.ndarray | None = None, boundary: bool = True
+    ops: Operators, weights: str = "uniform", pinned: np.ndarray | None = None, boundary: bool = True
 ) -> sp.csr_matrix:
-    """The row-stochastic averaging matrix of a linear ``weights`` rule, fixed rows as identity.
+    """The row-stochastic averaging matrix of a linear ``weights`` rule, pinned rows as identity.
 
     ``"uniform"`` is the paper's ``D^-1 W``; ``"meshlab"`` and ``"open3d"`` reproduce
     MeshLab's and Open3D's simple smoothing. ``"inverse_distance"`` depends on the
-    coordinates and has no fixed matrix.
+    coordinates and has no pinned matrix.
     """
     if weights == "uniform":
         A, name = ops.P, "P"
@@ -87,8 +87,8 @@ def averaging_operator(
     elif weights == "open3d":
         A, name = _open3d_operator(ops), "open3d"
     else:
-        raise ValueError(f"weights={weights!r} has no fixed matrix; linear rules are 'uniform', 'meshlab', 'open3d'")
-    return ops.with_fixed_rows(A, fixed, name)
+        raise ValueError(f"weights={weights!r} has no pinned matrix; linear rules are 'uniform', 'meshlab', 'open3d'")
+    return ops.with_fixed_rows(A, pinned, name)
 
 
 LOCALITY_MIN_VERTICES = 1 << 16  # below this X fits in cache and relabelling cannot pay
@@ -110,7 +110,7 @@ def step_matrix(
     ops: Operators,
     weights: str = "uniform",
     lam: float = 1.0,
-    fixed: np.ndarray | None = None,
+    pinned: np.ndarray | None = None,
     boundary: bool = True,
     permuted: bool = False,
 ) -> sp.csr_matrix:
@@ -125,16 +125,16 @@ def step_matrix(
     if permuted:
         order = ops.locality_order
         A = ops.permuted(averaging_operator(ops, weights, None, boundary), f"{weights}-{boundary}")
-        fixed = None if fixed is None else fixed[order]
+        pinned = None if pinned is None else pinned[order]
         if lam == 1.0:
-            return ops.with_fixed_rows(A, fixed, f"permuted-{weights}-{boundary}")
+            return ops.with_fixed_rows(A, pinned, f"permuted-{weights}-{boundary}")
     elif lam == 1.0:
-        return averaging_operator(ops, weights, fixed, boundary)
+        return averaging_operator(ops, weights, pinned, boundary)
     else:
         A = averaging_operator(ops, weights, None, boundary)
     M = sp.csr_matrix(lam * A + sp.diags(np.full(ops.n, 1.0 - lam)))
-    if fixed is not None and fixed.any():
-        M = sp.csr_matrix(sp.diags((~fixed).astype(np.float64)) @ M + sp.diags(fixed.astype(np.float64)))
+    if pinned is not None and pinned.any():
+        M = sp.csr_matrix(sp.diags((~pinned).astype(np.float64)) @ M + sp.diags(pinned.astype(np.float64)))
         M.eliminate_zeros()
     M.sort_indices()
     return M
@@ -172,7 +172,7 @@ def smoothing_steps(
     *,
     weights: str = "uniform",
     lam: float = 1.0,
-    fixed: np.ndarray | None = None,
+    pinned: np.ndarray | None = None,
     boundary: bool = True,
 ) -> Iterator[np.ndarray]:
     """Yield the coordinates after each step of :math:`X \\leftarrow X + \\lambda (A X - X)`, forever.
@@ -182,12 +182,12 @@ def smoothing_steps(
     for every number of steps. Each yielded array is new (safe to keep).
     """
     X = np.array(V, dtype=np.float64, order="C")
-    M = None if weights == "inverse_distance" else step_matrix(ops, weights, lam, fixed, boundary)
+    M = None if weights == "inverse_distance" else step_matrix(ops, weights, lam, pinned, boundary)
     while True:
         if M is None:
             AX = _inverse_distance_operator(ops, X) @ X
-            if fixed is not None:
-                AX[fixed] = X[fixed]
+            if pinned is not None:
+                AX[pinned] = X[pinned]
             X = AX if lam == 1.0 else X + lam * (AX - X)
         else:
             X = Backend().spmm(M, X)  # one threaded product per step, a new array each time
@@ -245,7 +245,7 @@ def choose_filtering(ctx: TuningContext) -> tuple[dict, Point]:
     ],
     linear=True,
 )
-def filtering(V, F, *, ops, fixed, iterations, weights, lam, boundary, backend):
+def filtering(V, F, *, ops, pinned, iterations, weights, lam, boundary, backend):
     """Linear filtering by repeated neighbour averaging (the paper's first method).
 
     .. math:: X^{(t+1)} = X^{(t)} + \\lambda \\left(A X^{(t)} - X^{(t)}\\right), \\qquad t = 0, \\dots, k - 1
@@ -310,7 +310,7 @@ def filtering(V, F, *, ops, fixed, iterations, weights, lam, boundary, backend):
                 f"parameter 'backend' = {backend!r} is not available with weights='inverse_distance' "
                 "(its weights change every step); use backend='cpu' or a linear weights rule"
             )
-        steps = smoothing_steps(V, ops, weights=weights, lam=lam, fixed=fixed, boundary=boundary)
+        steps = smoothing_steps(V, ops, weights=weights, lam=lam, pinned=pinned, boundary=boundary)
         X = np.array(V, dtype=np.float64)
         for _ in range(iterations):
             X = next(steps)
@@ -318,5 +318,5 @@ def filtering(V, F, *, ops, fixed, iterations, weights, lam, boundary, backend):
     if iterations == 0:
         return np.array(V, dtype=np.float64)
     permuted = use_locality_order(ops, iterations)
-    M = step_matrix(ops, weights, lam, fixed, boundary, permuted=permuted)
+    M = step_matrix(ops, weights, lam, pinned, boundary, permuted=permuted)
     return run_linear_steps(M, V, iterations, backend, ops.locality_order if permuted else None)

@@ -91,7 +91,7 @@ def chebyshev_coefficients(time: float, tol: float, upper: float = 2.0) -> np.nd
 class ChebyshevHeat:
     r"""``exp(-T (I - P)) X`` for any ``X`` and ``T``, by a Chebyshev series in ``P``; reusable.
 
-    ``P`` is ``D^-1 W`` (fixed rows as identity rows allowed) and ``upper`` an upper bound
+    ``P`` is ``D^-1 W`` (pinned rows as identity rows allowed) and ``upper`` an upper bound
     on the spectrum of ``I - P`` (:attr:`~meshdenoise.operators.Operators.lambda_max_bound`).
     With :math:`M = I - \tfrac{2}{b}(I - P)`, whose spectrum lies in [-1, 1],
 
@@ -170,7 +170,7 @@ def chebyshev_heat(
     --------
     >>> import numpy as np, scipy.sparse as sp
     >>> P = sp.csr_matrix((np.ones(6) / 2, [1, 2, 0, 2, 0, 1], [0, 2, 4, 6]), shape=(3, 3))
-    >>> chebyshev_heat(P, np.ones((3, 1)), time=5.0).ravel()  # constants are fixed points
+    >>> chebyshev_heat(P, np.ones((3, 1)), time=5.0).ravel()  # constants are pinned points
     array([1., 1., 1.])
     """
     return ChebyshevHeat(P, upper, backend)(X, time, tol)
@@ -221,7 +221,7 @@ def choose_heat(ctx: TuningContext) -> tuple[dict, Point]:
     ],
     linear=True,
 )
-def heat(V, F, *, ops, fixed, tau, time, method, tol, backend):
+def heat(V, F, *, ops, pinned, tau, time, method, tol, backend):
     """Heat diffusion by explicit Euler steps (the paper's second method).
 
     .. math:: X^{(t+1)} = X^{(t)} - \\tau \\left(I - D^{-1} W\\right) X^{(t)}, \\qquad t = 0, \\dots, \\lceil T / \\tau \\rceil - 1
@@ -282,31 +282,31 @@ def heat(V, F, *, ops, fixed, tau, time, method, tol, backend):
     array([0.22222222, 0.22222222, 0.22222222])
     """
     if method == "chebyshev":
-        return _chebyshev_with_cache(ops, V, fixed, time, tol, backend)
+        return _chebyshev_with_cache(ops, V, pinned, time, tol, backend)
     _check_tau(ops, tau)
     steps = heat_steps(tau, time)
     if steps == 0:
         return np.array(V, dtype=np.float64)
     permuted = use_locality_order(ops, steps)
-    M = step_matrix(ops, "uniform", tau, fixed, permuted=permuted)
+    M = step_matrix(ops, "uniform", tau, pinned, permuted=permuted)
     return run_linear_steps(M, V, steps, backend, ops.locality_order if permuted else None)
 
 
-def _chebyshev_with_cache(ops: Operators, V: np.ndarray, fixed, time: float, tol: float, backend) -> np.ndarray:
+def _chebyshev_with_cache(ops: Operators, V: np.ndarray, pinned, time: float, tol: float, backend) -> np.ndarray:
     """Chebyshev heat with its matrices cached on the operators (per pinned mask and backend)."""
     upper = ops.lambda_max_bound
     if upper == 0.0:  # no edges: nothing diffuses
         return np.array(V, dtype=np.float64)
     permuted = use_locality_order(ops, len(chebyshev_coefficients(time, tol, upper)))
     be_name = backend if isinstance(backend, str) else backend.name
-    key = ("chebyshev_heat", permuted, mask_key(fixed), be_name)
+    key = ("chebyshev_heat", permuted, mask_key(pinned), be_name)
     if key not in ops.cache:
         if permuted:  # same computation on relabelled vertices: fewer cache misses
             order = ops.locality_order
             P = ops.permuted(ops.P, "uniform-True")
-            P = ops.with_fixed_rows(P, None if fixed is None else fixed[order], "permuted-uniform-True")
+            P = ops.with_fixed_rows(P, None if pinned is None else pinned[order], "permuted-uniform-True")
         else:
-            P = ops.with_fixed_rows(ops.P, fixed, "P")
+            P = ops.with_fixed_rows(ops.P, pinned, "P")
         ops.cache[key] = ChebyshevHeat(P, upper, backend)
     run = ops.cache[key]
     if not permuted:

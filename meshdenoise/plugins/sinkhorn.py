@@ -88,7 +88,7 @@ def choose_sinkhorn(ctx: TuningContext) -> tuple[dict, Point]:
     linear=False,
     translation_equivariant=True,
 )
-def sinkhorn(V, F, *, ops, fixed, t, iterations, laplacian, measure, debias, steps):
+def sinkhorn(V, F, *, ops, pinned, t, iterations, laplacian, measure, debias, steps):
     """OT mesh denoiser (the paper's 4th method, with heat kernels on the mesh).
 
     One iteration, with :math:`X` the current positions (n, 3):
@@ -103,7 +103,7 @@ def sinkhorn(V, F, *, ops, fixed, t, iterations, laplacian, measure, debias, ste
     :math:`X`), :math:`G` the heat kernel, applied through a sparse Cholesky factor
     cached per topology (never an (n, n) dense matrix), :math:`m` the vertex measure
     (ones, or the lumped areas of :math:`X` scaled to mean 1), :math:`u` the symmetric
-    Sinkhorn scaling (fixed point :math:`u \\leftarrow \\sqrt{u \\odot m \\oslash G u}`),
+    Sinkhorn scaling (pinned point :math:`u \\leftarrow \\sqrt{u \\odot m \\oslash G u}`),
     so :math:`P` is the entropic optimal transport plan of :math:`m` to itself for the
     cost :math:`-\\varepsilon\\log G` (:math:`P1 = P^T1 = m`), and :math:`TX` the
     barycentric projection: each vertex moves to the :math:`P`-weighted mean of the
@@ -166,6 +166,6 @@ def sinkhorn(V, F, *, ops, fixed, t, iterations, laplacian, measure, debias, ste
         measure=measure,
         debias=debias,
         steps=steps,
-        fixed=fixed,
+        fixed=pinned,
         cache=ops.cache,
     )

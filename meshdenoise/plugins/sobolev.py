@@ -21,7 +21,7 @@ AUTO_CG_MIN_VERTICES = 200_000  # "auto": below this a factorisation costs under
 AUTO_CG_MAX_ITERATIONS = 300  # ... and above it CG only while its iteration bound stays under this
 
 
-def choose_solver(ops: Operators, mu: float, fixed: np.ndarray | None, tol: float) -> str:
+def choose_solver(ops: Operators, mu: float, pinned: np.ndarray | None, tol: float) -> str:
     """``"cg"`` or ``"cholesky"`` for ``solver="auto"``.
 
     Cholesky when a factor of ``I + mu L`` (same ``mu`` and pinned mask) is already stored
@@ -34,7 +34,7 @@ def choose_solver(ops: Operators, mu: float, fixed: np.ndarray | None, tol: floa
     from ..operators import mask_key
 
     stored = ops.cache.get("shifted-p1-cholesky", {})
-    if (float(mu), mask_key(fixed if fixed is not None and fixed.any() else None)) in stored:
+    if (float(mu), mask_key(pinned if pinned is not None and pinned.any() else None)) in stored:
         return "cholesky"
     if ops.n < AUTO_CG_MIN_VERTICES:
         return "cholesky"
@@ -44,14 +44,14 @@ def choose_solver(ops: Operators, mu: float, fixed: np.ndarray | None, tol: floa
 
 
 class SobolevSolver(SPDSolver):
-    """A factorised ``I + mu L`` (restricted to free vertices when some are fixed), reusable for any X.
+    """A factorised ``I + mu L`` (restricted to free vertices when some are pinned), reusable for any X.
 
     Parameters
     ----------
     ops : Operators
         The topology's operators (``L = D - W``).
     mu : float, > 0
-    fixed : ndarray of bool, shape (n,), optional
+    pinned : ndarray of bool, shape (n,), optional
         Vertices held at their input position (Dirichlet data).
 
     Examples
@@ -66,11 +66,11 @@ class SobolevSolver(SPDSolver):
     True
     """
 
-    def __init__(self, ops: Operators, mu: float, fixed: np.ndarray | None = None):
+    def __init__(self, ops: Operators, mu: float, pinned: np.ndarray | None = None):
         if not mu > 0:
             raise ValueError(f"SobolevSolver: mu must be > 0, got {mu!r}")
         self.mu = float(mu)
-        super().__init__(sp.identity(ops.n, format="csr") + self.mu * ops.L, fixed)
+        super().__init__(sp.identity(ops.n, format="csr") + self.mu * ops.L, pinned)
 
 
 def cg_iteration_cap(ops: Operators, mu: float, tol: float) -> int:
@@ -109,7 +109,7 @@ def choose_sobolev(ctx: TuningContext) -> tuple[dict, Point]:
     ],
     linear=True,
 )
-def sobolev(V, F, *, ops, fixed, mu, solver="auto", tol=1e-10):
+def sobolev(V, F, *, ops, pinned, mu, solver="auto", tol=1e-10):
     """Sobolev (Tikhonov) regularisation with the graph Laplacian (the paper's third method).
 
     .. math:: Y = \\arg\\min_Y \\|Y - X\\|_F^2 + \\mu\\, \\mathrm{tr}(Y^T L Y)
@@ -184,7 +184,7 @@ def sobolev(V, F, *, ops, fixed, mu, solver="auto", tol=1e-10):
     if mu == 0:
         return np.array(V, dtype=np.float64)
     if solver == "auto":
-        solver = choose_solver(ops, mu, fixed, tol)
+        solver = choose_solver(ops, mu, pinned, tol)
     if solver == "cg":
-        return shifted_solver(ops, mu, 1, fixed, "cg").solve(V, tol=tol, x0=V, maxiter=cg_iteration_cap(ops, mu, tol))
-    return shifted_solver(ops, mu, 1, fixed).solve(V)
+        return shifted_solver(ops, mu, 1, pinned, "cg").solve(V, tol=tol, x0=V, maxiter=cg_iteration_cap(ops, mu, tol))
+    return shifted_solver(ops, mu, 1, pinned).solve(V)

@@ -187,7 +187,7 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
     ],
     linear=False,
 )
-def sobolev_axes(V, F, *, ops, fixed, mu1, mu2, mu3, order, frame_steps):
+def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps):
     """Polyharmonic Sobolev smoothing, with its own strength on each principal axis of the normals.
 
     With :math:`E = (e_1, e_2, e_3)` the principal axes of the normals of the mesh
@@ -209,7 +209,7 @@ def sobolev_axes(V, F, *, ops, fixed, mu1, mu2, mu3, order, frame_steps):
     the shape and steeper on the noise than the bi-Laplacian's; ``p = 1, 2`` are the
     ``sobolev`` / ``sobolev_bilaplacian`` penalties. The result is translation and
     rotation equivariant (the frame rotates with the mesh; :math:`L 1 = 0`); for a
-    fixed frame it is linear. Each :math:`I + \\mu_d L^p` is factorised once per
+    pinned frame it is linear. Each :math:`I + \\mu_d L^p` is factorised once per
     (topology, p, mu, pinned mask) with cholespy and cached; pinned vertices are
     solved as in ``sobolev_bilaplacian``.
 
@@ -253,5 +253,5 @@ def sobolev_axes(V, F, *, ops, fixed, mu1, mu2, mu3, order, frame_steps):
     C = X @ E
     out = np.empty_like(C)
     for d, mu in enumerate((mu1, mu2, mu3)):
-        out[:, d] = C[:, d] if mu == 0 else shifted_solver(ops, mu, order, fixed).solve(C[:, d])
+        out[:, d] = C[:, d] if mu == 0 else shifted_solver(ops, mu, order, pinned).solve(C[:, d])
     return out @ E.T

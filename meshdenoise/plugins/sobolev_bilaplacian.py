@@ -27,7 +27,7 @@ def choose_sobolev_bilaplacian(ctx: TuningContext) -> tuple[dict, Point]:
     params=[Param("mu", float, 1.0, low=0.0, help="weight of the bending term ||L Y||^2 (0 returns the input)")],
     linear=True,
 )
-def sobolev_bilaplacian(V, F, *, ops, fixed, mu):
+def sobolev_bilaplacian(V, F, *, ops, pinned, mu):
     """Second-order Sobolev regularisation: penalise the Laplacian of the result, not its gradient.
 
     .. math:: Y = \\arg\\min_Y \\|Y - X\\|_F^2 + \\mu \\|L Y\\|_F^2
@@ -71,4 +71,4 @@ def sobolev_bilaplacian(V, F, *, ops, fixed, mu):
     """
     if mu == 0:
         return np.array(V, dtype=np.float64)
-    return shifted_solver(ops, mu, 2, fixed).solve(V)
+    return shifted_solver(ops, mu, 2, pinned).solve(V)

@@ -37,7 +37,7 @@ def _apply_weight(N: np.ndarray, beta: float, Y: np.ndarray) -> np.ndarray:
 
 def normal_weighted_solve(
     ops: Operators, N: np.ndarray, beta: float, mu: float, order: int, B: np.ndarray,
-    fixed: np.ndarray | None = None, x0: np.ndarray | None = None,
+    pinned: np.ndarray | None = None, x0: np.ndarray | None = None,
 ) -> np.ndarray:
     """Solve :math:`(W + \\mu\\, L^p \\otimes I_3)\\, Y = B` by conjugate gradients, for one or several right-hand sides.
 
@@ -46,13 +46,13 @@ def normal_weighted_solve(
     systems, each an (n, 3) array). The preconditioner is :math:`(I + \\mu L^p)^{-1}` on each
     coordinate (the cached Cholesky factor of ``sobolev_axes``): :math:`I \\preceq W \\preceq \\beta I`,
     so the preconditioned matrix has its spectrum in :math:`[1, \\beta]` and CG converges in
-    :math:`O(\\sqrt\\beta)` iterations whatever the mesh. With ``fixed`` vertices their rows
+    :math:`O(\\sqrt\\beta)` iterations whatever the mesh. With ``pinned`` vertices their rows
     of ``x0`` are kept and the free rows solve the reduced system.
     """
     many = B.ndim == 3
     Bk = B if many else B[:, :, None]
     n, _, k = Bk.shape
-    S = shifted_solver(ops, mu, order, fixed)
+    S = shifted_solver(ops, mu, order, pinned)
     M = laplacian_power(ops, order)
 
     def A(Y):  # (n, 3, k)
@@ -62,7 +62,7 @@ def normal_weighted_solve(
         return S.solve(R.reshape(n, 3 * k)).reshape(n, 3, k)
 
     Y = np.zeros_like(Bk) if x0 is None else np.array(x0 if many else x0[:, :, None], dtype=np.float64)
-    free = None if fixed is None or not fixed.any() else ~fixed
+    free = None if pinned is None or not pinned.any() else ~pinned
     R = Bk - A(Y)
     if free is not None:
         R[~free] = 0.0
@@ -119,7 +119,7 @@ def _normals_divergence(
     .. math:: A^{-1} g(b), \\qquad g(b) = -(\\beta - 1)\\, \\big[\\dot N (N \\cdot r) + N (\\dot N \\cdot r)\\big],
               \\quad \\dot N = N'(X_0)[S b], \\quad r = V - X
 
-    to the fixed-normal Jacobian, so :math:`b^T A^{-1} g(b) = (A^{-1} b)^T g(b)` (``A`` symmetric; ``AiB`` holds
+    to the pinned-normal Jacobian, so :math:`b^T A^{-1} g(b) = (A^{-1} b)^T g(b)` (``A`` symmetric; ``AiB`` holds
     :math:`A^{-1} b_k`, solved with the rest). ``B``, ``AiB`` (n, 3, k); returns the sum over ``k``.
     """
     n, _, k = B.shape
@@ -133,10 +133,10 @@ def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
 
     The filter is :math:`f(X) = X_0 + A^{-1} (\\beta - 1) P (X - X_0)`, :math:`X_0 = (I + \\mu L^p)^{-1} X`,
     :math:`A = W + \\mu L^p \\otimes I_3`, with :math:`W = I + (\\beta - 1) P` and :math:`P = I - \\hat N \\hat N^T`
-    built from the normals :math:`\\hat N` of :math:`X_0`. For fixed normals it is the linear map
+    built from the normals :math:`\\hat N` of :math:`X_0`. For pinned normals it is the linear map
     :math:`H = A^{-1} W`; its Jacobian :math:`J` adds the normals following the input
     (:func:`_normals_divergence`, through the analytic derivative of
-    :func:`~meshdenoise.geometry.coherent_normals`). With the normals held fixed the divergence is
+    :func:`~meshdenoise.geometry.coherent_normals`). With the normals held pinned the divergence is
     under-counted where they follow the noise, and SURE picked ``mu`` too small (Nefertiti at
     rho = 1, 3 edge lengths of noise: auto loss 0.63 dB over 5 seeds, 0.35 with :math:`J`).
     The model's noise covariance is :math:`\\rho^2 N_i N_i^T` with
@@ -265,7 +265,7 @@ def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
     ],
     linear=False,
 )
-def sobolev_gls(V, F, *, ops, fixed, mu, beta, order):
+def sobolev_gls(V, F, *, ops, pinned, mu, beta, order):
     """Polyharmonic Sobolev smoothing whose data term trusts the tangential directions more.
 
     The paper's noise moves each vertex along its normal only, so a denoiser should
@@ -287,7 +287,7 @@ def sobolev_gls(V, F, *, ops, fixed, mu, beta, order):
     The system couples the three coordinates; it is solved by conjugate gradients
     preconditioned with the cached Cholesky factor of :math:`I + \\mu L^p`
     (:func:`normal_weighted_solve`, spectrum in :math:`[1, \\beta]`), for the correction
-    :math:`Y - \\hat X`. For fixed normals
+    :math:`Y - \\hat X`. For pinned normals
     the map is linear; the filter is translation and rotation equivariant.
     ``meshdenoise.auto.choose_parameters`` picks ``mu`` and ``beta`` by SURE.
 
@@ -329,11 +329,11 @@ def sobolev_gls(V, F, *, ops, fixed, mu, beta, order):
     X = np.array(V, dtype=np.float64)
     if F.shape[0] == 0 or mu == 0:
         return X
-    X0 = shifted_solver(ops, mu, order, fixed).solve(X)
+    X0 = shifted_solver(ops, mu, order, pinned).solve(X)
     if beta == 1.0:
         return X0
     N = coherent_normals(X0, F)
-    return X0 + normal_weighted_solve(ops, N, beta, mu, order, _correction_rhs(N, beta, X, X0), fixed)
+    return X0 + normal_weighted_solve(ops, N, beta, mu, order, _correction_rhs(N, beta, X, X0), pinned)
 
 
 def _correction_rhs(N: np.ndarray, beta: float, X: np.ndarray, X0: np.ndarray) -> np.ndarray:

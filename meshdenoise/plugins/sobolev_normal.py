@@ -86,7 +86,7 @@ def choose_sobolev_normal(ctx: TuningContext) -> tuple[dict, Point]:
 
     ``H`` is linear, so :math:`f(X + \\delta b) = Y + \\delta H b` projected on the normals of
     that point: one factorisation per ``mu`` serves the ``3 + 3K`` right-hand sides. Using
-    :math:`\\mathrm{tr} H` instead (normals held fixed) under-estimates the risk of strong
+    :math:`\\mathrm{tr} H` instead (normals held pinned) under-estimates the risk of strong
     smoothing (Nefertiti rho = 0.2: divergence 70.7 vs trace 53.7 at the best mu).
     ``tangential`` = :func:`_tangential_share` of the noise per edge length of that mesh
     (normals of ``Y`` are meaningless above one edge length of noise). ``mu`` by the log
@@ -140,7 +140,7 @@ def choose_sobolev_normal(ctx: TuningContext) -> tuple[dict, Point]:
     ],
     linear=False,
 )
-def sobolev_normal(V, F, *, ops, fixed, mu, order, tangential):
+def sobolev_normal(V, F, *, ops, pinned, mu, order, tangential):
     """Sobolev smoothing whose displacement is projected on the normals of the smoothed mesh.
 
     .. math:: (I + \\mu L^p)\\, Y = X, \\qquad
@@ -195,5 +195,5 @@ def sobolev_normal(V, F, *, ops, fixed, mu, order, tangential):
     X = np.array(V, dtype=np.float64)
     if F.shape[0] == 0 or mu == 0:
         return X
-    Y = shifted_solver(ops, mu, order, fixed).solve(X)
+    Y = shifted_solver(ops, mu, order, pinned).solve(X)
     return project_update(X, Y, area_normals(Y, F), tangential)

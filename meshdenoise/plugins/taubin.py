@@ -131,7 +131,7 @@ def choose_taubin(ctx: TuningContext) -> tuple[dict, Point]:
     ],
     linear=False,
 )
-def taubin(V, F, *, ops, fixed, iterations, lam, mu, weights):
+def taubin(V, F, *, ops, pinned, iterations, lam, mu, weights):
     """Taubin's lambda/mu smoothing, a low-pass filter that does not shrink the mesh.
 
     One *iteration* is a shrinking pass with :math:`\\lambda > 0` followed by an
@@ -199,11 +199,11 @@ def taubin(V, F, *, ops, fixed, iterations, lam, mu, weights):
         # vcglib passes lambda and mu as C++ float
         lam, mu = float(np.float32(lam)), float(np.float32(mu))
     if weights == "open3d":
-        return _open3d_taubin(X, ops, fixed, iterations, lam, mu)
+        return _open3d_taubin(X, ops, pinned, iterations, lam, mu)
     if weights == "uniform":
-        A = ops.with_fixed_rows(ops.P, fixed, "P")
+        A = ops.with_fixed_rows(ops.P, pinned, "P")
     else:
-        A = ops.with_fixed_rows(meshlab_taubin_operator(ops), fixed, "meshlab_taubin")
+        A = ops.with_fixed_rows(meshlab_taubin_operator(ops), pinned, "meshlab_taubin")
     for _ in range(iterations):
         for f in (lam, mu):
             AX = A @ X
@@ -212,7 +212,7 @@ def taubin(V, F, *, ops, fixed, iterations, lam, mu, weights):
 
 
 def _open3d_taubin(
-    X: np.ndarray, ops: Operators, fixed: np.ndarray | None, iterations: int, lam: float, mu: float
+    X: np.ndarray, ops: Operators, pinned: np.ndarray | None, iterations: int, lam: float, mu: float
 ) -> np.ndarray:
     """Open3D-weight passes ``X <- X + f (A(X) X - X)``, ``A(X)_ij ∝ 1 / (|x_i - x_j| + 1e-12)``, compiled.
 
@@ -224,7 +224,7 @@ def _open3d_taubin(
 
     kernels.set_threads()
     W = ops.W
-    mask = np.zeros(ops.n, dtype=bool) if fixed is None else np.ascontiguousarray(fixed, dtype=bool)
+    mask = np.zeros(ops.n, dtype=bool) if pinned is None else np.ascontiguousarray(pinned, dtype=bool)
     X = np.ascontiguousarray(X)
     Y = np.empty_like(X)
     for _ in range(iterations):

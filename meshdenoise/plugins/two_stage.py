@@ -231,17 +231,17 @@ def _corner_lists(F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     return ptr, np.argsort(corner_vertex, kind="stable").astype(dtype)
 
 
-def _fit_scale(corner_ptr: np.ndarray, fixed: np.ndarray | None) -> np.ndarray:
+def _fit_scale(corner_ptr: np.ndarray, pinned: np.ndarray | None) -> np.ndarray:
     count = np.diff(corner_ptr).astype(np.float64)
     scale = np.zeros(count.size)
     np.divide(1.0, count, out=scale, where=count > 0)
-    if fixed is not None:
-        scale[fixed] = 0.0
+    if pinned is not None:
+        scale[pinned] = 0.0
     return scale
 
 
 def fit_vertices_to_normals(
-    X: np.ndarray, F: np.ndarray, N: np.ndarray, iterations: int, fixed: np.ndarray | None = None
+    X: np.ndarray, F: np.ndarray, N: np.ndarray, iterations: int, pinned: np.ndarray | None = None
 ) -> np.ndarray:
     """Move vertices so that the faces become orthogonal to the target normals ``N`` (Sun et al. 2007).
 
@@ -257,7 +257,7 @@ def fit_vertices_to_normals(
     X = np.array(X, dtype=np.float64, order="C")
     F = np.array(F, dtype=np.int64, order="C")
     ptr, corners = _corner_lists(F, X.shape[0])
-    kernels.fit_vertices(X, F, _float_rows(N), ptr, corners, _fit_scale(ptr, fixed), int(iterations), np.empty((F.shape[0], 3)))
+    kernels.fit_vertices(X, F, _float_rows(N), ptr, corners, _fit_scale(ptr, pinned), int(iterations), np.empty((F.shape[0], 3)))
     return X
 
 
@@ -335,7 +335,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     if ctx.criterion.name == "gcv":
         raise ValueError("choose_parameters: two_stage is not a linear smoother; use criterion 'sure' or 'oracle'")
     step_params = {**full, "iterations": 1}
-    run = lambda X: spec.core(X, ctx.F, ops=ctx.ops, fixed=None, **step_params)  # noqa: E731
+    run = lambda X: spec.core(X, ctx.F, ops=ctx.ops, pinned=None, **step_params)  # noqa: E731
     sure_mode = not ctx.oracle
     if sure_mode:
         smooth = sure_smoothed(ctx.V, ctx.ops, ctx.rho).X
@@ -391,7 +391,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     ],
     linear=False,
 )
-def two_stage(V, F, *, ops, fixed, iterations, normal_iterations, vertex_iterations, sigma_r, sigma_s, guidance):
+def two_stage(V, F, *, ops, pinned, iterations, normal_iterations, vertex_iterations, sigma_r, sigma_s, guidance):
     """Two-stage feature-preserving denoising: filter the face normals, then fit the vertices to them.
 
     Each outer iteration (``iterations`` of them):
@@ -471,7 +471,7 @@ def two_stage(V, F, *, ops, fixed, iterations, normal_iterations, vertex_iterati
     N, areas, C = np.empty((m, 3)), np.empty(m), np.empty((m, 3))
     S = np.empty(nb.indices.size)  # spatial weights of the face pairs, per outer iteration
     sums = np.empty(m)
-    scale = _fit_scale(topo.corner_ptr, None if fixed is None else fixed[topo.vertex_order])
+    scale = _fit_scale(topo.corner_ptr, None if pinned is None else pinned[topo.vertex_order])
     for _ in range(iterations):
         kernels.face_geometry(X, F, N, areas, C)
         count = kernels.centroid_spacing_sums(C, nb.indptr, nb.indices, sums)
