@@ -197,10 +197,10 @@ MESHES: dict[str, Callable[[], dict]] = {
     "Fandisk0.3": _benchmark_pair("Fandisk0.3"),
     "Block0.4": _benchmark_pair("Block0.4"),
     "Twelve0.5Impulsive": _benchmark_pair("Twelve0.5Impulsive"),
-    "Bunny0.2": _benchmark_pair("Bunny0.2"),
     "nefertiti rho=0.2": _paper("nefertiti.off", 0.2),
-    "elephant rho=0.2": _paper("elephant-50kv.off", 0.2),
+    "Bunny0.2": _benchmark_pair("Bunny0.2"),
     "bunny scanner": _sample("bunny.obj"),
+    "elephant rho=0.2": _paper("elephant-50kv.off", 0.2),
     "face000 scanner": _sample("rangemaps/face000.ply"),
     "tiny": _tiny,
 }
@@ -475,7 +475,7 @@ _PV_FEATURES = [{"feature_smoothing": False}] + [{"feature_smoothing": True, "fe
 PEERS: dict[str, Peer] = {
     "MeshLib denoise": Peer(
         "meshlib", "mrmeshpy.meshDenoiseViaNormals", MeshLibDenoise,
-        _product(beta=[0.001, 0.003, 0.01, 0.03, 0.1], gamma=[1.0, 2.0, 5.0, 10.0, 20.0]),
+        _product(beta=[0.001, 0.003, 0.01, 0.03, 0.1], gamma=[1.0, 3.0, 10.0, 30.0, 100.0]),
         _product(beta=[0.01], gamma=[1.0, 5.0]),
         notes="beta: crease sensitivity (0.001 sharp, 0.1 smooth); gamma: amount of smoothing; "
               "normalIters=10, pointIters=20 (defaults)"),
@@ -485,7 +485,7 @@ PEERS: dict[str, Peer] = {
         notes="force per iteration; iterations searched along the run"),
     "PyGEL anisotropic": Peer(
         "pygel3d", "hmesh.anisotropic_smooth", PyGELAnisotropic,
-        _product(sharpness=[0.0, 1.0, 3.0, 10.0, 30.0, 100.0]), _product(sharpness=[3.0]), path=True,
+        _product(sharpness=[0.0, 3.0, 10.0, 30.0, 100.0]), _product(sharpness=[3.0]), path=True,
         notes="sharpness s: neighbour normal weight exp(-s * angle / pi); no_iters searched along the run"),
     "PyGEL Taubin": Peer("pygel3d", "hmesh.taubin_smooth", PyGELTaubin, [{}], [{}], path=True,
                          notes="fixed lambda 0.5, mu -0.52; no_iters searched along the run"),
@@ -496,7 +496,7 @@ PEERS: dict[str, Peer] = {
         notes="windowed sinc (not memoryless: each n_iter a fresh call); feature_angle used when feature_smoothing"),
     "PyVista smooth": Peer(
         "pyvista", "PolyData.smooth", PyVistaSmooth,
-        [{**a, **f} for a in _product(n_iter=[10, 30, 100, 300], relaxation_factor=[0.03, 0.1, 0.3]) for f in _PV_FEATURES],
+        [{**a, **f} for a in _product(n_iter=[10, 30, 100, 300], relaxation_factor=[0.01, 0.03, 0.1, 0.3]) for f in _PV_FEATURES],
         [{"n_iter": 10, "relaxation_factor": 0.1, **f} for f in _PV_FEATURES[:2]],
         notes="Laplacian with relaxation factor; feature edges found on the input (a fresh call per setting)"),
     "MeshLab Laplacian": Peer(
@@ -510,7 +510,7 @@ PEERS: dict[str, Peer] = {
         [{"lambda_": 0.5, "mu": -0.53}], path=True),
     "MeshLab two-step": Peer(
         "pymeshlab", "apply_coord_two_steps_smoothing", MeshLabTwoStep,
-        _product(normalthr=[15.0, 30.0, 60.0], stepnormalnum=[5, 20]), _product(normalthr=[60.0], stepnormalnum=[5]),
+        _product(normalthr=[15.0, 30.0, 60.0, 90.0], stepnormalnum=[2, 5, 20]), _product(normalthr=[60.0], stepnormalnum=[5]),
         path=True, notes="normalthr: feature angle (deg); stepfitnum=20 (default); stepsmoothnum searched"),
     "Open3D simple": Peer("open3d", "filter_smooth_simple", Open3DSimple, [{}], [{}], path=True),
     "Open3D Taubin": Peer(
@@ -677,6 +677,16 @@ def run_cells(cells: list[Cell], store: Path, timeout: float, jobs: int, quick: 
     running: list[tuple[Cell, Path, subprocess.Popen, float, Any]] = []
     env = dict(os.environ)
     env["PYTHONPATH"] = str(ROOT) + (os.pathsep + env["PYTHONPATH"] if env.get("PYTHONPATH") else "")
+    try:
+        _drive(todo, running, env, timeout, jobs, quick, log)
+    finally:  # interrupted: no cell process outlives the driver
+        for _, _, p, _, _ in running:
+            if p.poll() is None:
+                os.killpg(p.pid, 9)
+                p.wait()
+
+
+def _drive(todo: list, running: list, env: dict, timeout: float, jobs: int, quick: bool, log: Callable) -> None:
     while todo or running:
         while todo and len(running) < jobs:
             c, f = todo.pop(0)
@@ -712,6 +722,7 @@ def run_cells(cells: list[Cell], store: Path, timeout: float, jobs: int, quick: 
 def _cell_main(spec: str, result: str) -> None:
     mesh, kind, name, quick = json.loads(spec)
     out = measure_cell(mesh, kind, name, quick)
+    out["cpu_s"] = time.process_time()  # the whole process, imports included, all threads
     tmp = Path(result).with_suffix(".tmp")
     tmp.write_text(json.dumps(out))
     tmp.replace(result)
@@ -820,6 +831,10 @@ def _commit() -> str:
     return head + ("+dirty" if dirty else "")
 
 
+def _terminate(signum, frame):  # SIGTERM: unwind through run_cells' cleanup
+    raise KeyboardInterrupt
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--meshes", nargs="+", default=None, help=f"of {', '.join(MESHES)} (default: all but tiny)")
@@ -857,6 +872,9 @@ def main(argv: list[str] | None = None) -> int:
         cells.append(Cell(mesh, "input", "input"))
         cells += [Cell(mesh, "peer", p) for p in peers]
         cells += [Cell(mesh, "ours", o) for o in ours]
+    import signal
+
+    signal.signal(signal.SIGTERM, _terminate)
     t0 = time.time()
     run_cells(cells, a.out / "cells", a.timeout, a.jobs, a.quick, a.resume)
     results: dict = {}
