@@ -736,22 +736,31 @@ def _cell_main(spec: str, result: str) -> None:
 
 
 # ----------------------------------------------------------------------------- table
-def _fmt(x: Any, spec: str) -> str:
-    return "" if x is None else format(x, spec)
+def grid_edges(peer: Peer, rec: dict) -> list[str]:
+    """The tuned parameters whose best value is the smallest or largest of its grid axis (numbers only)."""
+    edges = []
+    for k, v in rec.get("params", {}).items():
+        axis = sorted({g[k] for g in peer.grid if k in g and isinstance(g[k], (int, float)) and not isinstance(g[k], bool)})
+        if len(axis) > 1 and v in (axis[0], axis[-1]):
+            edges.append(k)
+    if peer.path and rec.get("iterations") == MAX_ITERS:
+        edges.append("iterations")
+    return edges
 
 
-def _params(rec: dict) -> str:
+def _params(rec: dict, edges: list[str] = ()) -> str:
     p = dict(rec.get("params", {}))
     if "iterations" in rec:
         p["iterations"] = rec["iterations"]
-    return ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in p.items())
+    mark = {k: " (edge)" if k in edges else "" for k in p}
+    return ", ".join((f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}") + mark[k] for k, v in p.items())
 
 
-def _row(label: str, rec: dict) -> str:
+def _row(label: str, rec: dict, edges: list[str] = ()) -> str:
     if "status" in rec:
         return f"| {label} | {rec['status']} | | | | |"
     return (f"| {label} | {rec['normal_error_deg']:.2f} | {rec['snr_db']:.2f} | {rec['mean_distance']:.4g} | "
-            f"{rec['time_s']:.2f} | {_params(rec)} |")
+            f"{rec['time_s']:.2f} | {_params(rec, edges)} |")
 
 
 def summarise(results: dict) -> list[dict]:
@@ -796,7 +805,8 @@ def write_markdown(results: dict, meta: dict, path: Path) -> None:
         return (f"{name} " if name else "") + f"{rec['normal_error_deg']:.2f} ({rec['snr_db']:.2f} dB, {rec['time_s']:.2f} s)"
 
     for r in summarise(results):
-        L.append(f"| {r['mesh']} | {_fmt(r['noisy_normal'], '.2f')} ({_fmt(r['noisy_snr'], '.2f')} dB) | {cell(r['default'])} | "
+        noisy = "not run" if r["noisy_normal"] is None else f"{r['noisy_normal']:.2f} ({r['noisy_snr']:.2f} dB)"
+        L.append(f"| {r['mesh']} | {noisy} | {cell(r['default'])} | "
                  f"{cell(*r['best_auto'][::-1]) if 'best_auto' in r else 'none'} | "
                  f"{cell(*r['best_peer_normal'][::-1]) if 'best_peer_normal' in r else 'none'} | "
                  f"{cell(*r['best_peer_snr'][::-1]) if 'best_peer_snr' in r else 'none'} |")
@@ -827,7 +837,8 @@ def write_markdown(results: dict, meta: dict, path: Path) -> None:
             continue
         L += [f"{inp['n_vertices']} vertices, {inp['n_faces']} faces, mean edge {inp['mean_edge']:.4g}; noise: {inp['noise']}; "
               f"our noise estimate {inp['rho_estimated']:.4g}.", "",
-              "| method | normal err (deg) | SNR (dB) | mean dist | time (s) | parameters |", "|---|---|---|---|---|---|",
+              "| method | normal err (deg) | SNR (dB) | mean dist | time (s) | parameters ('edge': best at the end of "
+              "its grid axis) |", "|---|---|---|---|---|---|",
               f"| noisy input | {inp['normal_error_deg']:.2f} | {inp['snr_db']:.2f} | {inp['mean_distance']:.4g} | | |"]
         for name, rec in per.get("ours", {}).items():
             L.append(_row("ours: default `denoise(mesh)`" if name == "default" else f"ours: {name} auto", rec))
@@ -835,8 +846,8 @@ def write_markdown(results: dict, meta: dict, path: Path) -> None:
             if "status" in rec:
                 L.append(_row(f"{name} ({PEERS[name].call})", rec))
                 continue
-            L.append(_row(f"{name}, best normal", rec["best_normal"]))
-            L.append(_row(f"{name}, best SNR", rec["best_snr"]))
+            L.append(_row(f"{name}, best normal", rec["best_normal"], grid_edges(PEERS[name], rec["best_normal"])))
+            L.append(_row(f"{name}, best SNR", rec["best_snr"], grid_edges(PEERS[name], rec["best_snr"])))
     L += ["", "## Grids", "", "| peer | call | grid | notes |", "|---|---|---|---|"]
     for name, p in PEERS.items():
         grid = "; ".join(", ".join(f"{k}={v}" for k, v in g.items()) or "(none)" for g in p.grid)
@@ -872,6 +883,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--quick", action="store_true", help="small grids and few iterations (for tests)")
     ap.add_argument("--resume", action="store_true", help="reuse the cells stored in OUT/cells")
+    ap.add_argument("--table-only", action="store_true",
+                    help="write the table from the cells stored in OUT/cells; measure nothing (missing: 'not run')")
     ap.add_argument("--out", type=Path, default=Path("out/peers"))
     ap.add_argument("--_cell", help=argparse.SUPPRESS)
     ap.add_argument("--_result", help=argparse.SUPPRESS)
@@ -904,7 +917,12 @@ def main(argv: list[str] | None = None) -> int:
 
     signal.signal(signal.SIGTERM, _terminate)
     t0 = time.time()
-    run_cells(cells, a.out / "cells", a.timeout, a.jobs, a.quick, a.resume, peer_timeout=a.peer_timeout)
+    if a.table_only:
+        for c in cells:
+            f = a.out / "cells" / (_slug(c.mesh, c.kind, c.name) + ".json")
+            c.result = json.loads(f.read_text()) if f.is_file() else {"status": "not run"}
+    else:
+        run_cells(cells, a.out / "cells", a.timeout, a.jobs, a.quick, a.resume, peer_timeout=a.peer_timeout)
     results: dict = {}
     for c in cells:
         per = results.setdefault(c.mesh, {"input": {}, "ours": {}, "peers": {}})
