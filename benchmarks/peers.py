@@ -630,6 +630,14 @@ def our_methods() -> list[str]:
     return [f.name for f in list_filters() if f.name in AUTO_METHODS]
 
 
+def filters_without_rule() -> list[str]:
+    """Registered filters that ``denoise(mesh, method=M)`` cannot tune (so not in the table)."""
+    from meshdenoise.auto import AUTO_METHODS
+    from meshdenoise.registry import list_filters
+
+    return [f.name for f in list_filters() if f.name not in AUTO_METHODS]
+
+
 def measure_cell(mesh: str, kind: str, name: str, quick: bool) -> dict:
     """One cell: ``kind`` is "peer", "ours" (``name`` a method or "default") or "input"."""
     m = MESHES[mesh]()
@@ -792,7 +800,9 @@ def write_markdown(results: dict, meta: dict, path: Path) -> None:
          "Peers tuned on the clean mesh (their best case), ours with no clean mesh. Normal error: mean angle "
          "between corresponding face normals (deg, lower is better); SNR in dB (higher is better); "
          "distance: mean distance from the result's vertices to the clean surface (mesh units); time: one call "
-         "(s, load + filter + read back for peers; the whole `denoise` call, choice included, for ours).", "",
+         "(s, load + filter + read back for peers; the whole `denoise` call, choice included, for ours). "
+         f"Registered filters with no automatic rule (not in the table): "
+         f"{', '.join(meta.get('filters_without_automatic_rule', [])) or 'none'}.", "",
          "## Summary (mean face-normal error, deg; SNR, dB)", "",
          "| mesh | noisy | our default | our best automatic filter | best peer by normal error | best peer by SNR |",
          "|---|---|---|---|---|---|"]
@@ -935,7 +945,8 @@ def main(argv: list[str] | None = None) -> int:
             "command": "python benchmarks/peers.py " + " ".join(argv if argv is not None else sys.argv[1:]),
             "machine": f"{os.cpu_count()} cores, load average {load[0]:.1f} at the end (shared machine: times are under load)",
             "wall_s": time.time() - t0, "timeout_s": a.timeout, "peer_timeout_s": a.peer_timeout, "quick": a.quick,
-            "grids": {n: {"call": p.call, "grid": p.grid, "path": p.path, "notes": p.notes} for n, p in PEERS.items()}}
+            "grids": {n: {"call": p.call, "grid": p.grid, "path": p.path, "notes": p.notes} for n, p in PEERS.items()},
+            "filters_without_automatic_rule": filters_without_rule()}
     a.out.mkdir(parents=True, exist_ok=True)
     (a.out / "peers.json").write_text(json.dumps({"meta": meta, "results": results}, indent=1, default=float))
     write_markdown(results, meta, a.out / "peers.md")
