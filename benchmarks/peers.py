@@ -622,20 +622,27 @@ def run_ours(method: str | None, V0: np.ndarray, F: np.ndarray, Vn: np.ndarray) 
     return {"params": used, **_quality(V0, F, np.asarray(X, dtype=np.float64), distance=True), "time_s": elapsed}
 
 
+def _has_rule(spec: Any) -> bool:
+    """Whether a registered filter has an automatic rule (``FilterSpec.auto``; older code: ``auto.AUTO_METHODS``)."""
+    if hasattr(spec, "auto"):
+        return spec.auto is not None
+    from meshdenoise.auto import AUTO_METHODS  # before the rules moved into the plugins (issue 16)
+
+    return spec.name in AUTO_METHODS
+
+
 def our_methods() -> list[str]:
     """Every registered filter with an automatic rule."""
-    from meshdenoise.auto import AUTO_METHODS
     from meshdenoise.registry import list_filters
 
-    return [f.name for f in list_filters() if f.name in AUTO_METHODS]
+    return [f.name for f in list_filters() if _has_rule(f)]
 
 
 def filters_without_rule() -> list[str]:
     """Registered filters that ``denoise(mesh, method=M)`` cannot tune (so not in the table)."""
-    from meshdenoise.auto import AUTO_METHODS
     from meshdenoise.registry import list_filters
 
-    return [f.name for f in list_filters() if f.name not in AUTO_METHODS]
+    return [f.name for f in list_filters() if not _has_rule(f)]
 
 
 def measure_cell(mesh: str, kind: str, name: str, quick: bool) -> dict:
