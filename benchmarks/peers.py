@@ -50,6 +50,7 @@ import argparse
 import itertools
 import json
 import os
+import shlex
 import subprocess
 import sys
 import tempfile
@@ -949,7 +950,7 @@ def main(argv: list[str] | None = None) -> int:
             per["ours" if c.kind == "ours" else "peers"][c.name] = c.result
     load = os.getloadavg()
     meta = {"date": time.strftime("%Y-%m-%d", time.gmtime()), "commit": _commit(),
-            "command": "python benchmarks/peers.py " + " ".join(argv if argv is not None else sys.argv[1:]),
+            "command": "python benchmarks/peers.py " + shlex.join(argv if argv is not None else sys.argv[1:]),
             "machine": f"{os.cpu_count()} cores, load average {load[0]:.1f} at the end (shared machine: times are under load)",
             "wall_s": time.time() - t0, "timeout_s": a.timeout, "peer_timeout_s": a.peer_timeout, "quick": a.quick,
             "grids": {n: {"call": p.call, "grid": p.grid, "path": p.path, "notes": p.notes} for n, p in PEERS.items()},
