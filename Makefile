@@ -2,7 +2,8 @@
 #   make demo   denoise a built-in mesh with the three filters and print a table
 #   make test   run the test suite
 # Both install the missing Debian packages, create .venv and install the package with its
-# dev extras at the pinned versions of constraints.txt. A second run skips what is done.
+# dev and bench extras (bench: the peers of benchmarks/peers.py, binary wheels) at the pinned
+# versions of constraints.txt. A second run skips what is done.
 
 PY ?= python3
 VENV := .venv
@@ -20,7 +21,7 @@ system-deps:
 $(STAMP): pyproject.toml constraints.txt
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --disable-pip-version-check --upgrade "pip>=23"
-	$(BIN)/python -m pip install -q --disable-pip-version-check -c constraints.txt -e '.[dev]'
+	$(BIN)/python -m pip install -q --disable-pip-version-check -c constraints.txt -e '.[dev,bench]'
 	@touch $(STAMP)
 
 venv: system-deps $(STAMP)
