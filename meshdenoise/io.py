@@ -72,6 +72,10 @@ class MeshFile:
         merged, CR line endings) and legal oddities worth knowing (unreferenced vertices,
         duplicate faces, non-manifold edges, no faces).
     path : Path
+    selection : ndarray, shape (n,), bool, or None
+        The MeshLab vertex selection, when the file stores it: a PLY whose vertices have the
+        integer property ``flags`` (MeshLab's "Flags" save option; bit 0x20 is "selected").
+        None for every other file.
     """
 
     V: np.ndarray
@@ -79,9 +83,54 @@ class MeshFile:
     vertex_colors: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
     path: Path | None = None
+    selection: np.ndarray | None = None
 
 
 # ---------------------------------------------------------------------------------- reading
+_SNIFF_BYTES = 1 << 16  # read first: enough to refuse garbage without loading a 200 MB file
+_UTF8_BOM = b"\xef\xbb\xbf"
+_BLANK = re.compile(rb"[ \t\r\n\f\v]*")
+_OFF_FIRST_WORD = re.compile(rb"(?:[ \t\r\n\f\v]+|#[^\r\n]*)*([^\s#]+)")
+_STL_ASCII_START = re.compile(rb"(?:\xef\xbb\xbf)?[ \t\r\n\f\v]*solid", re.I)
+
+
+def _sniff(ext: str, head: bytes, size: int, more: bool) -> bool:
+    """Refuse a file from its first bytes (``head``, of ``size`` in all) when they already show it is not
+    of its extension's format; returns whether it starts with a UTF-8 byte-order mark to skip."""
+    if head.startswith((b"\xff\xfe", b"\xfe\xff")):
+        raise _Malformed("the file is UTF-16 text (it starts with a UTF-16 byte-order mark); save it as UTF-8 or ASCII")
+    if not more and _BLANK.fullmatch(head):
+        return False  # empty or whitespace only: said by the caller
+    if ext == ".stl":  # no BOM to strip: a binary STL header may start with any bytes
+        binary_fits = size >= 84 and 84 + 50 * int.from_bytes(head[80:84], "little") <= size
+        if binary_fits or (_STL_ASCII_START.match(head) and b"\x00" not in head):
+            return False
+        if size >= 84:
+            m = int.from_bytes(head[80:84], "little")
+            raise _Malformed(
+                f"not a valid STL file: as binary STL its header declares {m} triangles, which need "
+                f"{84 + 50 * m} bytes, but the file has {size} (truncated?); it is not ASCII STL either"
+            )
+        raise _Malformed(f"not an STL file: {size} bytes, too short for binary STL and not ASCII STL ('solid ...')")
+    bom = head.startswith(_UTF8_BOM)
+    h = head[len(_UTF8_BOM):] if bom else head
+    if ext == ".ply":
+        if not re.match(rb"ply\r?\n", h) and not (not more and _BLANK.fullmatch(h)):
+            raise _Malformed("not a PLY file: it does not start with the line 'ply'")
+        return bom
+    what = "an OBJ" if ext == ".obj" else "an OFF"
+    if b"\x00" in h:
+        raise _Malformed(f"not {what} file: it contains binary data (NUL bytes) where text is expected")
+    if ext == ".off":
+        m = _OFF_FIRST_WORD.match(h)
+        if m and (m.end() < len(h) or not more):
+            word = m.group(1).decode("latin-1")
+            if not _OFF_HEADER.match(word):
+                raise _Malformed(
+                    f"not an OFF file: the first word is {word[:40]!r}, expected OFF, COFF, NOFF or STOFF")
+    return bom
+
+
 def load_mesh(path: str | os.PathLike) -> MeshFile:
     """Read a PLY (ASCII or binary), OBJ, OFF or STL (ASCII or binary) file.
 
@@ -122,21 +171,41 @@ def load_mesh(path: str | os.PathLike) -> MeshFile:
         raise MeshFileError(f"{path}: no such file")
     if not path.is_file():
         raise MeshFileError(f"{path}: not a regular file")
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise MeshFileError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    if not data.strip():
-        raise MeshFileError(f"{path}: the file is empty" + (" (whitespace only)" if data else ""))
-    reader = _READERS[path.suffix.lower()]
+    ext = path.suffix.lower()
     notes: list[str] = []
     try:
-        V, F, colors = reader(data, notes)
+        with open(path, "rb") as fh:
+            # Sniff the first bytes before reading the rest: garbage is refused without loading it.
+            head = fh.read(_SNIFF_BYTES)
+            rest = fh.read(1) if len(head) == _SNIFF_BYTES else b""
+            try:
+                bom = _sniff(ext, head, os.fstat(fh.fileno()).st_size, bool(rest))
+            except _Malformed as exc:
+                raise MeshFileError(f"{path}: {exc}") from None
+            if rest:
+                fh.seek(0)
+                data = fh.read()
+            else:
+                data = head
+            del head, rest
+    except OSError as exc:
+        raise MeshFileError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if not data or _BLANK.fullmatch(data):
+        raise MeshFileError(f"{path}: the file is empty" + (" (whitespace only)" if data else ""))
+    if bom:
+        data = data[len(_UTF8_BOM):]
+        notes.append("UTF-8 byte-order mark at the start of the file skipped")
+    reader = _READERS[ext]
+    try:
+        out = reader(data, notes)
     except _Malformed as exc:
         raise MeshFileError(f"{path}: {exc}") from None
     except (ValueError, IndexError, struct.error, OverflowError, MemoryError) as exc:
         # Any other parse failure is still a malformed file: say so with the file name.
-        raise MeshFileError(f"{path}: cannot be read as {path.suffix.lower()[1:].upper()} ({exc})") from None
+        raise MeshFileError(f"{path}: cannot be read as {ext[1:].upper()} ({exc})") from None
+    del data
+    V, F, colors = out[:3]
+    selection = out[3] if len(out) > 3 else None
     bad = np.flatnonzero(~np.isfinite(np.asarray(V, dtype=np.float64)).all(axis=1)) if len(V) else []
     if len(bad):
         raise MeshFileError(
@@ -148,7 +217,7 @@ def load_mesh(path: str | os.PathLike) -> MeshFile:
     except (MeshValidationError, TypeError) as exc:
         raise MeshFileError(f"{path}: {exc}") from None
     notes += topology_notes(V, F)
-    return MeshFile(V, F, colors, notes, path)
+    return MeshFile(V, F, colors, notes, path, selection)
 
 
 def load_arrays(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
@@ -260,6 +329,10 @@ def _triangulate(groups: list[tuple[np.ndarray, np.ndarray]], notes: list[str]) 
 
     A polygon ``(a, b, c, d, ...)`` becomes the fan ``(a, b, c), (a, c, d), ...``.
     """
+    if len(groups) == 1 and groups[0][1].shape[1] == 3:  # all triangles, in file order: nothing to do
+        ids, P = groups[0]
+        if P.shape[0] == 0 or (ids[0] == 0 and ids[-1] == len(ids) - 1):
+            return np.ascontiguousarray(P, dtype=np.int64)
     tris, keys = [np.zeros((0, 3), np.int64)], [np.zeros(0, np.int64)]
     n_poly = 0
     for ids, P in groups:
@@ -284,8 +357,9 @@ def _check_indices(P: np.ndarray, ids: np.ndarray, n: int) -> None:
     bad = (P < 0) | (P >= n)
     if bad.any():
         r = int(np.flatnonzero(bad.any(axis=1))[0])
+        face = ", ".join(f"{x:.15g}" for x in np.asarray(P[r], dtype=np.float64))
         raise _Malformed(
-            f"face {int(ids[r])} = {P[r].tolist()} references a vertex outside 0..{n - 1} (the file has {n} vertices)"
+            f"face {int(ids[r])} = [{face}] references a vertex outside 0..{n - 1} (the file has {n} vertices)"
         )
 
 
@@ -362,7 +436,17 @@ def _off_vertices(vlines, ncoord: int, keyword: str, has_colours: bool):
     colors = None
     if has_colours and T.shape[1] in (ncoord + 3, ncoord + 4):
         C = T[:, ncoord:]
-        if not any("." in tok for tok in vlines[0][1].split()[ncoord:]):  # integers 0..255
+        integers = not any(c in tok for tok in vlines[0][1].split()[ncoord:] for c in ".eE")  # 0..255, else 0..1
+        hi = 255.0 if integers else 1.0
+        bad = ~((C >= 0) & (C <= hi)).all(axis=1)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise _Malformed(
+                f"line {vlines[k][0]}: vertex {k} has colour {C[k].tolist()} outside "
+                f"{'0..255 (integer colours)' if integers else '[0, 1] (float colours)'}; {int(bad.sum())} such "
+                "vertices (refused rather than wrapped or clipped)"
+            )
+        if integers:
             C = C / 255.0
         colors = np.hstack([C, np.ones((nv, 1))]) if C.shape[1] == 3 else C
     return np.ascontiguousarray(T[:, :3]), colors
@@ -562,25 +646,115 @@ def _ply_header(data: bytes):
 
 def _read_ply(data: bytes, notes: list[str]):
     fmt, elements, offset = _ply_header(data)
-    values = {}
     if fmt == "ascii":
-        body = _decode_text(data[offset:], "an ASCII PLY")
-        lines = [ln for ln in body.splitlines() if ln and not ln.isspace()]
-        pos = 0
-        for name, count, props in elements:
-            if pos + count > len(lines):
-                raise _Malformed(
-                    f"truncated: element '{name}' declares {count} records, the file ends after {len(lines) - pos}"
-                )
-            block = lines[pos:pos + count]
-            fast = _ply_ascii_fast(block, props, name)
-            values[name] = fast if fast is not None else _ply_ascii_element([ln.split() for ln in block], props, name)
-            pos += count
+        values = _ply_ascii_values(data, offset, elements, notes)
     else:
         endian = "<" if fmt == "binary_little_endian" else ">"
+        values = {}
         for name, count, props in elements:
             values[name], offset = _ply_binary_element(data, offset, count, props, name, endian)
+        if len(data) > offset:
+            notes.append(
+                f"{len(data) - offset} bytes after the last declared element ('{elements[-1][0]}', "
+                f"{elements[-1][1]} records) ignored: the header's count may be wrong"
+            )
     return _ply_mesh(elements, values, notes)
+
+
+def _ply_ascii_values(data: bytes, offset: int, elements, notes: list[str]) -> dict:
+    """ASCII PLY read as one stream of numbers (records may span or share lines, as the format allows),
+    parsed by numpy's C tokenizer into a float64 array: no Python object per line or number."""
+    body = data[offset:]
+    if b"\x00" in body:
+        raise _Malformed("not an ASCII PLY file: it contains binary data (NUL bytes) where text is expected")
+    if _BLANK.fullmatch(body):
+        T = np.zeros(0)
+    else:
+        try:
+            T = np.fromstring(body, dtype=np.float64, sep=" ")
+        except ValueError:
+            _ply_ascii_bad_token(body, offset, data)
+            raise
+    del body
+    values, pos = {}, 0
+    for name, count, props in elements:
+        values[name], pos = _ply_ascii_element(T, pos, count, props, name)
+    if pos < T.size:
+        last, count, props = elements[-1]
+        stride = len(props) if all(isinstance(t, str) for _, t in props) else None
+        more = f" ({(T.size - pos) / stride:g} more records of '{last}')" if stride else ""
+        notes.append(
+            f"{T.size - pos} numbers after the last declared element ('{last}', {count} records) ignored{more}: "
+            "the header's count may be wrong"
+        )
+    return values
+
+
+def _ply_ascii_bad_token(body: bytes, offset: int, data: bytes) -> None:
+    """Raise naming the line and the first token of ``body`` that is not a number (error path only)."""
+    for mo in re.finditer(rb"\S+", body):
+        tok = mo.group()
+        try:
+            float(tok)
+        except ValueError:
+            line = data.count(b"\n", 0, offset + mo.start()) + 1
+            raise _Malformed(f"line {line}: {tok[:40].decode('latin-1')!r} is not a number") from None
+
+
+def _ply_ascii_element(T: np.ndarray, pos: int, count: int, props, name: str):
+    """One element's records from the number stream ``T`` at ``pos``; returns ``(values, next pos)``."""
+    left = T.size - pos
+    lists = [j for j, (_, t) in enumerate(props) if not isinstance(t, str)]
+    if count == 0:
+        return {p: (np.zeros(0) if isinstance(t, str) else np.zeros((0, 3))) for p, t in props}, pos
+    if not props:
+        return {}, pos
+    # Fixed layout: every list as long as the first record's (all triangles, say), checked after.
+    stride, col, layout = 0, pos, []
+    for pname, t in props:
+        if isinstance(t, str):
+            layout.append((pname, stride, None))
+            stride, col = stride + 1, col + 1
+        else:
+            if col >= T.size:
+                stride = None
+                break
+            k = T[col]
+            if not (k >= 0 and k == int(k)):
+                raise _Malformed(f"element '{name}' record 0: list '{pname}' has length {k:g}, not a count")
+            k = int(k)
+            layout.append((pname, stride, k))
+            stride, col = stride + 1 + k, col + 1 + k
+    if stride is not None and count * stride <= left:
+        block = T[pos:pos + count * stride].reshape(count, stride)
+        if all((block[:, start] == k).all() for _, start, k in layout if k is not None):
+            out = {}
+            for pname, start, k in layout:
+                out[pname] = block[:, start] if k is None else block[:, start + 1:start + 1 + k]
+            return out, pos + count * stride
+    if not lists:
+        whole = left // len(props)
+        raise _Malformed(f"truncated: element '{name}' declares {count} records, the file ends after {whole}")
+    # Lists of varying length (polygons): record by record (the slow path, for polygon meshes only).
+    out = {p: [] for p, _ in props}
+    for i in range(count):
+        for pname, t in props:
+            if pos >= T.size:
+                raise _Malformed(f"truncated: element '{name}' declares {count} records, the file ends after {i}")
+            if isinstance(t, str):
+                out[pname].append(T[pos])
+                pos += 1
+            else:
+                k = T[pos]
+                if not (k >= 0 and k == int(k)):
+                    raise _Malformed(f"element '{name}' record {i}: list '{pname}' has length {k:g}, not a count")
+                k = int(k)
+                if pos + 1 + k > T.size:
+                    raise _Malformed(
+                        f"truncated: element '{name}' declares {count} records, the file ends inside record {i}")
+                out[pname].append(T[pos + 1:pos + 1 + k])
+                pos += 1 + k
+    return {p: (out[p] if isinstance(t, tuple) else np.array(out[p])) for p, t in props}, pos
 
 
 def _ply_binary_element(data, offset, count, props, name, endian):
@@ -593,7 +767,8 @@ def _ply_binary_element(data, offset, count, props, name, endian):
         )
     if count == 0:
         return {p: (np.zeros(0, t) if isinstance(t, str) else np.zeros((0, 3), t[1])) for p, t in props}, offset
-    # Fast path: every list has the length of the first record's (all triangles, say).
+    # Fast path: every list has the length of the first record's (all triangles, say): one structured
+    # dtype over the bytes (np.frombuffer, no copy), the fields taken as views.
     fields, pos = [], offset
     for pname, t in props:
         if isinstance(t, str):
@@ -633,61 +808,38 @@ def _ply_binary_element(data, offset, count, props, name, endian):
     return {p: (out[p] if p in lists else np.array(out[p])) for p, _ in props}, pos
 
 
-def _ply_ascii_fast(block: list[str], props, name):
-    """An ASCII element parsed by numpy when every record has the layout of the first one; else None."""
-    T = _fast_table(block)
-    if T is None:
+_TYPE_RANGE = {"u1": (0, 255), "i1": (-128, 127), "u2": (0, 65535), "i2": (-32768, 32767),
+               "u4": (0, 2**32 - 1), "i4": (-(2**31), 2**31 - 1)}
+
+
+def _ply_colours(vx: dict, types: dict, n: int) -> np.ndarray | None:
+    """RGBA in [0, 1] from ``red green blue [alpha]`` (or ``diffuse_*``); out-of-range values are refused
+    (never wrapped or clipped): integers must lie in 0..255, floats in [0, 1]."""
+    names = next(([f"{p}red", f"{p}green", f"{p}blue"] for p in ("", "diffuse_") if f"{p}red" in vx), None)
+    if not names:
         return None
-    out, col = {}, 0
-    for pname, t in props:
-        if isinstance(t, str):
-            if col >= T.shape[1]:
-                return None
-            out[pname] = T[:, col]
-            col += 1
+    alpha = names[0].replace("red", "alpha")
+    names = names + ([alpha] if alpha in vx else [])
+    cols = []
+    for c in names:
+        t = types[c]
+        A = np.asarray(vx[c], np.float64)
+        if t.startswith(("u", "i")):
+            lo, hi = 0, 255
         else:
-            if col >= T.shape[1] or not (T[:, col] == T[0, col]).all():
-                return None
-            k = int(T[0, col])
-            if k < 0 or col + 1 + k > T.shape[1]:
-                return None
-            L = T[:, col + 1:col + 1 + k]
-            if not np.all(np.mod(L, 1) == 0):
-                r = int(np.flatnonzero((np.mod(L, 1) != 0).any(axis=1))[0])
-                raise _Malformed(f"element '{name}' record {r}: list '{pname}' holds a non-integer {L[r].tolist()}")
-            out[pname] = L.astype(np.int64)
-            col += 1 + k
-    return out if col == T.shape[1] else None
-
-
-def _ply_ascii_element(rows, props, name):
-    lists = [p for p, t in props if not isinstance(t, str)]
-    if not lists:
-        if rows and min(map(len, rows)) < len(props):
-            raise _Malformed(f"element '{name}': a record has fewer than its {len(props)} properties")
-        A = _float_table([r[:len(props)] for r in rows], name) if rows else np.zeros((0, len(props)))
-        return {p: A[:, j] for j, (p, _) in enumerate(props)}
-    out = {p: [] for p, _ in props}
-    for i, r in enumerate(rows):
-        pos = 0
-        try:
-            for pname, t in props:
-                if isinstance(t, str):
-                    out[pname].append(float(r[pos]))
-                    pos += 1
-                else:
-                    k = int(r[pos])
-                    if k < 0 or pos + 1 + k > len(r):
-                        raise _Malformed(
-                            f"element '{name}' record {i}: list of {k} items but only {len(r) - pos - 1} numbers"
-                        )
-                    out[pname].append(np.array(r[pos + 1:pos + 1 + k], dtype=np.float64))
-                    pos += 1 + k
-        except IndexError:
-            raise _Malformed(f"element '{name}' record {i}: fewer numbers than its properties") from None
-        except ValueError as exc:
-            raise _Malformed(f"element '{name}' record {i}: not a number ({exc})") from None
-    return {p: (out[p] if p in lists else np.array(out[p])) for p, _ in props}
+            lo, hi = 0.0, 1.0
+        bad = ~((A >= lo) & (A <= hi) & (np.mod(A, 1) == 0 if t.startswith(("u", "i")) else True))
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            kind = "an integer colour (0..255)" if t.startswith(("u", "i")) else "a float colour (0..1)"
+            raise _Malformed(
+                f"vertex {k}: {c} = {A[k]:g} is outside the range of {kind}; {int(bad.sum())} such values "
+                "(refused rather than wrapped or clipped)"
+            )
+        cols.append(A / 255.0 if t.startswith(("u", "i")) else A)
+    if len(cols) == 3:
+        cols.append(np.ones(n))
+    return np.stack(cols, axis=1)
 
 
 def _ply_mesh(elements, values, notes):
@@ -696,29 +848,40 @@ def _ply_mesh(elements, values, notes):
     vx = values["vertex"]
     if not all(c in vx for c in "xyz"):
         raise _Malformed("the 'vertex' element has no x, y, z properties")
-    V = np.stack([np.asarray(vx[c], dtype=np.float64) for c in "xyz"], axis=1)
-    colors = None
-    names = next(([f"{p}red", f"{p}green", f"{p}blue"] for p in ("", "diffuse_") if f"{p}red" in vx), None)
-    if names:
-        types = dict(next(e for e in elements if e[0] == "vertex")[2])
-        C = np.stack([np.asarray(vx[c], np.float64) for c in names], axis=1)
-        alpha_name = names[0].replace("red", "alpha")
-        A = np.asarray(vx[alpha_name], np.float64)[:, None] if alpha_name in vx else None
-        scale = 255.0 if types[names[0]] in ("u1", "i1") else 1.0
-        colors = np.hstack([C, A if A is not None else np.full((len(V), 1), scale)]) / scale
+    for c in "xyz":
+        if not isinstance(vx[c], np.ndarray) or vx[c].ndim != 1:
+            raise _Malformed(f"the 'vertex' property {c} is a list; coordinates must be numbers")
+    V = np.empty((len(vx["x"]), 3))
+    for j, c in enumerate("xyz"):
+        V[:, j] = vx[c]
+    types = dict(next(e for e in elements if e[0] == "vertex")[2])
+    colors = _ply_colours(vx, types, len(V))
+    selection = None
+    if "flags" in vx and isinstance(types["flags"], str) and types["flags"][0] in "iu":
+        selection = (np.asarray(vx["flags"]).astype(np.int64) & 0x20) != 0  # MeshLab's SELECTED bit
     n = V.shape[0]
     if "face" not in values:
-        return V, np.zeros((0, 3), np.int64), colors
+        return V, np.zeros((0, 3), np.int64), colors, selection
     fc = values["face"]
     key = next((k for k in ("vertex_indices", "vertex_index") if k in fc), None)
     if key is None:
         raise _Malformed("the 'face' element has no vertex_indices list")
+    ftypes = dict(next(e for e in elements if e[0] == "face")[2])
+    if isinstance(ftypes[key], str):
+        raise _Malformed(f"the 'face' property {key} is a number; it must be a list of vertex indices")
     idx = fc[key]
     if isinstance(idx, np.ndarray):  # fixed-length fast path: (m, k)
+        if idx.dtype.kind == "f" and not np.all(np.mod(idx, 1) == 0):
+            r = int(np.flatnonzero((np.mod(idx, 1) != 0).any(axis=1))[0])
+            raise _Malformed(f"face {r}: vertex indices must be integers, got {idx[r].tolist()}")
+        ids = np.arange(idx.shape[0])
+        if idx.shape[1] == 3:  # triangles: check the range before the int64 copy (chunked, bounded memory)
+            for a in range(0, idx.shape[0], 1 << 20):
+                _check_indices(idx[a:a + (1 << 20)], ids[a:a + (1 << 20)], n)
+            return V, np.ascontiguousarray(idx, dtype=np.int64), colors, selection
         P = idx.astype(np.int64)
-        ids = np.arange(P.shape[0])
         _check_indices(P, ids, n)
-        return V, _triangulate([(ids, P)], notes), colors
+        return V, _triangulate([(ids, P)], notes), colors, selection
     lengths = np.fromiter((len(p) for p in idx), dtype=np.int64, count=len(idx))
     groups = []
     for k in np.unique(lengths):
@@ -729,20 +892,29 @@ def _ply_mesh(elements, values, notes):
         P = P.astype(np.int64)
         _check_indices(P, ids, n)
         groups.append((ids, P))
-    return V, _triangulate(groups, notes), colors
+    return V, _triangulate(groups, notes), colors, selection
 
 
 # ------------------------------------------------------------------------------------ STL
 def _read_stl(data: bytes, notes: list[str]):
-    if len(data) >= 84:
-        m = int(np.frombuffer(data, "<u4", 1, 80)[0])
-        if len(data) == 84 + 50 * m:
-            rec = np.frombuffer(data, np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")]), m, 84)
-            return _stl_mesh(rec["v"].astype(np.float64).reshape(-1, 3), notes) + (None,)
-    if data.lstrip()[:5].lower() == b"solid" and b"\x00" not in data:
-        return _read_stl_ascii(data.decode("latin-1"), notes) + (None,)
-    if len(data) >= 84:
-        m = int(np.frombuffer(data, "<u4", 1, 80)[0])
+    rec_dtype = np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")])
+    m = int(np.frombuffer(data, "<u4", 1, 80)[0]) if len(data) >= 84 else -1
+    if m >= 0 and len(data) == 84 + 50 * m:
+        rec = np.frombuffer(data, rec_dtype, m, 84)
+        return _stl_mesh(rec["v"].astype(np.float64).reshape(-1, 3), notes) + (None,)
+    if _STL_ASCII_START.match(data[:1024]) and b"\x00" not in data:
+        text = data.decode("latin-1")
+        return _read_stl_ascii(text[1:] if text.startswith("\ufeff") else text.removeprefix("\xef\xbb\xbf"),
+                               notes) + (None,)
+    if m >= 0 and len(data) > 84 + 50 * m:
+        extra = len(data) - 84 - 50 * m
+        notes.append(
+            f"{extra} extra bytes after the {m} triangles its header declares ignored (binary STL; "
+            "the file is longer than its triangle count says)"
+        )
+        rec = np.frombuffer(data, rec_dtype, m, 84)
+        return _stl_mesh(rec["v"].astype(np.float64).reshape(-1, 3), notes) + (None,)
+    if m >= 0:
         raise _Malformed(
             f"not a valid STL file: as binary STL its header declares {m} triangles, which need "
             f"{84 + 50 * m} bytes, but the file has {len(data)} (truncated?); it is not ASCII STL either"

@@ -145,10 +145,10 @@ def test_missing_file_directory_and_extension(tmp_path):
 def test_unreadable_file(tmp_path, monkeypatch):
     p = save_arrays(tmp_path / "locked.ply", *icosphere(0))
 
-    def denied(self):
+    def denied(*args, **kwargs):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr(type(p), "read_bytes", denied)  # chmod 0 does not stop root
+    monkeypatch.setattr("meshdenoise.io.open", denied, raising=False)  # chmod 0 does not stop root
     with pytest.raises(MeshFileError, match=r"locked\.ply: cannot be read \(Permission denied\)"):
         load_mesh(p)
 
