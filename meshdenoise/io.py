@@ -246,29 +246,41 @@ def topology_notes(V: np.ndarray, F: np.ndarray) -> list[str]:
     used[F.ravel()] = True
     if not used.all():
         notes.append(f"{int((~used).sum())} unreferenced vertices (kept; filters leave them in place)")
-    S = np.sort(F, axis=1)
+    del used
+    S = np.sort(F.astype(np.int32) if n < 2**31 else F, axis=1)  # int32: half the memory at millions of faces
     degenerate = int(((S[:, 0] == S[:, 1]) | (S[:, 1] == S[:, 2])).sum())
     if degenerate:
         notes.append(f"{degenerate} degenerate faces (a vertex repeated)")
-    duplicates = F.shape[0] - _unique_rows(S, n)[0].size
+    duplicates = _repeated_rows(S, n)
     if duplicates:
         notes.append(f"{duplicates} duplicate faces (same vertices as an earlier face)")
-    E = np.concatenate([S[:, [0, 1]], S[:, [1, 2]], S[:, [0, 2]]])
-    E = E[E[:, 0] != E[:, 1]]
-    nonmanifold = int((_unique_rows(E, n)[1] > 2).sum())
-    if nonmanifold:
-        notes.append(f"{nonmanifold} non-manifold edges (shared by more than two faces)")
+    # sorted edge keys (one int64 per side, degenerate sides left out); an edge on 3+ faces is a run of 3+
+    keys = np.concatenate([S[:, 0].astype(np.int64) * n + S[:, 1], S[:, 1].astype(np.int64) * n + S[:, 2],
+                           S[:, 0].astype(np.int64) * n + S[:, 2]])
+    keep = np.concatenate([S[:, 0] != S[:, 1], S[:, 1] != S[:, 2], S[:, 0] != S[:, 2]])
+    del S
+    keys = keys[keep]
+    del keep
+    keys.sort()
+    if keys.size > 2:
+        first = np.empty(keys.size - 2, dtype=bool)  # k[i] starts a run ...
+        first[0] = True
+        np.not_equal(keys[1:-2], keys[:-3], out=first[1:])
+        nonmanifold = int((first & (keys[2:] == keys[:-2])).sum())  # ... of length 3 or more
+        if nonmanifold:
+            notes.append(f"{nonmanifold} non-manifold edges (shared by more than two faces)")
     return notes
 
 
-def _unique_rows(A: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Unique rows of a small-int array (values in 0..n-1) and their counts, via one int64 key per row."""
-    if float(n) ** A.shape[1] < 2.0**62:
-        key = np.zeros(A.shape[0], dtype=np.int64)
-        for j in range(A.shape[1]):
-            key = key * n + A[:, j]
-        return np.unique(key, return_counts=True)
-    return np.unique(A, axis=0, return_counts=True)
+def _repeated_rows(S: np.ndarray, n: int) -> int:
+    """Rows of ``S`` (m, 3) (values in 0..n-1) equal to an earlier row."""
+    if float(n) ** 3 < 2.0**62:
+        key = (S[:, 0].astype(np.int64) * n + S[:, 1]) * n + S[:, 2]
+        key.sort()
+        return int((key[1:] == key[:-1]).sum())
+    order = np.lexsort((S[:, 2], S[:, 1], S[:, 0]))
+    R = S[order]
+    return int((R[1:] == R[:-1]).all(axis=1).sum())
 
 
 def _fast_table(lines: list[str]) -> np.ndarray | None:
