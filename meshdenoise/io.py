@@ -16,8 +16,10 @@ from __future__ import annotations
 
 import os
 import re
+import signal
 import struct
 import tempfile
+import threading
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -989,11 +991,56 @@ def _process_umask() -> int:
 _UMASK = _process_umask()
 
 
+# Temporary files being written now. A handler for SIGTERM and SIGHUP (installed by the first write,
+# in the main thread only) removes them before the signal's previous action: the default one (the
+# process ends, as if the handler were not there) or the handler that was installed before ours.
+# SIGINT needs nothing here: KeyboardInterrupt unwinds through atomic_path.__exit__. SIGKILL (kill -9)
+# and power loss cannot be caught: they leave a hidden ``.<stem>.<random><suffix>`` file beside the
+# destination (never the destination itself, which is only ever replaced by a complete file).
+_IN_FLIGHT: set[Path] = set()
+_PREVIOUS_HANDLERS: dict[int, object] = {}
+_CLEANUP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+def _remove_in_flight_and_resend(signum, frame) -> None:
+    for tmp in list(_IN_FLIGHT):
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+    _IN_FLIGHT.clear()
+    previous = _PREVIOUS_HANDLERS.get(signum, signal.SIG_DFL)
+    if callable(previous):
+        previous(signum, frame)
+        return
+    signal.signal(signum, signal.SIG_DFL)  # the default action (terminate), as if we had not been here
+    os.kill(os.getpid(), signum)
+
+
+def _install_cleanup_handlers() -> None:
+    if threading.current_thread() is not threading.main_thread():
+        return  # signal handlers can only be set from the main thread
+    for sig in _CLEANUP_SIGNALS:
+        if sig in _PREVIOUS_HANDLERS:
+            continue
+        current = signal.getsignal(sig)
+        if current is signal.SIG_IGN or current is None or current is _remove_in_flight_and_resend:
+            continue  # ignored (the process goes on, so must its files) or set outside Python
+        try:
+            signal.signal(sig, _remove_in_flight_and_resend)
+        except (ValueError, OSError):  # pragma: no cover - embedded interpreters
+            continue
+        _PREVIOUS_HANDLERS[sig] = current
+
+
 class atomic_path:
     """Context manager giving a temporary path beside ``path``, renamed onto it only on success.
 
     Nothing is left behind on failure, and a reader never sees a half-written file: the
-    temporary file is flushed to disk and then renamed (atomic on POSIX and Windows).
+    temporary file is flushed to disk and then renamed (atomic on POSIX and Windows). SIGTERM
+    and SIGHUP during the write remove the temporary file, then take their previous action
+    (by default: the process ends). Only what cannot be caught (SIGKILL, a power cut) can leave
+    the hidden temporary ``.<stem>.<8 random characters><suffix>`` beside ``path``.
 
     Examples
     --------
@@ -1016,9 +1063,17 @@ class atomic_path:
             raise MeshFileError(f"{self.path}: cannot be written ({exc.strerror or exc})") from None
         os.close(fd)
         self.tmp = Path(tmp)
+        _install_cleanup_handlers()
+        _IN_FLIGHT.add(self.tmp)
         return self.tmp
 
     def __exit__(self, exc_type, exc, tb) -> bool:
+        try:
+            return self._finish(exc_type, exc)
+        finally:
+            _IN_FLIGHT.discard(self.tmp)
+
+    def _finish(self, exc_type, exc) -> bool:
         if exc_type is None and self.tmp.exists() and self.tmp.stat().st_size > 0:
             try:
                 with open(self.tmp, "rb") as fh:

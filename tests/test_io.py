@@ -241,3 +241,53 @@ def test_written_files_get_the_usual_mode_and_keep_a_replaced_files_mode(tmp_pat
     os.chmod(path, 0o640)
     save_mesh(path, *icosphere(1))
     assert path.stat().st_mode & 0o777 == 0o640
+
+
+_SLOW_WRITER = r"""
+import signal, sys, time
+import numpy as np
+import meshdenoise.io as mio
+from meshdenoise.shapes import icosphere
+
+def slow(fh, V, F, C, binary):
+    fh.write(b"# half of an OBJ\n" * 1000)
+    fh.flush()
+    print("writing", flush=True)
+    for _ in range(600):
+        time.sleep(0.05)   # the signal arrives here, mid-write
+
+mio._WRITERS[".obj"] = slow
+if sys.argv[2] == "chained":
+    def previous(signum, frame):
+        print("previous handler ran", flush=True)
+        sys.exit(7)
+    signal.signal(signal.SIGTERM, previous)
+mio.save_mesh(sys.argv[1], *icosphere(1))
+"""
+
+
+@pytest.mark.parametrize("mode", ["default", "chained"])
+def test_sigterm_mid_write_removes_the_temporary_file(tmp_path, mode):
+    """SIGTERM while a mesh is being written: no hidden temporary file is left, no destination is
+    created, and the signal then has its previous effect (default: the process ends by SIGTERM)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+
+    out = tmp_path / "out" / "big.obj"
+    proc = subprocess.Popen([sys.executable, "-c", _SLOW_WRITER, str(out), mode], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env={**os.environ})
+    try:
+        assert proc.stdout.readline().strip() == "writing", proc.stderr.read()
+        hidden = [p.name for p in out.parent.iterdir()]
+        assert len(hidden) == 1 and hidden[0].startswith(".big.") and hidden[0].endswith(".obj"), hidden
+        proc.send_signal(signal.SIGTERM)
+        rest, err = proc.communicate(timeout=30)
+    finally:
+        proc.kill()
+    if mode == "default":
+        assert proc.returncode == -signal.SIGTERM, (proc.returncode, err)
+    else:
+        assert proc.returncode == 7 and "previous handler ran" in rest, (proc.returncode, rest, err)
+    assert list(out.parent.iterdir()) == [], "the temporary file was left behind"
