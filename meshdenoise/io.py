@@ -457,8 +457,8 @@ def _off_vertices(vlines, ncoord: int, keyword: str, has_colours: bool):
             k = int(np.flatnonzero(bad)[0])
             raise _Malformed(
                 f"line {vlines[k][0]}: vertex {k} has colour {C[k].tolist()} outside "
-                f"{'0..255 (integer colours)' if integers else '[0, 1] (float colours)'}; {int(bad.sum())} such "
-                "vertices (refused rather than wrapped or clipped)"
+                f"{'0..255 (integer colours)' if integers else '[0, 1] (float colours)'}; {int(bad.sum())} "
+                "vertices out of range in all (refused rather than wrapped or clipped)"
             )
         if integers:
             C = C / 255.0
@@ -695,8 +695,11 @@ def _ply_ascii_values(data: bytes, offset: int, elements, notes: list[str]) -> d
         values[name], pos = _ply_ascii_element(T, pos, count, props, name)
     if pos < T.size:
         last, count, props = elements[-1]
-        stride = len(props) if all(isinstance(t, str) for _, t in props) else None
-        more = f" ({(T.size - pos) / stride:g} more records of '{last}')" if stride else ""
+        got = values[last]
+        stride = sum(1 if np.ndim(got[p]) == 1 else 1 + got[p].shape[1] for p, _ in props) \
+            if all(isinstance(got[p], np.ndarray) for p, _ in props) else 0
+        extra = (T.size - pos) / stride if stride else 0
+        more = f" ({extra:g} more records of '{last}')" if extra == int(extra) and extra else ""
         notes.append(
             f"{T.size - pos} numbers after the last declared element ('{last}', {count} records) ignored{more}: "
             "the header's count may be wrong"
@@ -846,9 +849,10 @@ def _ply_colours(vx: dict, types: dict, n: int) -> np.ndarray | None:
         if bad.any():
             k = int(np.flatnonzero(bad)[0])
             kind = "an integer colour (0..255)" if t.startswith(("u", "i")) else "a float colour (0..1)"
+            nbad = int(bad.sum())
             raise _Malformed(
-                f"vertex {k}: {c} = {A[k]:g} is outside the range of {kind}; {int(bad.sum())} such values "
-                "(refused rather than wrapped or clipped)"
+                f"vertex {k}: {c} = {A[k]:g} is outside the range of {kind}; {nbad} "
+                f"{'value' if nbad == 1 else 'values'} out of range in all (refused rather than wrapped or clipped)"
             )
         cols.append(A / 255.0 if t.startswith(("u", "i")) else A)
     if len(cols) == 3:
@@ -918,8 +922,10 @@ def _read_stl(data: bytes, notes: list[str]):
         return _stl_mesh(rec["v"].astype(np.float64).reshape(-1, 3), notes) + (None,)
     if _STL_ASCII_START.match(data[:1024]) and b"\x00" not in data:
         text = data.decode("latin-1")
-        return _read_stl_ascii(text[1:] if text.startswith("\ufeff") else text.removeprefix("\xef\xbb\xbf"),
-                               notes) + (None,)
+        if text.startswith("\xef\xbb\xbf"):
+            notes.append("UTF-8 byte-order mark at the start of the file skipped")
+            text = text[3:]
+        return _read_stl_ascii(text, notes) + (None,)
     if m >= 0 and len(data) > 84 + 50 * m:
         extra = len(data) - 84 - 50 * m
         notes.append(

@@ -160,10 +160,13 @@ def mesh_info(V: np.ndarray, F: np.ndarray) -> dict:
         info["non_manifold_vertices"] = int((_fans_per_vertex(F, side_edge, edges, n) > 1).sum())
         del side_edge, edges, counts, border
         degenerate = 0
+        # a power of two (exact) brings coordinates near the float limit down so that edges do not overflow
+        big = float(np.abs(V).max()) if n else 0.0
+        shrink = 2.0 ** -np.ceil(np.log2(big / 1e50)) if big > 1e50 else 1.0
         for a in range(0, m, _CHUNK):  # chunks: three (m, 3) float temporaries at once would be large
             Fc = F[a:a + _CHUNK]
-            V0 = V[Fc[:, 0]]
-            area2 = np.linalg.norm(np.cross(V[Fc[:, 1]] - V0, V[Fc[:, 2]] - V0), axis=1)
+            V0 = V[Fc[:, 0]] * shrink
+            area2 = np.linalg.norm(np.cross(V[Fc[:, 1]] * shrink - V0, V[Fc[:, 2]] * shrink - V0), axis=1)
             repeated = (Fc[:, 0] == Fc[:, 1]) | (Fc[:, 1] == Fc[:, 2]) | (Fc[:, 0] == Fc[:, 2])
             degenerate += int(((area2 == 0) | repeated).sum())
         info["degenerate_faces"] = degenerate
