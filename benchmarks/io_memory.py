@@ -66,7 +66,8 @@ def measure(args: list[str], pythonpath: str) -> dict:
     """Run ``meshdenoise *args`` with ``PYTHONPATH``; its peak RSS (MiB), time (s) and output."""
     env = {**os.environ, "PYTHONPATH": pythonpath}
     cmd = [sys.executable, "-c", _CHILD, sys.executable, "-c", "from meshdenoise.cli import cli; cli()", *args]
-    out = subprocess.run(cmd, capture_output=True, text=True, env=env, check=True)
+    # cwd outside any checkout: `python -c` puts the current folder first on sys.path, before PYTHONPATH
+    out = subprocess.run(cmd, capture_output=True, text=True, env=env, check=True, cwd=tempfile.gettempdir())
     return json.loads(out.stdout)
 
 

@@ -27,52 +27,66 @@ def _components(N: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     label = np.arange(N, dtype=np.int32)
     a = np.asarray(a, dtype=np.int32)
     b = np.asarray(b, dtype=np.int32)
+    step = 1 << 22  # edges per chunk: the temporaries stay small whatever the graph's size
     while True:
-        la, lb = label[a], label[b]
-        differ = la != lb
-        if not differ.any():
+        hooked = 0
+        for c in range(0, a.size, step):
+            la = label[a[c:c + step]]  # each label is a node of the same component, never a larger one
+            lb = label[b[c:c + step]]
+            differ = la != lb
+            if not differ.any():
+                continue
+            la, lb = la[differ], lb[differ]
+            hooked += la.size
+            np.minimum.at(label, np.maximum(la, lb), np.minimum(la, lb))  # hook the larger onto the smaller
+        if hooked == 0:  # every edge joins equal labels, all of them roots: done
             return label
-        la, lb = la[differ], lb[differ]
-        lo, hi = np.minimum(la, lb), np.maximum(la, lb)
-        del la, lb, differ
-        np.minimum.at(label, hi, lo)  # hook the larger root onto the smaller label
-        del lo, hi
         while True:  # pointer jumping: every node straight to its root
             nxt = label[label]
             if np.array_equal(nxt, label):
                 break
             label = nxt
+            del nxt
 
 
-def _edge_table(F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unique undirected edges ``(k, 2) int64`` (sorted by key), the number of face sides on each
-    ``(k,)``, and each face side's edge id ``(m, 3) int32`` (side ``s`` joins slots ``s`` and ``s+1``)."""
-    m = F.shape[0]
-    keys = np.empty((m, 3), dtype=np.int64)
+def _side_keys(F: np.ndarray, n: int) -> np.ndarray:
+    """``(m, 3) int64``: the undirected edge key ``min * n + max`` of each face side (side s: slots s, s+1)."""
+    keys = np.empty((F.shape[0], 3), dtype=np.int64)
     for s in range(3):
         u, w = F[:, s], F[:, (s + 1) % 3]
         keys[:, s] = np.minimum(u, w) * n + np.maximum(u, w)  # 1-D keys: far faster than unique(axis=0)
-    flat = keys.reshape(-1)
-    order = np.argsort(flat, kind="stable")
-    sk = flat[order]
-    del keys, flat
-    new = np.empty(sk.size, dtype=bool)
+    return keys
+
+
+def _edge_table(F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unique undirected edges ``(k, 2)`` (int32 below 2^31 vertices, sorted by key), the number of face
+    sides on each ``(k,)``, and each face side's edge id ``(m, 3) int32`` (side ``s`` joins slots ``s``, ``s+1``).
+
+    The keys are sorted in place and the side ids found by binary search chunk by chunk, so that
+    the peak is about two int64 arrays of the side count, not the four of ``np.unique(return_inverse)``.
+    """
+    keys = _side_keys(F, n).reshape(-1)
+    keys.sort()
+    new = np.empty(keys.size, dtype=bool)
     new[0] = True
-    np.not_equal(sk[1:], sk[:-1], out=new[1:])
-    eid = np.cumsum(new, dtype=np.int32)
-    eid -= 1
-    side_edge = np.empty(sk.size, dtype=np.int32)
-    side_edge[order] = eid
-    del eid, order
-    uniq = sk[new]
-    del sk
-    counts = np.diff(np.append(np.flatnonzero(new), new.size))
-    edges = np.stack([uniq // n, uniq % n], axis=1)
-    return edges, counts, side_edge.reshape(m, 3)
+    np.not_equal(keys[1:], keys[:-1], out=new[1:])
+    starts = np.flatnonzero(new)
+    counts = np.diff(np.append(starts, keys.size))
+    del starts
+    uniq = keys[new]
+    del keys, new
+    side_edge = np.empty(F.shape, dtype=np.int32)
+    for a in range(0, F.shape[0], _CHUNK):
+        side_edge[a:a + _CHUNK] = np.searchsorted(uniq, _side_keys(F[a:a + _CHUNK], n))
+    itype = np.int32 if n < 2**31 else np.int64
+    edges = np.empty((uniq.size, 2), dtype=itype)
+    edges[:, 0] = uniq // n
+    edges[:, 1] = uniq % n
+    return edges, counts, side_edge
 
 
-def _fans_per_vertex(F: np.ndarray, side_edge: np.ndarray, edges: np.ndarray, n: int) -> np.ndarray:
-    """Number of edge-connected fans of faces around each vertex (1 on a manifold vertex, 0 if unreferenced).
+def _fan_graph(F: np.ndarray, side_edge: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The half-edge graph whose components are the fans: one link ``(a, b)`` per corner (int32).
 
     Nodes are half-edges ``(edge e, endpoint v)``, numbered ``2 e + (v is the larger endpoint)``; the
     corner of face ``f`` at vertex ``v`` joins its two sides through ``v``. Two faces around ``v``
@@ -85,15 +99,23 @@ def _fans_per_vertex(F: np.ndarray, side_edge: np.ndarray, edges: np.ndarray, n:
         v, nxt, prv = F[:, s], F[:, (s + 1) % 3], F[:, (s + 2) % 3]
         a[s * m:(s + 1) * m] = 2 * side_edge[:, s] + (v > nxt)  # side s: (v, next)
         b[s * m:(s + 1) * m] = 2 * side_edge[:, (s + 2) % 3] + (v > prv)  # side s+2: (prev, v)
+    return a, b
+
+
+def _fans_per_vertex(a: np.ndarray, b: np.ndarray, edges: np.ndarray, n: int) -> np.ndarray:
+    """Number of edge-connected fans of faces around each vertex (1 on a manifold vertex, 0 if
+    unreferenced), from the graph of :func:`_fan_graph`."""
     N = 2 * edges.shape[0]
     used = np.zeros(N, dtype=bool)
     used[a] = True
     used[b] = True
     label = _components(N, a, b)
-    del a, b
-    roots = np.flatnonzero(used & (label == np.arange(N, dtype=np.int32)))
-    vertex_of_root = edges[roots >> 1, roots & 1]
-    return np.bincount(vertex_of_root, minlength=n)
+    fans = np.zeros(n, dtype=np.int64)
+    for c in range(0, N, _CHUNK):  # a fan per root (a used node that is its own label), counted at its vertex
+        root = used[c:c + _CHUNK] & (label[c:c + _CHUNK] == np.arange(c, min(c + _CHUNK, N), dtype=np.int32))
+        node = np.flatnonzero(root) + c
+        fans += np.bincount(edges[node >> 1, node & 1], minlength=n)
+    return fans
 
 
 def _finite_or_none(x: float) -> float | None:
@@ -157,8 +179,11 @@ def mesh_info(V: np.ndarray, F: np.ndarray) -> dict:
         else:
             info["boundary_loops"] = 0
         info["non_manifold_edges"] = int((counts > 2).sum())
-        info["non_manifold_vertices"] = int((_fans_per_vertex(F, side_edge, edges, n) > 1).sum())
-        del side_edge, edges, counts, border
+        del counts, border
+        a, b = _fan_graph(F, side_edge)
+        del side_edge
+        info["non_manifold_vertices"] = int((_fans_per_vertex(a, b, edges, n) > 1).sum())
+        del a, b, edges
         degenerate = 0
         # a power of two (exact) brings coordinates near the float limit down so that edges do not overflow
         big = float(np.abs(V).max()) if n else 0.0
