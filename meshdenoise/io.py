@@ -182,6 +182,9 @@ def load_mesh(path: str | os.PathLike) -> MeshFile:
             rest = fh.read(1) if len(head) == _SNIFF_BYTES else b""
             try:
                 bom = _sniff(ext, head, os.fstat(fh.fileno()).st_size, bool(rest))
+                if ext == ".ply" and rest and b"end_header" not in head:  # a long header: look a little further
+                    if b"end_header" not in head + rest + fh.read((1 << 20) - len(head)):
+                        raise _Malformed("the PLY header has no 'end_header' line in its first MiB (not a PLY file)")
             except _Malformed as exc:
                 raise MeshFileError(f"{path}: {exc}") from None
             if rest:
