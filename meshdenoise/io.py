@@ -382,9 +382,89 @@ def _check_indices(P: np.ndarray, ids: np.ndarray, n: int) -> None:
 
 # ------------------------------------------------------------------------------------ OFF
 _OFF_HEADER = re.compile(r"^(ST)?(C)?(N)?(4)?(n)?OFF$")
+_NAN_WORD = re.compile(rb"nan", re.I)
+
+
+def _line_table(block: bytes) -> tuple[np.ndarray, np.ndarray] | None:
+    """Lines of whitespace-separated numbers, parsed without a Python object per line.
+
+    A NaN is appended to every line as an end-of-line marker and the whole block goes through
+    numpy's C tokenizer once; the markers' positions give each line's count of numbers.
+    Returns ``(numbers (t,), line ends (lines,))`` where ``line ends[i]`` is the marker index of
+    line ``i`` (its numbers are the ones before it, after the previous marker), or None when the
+    block cannot be read this way (a NaN or a word in it, a blank line, CR-only line ends):
+    the caller then uses the line-by-line reader, which names the line and the problem.
+    """
+    if not block or _NAN_WORD.search(block) or re.search(rb"(?:^|\n)[ \t\r\f\v]*\n", block):
+        return None
+    marked = block.replace(b"\n", b" nan\n")
+    if not block.endswith(b"\n"):
+        marked += b" nan"
+    try:
+        T = np.fromstring(marked, dtype=np.float64, sep=" ")
+    except ValueError:
+        return None
+    del marked
+    ends = np.flatnonzero(np.isnan(T))
+    return T, ends
+
+
+def _rows_of(T: np.ndarray, ends: np.ndarray, a: int, b: int) -> np.ndarray | None:
+    """Lines ``a..b-1`` of a :func:`_line_table` as a ``(b - a, k)`` array when all have k numbers, else None."""
+    if b <= a:
+        return np.zeros((0, 0))
+    start = ends[a - 1] + 1 if a else 0
+    k = int(ends[a] - start)
+    if k <= 0 or ends[b - 1] - start + 1 != (b - a) * (k + 1):
+        return None
+    R = T[start:ends[b - 1] + 1].reshape(b - a, k + 1)
+    if not np.isnan(R[:, k]).all():
+        return None
+    return R[:, :k]
+
+
+def _read_off_fast(data: bytes, notes: list[str]):
+    """Plain ``OFF`` files of triangles or equal polygons, with no comment, colour or blank line
+    (what most tools write): parsed as one number stream. None for anything else."""
+    if b"#" in data or b"\n" not in data or not data.startswith(b"OFF"):
+        return None
+    first, rest = data.split(b"\n", 1)
+    head = first.split()
+    if head[0] != b"OFF":
+        return None
+    if len(head) == 1:
+        if b"\n" not in rest:
+            return None
+        second, rest = rest.split(b"\n", 1)
+        head = head + second.split()
+    if len(head) != 4 or not all(t.isdigit() for t in head[1:]):
+        return None
+    nv, nf = int(head[1]), int(head[2])
+    table = _line_table(rest)
+    if table is None or table[1].size != nv + nf or nv == 0:
+        return None
+    T, ends = table
+    V = _rows_of(T, ends, 0, nv)
+    Fr = _rows_of(T, ends, nv, nv + nf)
+    if V is None or V.shape[1] != 3 or Fr is None or (nf and Fr.shape[1] < 4):
+        return None
+    V = np.ascontiguousarray(V)
+    if nf == 0:
+        return V, np.zeros((0, 3), np.int64), None
+    k = Fr.shape[1] - 1
+    if not (Fr[:, 0] == k).all() or not np.all(np.mod(Fr[:, 1:], 1) == 0):
+        return None
+    P = Fr[:, 1:].astype(np.int64)
+    del T, Fr
+    ids = np.arange(nf)
+    _check_indices(P, ids, nv)
+    return V, _triangulate([(ids, P)], notes), None
 
 
 def _read_off(data: bytes, notes: list[str]):
+    fast = _read_off_fast(data, notes)
+    if fast is not None:
+        return fast
     text = _decode_text(data, "an OFF")
     raw = _lines(text, notes)
     if "#" in text:
@@ -501,7 +581,49 @@ _OBJ_V = re.compile(r"^[ \t]*v[ \t]+([^\n]*)", re.M)
 _OBJ_F = re.compile(r"^[ \t]*f[ \t]+([^\n]*)", re.M)
 
 
+_V_F_TO_SPACE = bytes.maketrans(b"vf", b"  ")
+
+
+def _read_obj_fast(data: bytes, notes: list[str]):
+    """OBJ files made only of ``v x y z`` lines then ``f i j k ...`` lines with positive indices (after
+    optional leading comments; what most tools write for a bare mesh): parsed as one number stream.
+    None for anything else (the line-by-line reader handles every other form)."""
+    pos = 0
+    while data.startswith(b"#", pos):
+        pos = data.find(b"\n", pos) + 1
+        if pos == 0:
+            return None
+    body = data[pos:]
+    if not body.endswith(b"\n") or not body.startswith(b"v ") or any(c in body for c in (b"#", b"/", b"\\", b"\r")):
+        return None
+    nv = body.count(b"\nv ") + 1
+    nf = body.count(b"\nf ")
+    if nv + nf != body.count(b"\n") or (nf and body.rfind(b"\nv ") > body.find(b"\nf ")):
+        return None
+    table = _line_table(body.translate(_V_F_TO_SPACE))
+    del body
+    if table is None or table[1].size != nv + nf:
+        return None
+    T, ends = table
+    V = _rows_of(T, ends, 0, nv)
+    Fr = _rows_of(T, ends, nv, nv + nf)
+    if V is None or V.shape[1] != 3 or Fr is None or (nf and Fr.shape[1] < 3):
+        return None
+    V = np.ascontiguousarray(V)
+    if nf == 0:
+        return V, np.zeros((0, 3), np.int64), None
+    if not (np.all(np.mod(Fr, 1) == 0) and Fr.min() >= 1 and Fr.max() <= nv):
+        return None  # relative or out-of-range indices: the line reader says which line
+    P = Fr.astype(np.int64)
+    del T, Fr
+    P -= 1
+    return V, _triangulate([(np.arange(nf), P)], notes), None
+
+
 def _read_obj(data: bytes, notes: list[str]):
+    fast = _read_obj_fast(data, notes)
+    if fast is not None:
+        return fast
     # Whole-text regular expressions and numpy's parser instead of a Python loop over lines.
     text = _decode_text(data, "an OBJ")
     if "\r" in text:

@@ -419,3 +419,60 @@ def test_no_colours_in_no_colours_out(tmp_path, ext, binary):
     assert load_mesh(p).vertex_colors is None
     text = p.read_bytes()[:300]
     assert b"red" not in text and not text.startswith(b"COFF")
+
+
+@pytest.mark.parametrize("case", [c for c in cases() if c.ext in (".obj", ".off")], ids=lambda c: c.name)
+def test_fast_number_stream_readers_agree_with_the_line_readers_on_the_corpus(tmp_path, case, monkeypatch):
+    """OBJ and OFF files of the plain layout are parsed as one number stream; every file of the corpus
+    gives the same arrays, notes and errors with that path switched off."""
+    import meshdenoise.io as mio
+
+    p = tmp_path / case.name
+    p.write_bytes(case.data)
+
+    def outcome():
+        try:
+            m = load_mesh(p)
+            return m.V.tolist(), m.F.tolist(), m.notes, None if m.vertex_colors is None else m.vertex_colors.tolist()
+        except MeshFileError as exc:
+            return str(exc)
+
+    fast = outcome()
+    monkeypatch.setattr(mio, "_read_obj_fast", lambda data, notes: None)
+    monkeypatch.setattr(mio, "_read_off_fast", lambda data, notes: None)
+    assert outcome() == fast
+
+
+@PROPS
+@given(level=st.integers(0, 2), quads=st.booleans(), ragged=st.integers(-1, 30), ext=st.sampled_from([".obj", ".off"]),
+       scale=st.sampled_from([1e-300, 1e-3, 1.0, 1e5, 1e300]))
+def test_fast_readers_take_plain_files_and_give_up_on_anything_ragged(tmp_path, level, quads, ragged, ext, scale):
+    import meshdenoise.io as mio
+
+    V, F = icosphere(level)
+    V = V * scale
+    faces = F if not quads else np.hstack([F[: len(F) // 2 * 2: 2], F[1: len(F) // 2 * 2: 2, :1]])
+    p = tmp_path / f"m{ext}"
+    if ext == ".obj":
+        lines = [f"v {x!r} {y!r} {z!r}" for x, y, z in V.tolist()] + ["f " + " ".join(str(i + 1) for i in f) for f in faces]
+    else:
+        lines = ["OFF", f"{len(V)} {len(faces)} 0"] + [f"{x!r} {y!r} {z!r}" for x, y, z in V.tolist()]
+        lines += [f"{len(f)} " + " ".join(str(i) for i in f) for f in faces]
+    if 0 <= ragged < len(lines) - 2:  # one number more on one line (a legal OFF face colour, or an error)
+        lines[ragged + 2] += " 0"
+    p.write_text("\n".join(lines) + "\n")
+    reader = mio._read_obj_fast if ext == ".obj" else mio._read_off_fast
+    fast = reader(p.read_bytes(), [])
+    assert (fast is None) == (ragged >= 0 and ragged < len(lines) - 2)
+    slow_reader = mio._read_obj if ext == ".obj" else mio._read_off
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(mio, "_read_obj_fast", lambda data, notes: None)
+        mp.setattr(mio, "_read_off_fast", lambda data, notes: None)
+        try:
+            slow = slow_reader(p.read_bytes(), [])
+        except mio._Malformed:
+            slow = None
+    if fast is not None:
+        np.testing.assert_array_equal(fast[0], slow[0])
+        np.testing.assert_array_equal(fast[1], slow[1])
+        np.testing.assert_array_equal(fast[0], V)  # exact: 17 digits parse back to the same doubles
