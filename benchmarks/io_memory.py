@@ -94,6 +94,11 @@ def main() -> None:
                 for _ in range(a.garbage_mb):
                     fh.write(rng.integers(0, 256, 1 << 20, dtype=np.uint8).tobytes())
             garbage[ext] = g
+        text = Path(tmp) / "garbage_text.obj"  # printable text with line ends, no NUL: passes the NUL check
+        with open(text, "wb") as fh:
+            for _ in range(a.garbage_mb):
+                fh.write(rng.integers(32, 127, 1 << 20, dtype=np.uint8).tobytes().replace(b"~", b"\n"))
+        garbage["printable text .obj"] = text
         checkouts = [("this checkout", str(ROOT))] + ([("compare: " + a.compare, a.compare)] if a.compare else [])
         for label, pp in checkouts:
             r = measure(["info", "--json", str(ply)], pp)
@@ -105,7 +110,8 @@ def main() -> None:
                 assert faces == m, (faces, m)
             for ext, g in garbage.items():
                 r = measure(["info", str(g)], pp)
-                rows.append((label, f"info on {a.garbage_mb} MiB of random bytes named {ext}", r["rc"],
+                what = ext if ext.startswith("printable") else f"random bytes named {ext}"
+                rows.append((label, f"info on {a.garbage_mb} MiB of {what}", r["rc"],
                              r["peak_mib"], r["seconds"], r["stderr"].strip().splitlines()[-1][:100] if r["stderr"] else ""))
             base = measure(["--help"], pp)
             rows.append((label, "--help (interpreter and imports only)", base["rc"], base["peak_mib"], base["seconds"], ""))

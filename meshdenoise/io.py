@@ -123,6 +123,12 @@ def _sniff(ext: str, head: bytes, size: int, more: bool) -> bool:
     what = "an OBJ" if ext == ".obj" else "an OFF"
     if b"\x00" in h:
         raise _Malformed(f"not {what} file: it contains binary data (NUL bytes) where text is expected")
+    if ext == ".obj" and more:  # a big file: most lines of its first 64 KiB must be OBJ statements
+        words = re.findall(rb"(?m)^[ \t]*([^\s#]+|#)", h[:h.rfind(b"\n") + 1] if b"\n" in h else b"")
+        known = {w.encode() for w in _OBJ_IGNORED} | {b"v", b"f", b"l", b"p", b"#"}
+        if sum(w in known for w in words) * 2 < len(words) or not words:
+            shown = ", ".join(repr(w[:20].decode("latin-1")) for w in words[:3])
+            raise _Malformed(f"not an OBJ file: most lines of its first 64 KiB are not OBJ statements (v, f, vt, #...)"                             + (f" (it starts with {shown})" if shown else " (no complete line)"))
     if ext == ".off":
         m = _OFF_FIRST_WORD.match(h)
         if m and (m.end() < len(h) or not more):
