@@ -6,9 +6,10 @@ vertex_indices``, the layout MeshLab writes) into a temporary folder, runs
 memory (``getrusage(RUSAGE_CHILDREN).ru_maxrss``; each run in its own fresh wrapper
 process so that the figures do not mix) and wall time. ``--compare PATH`` also runs the
 same command with ``PYTHONPATH=PATH`` (another checkout, e.g. the code before this change).
-Also measured: refusing a 200 MB file of random bytes (issue 19, item 14).
+Also measured: refusing a 200 MB file of random bytes (issue 19, item 14), and with
+``--text-faces`` the text formats (ASCII PLY, OFF, OBJ as ``save_arrays`` writes them).
 
-    PYTHONPATH=. python benchmarks/io_memory.py --faces 8000000 [--compare /path/to/old/checkout]
+    PYTHONPATH=. python benchmarks/io_memory.py --faces 8000000 [--text-faces 2000000] [--compare /path/to/old/checkout]
 """
 
 from __future__ import annotations
@@ -77,6 +78,8 @@ def main() -> None:
     ap.add_argument("--compare", default=None, help="another checkout to run the same commands with (old code)")
     ap.add_argument("--garbage-mb", type=int, default=200)
     ap.add_argument("--out", default=None, help="also write the table to this file")
+    ap.add_argument("--text-faces", type=int, default=0,
+                    help="also time `info` on ASCII PLY, OFF and OBJ grids of this many faces (written by save_arrays)")
     a = ap.parse_args()
     rows = []
     load = os.getloadavg()
@@ -99,6 +102,17 @@ def main() -> None:
             for _ in range(a.garbage_mb):
                 fh.write(rng.integers(32, 127, 1 << 20, dtype=np.uint8).tobytes().replace(b"~", b"\n"))
         garbage["printable text .obj"] = text
+        text_files, text_n, text_m = [], 0, 0
+        if a.text_faces:
+            sys.path.insert(0, str(ROOT))
+            from meshdenoise.io import load_mesh, save_arrays
+
+            small = Path(tmp) / "small.ply"
+            text_n, text_m = write_grid_ply(small, a.text_faces)
+            mesh = load_mesh(small)
+            for ext in (".ply", ".off", ".obj"):
+                text_files.append(save_arrays(Path(tmp) / f"grid_text{ext}", mesh.V, mesh.F, binary=False))
+            del mesh
         checkouts = [("this checkout", str(ROOT))] + ([("compare: " + a.compare, a.compare)] if a.compare else [])
         for label, pp in checkouts:
             r = measure(["info", "--json", str(ply)], pp)
@@ -113,11 +127,17 @@ def main() -> None:
                 what = ext if ext.startswith("printable") else f"random bytes named {ext}"
                 rows.append((label, f"info on {a.garbage_mb} MiB of {what}", r["rc"],
                              r["peak_mib"], r["seconds"], r["stderr"].strip().splitlines()[-1][:100] if r["stderr"] else ""))
+            for tp in text_files:
+                r = measure(["info", "--json", str(tp)], pp)
+                rows.append((label, f"info --json, {text_m:,} faces, {text_n:,} vertices, {tp.stat().st_size / 2**20:.0f} "
+                             f"MiB {tp.suffix[1:].upper()}{' ASCII' if tp.suffix == '.ply' else ''}", r["rc"],
+                             r["peak_mib"], r["seconds"], "" if r["rc"] == 0 else r["stderr"].strip()[-100:]))
             base = measure(["--help"], pp)
             rows.append((label, "--help (interpreter and imports only)", base["rc"], base["peak_mib"], base["seconds"], ""))
     lines = [f"# meshdenoise io memory benchmark ({time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; "
              f"load average {load[0]:.1f} {load[1]:.1f} {load[2]:.1f} on {os.cpu_count()} cores; grid written in {gen:.1f} s)",
              f"# command: PYTHONPATH=. python benchmarks/io_memory.py --faces {a.faces}"
+             + (f" --text-faces {a.text_faces}" if a.text_faces else "")
              + (f" --compare {a.compare}" if a.compare else ""),
              "", "| code | command | exit | peak RSS (MiB) | time (s) | message |", "|---|---|---|---|---|---|"]
     for label, what, rc, peak, sec, msg in rows:

@@ -8,8 +8,14 @@ the README section "Robustness"). Header counts are checked against the file siz
 allocated. Unusual but legal input (polygons, CR or CRLF line endings, negative OBJ
 indices, STL's unshared corners) is read and described in :attr:`MeshFile.notes`.
 
+The first 64 KiB are checked before the rest is read, so garbage is refused without loading it.
+Binary PLY is read through numpy structured dtypes and ASCII PLY (and plain OBJ/OFF) as one
+number stream, without a Python object per line. What is accepted, refused and guaranteed:
+docs/file-formats.md.
+
 Writers are numpy too: PLY stores ``double`` coordinates, OFF and OBJ 17 significant
 digits, so a write-read round trip is exact (binary STL stores float32 by definition).
+A temporary file being written is removed on SIGTERM/SIGHUP (see :class:`atomic_path`).
 """
 
 from __future__ import annotations
@@ -145,7 +151,8 @@ def load_mesh(path: str | os.PathLike) -> MeshFile:
     The file's vertex order is kept (STL, which has no shared vertices, gets its corners
     merged by exact coordinates in order of first appearance). Polygons are split into
     triangle fans. Vertex colours are read from PLY (``red green blue [alpha]``), COFF and
-    OBJ (``v x y z r g b``).
+    OBJ (``v x y z r g b``); a MeshLab vertex selection from PLY ``flags``. A UTF-8
+    byte-order mark is skipped; data after what the header declares is ignored with a note.
 
     Parameters
     ----------
@@ -162,7 +169,8 @@ def load_mesh(path: str | os.PathLike) -> MeshFile:
     ------
     MeshFileError
         Naming the file and the problem: missing, empty, not the format of its extension,
-        truncated, a face index outside the vertices, a NaN or infinite coordinate.
+        truncated, a face index outside the vertices, a NaN or infinite coordinate, a colour
+        outside its range (refused, never wrapped or clipped), UTF-16 text.
 
     Examples
     --------
