@@ -8,16 +8,24 @@ the README section "Robustness"). Header counts are checked against the file siz
 allocated. Unusual but legal input (polygons, CR or CRLF line endings, negative OBJ
 indices, STL's unshared corners) is read and described in :attr:`MeshFile.notes`.
 
+The first 64 KiB are checked before the rest is read, so garbage is refused without loading it.
+Binary PLY is read through numpy structured dtypes and ASCII PLY (and plain OBJ/OFF) as one
+number stream, without a Python object per line. What is accepted, refused and guaranteed:
+docs/file-formats.md.
+
 Writers are numpy too: PLY stores ``double`` coordinates, OFF and OBJ 17 significant
 digits, so a write-read round trip is exact (binary STL stores float32 by definition).
+A temporary file being written is removed on SIGTERM/SIGHUP (see :class:`atomic_path`).
 """
 
 from __future__ import annotations
 
 import os
 import re
+import signal
 import struct
 import tempfile
+import threading
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -72,6 +80,10 @@ class MeshFile:
         merged, CR line endings) and legal oddities worth knowing (unreferenced vertices,
         duplicate faces, non-manifold edges, no faces).
     path : Path
+    selection : ndarray, shape (n,), bool, or None
+        The MeshLab vertex selection, when the file stores it: a PLY whose vertices have the
+        integer property ``flags`` (MeshLab's "Flags" save option; bit 0x20 is "selected").
+        None for every other file.
     """
 
     V: np.ndarray
@@ -79,16 +91,68 @@ class MeshFile:
     vertex_colors: np.ndarray | None = None
     notes: list[str] = field(default_factory=list)
     path: Path | None = None
+    selection: np.ndarray | None = None
 
 
 # ---------------------------------------------------------------------------------- reading
+_SNIFF_BYTES = 1 << 16  # read first: enough to refuse garbage without loading a 200 MB file
+_UTF8_BOM = b"\xef\xbb\xbf"
+_BLANK = re.compile(rb"[ \t\r\n\f\v]*")
+_OFF_FIRST_WORD = re.compile(rb"(?:[ \t\r\n\f\v]+|#[^\r\n]*)*([^\s#]+)")
+_STL_ASCII_START = re.compile(rb"(?:\xef\xbb\xbf)?[ \t\r\n\f\v]*solid", re.I)
+
+
+def _sniff(ext: str, head: bytes, size: int, more: bool) -> bool:
+    """Refuse a file from its first bytes (``head``, of ``size`` in all) when they already show it is not
+    of its extension's format; returns whether it starts with a UTF-8 byte-order mark to skip."""
+    if head.startswith((b"\xff\xfe", b"\xfe\xff")):
+        raise _Malformed("the file is UTF-16 text (it starts with a UTF-16 byte-order mark); save it as UTF-8 or ASCII")
+    if not more and _BLANK.fullmatch(head):
+        return False  # empty or whitespace only: said by the caller
+    if ext == ".stl":  # no BOM to strip: a binary STL header may start with any bytes
+        binary_fits = size >= 84 and 84 + 50 * int.from_bytes(head[80:84], "little") <= size
+        if binary_fits or (_STL_ASCII_START.match(head) and b"\x00" not in head):
+            return False
+        if size >= 84:
+            m = int.from_bytes(head[80:84], "little")
+            raise _Malformed(
+                f"not a valid STL file: as binary STL its header declares {m} triangles, which need "
+                f"{84 + 50 * m} bytes, but the file has {size} (truncated?); it is not ASCII STL either"
+            )
+        raise _Malformed(f"not an STL file: {size} bytes, too short for binary STL and not ASCII STL ('solid ...')")
+    bom = head.startswith(_UTF8_BOM)
+    h = head[len(_UTF8_BOM):] if bom else head
+    if ext == ".ply":
+        if not re.match(rb"ply\r?\n", h) and not (not more and _BLANK.fullmatch(h)):
+            raise _Malformed("not a PLY file: it does not start with the line 'ply'")
+        return bom
+    what = "an OBJ" if ext == ".obj" else "an OFF"
+    if b"\x00" in h:
+        raise _Malformed(f"not {what} file: it contains binary data (NUL bytes) where text is expected")
+    if ext == ".obj" and more:  # a big file: most lines of its first 64 KiB must be OBJ statements
+        words = re.findall(rb"(?m)^[ \t]*([^\s#]+|#)", h[:h.rfind(b"\n") + 1] if b"\n" in h else b"")
+        known = {w.encode() for w in _OBJ_IGNORED} | {b"v", b"f", b"l", b"p", b"#"}
+        if sum(w in known for w in words) * 2 < len(words) or not words:
+            shown = ", ".join(repr(w[:20].decode("latin-1")) for w in words[:3])
+            raise _Malformed(f"not an OBJ file: most lines of its first 64 KiB are not OBJ statements (v, f, vt, #...)"                             + (f" (it starts with {shown})" if shown else " (no complete line)"))
+    if ext == ".off":
+        m = _OFF_FIRST_WORD.match(h)
+        if m and (m.end() < len(h) or not more):
+            word = m.group(1).decode("latin-1")
+            if not _OFF_HEADER.match(word):
+                raise _Malformed(
+                    f"not an OFF file: the first word is {word[:40]!r}, expected OFF, COFF, NOFF or STOFF")
+    return bom
+
+
 def load_mesh(path: str | os.PathLike) -> MeshFile:
     """Read a PLY (ASCII or binary), OBJ, OFF or STL (ASCII or binary) file.
 
     The file's vertex order is kept (STL, which has no shared vertices, gets its corners
     merged by exact coordinates in order of first appearance). Polygons are split into
     triangle fans. Vertex colours are read from PLY (``red green blue [alpha]``), COFF and
-    OBJ (``v x y z r g b``).
+    OBJ (``v x y z r g b``); a MeshLab vertex selection from PLY ``flags``. A UTF-8
+    byte-order mark is skipped; data after what the header declares is ignored with a note.
 
     Parameters
     ----------
@@ -105,7 +169,8 @@ def load_mesh(path: str | os.PathLike) -> MeshFile:
     ------
     MeshFileError
         Naming the file and the problem: missing, empty, not the format of its extension,
-        truncated, a face index outside the vertices, a NaN or infinite coordinate.
+        truncated, a face index outside the vertices, a NaN or infinite coordinate, a colour
+        outside its range (refused, never wrapped or clipped), UTF-16 text.
 
     Examples
     --------
@@ -122,21 +187,44 @@ def load_mesh(path: str | os.PathLike) -> MeshFile:
         raise MeshFileError(f"{path}: no such file")
     if not path.is_file():
         raise MeshFileError(f"{path}: not a regular file")
-    try:
-        data = path.read_bytes()
-    except OSError as exc:
-        raise MeshFileError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    if not data.strip():
-        raise MeshFileError(f"{path}: the file is empty" + (" (whitespace only)" if data else ""))
-    reader = _READERS[path.suffix.lower()]
+    ext = path.suffix.lower()
     notes: list[str] = []
     try:
-        V, F, colors = reader(data, notes)
+        with open(path, "rb") as fh:
+            # Sniff the first bytes before reading the rest: garbage is refused without loading it.
+            head = fh.read(_SNIFF_BYTES)
+            rest = fh.read(1) if len(head) == _SNIFF_BYTES else b""
+            try:
+                bom = _sniff(ext, head, os.fstat(fh.fileno()).st_size, bool(rest))
+                if ext == ".ply" and rest and b"end_header" not in head:  # a long header: look a little further
+                    if b"end_header" not in head + rest + fh.read((1 << 20) - len(head)):
+                        raise _Malformed("the PLY header has no 'end_header' line in its first MiB (not a PLY file)")
+            except _Malformed as exc:
+                raise MeshFileError(f"{path}: {exc}") from None
+            if rest:
+                fh.seek(0)
+                data = fh.read()
+            else:
+                data = head
+            del head, rest
+    except OSError as exc:
+        raise MeshFileError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    if not data or _BLANK.fullmatch(data):
+        raise MeshFileError(f"{path}: the file is empty" + (" (whitespace only)" if data else ""))
+    if bom:
+        data = data[len(_UTF8_BOM):]
+        notes.append("UTF-8 byte-order mark at the start of the file skipped")
+    reader = _READERS[ext]
+    try:
+        out = reader(data, notes)
     except _Malformed as exc:
         raise MeshFileError(f"{path}: {exc}") from None
     except (ValueError, IndexError, struct.error, OverflowError, MemoryError) as exc:
         # Any other parse failure is still a malformed file: say so with the file name.
-        raise MeshFileError(f"{path}: cannot be read as {path.suffix.lower()[1:].upper()} ({exc})") from None
+        raise MeshFileError(f"{path}: cannot be read as {ext[1:].upper()} ({exc})") from None
+    del data
+    V, F, colors = out[:3]
+    selection = out[3] if len(out) > 3 else None
     bad = np.flatnonzero(~np.isfinite(np.asarray(V, dtype=np.float64)).all(axis=1)) if len(V) else []
     if len(bad):
         raise MeshFileError(
@@ -148,7 +236,7 @@ def load_mesh(path: str | os.PathLike) -> MeshFile:
     except (MeshValidationError, TypeError) as exc:
         raise MeshFileError(f"{path}: {exc}") from None
     notes += topology_notes(V, F)
-    return MeshFile(V, F, colors, notes, path)
+    return MeshFile(V, F, colors, notes, path, selection)
 
 
 def load_arrays(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
@@ -177,29 +265,41 @@ def topology_notes(V: np.ndarray, F: np.ndarray) -> list[str]:
     used[F.ravel()] = True
     if not used.all():
         notes.append(f"{int((~used).sum())} unreferenced vertices (kept; filters leave them in place)")
-    S = np.sort(F, axis=1)
+    del used
+    S = np.sort(F.astype(np.int32) if n < 2**31 else F, axis=1)  # int32: half the memory at millions of faces
     degenerate = int(((S[:, 0] == S[:, 1]) | (S[:, 1] == S[:, 2])).sum())
     if degenerate:
         notes.append(f"{degenerate} degenerate faces (a vertex repeated)")
-    duplicates = F.shape[0] - _unique_rows(S, n)[0].size
+    duplicates = _repeated_rows(S, n)
     if duplicates:
         notes.append(f"{duplicates} duplicate faces (same vertices as an earlier face)")
-    E = np.concatenate([S[:, [0, 1]], S[:, [1, 2]], S[:, [0, 2]]])
-    E = E[E[:, 0] != E[:, 1]]
-    nonmanifold = int((_unique_rows(E, n)[1] > 2).sum())
-    if nonmanifold:
-        notes.append(f"{nonmanifold} non-manifold edges (shared by more than two faces)")
+    # sorted edge keys (one int64 per side, degenerate sides left out); an edge on 3+ faces is a run of 3+
+    keys = np.concatenate([S[:, 0].astype(np.int64) * n + S[:, 1], S[:, 1].astype(np.int64) * n + S[:, 2],
+                           S[:, 0].astype(np.int64) * n + S[:, 2]])
+    keep = np.concatenate([S[:, 0] != S[:, 1], S[:, 1] != S[:, 2], S[:, 0] != S[:, 2]])
+    del S
+    keys = keys[keep]
+    del keep
+    keys.sort()
+    if keys.size > 2:
+        first = np.empty(keys.size - 2, dtype=bool)  # k[i] starts a run ...
+        first[0] = True
+        np.not_equal(keys[1:-2], keys[:-3], out=first[1:])
+        nonmanifold = int((first & (keys[2:] == keys[:-2])).sum())  # ... of length 3 or more
+        if nonmanifold:
+            notes.append(f"{nonmanifold} non-manifold edges (shared by more than two faces)")
     return notes
 
 
-def _unique_rows(A: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
-    """Unique rows of a small-int array (values in 0..n-1) and their counts, via one int64 key per row."""
-    if float(n) ** A.shape[1] < 2.0**62:
-        key = np.zeros(A.shape[0], dtype=np.int64)
-        for j in range(A.shape[1]):
-            key = key * n + A[:, j]
-        return np.unique(key, return_counts=True)
-    return np.unique(A, axis=0, return_counts=True)
+def _repeated_rows(S: np.ndarray, n: int) -> int:
+    """Rows of ``S`` (m, 3) (values in 0..n-1) equal to an earlier row."""
+    if float(n) ** 3 < 2.0**62:
+        key = (S[:, 0].astype(np.int64) * n + S[:, 1]) * n + S[:, 2]
+        key.sort()
+        return int((key[1:] == key[:-1]).sum())
+    order = np.lexsort((S[:, 2], S[:, 1], S[:, 0]))
+    R = S[order]
+    return int((R[1:] == R[:-1]).all(axis=1).sum())
 
 
 def _fast_table(lines: list[str]) -> np.ndarray | None:
@@ -260,6 +360,10 @@ def _triangulate(groups: list[tuple[np.ndarray, np.ndarray]], notes: list[str]) 
 
     A polygon ``(a, b, c, d, ...)`` becomes the fan ``(a, b, c), (a, c, d), ...``.
     """
+    if len(groups) == 1 and groups[0][1].shape[1] == 3:  # all triangles, in file order: nothing to do
+        ids, P = groups[0]
+        if P.shape[0] == 0 or (ids[0] == 0 and ids[-1] == len(ids) - 1):
+            return np.ascontiguousarray(P, dtype=np.int64)
     tris, keys = [np.zeros((0, 3), np.int64)], [np.zeros(0, np.int64)]
     n_poly = 0
     for ids, P in groups:
@@ -284,16 +388,97 @@ def _check_indices(P: np.ndarray, ids: np.ndarray, n: int) -> None:
     bad = (P < 0) | (P >= n)
     if bad.any():
         r = int(np.flatnonzero(bad.any(axis=1))[0])
+        face = ", ".join(f"{x:.15g}" for x in np.asarray(P[r], dtype=np.float64))
         raise _Malformed(
-            f"face {int(ids[r])} = {P[r].tolist()} references a vertex outside 0..{n - 1} (the file has {n} vertices)"
+            f"face {int(ids[r])} = [{face}] references a vertex outside 0..{n - 1} (the file has {n} vertices)"
         )
 
 
 # ------------------------------------------------------------------------------------ OFF
 _OFF_HEADER = re.compile(r"^(ST)?(C)?(N)?(4)?(n)?OFF$")
+_NAN_WORD = re.compile(rb"nan", re.I)
+
+
+def _line_table(block: bytes) -> tuple[np.ndarray, np.ndarray] | None:
+    """Lines of whitespace-separated numbers, parsed without a Python object per line.
+
+    A NaN is appended to every line as an end-of-line marker and the whole block goes through
+    numpy's C tokenizer once; the markers' positions give each line's count of numbers.
+    Returns ``(numbers (t,), line ends (lines,))`` where ``line ends[i]`` is the marker index of
+    line ``i`` (its numbers are the ones before it, after the previous marker), or None when the
+    block cannot be read this way (a NaN or a word in it, a blank line, CR-only line ends):
+    the caller then uses the line-by-line reader, which names the line and the problem.
+    """
+    if not block or _NAN_WORD.search(block) or re.search(rb"(?:^|\n)[ \t\r\f\v]*\n", block):
+        return None
+    marked = block.replace(b"\n", b" nan\n")
+    if not block.endswith(b"\n"):
+        marked += b" nan"
+    try:
+        T = np.fromstring(marked, dtype=np.float64, sep=" ")
+    except ValueError:
+        return None
+    del marked
+    ends = np.flatnonzero(np.isnan(T))
+    return T, ends
+
+
+def _rows_of(T: np.ndarray, ends: np.ndarray, a: int, b: int) -> np.ndarray | None:
+    """Lines ``a..b-1`` of a :func:`_line_table` as a ``(b - a, k)`` array when all have k numbers, else None."""
+    if b <= a:
+        return np.zeros((0, 0))
+    start = ends[a - 1] + 1 if a else 0
+    k = int(ends[a] - start)
+    if k <= 0 or ends[b - 1] - start + 1 != (b - a) * (k + 1):
+        return None
+    R = T[start:ends[b - 1] + 1].reshape(b - a, k + 1)
+    if not np.isnan(R[:, k]).all():
+        return None
+    return R[:, :k]
+
+
+def _read_off_fast(data: bytes, notes: list[str]):
+    """Plain ``OFF`` files of triangles or equal polygons, with no comment, colour or blank line
+    (what most tools write): parsed as one number stream. None for anything else."""
+    if b"#" in data or b"\n" not in data or not data.startswith(b"OFF"):
+        return None
+    first, rest = data.split(b"\n", 1)
+    head = first.split()
+    if head[0] != b"OFF":
+        return None
+    if len(head) == 1:
+        if b"\n" not in rest:
+            return None
+        second, rest = rest.split(b"\n", 1)
+        head = head + second.split()
+    if len(head) != 4 or not all(t.isdigit() for t in head[1:]):
+        return None
+    nv, nf = int(head[1]), int(head[2])
+    table = _line_table(rest)
+    if table is None or table[1].size != nv + nf or nv == 0:
+        return None
+    T, ends = table
+    V = _rows_of(T, ends, 0, nv)
+    Fr = _rows_of(T, ends, nv, nv + nf)
+    if V is None or V.shape[1] != 3 or Fr is None or (nf and Fr.shape[1] < 4):
+        return None
+    V = np.ascontiguousarray(V)
+    if nf == 0:
+        return V, np.zeros((0, 3), np.int64), None
+    k = Fr.shape[1] - 1
+    if not (Fr[:, 0] == k).all() or not np.all(np.mod(Fr[:, 1:], 1) == 0):
+        return None
+    P = Fr[:, 1:].astype(np.int64)
+    del T, Fr
+    ids = np.arange(nf)
+    _check_indices(P, ids, nv)
+    return V, _triangulate([(ids, P)], notes), None
 
 
 def _read_off(data: bytes, notes: list[str]):
+    fast = _read_off_fast(data, notes)
+    if fast is not None:
+        return fast
     text = _decode_text(data, "an OFF")
     raw = _lines(text, notes)
     if "#" in text:
@@ -362,7 +547,17 @@ def _off_vertices(vlines, ncoord: int, keyword: str, has_colours: bool):
     colors = None
     if has_colours and T.shape[1] in (ncoord + 3, ncoord + 4):
         C = T[:, ncoord:]
-        if not any("." in tok for tok in vlines[0][1].split()[ncoord:]):  # integers 0..255
+        integers = not any(c in tok for tok in vlines[0][1].split()[ncoord:] for c in ".eE")  # 0..255, else 0..1
+        hi = 255.0 if integers else 1.0
+        bad = ~((C >= 0) & (C <= hi)).all(axis=1)
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            raise _Malformed(
+                f"line {vlines[k][0]}: vertex {k} has colour {C[k].tolist()} outside "
+                f"{'0..255 (integer colours)' if integers else '[0, 1] (float colours)'}; {int(bad.sum())} "
+                "vertices out of range in all (refused rather than wrapped or clipped)"
+            )
+        if integers:
             C = C / 255.0
         colors = np.hstack([C, np.ones((nv, 1))]) if C.shape[1] == 3 else C
     return np.ascontiguousarray(T[:, :3]), colors
@@ -400,7 +595,49 @@ _OBJ_V = re.compile(r"^[ \t]*v[ \t]+([^\n]*)", re.M)
 _OBJ_F = re.compile(r"^[ \t]*f[ \t]+([^\n]*)", re.M)
 
 
+_V_F_TO_SPACE = bytes.maketrans(b"vf", b"  ")
+
+
+def _read_obj_fast(data: bytes, notes: list[str]):
+    """OBJ files made only of ``v x y z`` lines then ``f i j k ...`` lines with positive indices (after
+    optional leading comments; what most tools write for a bare mesh): parsed as one number stream.
+    None for anything else (the line-by-line reader handles every other form)."""
+    pos = 0
+    while data.startswith(b"#", pos):
+        pos = data.find(b"\n", pos) + 1
+        if pos == 0:
+            return None
+    body = data[pos:]
+    if not body.endswith(b"\n") or not body.startswith(b"v ") or any(c in body for c in (b"#", b"/", b"\\", b"\r")):
+        return None
+    nv = body.count(b"\nv ") + 1
+    nf = body.count(b"\nf ")
+    if nv + nf != body.count(b"\n") or (nf and body.rfind(b"\nv ") > body.find(b"\nf ")):
+        return None
+    table = _line_table(body.translate(_V_F_TO_SPACE))
+    del body
+    if table is None or table[1].size != nv + nf:
+        return None
+    T, ends = table
+    V = _rows_of(T, ends, 0, nv)
+    Fr = _rows_of(T, ends, nv, nv + nf)
+    if V is None or V.shape[1] != 3 or Fr is None or (nf and Fr.shape[1] < 3):
+        return None
+    V = np.ascontiguousarray(V)
+    if nf == 0:
+        return V, np.zeros((0, 3), np.int64), None
+    if not (np.all(np.mod(Fr, 1) == 0) and Fr.min() >= 1 and Fr.max() <= nv):
+        return None  # relative or out-of-range indices: the line reader says which line
+    P = Fr.astype(np.int64)
+    del T, Fr
+    P -= 1
+    return V, _triangulate([(np.arange(nf), P)], notes), None
+
+
 def _read_obj(data: bytes, notes: list[str]):
+    fast = _read_obj_fast(data, notes)
+    if fast is not None:
+        return fast
     # Whole-text regular expressions and numpy's parser instead of a Python loop over lines.
     text = _decode_text(data, "an OBJ")
     if "\r" in text:
@@ -562,25 +799,118 @@ def _ply_header(data: bytes):
 
 def _read_ply(data: bytes, notes: list[str]):
     fmt, elements, offset = _ply_header(data)
-    values = {}
     if fmt == "ascii":
-        body = _decode_text(data[offset:], "an ASCII PLY")
-        lines = [ln for ln in body.splitlines() if ln and not ln.isspace()]
-        pos = 0
-        for name, count, props in elements:
-            if pos + count > len(lines):
-                raise _Malformed(
-                    f"truncated: element '{name}' declares {count} records, the file ends after {len(lines) - pos}"
-                )
-            block = lines[pos:pos + count]
-            fast = _ply_ascii_fast(block, props, name)
-            values[name] = fast if fast is not None else _ply_ascii_element([ln.split() for ln in block], props, name)
-            pos += count
+        values = _ply_ascii_values(data, offset, elements, notes)
     else:
         endian = "<" if fmt == "binary_little_endian" else ">"
+        values = {}
         for name, count, props in elements:
             values[name], offset = _ply_binary_element(data, offset, count, props, name, endian)
+        if len(data) > offset:
+            notes.append(
+                f"{len(data) - offset} bytes after the last declared element ('{elements[-1][0]}', "
+                f"{elements[-1][1]} records) ignored: the header's count may be wrong"
+            )
     return _ply_mesh(elements, values, notes)
+
+
+def _ply_ascii_values(data: bytes, offset: int, elements, notes: list[str]) -> dict:
+    """ASCII PLY read as one stream of numbers (records may span or share lines, as the format allows),
+    parsed by numpy's C tokenizer into a float64 array: no Python object per line or number."""
+    body = data[offset:]
+    if b"\x00" in body:
+        raise _Malformed("not an ASCII PLY file: it contains binary data (NUL bytes) where text is expected")
+    if _BLANK.fullmatch(body):
+        T = np.zeros(0)
+    else:
+        try:
+            T = np.fromstring(body, dtype=np.float64, sep=" ")
+        except ValueError:
+            _ply_ascii_bad_token(body, offset, data)
+            raise
+    del body
+    values, pos = {}, 0
+    for name, count, props in elements:
+        values[name], pos = _ply_ascii_element(T, pos, count, props, name)
+    if pos < T.size:
+        last, count, props = elements[-1]
+        got = values[last]
+        stride = sum(1 if np.ndim(got[p]) == 1 else 1 + got[p].shape[1] for p, _ in props) \
+            if all(isinstance(got[p], np.ndarray) for p, _ in props) else 0
+        extra = (T.size - pos) / stride if stride else 0
+        more = f" ({extra:g} more records of '{last}')" if extra == int(extra) and extra else ""
+        notes.append(
+            f"{T.size - pos} numbers after the last declared element ('{last}', {count} records) ignored{more}: "
+            "the header's count may be wrong"
+        )
+    return values
+
+
+def _ply_ascii_bad_token(body: bytes, offset: int, data: bytes) -> None:
+    """Raise naming the line and the first token of ``body`` that is not a number (error path only)."""
+    for mo in re.finditer(rb"\S+", body):
+        tok = mo.group()
+        try:
+            float(tok)
+        except ValueError:
+            line = data.count(b"\n", 0, offset + mo.start()) + 1
+            raise _Malformed(f"line {line}: {tok[:40].decode('latin-1')!r} is not a number") from None
+
+
+def _ply_ascii_element(T: np.ndarray, pos: int, count: int, props, name: str):
+    """One element's records from the number stream ``T`` at ``pos``; returns ``(values, next pos)``."""
+    left = T.size - pos
+    lists = [j for j, (_, t) in enumerate(props) if not isinstance(t, str)]
+    if count == 0:
+        return {p: (np.zeros(0) if isinstance(t, str) else np.zeros((0, 3))) for p, t in props}, pos
+    if not props:
+        return {}, pos
+    # Fixed layout: every list as long as the first record's (all triangles, say), checked after.
+    stride, col, layout = 0, pos, []
+    for pname, t in props:
+        if isinstance(t, str):
+            layout.append((pname, stride, None))
+            stride, col = stride + 1, col + 1
+        else:
+            if col >= T.size:
+                stride = None
+                break
+            k = T[col]
+            if not (k >= 0 and k == int(k)):
+                raise _Malformed(f"element '{name}' record 0: list '{pname}' has length {k:g}, not a count")
+            k = int(k)
+            layout.append((pname, stride, k))
+            stride, col = stride + 1 + k, col + 1 + k
+    if stride is not None and count * stride <= left:
+        block = T[pos:pos + count * stride].reshape(count, stride)
+        if all((block[:, start] == k).all() for _, start, k in layout if k is not None):
+            out = {}
+            for pname, start, k in layout:
+                out[pname] = block[:, start] if k is None else block[:, start + 1:start + 1 + k]
+            return out, pos + count * stride
+    if not lists:
+        whole = left // len(props)
+        raise _Malformed(f"truncated: element '{name}' declares {count} records, the file ends after {whole}")
+    # Lists of varying length (polygons): record by record (the slow path, for polygon meshes only).
+    out = {p: [] for p, _ in props}
+    for i in range(count):
+        for pname, t in props:
+            if pos >= T.size:
+                raise _Malformed(f"truncated: element '{name}' declares {count} records, the file ends after {i}")
+            if isinstance(t, str):
+                out[pname].append(T[pos])
+                pos += 1
+            else:
+                k = T[pos]
+                if not (k >= 0 and k == int(k)):
+                    raise _Malformed(f"element '{name}' record {i}: list '{pname}' has length {k:g}, not a count")
+                k = int(k)
+                if pos + 1 + k > T.size:
+                    raise _Malformed(
+                        f"truncated: element '{name}' declares {count} records, the file ends inside record {i}")
+                out[pname].append(T[pos + 1:pos + 1 + k])
+                pos += 1 + k
+    return {p: (out[p] if isinstance(t, tuple) else np.array(out[p])) for p, t in props}, pos
 
 
 def _ply_binary_element(data, offset, count, props, name, endian):
@@ -593,7 +923,8 @@ def _ply_binary_element(data, offset, count, props, name, endian):
         )
     if count == 0:
         return {p: (np.zeros(0, t) if isinstance(t, str) else np.zeros((0, 3), t[1])) for p, t in props}, offset
-    # Fast path: every list has the length of the first record's (all triangles, say).
+    # Fast path: every list has the length of the first record's (all triangles, say): one structured
+    # dtype over the bytes (np.frombuffer, no copy), the fields taken as views.
     fields, pos = [], offset
     for pname, t in props:
         if isinstance(t, str):
@@ -633,61 +964,39 @@ def _ply_binary_element(data, offset, count, props, name, endian):
     return {p: (out[p] if p in lists else np.array(out[p])) for p, _ in props}, pos
 
 
-def _ply_ascii_fast(block: list[str], props, name):
-    """An ASCII element parsed by numpy when every record has the layout of the first one; else None."""
-    T = _fast_table(block)
-    if T is None:
+_TYPE_RANGE = {"u1": (0, 255), "i1": (-128, 127), "u2": (0, 65535), "i2": (-32768, 32767),
+               "u4": (0, 2**32 - 1), "i4": (-(2**31), 2**31 - 1)}
+
+
+def _ply_colours(vx: dict, types: dict, n: int) -> np.ndarray | None:
+    """RGBA in [0, 1] from ``red green blue [alpha]`` (or ``diffuse_*``); out-of-range values are refused
+    (never wrapped or clipped): integers must lie in 0..255, floats in [0, 1]."""
+    names = next(([f"{p}red", f"{p}green", f"{p}blue"] for p in ("", "diffuse_") if f"{p}red" in vx), None)
+    if not names:
         return None
-    out, col = {}, 0
-    for pname, t in props:
-        if isinstance(t, str):
-            if col >= T.shape[1]:
-                return None
-            out[pname] = T[:, col]
-            col += 1
+    alpha = names[0].replace("red", "alpha")
+    names = names + ([alpha] if alpha in vx else [])
+    cols = []
+    for c in names:
+        t = types[c]
+        A = np.asarray(vx[c], np.float64)
+        if t.startswith(("u", "i")):
+            lo, hi = 0, 255
         else:
-            if col >= T.shape[1] or not (T[:, col] == T[0, col]).all():
-                return None
-            k = int(T[0, col])
-            if k < 0 or col + 1 + k > T.shape[1]:
-                return None
-            L = T[:, col + 1:col + 1 + k]
-            if not np.all(np.mod(L, 1) == 0):
-                r = int(np.flatnonzero((np.mod(L, 1) != 0).any(axis=1))[0])
-                raise _Malformed(f"element '{name}' record {r}: list '{pname}' holds a non-integer {L[r].tolist()}")
-            out[pname] = L.astype(np.int64)
-            col += 1 + k
-    return out if col == T.shape[1] else None
-
-
-def _ply_ascii_element(rows, props, name):
-    lists = [p for p, t in props if not isinstance(t, str)]
-    if not lists:
-        if rows and min(map(len, rows)) < len(props):
-            raise _Malformed(f"element '{name}': a record has fewer than its {len(props)} properties")
-        A = _float_table([r[:len(props)] for r in rows], name) if rows else np.zeros((0, len(props)))
-        return {p: A[:, j] for j, (p, _) in enumerate(props)}
-    out = {p: [] for p, _ in props}
-    for i, r in enumerate(rows):
-        pos = 0
-        try:
-            for pname, t in props:
-                if isinstance(t, str):
-                    out[pname].append(float(r[pos]))
-                    pos += 1
-                else:
-                    k = int(r[pos])
-                    if k < 0 or pos + 1 + k > len(r):
-                        raise _Malformed(
-                            f"element '{name}' record {i}: list of {k} items but only {len(r) - pos - 1} numbers"
-                        )
-                    out[pname].append(np.array(r[pos + 1:pos + 1 + k], dtype=np.float64))
-                    pos += 1 + k
-        except IndexError:
-            raise _Malformed(f"element '{name}' record {i}: fewer numbers than its properties") from None
-        except ValueError as exc:
-            raise _Malformed(f"element '{name}' record {i}: not a number ({exc})") from None
-    return {p: (out[p] if p in lists else np.array(out[p])) for p, _ in props}
+            lo, hi = 0.0, 1.0
+        bad = ~((A >= lo) & (A <= hi) & (np.mod(A, 1) == 0 if t.startswith(("u", "i")) else True))
+        if bad.any():
+            k = int(np.flatnonzero(bad)[0])
+            kind = "an integer colour (0..255)" if t.startswith(("u", "i")) else "a float colour (0..1)"
+            nbad = int(bad.sum())
+            raise _Malformed(
+                f"vertex {k}: {c} = {A[k]:g} is outside the range of {kind}; {nbad} "
+                f"{'value' if nbad == 1 else 'values'} out of range in all (refused rather than wrapped or clipped)"
+            )
+        cols.append(A / 255.0 if t.startswith(("u", "i")) else A)
+    if len(cols) == 3:
+        cols.append(np.ones(n))
+    return np.stack(cols, axis=1)
 
 
 def _ply_mesh(elements, values, notes):
@@ -696,29 +1005,40 @@ def _ply_mesh(elements, values, notes):
     vx = values["vertex"]
     if not all(c in vx for c in "xyz"):
         raise _Malformed("the 'vertex' element has no x, y, z properties")
-    V = np.stack([np.asarray(vx[c], dtype=np.float64) for c in "xyz"], axis=1)
-    colors = None
-    names = next(([f"{p}red", f"{p}green", f"{p}blue"] for p in ("", "diffuse_") if f"{p}red" in vx), None)
-    if names:
-        types = dict(next(e for e in elements if e[0] == "vertex")[2])
-        C = np.stack([np.asarray(vx[c], np.float64) for c in names], axis=1)
-        alpha_name = names[0].replace("red", "alpha")
-        A = np.asarray(vx[alpha_name], np.float64)[:, None] if alpha_name in vx else None
-        scale = 255.0 if types[names[0]] in ("u1", "i1") else 1.0
-        colors = np.hstack([C, A if A is not None else np.full((len(V), 1), scale)]) / scale
+    for c in "xyz":
+        if not isinstance(vx[c], np.ndarray) or vx[c].ndim != 1:
+            raise _Malformed(f"the 'vertex' property {c} is a list; coordinates must be numbers")
+    V = np.empty((len(vx["x"]), 3))
+    for j, c in enumerate("xyz"):
+        V[:, j] = vx[c]
+    types = dict(next(e for e in elements if e[0] == "vertex")[2])
+    colors = _ply_colours(vx, types, len(V))
+    selection = None
+    if "flags" in vx and isinstance(types["flags"], str) and types["flags"][0] in "iu":
+        selection = (np.asarray(vx["flags"]).astype(np.int64) & 0x20) != 0  # MeshLab's SELECTED bit
     n = V.shape[0]
     if "face" not in values:
-        return V, np.zeros((0, 3), np.int64), colors
+        return V, np.zeros((0, 3), np.int64), colors, selection
     fc = values["face"]
     key = next((k for k in ("vertex_indices", "vertex_index") if k in fc), None)
     if key is None:
         raise _Malformed("the 'face' element has no vertex_indices list")
+    ftypes = dict(next(e for e in elements if e[0] == "face")[2])
+    if isinstance(ftypes[key], str):
+        raise _Malformed(f"the 'face' property {key} is a number; it must be a list of vertex indices")
     idx = fc[key]
     if isinstance(idx, np.ndarray):  # fixed-length fast path: (m, k)
+        if idx.dtype.kind == "f" and not np.all(np.mod(idx, 1) == 0):
+            r = int(np.flatnonzero((np.mod(idx, 1) != 0).any(axis=1))[0])
+            raise _Malformed(f"face {r}: vertex indices must be integers, got {idx[r].tolist()}")
+        ids = np.arange(idx.shape[0])
+        if idx.shape[1] == 3:  # triangles: check the range before the int64 copy (chunked, bounded memory)
+            for a in range(0, idx.shape[0], 1 << 20):
+                _check_indices(idx[a:a + (1 << 20)], ids[a:a + (1 << 20)], n)
+            return V, np.ascontiguousarray(idx, dtype=np.int64), colors, selection
         P = idx.astype(np.int64)
-        ids = np.arange(P.shape[0])
         _check_indices(P, ids, n)
-        return V, _triangulate([(ids, P)], notes), colors
+        return V, _triangulate([(ids, P)], notes), colors, selection
     lengths = np.fromiter((len(p) for p in idx), dtype=np.int64, count=len(idx))
     groups = []
     for k in np.unique(lengths):
@@ -729,20 +1049,31 @@ def _ply_mesh(elements, values, notes):
         P = P.astype(np.int64)
         _check_indices(P, ids, n)
         groups.append((ids, P))
-    return V, _triangulate(groups, notes), colors
+    return V, _triangulate(groups, notes), colors, selection
 
 
 # ------------------------------------------------------------------------------------ STL
 def _read_stl(data: bytes, notes: list[str]):
-    if len(data) >= 84:
-        m = int(np.frombuffer(data, "<u4", 1, 80)[0])
-        if len(data) == 84 + 50 * m:
-            rec = np.frombuffer(data, np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")]), m, 84)
-            return _stl_mesh(rec["v"].astype(np.float64).reshape(-1, 3), notes) + (None,)
-    if data.lstrip()[:5].lower() == b"solid" and b"\x00" not in data:
-        return _read_stl_ascii(data.decode("latin-1"), notes) + (None,)
-    if len(data) >= 84:
-        m = int(np.frombuffer(data, "<u4", 1, 80)[0])
+    rec_dtype = np.dtype([("n", "<f4", 3), ("v", "<f4", (3, 3)), ("a", "<u2")])
+    m = int(np.frombuffer(data, "<u4", 1, 80)[0]) if len(data) >= 84 else -1
+    if m >= 0 and len(data) == 84 + 50 * m:
+        rec = np.frombuffer(data, rec_dtype, m, 84)
+        return _stl_mesh(rec["v"].astype(np.float64).reshape(-1, 3), notes) + (None,)
+    if _STL_ASCII_START.match(data[:1024]) and b"\x00" not in data:
+        text = data.decode("latin-1")
+        if text.startswith("\xef\xbb\xbf"):
+            notes.append("UTF-8 byte-order mark at the start of the file skipped")
+            text = text[3:]
+        return _read_stl_ascii(text, notes) + (None,)
+    if m >= 0 and len(data) > 84 + 50 * m:
+        extra = len(data) - 84 - 50 * m
+        notes.append(
+            f"{extra} extra bytes after the {m} triangles its header declares ignored (binary STL; "
+            "the file is longer than its triangle count says)"
+        )
+        rec = np.frombuffer(data, rec_dtype, m, 84)
+        return _stl_mesh(rec["v"].astype(np.float64).reshape(-1, 3), notes) + (None,)
+    if m >= 0:
         raise _Malformed(
             f"not a valid STL file: as binary STL its header declares {m} triangles, which need "
             f"{84 + 50 * m} bytes, but the file has {len(data)} (truncated?); it is not ASCII STL either"
@@ -805,11 +1136,56 @@ def _process_umask() -> int:
 _UMASK = _process_umask()
 
 
+# Temporary files being written now. A handler for SIGTERM and SIGHUP (installed by the first write,
+# in the main thread only) removes them before the signal's previous action: the default one (the
+# process ends, as if the handler were not there) or the handler that was installed before ours.
+# SIGINT needs nothing here: KeyboardInterrupt unwinds through atomic_path.__exit__. SIGKILL (kill -9)
+# and power loss cannot be caught: they leave a hidden ``.<stem>.<random><suffix>`` file beside the
+# destination (never the destination itself, which is only ever replaced by a complete file).
+_IN_FLIGHT: set[Path] = set()
+_PREVIOUS_HANDLERS: dict[int, object] = {}
+_CLEANUP_SIGNALS = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+def _remove_in_flight_and_resend(signum, frame) -> None:
+    for tmp in list(_IN_FLIGHT):
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+    _IN_FLIGHT.clear()
+    previous = _PREVIOUS_HANDLERS.get(signum, signal.SIG_DFL)
+    if callable(previous):
+        previous(signum, frame)
+        return
+    signal.signal(signum, signal.SIG_DFL)  # the default action (terminate), as if we had not been here
+    os.kill(os.getpid(), signum)
+
+
+def _install_cleanup_handlers() -> None:
+    if threading.current_thread() is not threading.main_thread():
+        return  # signal handlers can only be set from the main thread
+    for sig in _CLEANUP_SIGNALS:
+        if sig in _PREVIOUS_HANDLERS:
+            continue
+        current = signal.getsignal(sig)
+        if current is signal.SIG_IGN or current is None or current is _remove_in_flight_and_resend:
+            continue  # ignored (the process goes on, so must its files) or set outside Python
+        try:
+            signal.signal(sig, _remove_in_flight_and_resend)
+        except (ValueError, OSError):  # pragma: no cover - embedded interpreters
+            continue
+        _PREVIOUS_HANDLERS[sig] = current
+
+
 class atomic_path:
     """Context manager giving a temporary path beside ``path``, renamed onto it only on success.
 
     Nothing is left behind on failure, and a reader never sees a half-written file: the
-    temporary file is flushed to disk and then renamed (atomic on POSIX and Windows).
+    temporary file is flushed to disk and then renamed (atomic on POSIX and Windows). SIGTERM
+    and SIGHUP during the write remove the temporary file, then take their previous action
+    (by default: the process ends). Only what cannot be caught (SIGKILL, a power cut) can leave
+    the hidden temporary ``.<stem>.<8 random characters><suffix>`` beside ``path``.
 
     Examples
     --------
@@ -832,9 +1208,17 @@ class atomic_path:
             raise MeshFileError(f"{self.path}: cannot be written ({exc.strerror or exc})") from None
         os.close(fd)
         self.tmp = Path(tmp)
+        _install_cleanup_handlers()
+        _IN_FLIGHT.add(self.tmp)
         return self.tmp
 
     def __exit__(self, exc_type, exc, tb) -> bool:
+        try:
+            return self._finish(exc_type, exc)
+        finally:
+            _IN_FLIGHT.discard(self.tmp)
+
+    def _finish(self, exc_type, exc) -> bool:
         if exc_type is None and self.tmp.exists() and self.tmp.stat().st_size > 0:
             try:
                 with open(self.tmp, "rb") as fh:

@@ -3,49 +3,123 @@
 from __future__ import annotations
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.sparse.csgraph import connected_components
-
 from .arrays import check_mesh_arrays
 
 __all__ = ["mesh_info"]
 
 
-def _edge_table(F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unique undirected edges ``(k, 2)``, the number of faces on each, and each face side's edge id ``(m, 3)``."""
-    sides = np.stack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]], axis=1).reshape(-1, 2)
-    sides.sort(axis=1)
-    n = int(F.max()) + 1
-    keys, inverse, counts = np.unique(sides[:, 0] * n + sides[:, 1], return_inverse=True, return_counts=True)
-    edges = np.stack([keys // n, keys % n], axis=1)  # 1-D keys: far faster than unique(axis=0)
-    return edges, counts, inverse.reshape(-1, 3)
+_CHUNK = 1 << 20  # faces per chunk of the per-face float work (bounded temporaries)
 
 
-def _fans_per_vertex(F: np.ndarray, side_edge: np.ndarray, n: int) -> np.ndarray:
-    """Number of edge-connected fans of faces around each vertex (1 on a manifold vertex, 0 if unreferenced).
+def _components(N: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Connected components of the undirected graph on nodes ``0..N-1`` with edges ``(a[i], b[i])``.
 
-    Nodes are the corners (face, vertex); two corners of one vertex are joined when their
-    faces share an edge through that vertex. A vertex's fans are its corners' components.
+    Returns ``label (N,) int32``: the smallest node of each node's component. Min-label hooking
+    with pointer jumping, all in numpy: memory is a few int32 arrays of the edge count (a sparse
+    matrix and its transpose for scipy's routine would take several times more at millions of
+    edges).
+
+    Examples
+    --------
+    >>> _components(5, np.array([0, 3]), np.array([1, 4])).tolist()
+    [0, 0, 2, 3, 3]
+    """
+    label = np.arange(N, dtype=np.int32)
+    a = np.asarray(a, dtype=np.int32)
+    b = np.asarray(b, dtype=np.int32)
+    step = 1 << 22  # edges per chunk: the temporaries stay small whatever the graph's size
+    while True:
+        hooked = 0
+        for c in range(0, a.size, step):
+            la = label[a[c:c + step]]  # each label is a node of the same component, never a larger one
+            lb = label[b[c:c + step]]
+            differ = la != lb
+            if not differ.any():
+                continue
+            la, lb = la[differ], lb[differ]
+            hooked += la.size
+            np.minimum.at(label, np.maximum(la, lb), np.minimum(la, lb))  # hook the larger onto the smaller
+        if hooked == 0:  # every edge joins equal labels, all of them roots: done
+            return label
+        while True:  # pointer jumping: every node straight to its root
+            nxt = label[label]
+            if np.array_equal(nxt, label):
+                break
+            label = nxt
+            del nxt
+
+
+def _side_keys(F: np.ndarray, n: int) -> np.ndarray:
+    """``(m, 3) int64``: the undirected edge key ``min * n + max`` of each face side (side s: slots s, s+1)."""
+    keys = np.empty((F.shape[0], 3), dtype=np.int64)
+    for s in range(3):
+        u, w = F[:, s], F[:, (s + 1) % 3]
+        keys[:, s] = np.minimum(u, w) * n + np.maximum(u, w)  # 1-D keys: far faster than unique(axis=0)
+    return keys
+
+
+def _edge_table(F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unique undirected edges ``(k, 2)`` (int32 below 2^31 vertices, sorted by key), the number of face
+    sides on each ``(k,)``, and each face side's edge id ``(m, 3) int32`` (side ``s`` joins slots ``s``, ``s+1``).
+
+    The keys are sorted in place and the side ids found by binary search chunk by chunk, so that
+    the peak is about two int64 arrays of the side count, not the four of ``np.unique(return_inverse)``.
+    """
+    keys = _side_keys(F, n).reshape(-1)
+    keys.sort()
+    new = np.empty(keys.size, dtype=bool)
+    new[0] = True
+    np.not_equal(keys[1:], keys[:-1], out=new[1:])
+    starts = np.flatnonzero(new)
+    counts = np.diff(np.append(starts, keys.size))
+    del starts
+    uniq = keys[new]
+    del keys, new
+    side_edge = np.empty(F.shape, dtype=np.int32)
+    for a in range(0, F.shape[0], _CHUNK):
+        side_edge[a:a + _CHUNK] = np.searchsorted(uniq, _side_keys(F[a:a + _CHUNK], n))
+    itype = np.int32 if n < 2**31 else np.int64
+    edges = np.empty((uniq.size, 2), dtype=itype)
+    edges[:, 0] = uniq // n
+    edges[:, 1] = uniq % n
+    return edges, counts, side_edge
+
+
+def _fan_graph(F: np.ndarray, side_edge: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The half-edge graph whose components are the fans: one link ``(a, b)`` per corner (int32).
+
+    Nodes are half-edges ``(edge e, endpoint v)``, numbered ``2 e + (v is the larger endpoint)``; the
+    corner of face ``f`` at vertex ``v`` joins its two sides through ``v``. Two faces around ``v``
+    sharing an edge through ``v`` share a node, so a vertex's fans are its nodes' components.
     """
     m = F.shape[0]
-    corner = np.arange(3 * m).reshape(m, 3)  # corner id of (face f, slot s)
-    # Side s of a face joins slots s and s+1; record (edge id, vertex, corner) for both ends.
-    e = np.repeat(side_edge, 2, axis=1).reshape(-1)  # per (face, side, end)
-    slots = np.array([[0, 1], [1, 2], [2, 0]])
-    faces = np.repeat(np.arange(m), 6)
-    slot = np.tile(slots.reshape(-1), m)
-    vert = F[faces, slot]
-    node = corner[faces, slot]
-    # Sort by (edge, vertex): consecutive entries with the same key belong to faces sharing that edge.
-    order = np.argsort(e * n + vert, kind="stable")
-    e, vert, node = e[order], vert[order], node[order]
-    same = (e[1:] == e[:-1]) & (vert[1:] == vert[:-1])
-    a, b = node[:-1][same], node[1:][same]
-    G = sp.coo_matrix((np.ones(a.size), (a, b)), shape=(3 * m, 3 * m))
-    _, labels = connected_components(G, directed=False)
-    corner_vertex = F.reshape(-1)
-    pairs = np.unique(corner_vertex.astype(np.int64) * (3 * m) + labels)
-    return np.bincount(pairs // (3 * m), minlength=n)
+    a = np.empty(3 * m, dtype=np.int32)
+    b = np.empty(3 * m, dtype=np.int32)
+    for s in range(3):
+        v, nxt, prv = F[:, s], F[:, (s + 1) % 3], F[:, (s + 2) % 3]
+        a[s * m:(s + 1) * m] = 2 * side_edge[:, s] + (v > nxt)  # side s: (v, next)
+        b[s * m:(s + 1) * m] = 2 * side_edge[:, (s + 2) % 3] + (v > prv)  # side s+2: (prev, v)
+    return a, b
+
+
+def _fans_per_vertex(a: np.ndarray, b: np.ndarray, edges: np.ndarray, n: int) -> np.ndarray:
+    """Number of edge-connected fans of faces around each vertex (1 on a manifold vertex, 0 if
+    unreferenced), from the graph of :func:`_fan_graph`."""
+    N = 2 * edges.shape[0]
+    used = np.zeros(N, dtype=bool)
+    used[a] = True
+    used[b] = True
+    label = _components(N, a, b)
+    fans = np.zeros(n, dtype=np.int64)
+    for c in range(0, N, _CHUNK):  # a fan per root (a used node that is its own label), counted at its vertex
+        root = used[c:c + _CHUNK] & (label[c:c + _CHUNK] == np.arange(c, min(c + _CHUNK, N), dtype=np.int32))
+        node = np.flatnonzero(root) + c
+        fans += np.bincount(edges[node >> 1, node & 1], minlength=n)
+    return fans
+
+
+def _finite_or_none(x: float) -> float | None:
+    return float(x) if np.isfinite(x) else None
 
 
 def mesh_info(V: np.ndarray, F: np.ndarray) -> dict:
@@ -67,6 +141,8 @@ def mesh_info(V: np.ndarray, F: np.ndarray) -> dict:
         (whose faces form more than one edge-connected fan), ``duplicate_vertices``
         (vertices at exactly the position of an earlier one), ``degenerate_faces``
         (zero area or a repeated vertex), ``closed`` (no boundary edge).
+        Every float is finite (``bbox_diagonal`` is None when the diagonal exceeds the largest
+        float), so ``json.dumps(info, allow_nan=False)`` always works.
 
     Examples
     --------
@@ -80,35 +156,52 @@ def mesh_info(V: np.ndarray, F: np.ndarray) -> dict:
     info: dict = {"vertices": int(n), "faces": int(m)}
     if n:
         lo, hi = V.min(axis=0), V.max(axis=0)
-        info.update(bbox_min=lo.tolist(), bbox_max=hi.tolist(), bbox_diagonal=float(np.linalg.norm(hi - lo)))
+        # scaled so that coordinates near the float limit do not overflow; None if the length itself does not fit
+        scale = float(np.max(np.abs(np.concatenate([lo, hi]))))
+        with np.errstate(over="ignore", invalid="ignore"):
+            diag = float(np.linalg.norm(hi / scale - lo / scale)) * scale if scale > 0 else 0.0
+        info.update(bbox_min=lo.tolist(), bbox_max=hi.tolist(), bbox_diagonal=_finite_or_none(diag))
     referenced = np.zeros(n, dtype=bool)
     referenced[F.reshape(-1)] = True
     info["unreferenced_vertices"] = int(n - referenced.sum())
     if m:
-        edges, counts, side_edge = _edge_table(F)
-        A = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
-        n_comp, labels = connected_components(A, directed=False)
+        edges, counts, side_edge = _edge_table(F, n)
+        labels = _components(n, edges[:, 0], edges[:, 1])
         info["edges"] = int(len(edges))
         info["connected_components"] = int(np.unique(labels[referenced]).size)
+        del labels
         border = edges[counts == 1]
         info["boundary_edges"] = int(len(border))
         if len(border):
-            B = sp.coo_matrix((np.ones(len(border)), (border[:, 0], border[:, 1])), shape=(n, n))
-            _, blabels = connected_components(B, directed=False)
+            blabels = _components(n, border[:, 0], border[:, 1])
             info["boundary_loops"] = int(np.unique(blabels[np.unique(border)]).size)
+            del blabels
         else:
             info["boundary_loops"] = 0
         info["non_manifold_edges"] = int((counts > 2).sum())
-        info["non_manifold_vertices"] = int((_fans_per_vertex(F, side_edge, n) > 1).sum())
-        area2 = np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
-        repeated = (F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 0] == F[:, 2])
-        info["degenerate_faces"] = int(((area2 == 0) | repeated).sum())
+        del counts, border
+        a, b = _fan_graph(F, side_edge)
+        del side_edge
+        info["non_manifold_vertices"] = int((_fans_per_vertex(a, b, edges, n) > 1).sum())
+        del a, b, edges
+        degenerate = 0
+        # a power of two (exact) brings coordinates near the float limit down so that edges do not overflow
+        big = float(np.abs(V).max()) if n else 0.0
+        shrink = 2.0 ** -np.ceil(np.log2(big / 1e50)) if big > 1e50 else 1.0
+        for a in range(0, m, _CHUNK):  # chunks: three (m, 3) float temporaries at once would be large
+            Fc = F[a:a + _CHUNK]
+            V0 = V[Fc[:, 0]] * shrink
+            area2 = np.linalg.norm(np.cross(V[Fc[:, 1]] * shrink - V0, V[Fc[:, 2]] * shrink - V0), axis=1)
+            repeated = (Fc[:, 0] == Fc[:, 1]) | (Fc[:, 1] == Fc[:, 2]) | (Fc[:, 0] == Fc[:, 2])
+            degenerate += int(((area2 == 0) | repeated).sum())
+        info["degenerate_faces"] = degenerate
     else:
         info.update(edges=0, connected_components=0, boundary_edges=0, boundary_loops=0,
                     non_manifold_edges=0, non_manifold_vertices=0, degenerate_faces=0)
     if n:
         order = np.lexsort(V.T[::-1])
         S = V[order]
+        del order
         info["duplicate_vertices"] = int((S[1:] == S[:-1]).all(axis=1).sum())
     else:
         info["duplicate_vertices"] = 0

@@ -38,6 +38,7 @@ class Case:
     same_faces_geometry: bool = False  # STL: compare V[F] (vertex order is the reader's)
     colors: np.ndarray | None = None  # intended RGBA or RGB colours in [0, 1], when the file has them
     info: dict | None = None  # facts `meshdenoise info --json` must report (components, non-manifold...)
+    selection: np.ndarray | None = None  # intended MeshLab vertex selection (bool), when the file stores one
 
     @property
     def ext(self) -> str:
@@ -253,6 +254,90 @@ def cases() -> list[Case]:
     read("point_cloud.off", off_text(pts, np.zeros((0, 3), int)), pts, np.zeros((0, 3), int),
          match=r"(?i)no faces|point cloud")
     read("point_cloud.obj", obj_text(pts, []), pts, np.zeros((0, 3), int), match=r"(?i)no faces|point cloud")
+
+    # --- round two (issue 19): byte-order marks, colours out of range, counts that disagree, legal layouts
+    bom = b"\xef\xbb\xbf"
+    read("bom.obj", bom + obj_text(V, F).encode(), V, F, match=r"(?i)byte-order mark")
+    read("bom_crlf.obj", bom + obj_text(V, F).replace("\n", "\r\n").encode(), V, F, match=r"(?i)byte-order mark")
+    read("bom.off", bom + off_text(V, F).encode(), V, F, match=r"(?i)byte-order mark")
+    read("bom_ascii.ply", bom + good_ascii, V, F, match=r"(?i)byte-order mark")
+    read("bom_ascii.stl", bom + stl_ascii(V, F).encode(), V, F, same_faces_geometry=True, match=r"byte-order mark")
+    refuse("utf16.obj", b"\xff\xfe" + obj_text(V, F).encode("utf-16-le"), r"(?i)UTF-16")
+    refuse("utf16.off", b"\xfe\xff" + off_text(V, F).encode("utf-16-be"), r"(?i)UTF-16")
+    ply_cols = ply_bytes(V, F, binary=False, colors=cols)
+    first_colour = " ".join(str(int(c)) for c in cols[0])  # "0 13 26" on the first vertex line
+    for name, text in [("uchar_300", "300 13 26"), ("uchar_minus5", "-5 13 26"), ("uchar_fraction", "0.5 13 26")]:
+        refuse(f"colour_{name}.ply", ply_cols.replace(first_colour.encode(), text.encode(), 1),
+               r"(?i)vertex 0: red = .* outside")
+    float_cols = ply_cols.replace(b"property uchar", b"property float")
+    frac = (cols / 255.0).round(3)
+    fc_lines = float_cols.decode().split("\n")
+    hdr = fc_lines.index("end_header")
+    for i in range(len(V)):
+        toks = fc_lines[hdr + 1 + i].split()
+        fc_lines[hdr + 1 + i] = " ".join(toks[:3] + [repr(float(c)) for c in frac[i]])
+    float_ok = "\n".join(fc_lines).encode()
+    read("colour_float.ply", float_ok, V, F, colors=frac)
+    for name, value in [("float_2", "2.0"), ("float_minus1", "-1.0"), ("float_nan", "nan")]:
+        bad = fc_lines.copy()
+        toks = bad[hdr + 1 + 3].split()
+        bad[hdr + 1 + 3] = " ".join(toks[:4] + [value] + toks[5:])
+        refuse(f"colour_{name}.ply", "\n".join(bad), r"(?i)vertex 3: green = .* outside")
+    coff = off_text(V, F, header="COFF").split("\n")
+    for i in range(len(V)):
+        coff[2 + i] += " " + " ".join(repr(float(c)) for c in frac[i]) + " 1.0"
+    read("colour_float.coff.off", "\n".join(coff), V, F, colors=frac)
+    bad = coff.copy()
+    bad[2 + 1] = bad[2 + 1].rsplit(" ", 4)[0] + " 1.5 0.5 0.5 1.0"
+    refuse("colour_1.5.coff.off", "\n".join(bad), r"(?i)line 4: vertex 1 has colour .*outside")
+    icoff = off_text(V, F, header="COFF").split("\n")
+    for i in range(len(V)):
+        icoff[2 + i] += " " + " ".join(str(int(c)) for c in cols[i]) + " 255"
+    read("colour_int.coff.off", "\n".join(icoff), V, F, colors=cols / 255.0)
+    icoff[2 + 5] = icoff[2 + 5].rsplit(" ", 4)[0] + " 300 0 0 255"
+    refuse("colour_300.coff.off", "\n".join(icoff), r"(?i)vertex 5 has colour .*outside")
+    # more records than declared: the extra ones are ignored with a note (as OFF's extra lines)
+    read("more_faces_than_declared.ply", good_ascii.replace(b"element face 8", b"element face 6"), V, F[:6],
+         match=r"8 numbers after the last declared element \('face', 6 records\) ignored \(2 more records",
+         info={"faces": 6})
+    read("more_faces_than_declared_binary.ply", good_bin.replace(b"element face 8", b"element face 6"), V, F[:6],
+         match=r"(?i)bytes after the last declared element")
+    read("more_faces_than_declared.off", off_text(V, F).replace("6 8 0", "6 6 0"), V, F[:6], match=r"(?i)ignored")
+    # a legal float list property (texture coordinates per face), ASCII and binary
+    tex = good_ascii.replace(b"property list uchar int vertex_indices",
+                             b"property list uchar int vertex_indices\nproperty list uchar float texcoord")
+    lines = tex.split(b"\n")
+    first_face = lines.index(b"end_header") + 1 + len(V)
+    for j in range(first_face, first_face + len(F)):
+        lines[j] += b" 6 0.25 0.5 0.75 0.125 1 0"
+    read("float_list_property.ply", b"\n".join(lines), V, F)
+    texb = [good_bin[: good_bin.index(b"end_header")].replace(
+        b"property list uchar int vertex_indices",
+        b"property list uchar int vertex_indices\nproperty list uchar float texcoord") + b"end_header\n"]
+    texb += [struct.pack("<3d", *v) for v in V]
+    texb += [struct.pack("<B3iB6f", 3, *[int(i) for i in f], 6, 0.25, 0.5, 0.75, 0.125, 1, 0) for f in F]
+    read("float_list_property_binary.ply", b"".join(texb), V, F)
+    # ASCII PLY is a stream of numbers: records on one line, or spread over several, are legal
+    body = good_ascii[good_ascii.index(b"end_header\n") + 11:]
+    head = good_ascii[: good_ascii.index(b"end_header\n") + 11]
+    read("ascii_one_line.ply", head + b" ".join(body.split()) + b"\n", V, F)
+    read("ascii_one_number_per_line.ply", head + b"\n".join(body.split()) + b"\n", V, F)
+    refuse("ascii_word_in_numbers.ply", head + body.replace(b"3 0 2 4", b"3 0 two 4", 1), r"(?i)line \d+: 'two'")
+    # binary STL longer than its triangle count: read, the extra bytes named in a note
+    read("extra_bytes_binary.stl", stl_binary(V, F) + b"\x00" * 17, V, F, same_faces_geometry=True,
+         match=r"17 extra bytes after the 8 triangles")
+    # a MeshLab selection (vertex property 'flags', bit 0x20) is read; PLY with out-of-range faces still refused
+    sel = np.array([True, False, True, False, False, True])
+    sel_head = ["ply", "format ascii 1.0", "comment VCGLIB generated", f"element vertex {len(V)}",
+                "property double x", "property double y", "property double z", "property int flags",
+                "property double quality", f"element face {len(F)}", "property list uchar int vertex_indices",
+                "end_header"]
+    sel_rows = [f"{' '.join(_num(c) for c in v)} {32 if s_ else 0} 0" for v, s_ in zip(V, sel)]
+    sel_rows += [" ".join(str(int(i)) for i in [3, *f]) for f in F]
+    sel_text = "\n".join(sel_head + sel_rows) + "\n"
+    read("meshlab_selection.ply", sel_text, V, F, selection=sel)
+    refuse("meshlab_selection_bad_face.ply", sel_text.replace("3 0 2 4", "3 0 2 60", 1), r"(?i)face 0 .*outside")
+    refuse("meshlab_selection_negative_face.ply", sel_text.replace("3 0 2 4", "3 0 -2 4", 1), r"(?i)face 0 .*outside")
     return out
 
 

@@ -51,6 +51,12 @@ def test_unusual_but_legal_files_are_read_right(tmp_path, case):
         assert any(re.search(case.match, n) for n in m.notes), m.notes
     if case.colors is not None:
         np.testing.assert_allclose(m.vertex_colors[:, :3], case.colors)
+    else:
+        assert m.vertex_colors is None
+    if case.selection is not None:
+        np.testing.assert_array_equal(m.selection, case.selection)
+    else:
+        assert m.selection is None
     assert path.read_bytes() == case.data  # never changed by reading
 
 

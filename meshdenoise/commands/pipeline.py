@@ -155,18 +155,24 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
 
 
 def _selected_vertices(path: str) -> list[int]:
-    """Indices of the vertices selected in a mesh file (MeshLab keeps the selection in PLY vertex flags)."""
-    import numpy as np
-    import pymeshlab
+    """Indices of the vertices selected in a mesh file (MeshLab keeps the selection in PLY vertex flags).
 
-    ms = pymeshlab.MeshSet()
+    Read by our own reader (no C++ loader sees the file first): a broken file gets its real problem.
+    """
+    import numpy as np
+
+    from ..io import MeshFileError, load_mesh
+
     try:
-        ms.load_new_mesh(str(path))
-    except Exception as exc:
-        _fail(f"{path}: cannot be read ({exc})", 2)
-    selected = np.flatnonzero(ms.current_mesh().vertex_selection_array())
+        mesh = load_mesh(path)
+    except MeshFileError as exc:
+        _fail(f"--region-from-selection: {exc}", 2)
+    if mesh.selection is None:
+        _fail(f"{path}: --region-from-selection: the file stores no selection (save it from MeshLab as PLY "
+              "with the vertex 'Flags' option)", 2)
+    selected = np.flatnonzero(mesh.selection)
     if selected.size == 0:
-        _fail(f"{path}: --region-from-selection: the file has no selected vertex (save the selection from MeshLab as PLY with flags)", 2)
+        _fail(f"{path}: --region-from-selection: the file has no selected vertex (its vertex flags select none)", 2)
     return selected.tolist()
 
 

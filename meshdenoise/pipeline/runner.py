@@ -30,7 +30,7 @@ def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
         mesh = load_mesh(task.input)
     except MeshFileError as exc:  # its message already names the file
         raise InputError(str(exc)) from None
-    ms = meshset_from_arrays(mesh.V, mesh.F, mesh.vertex_colors)
+    ms = meshset_from_arrays(mesh.V, mesh.F, mesh.vertex_colors, selection=mesh.selection)
     ctx = RunContext(ms=ms, input_path=task.input, input_arrays=(mesh.V, mesh.F), row=row, echo=echo)
     ctx.resolve_path = lambda template: task.output_paths[template]
     try:
@@ -43,6 +43,8 @@ def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
                 detail = str(exc) or type(exc).__name__
                 raise StepFailure(f"{task.input}: {step.where} failed: {type(exc).__name__}: {detail}") from exc
         for path, V, F, colors, binary in ctx.staged:
+            if mesh.vertex_colors is None and colors is not None and (colors == 1.0).all():
+                colors = None  # pymeshlab's default white, not the input's: no colours in, no colours out
             save_mesh(path, V, F, colors, binary=binary)
         for tmp, path in ctx.staged_files:
             os.replace(tmp, path)

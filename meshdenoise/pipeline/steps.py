@@ -323,15 +323,22 @@ class RunContext:
     echo: Any = None  # callable(str) for messages (auto parameters)
 
 
-def meshset_from_arrays(V: np.ndarray, F: np.ndarray, colors: np.ndarray | None = None):
-    """A new MeshSet holding one mesh made of these arrays (colours RGBA in [0, 1] optional)."""
+def meshset_from_arrays(V: np.ndarray, F: np.ndarray, colors: np.ndarray | None = None,
+                        selection: np.ndarray | None = None):
+    """A new MeshSet holding one mesh made of these arrays (colours RGBA in [0, 1] and a vertex
+    selection (n,) bool, as read from a MeshLab PLY, optional)."""
     import pymeshlab
 
     kwargs = {}
     if colors is not None:
         kwargs["v_color_matrix"] = np.asarray(colors, dtype=np.float64)
+    if selection is not None and np.any(selection):  # no setter in pymeshlab: select by a temporary quality
+        kwargs["v_scalar_array"] = np.asarray(selection, dtype=np.float64)
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=np.asarray(F, dtype=np.int32).reshape(-1, 3), **kwargs))
+    if "v_scalar_array" in kwargs:
+        ms.apply_filter("compute_selection_by_condition_per_vertex", condselect="q > 0.5")
+        ms.apply_filter("compute_scalar_by_function_per_vertex", q="0")  # the quality a new mesh has
     return ms
 
 
