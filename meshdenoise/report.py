@@ -44,7 +44,8 @@ h3 { font-size: 1em; overflow-wrap: anywhere; }
 table { border-collapse: collapse; font-size: 0.9em; }
 th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; vertical-align: top; }
 th { background: #f0f0f0; text-align: left; }
-td { max-width: 24em; overflow-wrap: anywhere; }
+td { overflow-wrap: break-word; }
+td.nw { white-space: nowrap; }
 td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
 figure { display: inline-block; margin: 0 1em 1.5em 0; vertical-align: top; max-width: 100%; }
 figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
@@ -235,7 +236,7 @@ def sweep_parameters(rows: list[dict], sweep_keys: list[str] | None = None) -> t
     Returns
     -------
     params : list of str
-        Swept keys whose values are numbers taking at least two values, in row order.
+        Swept keys taking at least two values (numbers, or names such as a ``method``), in row order.
     metrics : list of str
         Numeric measurements (metrics, ``auto.*`` choices), at most ``MAX_CHART_METRICS``.
     """
@@ -250,12 +251,21 @@ def sweep_parameters(rows: list[dict], sweep_keys: list[str] | None = None) -> t
         vals = [_number(r.get(k)) for r in ok if k in r]
         return bool(vals) and all(v is not None and math.isfinite(v) for v in vals)
 
-    params = [k for k in swept if numeric(k) and len({_number(r[k]) for r in ok if k in r}) >= 2]
+    params = [k for k in swept if len({_key(r[k]) for r in ok if k in r}) >= 2]
     metrics = [k for k in keys if k not in _ROW_KEYS and k not in swept and _is_measurement(k) and numeric(k)]
     return params, metrics[:MAX_CHART_METRICS]
 
 
-def sweep_series(rows: list[dict], param: str, metric: str, swept: list[str]) -> dict[str, list[tuple[float, float]]]:
+def _key(value) -> str:
+    return json.dumps(value, sort_keys=True) if isinstance(value, (list, dict)) else str(value)
+
+
+def _is_numeric_param(rows: list[dict], param: str) -> bool:
+    vals = [_number(r[param]) for r in rows if param in r]
+    return bool(vals) and all(v is not None and math.isfinite(v) for v in vals)
+
+
+def sweep_series(rows: list[dict], param: str, metric: str, swept: list[str]) -> dict[str, list[tuple]]:
     """One line of ``metric`` against ``param`` per input and setting of the other swept keys.
 
     Parameters
@@ -270,10 +280,12 @@ def sweep_series(rows: list[dict], param: str, metric: str, swept: list[str]) ->
     Returns
     -------
     dict
-        Line label -> points ``(x, y)`` sorted by x. The label is the input's file name (when
-        there are several inputs) and ``key=value`` of the other swept keys; ``""`` for a single line.
+        Line label -> points ``(x, y)``: sorted by x for a numeric parameter, in row order with x the
+        value's text for any other (a ``method``). The label is the input's file name (when there are
+        several inputs) and ``key=value`` of the other swept keys; ``""`` for a single line.
     """
-    ok = [r for r in rows if r.get("status", "ok") == "ok" and param in r and metric in r]
+    ok = [r for r in rows if r.get("status", "ok") == "ok" and param in r and _number(r.get(metric)) is not None]
+    numeric = _is_numeric_param(ok, param)
     inputs = {str(r.get("input", "")) for r in ok}
     names = _short_names(sorted(inputs))
     lines: dict[str, list[tuple[float, float]]] = {}
@@ -282,8 +294,9 @@ def sweep_series(rows: list[dict], param: str, metric: str, swept: list[str]) ->
         if len(inputs) > 1:
             label.append(names[str(r.get("input", ""))])
         label += [f"{k}={r[k]}" for k in swept if k != param and k in r]
-        lines.setdefault(", ".join(label), []).append((float(_number(r[param])), float(_number(r[metric]))))
-    return {k: sorted(v) for k, v in lines.items()}
+        x = float(_number(r[param])) if numeric else _key(r[param])
+        lines.setdefault(", ".join(label), []).append((x, float(_number(r[metric]))))
+    return {k: sorted(v) for k, v in lines.items()} if numeric else lines
 
 
 def _sweep_keys_of(text: str) -> list[str] | None:
@@ -322,18 +335,34 @@ def _chart_png(rows, param, metrics, swept) -> bytes:
     from matplotlib.text import Text
 
     n = len(metrics)
-    fig = Figure(figsize=(_CHART_W * n, _CHART_H), dpi=_DPI, layout="constrained")
-    axes = fig.subplots(1, n, squeeze=False)[0]
+    ok = [r for r in rows if r.get("status", "ok") == "ok"]
+    numeric = _is_numeric_param(ok, param)
+    names = list(dict.fromkeys(_key(r[param]) for r in ok if param in r))
+    height = _CHART_H if numeric else max(_CHART_H, 0.9 + 0.2 * len(names))
+    fig = Figure(figsize=(_CHART_W * n, height), dpi=_DPI, layout="constrained")
+    axes = fig.subplots(1, n, squeeze=False, sharey=not numeric)[0]
     series = {}
     for ax, metric in zip(axes, metrics):
         series = sweep_series(rows, param, metric, swept)
         for i, (label, pts) in enumerate(series.items()):
-            xs, ys = zip(*pts)
-            ax.plot(xs, ys, marker="o", markersize=3, color=f"C{i % 10}", label=label or None)
-        xs_all = [x for pts in series.values() for x, _ in pts]
-        if xs_all and min(xs_all) > 0 and max(xs_all) / min(xs_all) >= 20:
-            ax.set_xscale("log")
-        ax.set_xlabel(param)
+            if numeric:
+                xs, ys = zip(*pts)
+                ax.plot(xs, ys, marker="o", markersize=3, color=f"C{i % 10}", label=label or None)
+            else:  # one bar per value of the parameter (a method...), one colour per line
+                bar = 0.8 / len(series)
+                at = {name: j for j, name in enumerate(names)}
+                ax.barh([at[x] + (i - (len(series) - 1) / 2) * bar for x, _ in pts], [y for _, y in pts],
+                        height=bar, color=f"C{i % 10}", label=label or None)
+        if numeric:
+            xs_all = [x for pts in series.values() for x, _ in pts]
+            if xs_all and min(xs_all) > 0 and max(xs_all) / min(xs_all) >= 20:
+                ax.set_xscale("log")
+            ax.set_xlabel(param)
+        else:
+            ax.set_yticks(range(len(names)), names, fontsize=7)
+            ax.tick_params(axis="y", labelleft=ax is axes[0])
+            if ax is axes[0]:
+                ax.invert_yaxis()  # the first value on top (the y axis is shared: invert it once)
         ax.set_title(metric, fontsize=10)
         ax.grid(True, alpha=0.3)
     if 1 < len(series) <= 12:  # the same lines in every panel: one legend under them
@@ -406,10 +435,12 @@ def _rows_table(rows: list[dict], header: list[str], run: Path, page_dir: Path) 
         for k in keys:
             v = r.get(k, "")
             if k == "input" and str(v) in names:
-                line.append(("html", f"<span title=\"{_e(v)}\">{_e(names[str(v)])}</span>"))
+                name = names[str(v)]
+                short = len(name) <= 2 * SHORT
+                line.append(("html", f"<span title=\"{_e(v)}\">{_e(name) if short else _breakable(name)}</span>", short))
             elif k == "outputs":
                 paths = v if isinstance(v, list) else [p for p in str(v).split(";") if p]
-                line.append(("html", "<br>".join(_file_link(Path(p), run, page_dir) for p in paths)))
+                line.append(("html", "<br>".join(_file_link(Path(p), run, page_dir) for p in paths), False))
             else:
                 line.append(v)
         cells.append(line)
@@ -418,8 +449,8 @@ def _rows_table(rows: list[dict], header: list[str], run: Path, page_dir: Path) 
 
 def _file_link(path: Path, run: Path, page_dir: Path) -> str:
     if _inside(path.resolve().parent, run.resolve()) and path.exists():
-        return f"<a href=\"{_href(path, page_dir)}\">{_e(path.resolve().relative_to(run.resolve()).as_posix())}</a>"
-    return f"<span title=\"{_e(path)}\">{_e(path.name)}</span>"
+        return f"<a href=\"{_href(path, page_dir)}\">{_breakable(path.resolve().relative_to(run.resolve()).as_posix())}</a>"
+    return f"<span title=\"{_e(path)}\">{_breakable(path.name)}</span>"
 
 
 def _short_names(paths: list[str]) -> dict[str, str]:
@@ -437,20 +468,31 @@ def _short_names(paths: list[str]) -> dict[str, str]:
 
 def _html_table(header: list, rows: list[list]) -> str:
     cut = len(rows) > MAX_TABLE_ROWS
-    head = "".join(f"<th>{_e(h)}</th>" for h in header)
+    head = "".join(f"<th>{_breakable(h)}</th>" for h in header)
     body = "\n".join("<tr>" + "".join(_cell(c) for c in row) + "</tr>" for row in rows[:MAX_TABLE_ROWS])
     note = f"<p class=\"note\">first {MAX_TABLE_ROWS} of {len(rows)} rows shown</p>" if cut else ""
     return f"<div class=\"scroll\"><table><thead><tr>{head}</tr></thead><tbody>\n{body}\n</tbody></table></div>{note}"
 
 
+SHORT = 16  # text cells up to this many characters never wrap
+
+
+def _breakable(text) -> str:
+    """Escaped text with break opportunities after ``_ / . , = -`` (long names wrap there, not mid-word)."""
+    import re
+
+    return re.sub(r"([_/.,=\-])", r"\1<wbr>", _e(text))
+
+
 def _cell(value) -> str:
-    if isinstance(value, tuple) and len(value) == 2 and value[0] == "html":  # built here, already escaped
-        return f"<td>{value[1]}</td>"
+    if isinstance(value, tuple) and value[0] == "html":  # ("html", markup built here and escaped, no-wrap)
+        return f"<td class=\"nw\">{value[1]}</td>" if value[2] else f"<td>{value[1]}</td>"
     if isinstance(value, list):
         value = ", ".join(str(v) for v in value)
     number = _number(value)
     if number is None:
-        return f"<td>{_e(value)}</td>"
+        text = str(value)
+        return f"<td class=\"nw\">{_e(text)}</td>" if len(text) <= SHORT else f"<td>{_breakable(text)}</td>"
     shown = format_number(number)
     full = str(value).strip()
     title = f" title=\"{_e(full)}\"" if shown != full else ""
