@@ -29,16 +29,10 @@ def cli() -> None:
 @click.option("--seed", default=0, show_default=True, type=int, help="Noise seed.")
 def demo(out_dir: str, mesh_path: str | None, noise: float, seed: int) -> None:
     """Add normal noise to a built-in mesh, denoise it with the three filters (parameters chosen from the noisy mesh alone), print a table."""
-    from .demo import run_demo
+    from .demo import demo_table, run_demo
 
     rows, path, n = run_demo(out_dir, mesh_path, noise, seed)
-    table = Table(title=f"{path.name} ({n} vertices), normal noise {noise:g} x bbox diagonal, seed {seed}; "
-                        "parameters chosen without the clean mesh")
-    for col in ("method", "parameters", "SNR (dB)", "time (ms)", "written to"):
-        table.add_column(col, justify="right" if col in ("SNR (dB)", "time (ms)") else "left")
-    for r in rows:
-        table.add_row(r["method"], r["params"], f"{r['snr_db']:.2f}", f"{r['ms']:.1f}" if r["ms"] else "-", r["file"].name)
-    console.print(table)
+    console.print(demo_table(rows, path, n, noise, seed, width=console.width))
     console.print(f"meshes written to {click.format_filename(out_dir)}/")
 
 

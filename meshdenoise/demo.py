@@ -42,3 +42,33 @@ def run_demo(out_dir: str | Path, mesh_path: str | Path | None = None, noise: fl
                                                        for k, v in params.items() if k in SHOWN),
                      "snr_db": snr(V, Y), "ms": ms, "file": save_arrays(out / f"{name}.ply", Y, F)})
     return rows, path, V.shape[0]
+
+
+def demo_table(rows: list[dict], path: Path, n_vertices: int, noise: float, seed: int, width: int = 80):
+    """The demo's results as a rich ``Table``: title and caption never wrap inside a phrase.
+
+    Parameters
+    ----------
+    rows : list of dict
+        :func:`run_demo`'s rows.
+    path : Path
+        The mesh that was noised (its name goes in the title).
+    n_vertices : int
+        Its vertex count.
+    noise, seed
+        The noise amplitude (fraction of the bounding-box diagonal) and seed.
+    width : int
+        The console width: the table is made at least as wide as its title and caption, up to this.
+    """
+    from rich.table import Table
+    from rich.text import Text
+
+    title = f"{path.name}: {n_vertices:,} vertices"
+    caption = f"noise {noise:g} x bbox diagonal, seed {seed}; parameters from the noisy mesh alone"
+    table = Table(title=Text(title), caption=Text(caption), min_width=min(width, max(len(title), len(caption)) + 2))
+    for col in ("method", "parameters", "SNR (dB)", "time (ms)", "written to"):
+        table.add_column(col, justify="right" if col in ("SNR (dB)", "time (ms)") else "left")
+    for r in rows:
+        table.add_row(Text(r["method"]), Text(r["params"]), f"{r['snr_db']:.2f}", f"{r['ms']:.1f}" if r["ms"] else "-",
+                      Text(r["file"].name))
+    return table

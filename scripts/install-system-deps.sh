@@ -1,9 +1,9 @@
 #!/usr/bin/env bash
 # Installs the Debian packages meshdenoise needs, only when they are missing, so a second run is instant.
-#   libusb-1.0-0                      Open3D's Python module will not import without it
-#   libegl1 libgl1 libvulkan1
-#   mesa-vulkan-drivers               headless rendering with Open3D's OffscreenRenderer (Filament on Mesa's
-#                                     software Vulkan, lavapipe; libegl1/libgl1 pull libegl-mesa0/libglx-mesa0)
+#   libusb-1.0-0 libegl1 libgl1       Open3D's library links libusb-1.0.so.0, libEGL.so.1 and libGL.so.1, pymeshlab's
+#                                     libGL.so.1: neither imports without them (libegl1/libgl1 pull libegl-mesa0/libglx-mesa0)
+#   libvulkan1 mesa-vulkan-drivers    headless rendering with Open3D's OffscreenRenderer (Filament on Mesa's
+#                                     software Vulkan, lavapipe)
 #   chromium                          the report test opens the HTML report in headless Chromium
 #   python3-venv                      Debian's python3 cannot create a virtual environment without it
 #   libsuitesparse-dev, gcc,

@@ -14,8 +14,40 @@ from meshdenoise.shapes import grid, icosphere, torus
 MESH_KINDS = ("arrays", "meshset", "pymeshlab_mesh", "open3d")
 
 
+# Fixtures that load a third-party mesh: a test using one (directly, through another fixture, or by a
+# parameter naming it for request.getfixturevalue) is marked ``data`` at collection, so
+# ``pytest -m "not data"`` runs everything that needs no mesh. data_mesh_path() checks the mark.
+DATA_FIXTURES = frozenset({"elephant", "nefertiti", "elephant_with_holes", "nefertiti_batch"})
+
+_running = {"item": None}  # the test being set up or run (one per process, also under xdist)
+
+
+def pytest_collection_modifyitems(items):
+    for item in items:
+        params = getattr(getattr(item, "callspec", None), "params", {})
+        named = {v for v in params.values() if isinstance(v, str)}
+        if DATA_FIXTURES.intersection(getattr(item, "fixturenames", ())) or DATA_FIXTURES.intersection(named):
+            item.add_marker(pytest.mark.data)
+
+
+def pytest_runtest_setup(item):
+    _running["item"] = item
+
+
+def pytest_runtest_teardown(item):
+    _running["item"] = None
+
+
 def data_mesh_path(name: str):
-    """Path of a third-party mesh; skips with a reason on a clone without them, fails in CI."""
+    """Path of a third-party mesh; skips with a reason on a clone without them, fails in CI.
+
+    The calling test must carry the ``data`` marker (``@pytest.mark.data``, or a fixture of
+    ``DATA_FIXTURES``), so that ``-m data`` / ``-m "not data"`` select exactly the tests needing the meshes.
+    """
+    item = _running["item"]
+    if item is not None and item.get_closest_marker("data") is None:
+        pytest.fail(f"{item.nodeid} reads {name} from the data folder: mark it @pytest.mark.data "
+                    "(or add its fixture to DATA_FIXTURES in tests/conftest.py)")
     path = data_dir() / name
     if not path.is_file():
         reason = f"{name} not found in {data_dir()} (set MESHDENOISE_DATA to the folder of the paper's meshes)"

@@ -90,6 +90,7 @@ def test_reads_a_binary_ply_range_map_as_pymeshlab_does():
     np.testing.assert_array_equal(m.F, Fp)
 
 
+@pytest.mark.data
 @pytest.mark.parametrize("name", ["nefertiti.off", "elephant-50kv.off"])
 def test_reads_the_papers_meshes_as_pymeshlab_does(name):
     path = data_mesh_path(name)

@@ -7,6 +7,7 @@ import json
 import re
 import shutil
 import subprocess
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -31,32 +32,61 @@ CHECKER = """<script>
     var imgs = Array.prototype.slice.call(document.images);
     imgs.forEach(function (img) { if (!img.complete || img.naturalWidth === 0) problems.push("image not loaded: " + img.src); });
     var pre = document.createElement("pre"); pre.id = "page-check";
-    pre.textContent = JSON.stringify({images: imgs.length, problems: problems});
+    pre.textContent = JSON.stringify({images: imgs.length, problems: problems,
+                                      width: document.documentElement.scrollWidth, viewport: window.innerWidth});
     document.body.appendChild(pre);
   });
 })();
 </script>"""
 
 
-def chromium_check(page, tmp_path) -> dict:
-    """Open a copy of ``page`` (same folder, so relative links hold) with the checker in headless Chromium."""
+WINDOW = (1280, 900)  # the window the report must fit without horizontal overflow
+
+
+def _chromium() -> str:
     exe = shutil.which("chromium") or shutil.which("chromium-browser")
     if exe is None:
         pytest.fail("headless Chromium is needed to check the report: install the Debian package 'chromium' "
                     "(scripts/install-system-deps.sh does, and `make test` runs it)")
+    return exe
+
+
+def _chromium_cmd(tmp_path) -> list[str]:
+    return [_chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+            "--disable-background-networking", "--disable-component-update", "--disable-sync", "--hide-scrollbars",
+            f"--window-size={WINDOW[0]},{WINDOW[1]}", f"--user-data-dir={tmp_path / 'chromium-profile'}",
+            "--virtual-time-budget=10000"]
+
+
+def chromium_check(page, tmp_path) -> dict:
+    """Open a copy of ``page`` (same folder, so relative links hold) with the checker in headless Chromium.
+
+    Returns the number of images, the problems found, the page's scroll width and the window's width (px).
+    """
     probe = page.with_name(".check-" + page.name)
     probe.write_text(page.read_text(encoding="utf-8").replace("<head>", "<head>" + CHECKER, 1), encoding="utf-8")
-    cmd = [exe, "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-           "--disable-background-networking", "--disable-component-update", "--disable-sync",
-           f"--user-data-dir={tmp_path / 'chromium-profile'}", "--virtual-time-budget=10000",
-           "--dump-dom", probe.resolve().as_uri()]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
+    proc = subprocess.run(_chromium_cmd(tmp_path) + ["--dump-dom", probe.resolve().as_uri()],
+                          capture_output=True, text=True, timeout=120)
     probe.unlink()
     found = re.search(r'<pre id="page-check">(.*?)</pre>', proc.stdout, re.S)
     assert found, f"Chromium gave no page check (exit {proc.returncode}): {proc.stderr[-2000:]}"
     import html
 
-    return json.loads(html.unescape(found.group(1)))
+    result = json.loads(html.unescape(found.group(1)))
+    assert result.pop("viewport") == WINDOW[0]  # the window really was 1280 px wide
+    return result
+
+
+def screenshot(page, png, tmp_path) -> tuple[int, int]:
+    """A screenshot of ``page`` in the 1280-pixel window; returns the PNG's (width, height) from its header."""
+    import struct
+
+    proc = subprocess.run(_chromium_cmd(tmp_path) + [f"--screenshot={png}", page.resolve().as_uri()],
+                          capture_output=True, text=True, timeout=120)
+    assert png.is_file(), f"no screenshot (exit {proc.returncode}): {proc.stderr[-2000:]}"
+    head = png.read_bytes()[:24]
+    assert head[:8] == b"\x89PNG\r\n\x1a\n"
+    return struct.unpack(">II", head[16:24])
 
 
 @pytest.fixture
@@ -90,27 +120,153 @@ def run_dir(tmp_path):
 def test_report_tables_are_escaped_and_complete(run_dir):
     page = write_report(run_dir)
     text = page.read_text(encoding="utf-8")
+    assert "<wbr>" in text  # break opportunities in long names, not text: compare without them
+    text = text.replace("<wbr>", "")
     assert page == run_dir / "report.html"
     assert "<script>alert(1)</script>" not in text and "&lt;script&gt;alert(1)&lt;/script&gt;" in text
     assert "a&amp;b &quot;q&quot;" in text
-    assert '<td class="num">31.25</td>' in text and "<td>sobolev</td>" in text
+    assert '<td class="num">31.25</td>' in text and '<td class="nw">sobolev</td>' in text
     assert "<th>snr.db</th>" in text and '<td class="num">20.5</td>' in text  # nested JSON flattened
-    assert "<td>Vaillant-Tenzer 2022</td>" in text
+    assert "<td>Vaillant-Tenzer 2022</td>" in text  # 21 characters: may wrap
     assert 'src="renders/before%20after%20%231.png"' in text and 'src="snr%20%C3%A9.png"' in text
     assert 'href="sobolev.ply"' in text
     assert "<script" not in text.replace("&lt;script", "")  # the page itself runs no script
 
 
+@pytest.mark.parametrize("value, shown", [
+    (44.07087922224201, "44.07"), (0.10840000000000001, "0.1084"), (28088, "28088"), (1e-07, "1e-07"),
+    (-3.14159e-5, "-3.142e-05"), (123456.789, "123457"), (0.0, "0"), (float("inf"), "inf"), (True, "True"),
+    ("12.30", "12.3"), ("mu=1", "mu=1"), ("", ""), ("7", "7")])
+def test_format_number_keeps_four_significant_digits(value, shown):
+    from meshdenoise.report import format_number
+
+    assert format_number(value) == shown
+    number = value if isinstance(value, (int, float)) and not isinstance(value, bool) else None
+    if number is not None and number != 0 and abs(number) < 1e4 and np.isfinite(number):
+        assert abs(float(shown) - number) <= 0.5e-3 * abs(number)  # within half a unit of the 4th digit
+
+
+def _pipeline_run(tmp_path):
+    """A real two-input sweep through `meshdenoise run`: inputs sharing a file name, mu and iterations swept."""
+    from click.testing import CliRunner
+
+    from meshdenoise.cli import cli
+    from meshdenoise.io import save_mesh
+    from meshdenoise.noise import add_normal_noise
+
+    for folder, seed in (("a", 0), ("b", 1)):
+        V, F = icosphere(2)
+        (tmp_path / folder).mkdir()
+        save_mesh(tmp_path / folder / "Noisy.ply", add_normal_noise((V, F), rho=0.01, seed=seed)[0], F)
+    pipeline = tmp_path / "sweep <b>.yaml"
+    pipeline.write_text(
+        "description: 'a <b>bold</b> & \"quoted\" sweep'\n"
+        "inputs: ['a/Noisy.ply', 'b/Noisy.ply']\n"
+        f"output_dir: {tmp_path / 'out'}\n"
+        "steps:\n"
+        "  - add_noise: {rho: 0.005, relative: true, seed: 0, label: clean}\n"
+        "  - taubin: {iterations: '${iterations}', lam: '${lam}'}\n"
+        "  - metrics: {reference: {before: clean}, metrics: [snr, normal_error_deg]}\n"
+        "  - save: {path: '{stem}_{index}_{setting}.ply'}\n"
+        "sweep: {lam: [0.25, 0.5], iterations: [1, 3, 10]}\n")
+    res = CliRunner().invoke(cli, ["run", str(pipeline), "--serial"])
+    assert res.exit_code == 0, res.output
+    return tmp_path / "out", pipeline
+
+
+def test_pipeline_report_is_one_rounded_table_with_a_chart_per_swept_parameter(tmp_path):
+    out, pipeline = _pipeline_run(tmp_path)
+    rows = json.loads((out / "results.json").read_text())
+    assert len(rows) == 12
+    page = write_report(out, pipeline=pipeline)
+    text = page.read_text(encoding="utf-8")
+    # one table: the CSV's rows, the JSON linked as the same rows
+    assert text.count("<table>") == 1
+    assert 'href="results.json"' in text and "the same rows as results.csv" in text
+    # numbers to 4 significant digits, the full value as the tooltip
+    full = repr(rows[0]["snr"])
+    assert f'title="{full}">{rows[0]["snr"]:.4g}</td>' in text
+    assert not re.search(r">-?\d+\.\d{5,}<", text)  # no long decimals left in any cell
+    # inputs by their shortest distinguishing path, outputs as links inside the run folder
+    assert ">a/Noisy.ply</span>" in text and ">b/Noisy.ply</span>" in text
+    from urllib.parse import quote
+
+    for row in rows:
+        (output,) = row["outputs"]
+        assert f'href="{quote(Path(output).name)}">{Path(output).name}</a>' in text
+    # the pipeline text, escaped
+    assert "a &lt;b&gt;bold&lt;/b&gt; &amp; &quot;quoted&quot; sweep" in text and "<b>bold" not in text
+    assert "sweep &lt;b&gt;.yaml" in text
+    # one chart per swept numeric parameter, drawn in the page
+    charts = re.findall(r'<img src="data:image/png;base64,[^"]+" alt="([^"]+)"', text)
+    assert charts == ["snr, normal_error_deg against lam", "snr, normal_error_deg against iterations"]
+
+
+def test_sweep_series_against_the_rows():
+    from meshdenoise.report import sweep_parameters, sweep_series
+
+    rows = [{"input": f"/d/{d}/Noisy.ply", "lam": lam, "iterations": k, "snr": 10 * lam + k + (d == "b"),
+             "auto.sobolev.mu": 2.0, "vertices": 162, "faces": 320, "seconds": 0.01, "status": "ok"}
+            for d in ("a", "b") for lam in (0.5, 0.25) for k in (3, 1)]
+    rows.append({"input": "/d/a/Noisy.ply", "lam": 0.75, "iterations": 1, "status": "failed", "error": "x"})
+    params, metrics = sweep_parameters(rows)
+    assert params == ["lam", "iterations"] and metrics == ["snr", "auto.sobolev.mu"]
+    assert sweep_parameters(rows, ["iterations"]) == (["iterations"], ["snr", "auto.sobolev.mu"])
+    series = sweep_series(rows, "iterations", "snr", ["lam", "iterations"])
+    expected = {f"{d}/Noisy.ply, lam={lam}": [(1.0, 10 * lam + 1 + (d == "b")), (3.0, 10 * lam + 3 + (d == "b"))]
+                for d in ("a", "b") for lam in (0.5, 0.25)}
+    assert series == expected  # failed row left out, points sorted by x
+    one = [r for r in rows if r["input"] == "/d/a/Noisy.ply" and r["lam"] == 0.5]
+    assert sweep_series(one, "iterations", "snr", ["iterations"]) == {"": [(1.0, 6.0), (3.0, 8.0)]}
+
+
+def test_a_swept_method_is_charted_by_name_in_row_order():
+    from meshdenoise.report import sweep_parameters, sweep_series
+
+    rows = [{"input": "/m/bunny.obj", "method": m, "snr": s, "status": "ok"}
+            for m, s in (("sobolev", 49.25), ("heat", 46.86), ("open3d.filter_smooth_taubin", 42.44))]
+    assert sweep_parameters(rows) == (["method"], ["snr"])
+    assert sweep_series(rows, "method", "snr", ["method"]) == {
+        "": [("sobolev", 49.25), ("heat", 46.86), ("open3d.filter_smooth_taubin", 42.44)]}
+
+
+def test_report_fits_1280_pixels_in_chromium(tmp_path):
+    """A pipeline run and a folder with a very wide table: no horizontal overflow; screenshot of each."""
+    out, pipeline = _pipeline_run(tmp_path)
+    page = write_report(out, pipeline=pipeline)
+    assert chromium_check(page, tmp_path) == {"images": 2, "problems": [], "width": WINDOW[0]}
+    assert screenshot(page, tmp_path / "pipeline-report.png", tmp_path)[0] == WINDOW[0]
+    wide = tmp_path / "wide"
+    wide.mkdir()
+    with (wide / "results.csv").open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow([f"a_rather_long_column_name_{i}" for i in range(30)])
+        for r in range(5):
+            w.writerow([f"{np.pi * 10 ** (r - 2) * (i + 1)!r}" for i in range(29)] + ["x" * 400])
+    (wide / "notes.yaml").write_text("steps: [" + ", ".join(["sobolev"] * 200) + "]\n")
+    page = write_report(wide)
+    assert chromium_check(page, tmp_path)["width"] == WINDOW[0]
+    assert screenshot(page, tmp_path / "wide-report.png", tmp_path)[0] == WINDOW[0]
+
+
+def test_the_width_check_sees_an_overflow(tmp_path):
+    """The measurement is real: a page with a 2000-pixel block is reported wider than the window."""
+    page = tmp_path / "wide.html"
+    page.write_text('<!DOCTYPE html><html><head><meta charset="utf-8"></head><body>'
+                    '<div style="width:2000px">x</div></body></html>')
+    assert chromium_check(page, tmp_path)["width"] >= 2000
+
+
 def test_report_opens_in_chromium_without_errors(run_dir, tmp_path):
     page = write_report(run_dir)
     result = chromium_check(page, tmp_path)
-    assert result == {"images": 2, "problems": []}
+    assert result == {"images": 2, "problems": [], "width": WINDOW[0]}
 
 
 def test_embedded_report_opens_alone(run_dir, tmp_path):
     page = write_report(run_dir, embed=True, out=tmp_path / "alone.html")
     assert "data:image/png;base64," in page.read_text()
-    assert chromium_check(page, tmp_path) == {"images": 2, "problems": []}
+    assert chromium_check(page, tmp_path) == {"images": 2, "problems": [], "width": WINDOW[0]}
 
 
 def test_chromium_check_catches_a_missing_image(run_dir, tmp_path):
@@ -127,12 +283,21 @@ def test_report_bad_input(tmp_path):
     (tmp_path / "run").mkdir()
     with pytest.raises(ValueError, match="outside"):
         write_report(tmp_path / "run", out=tmp_path / "elsewhere.html")
+    with pytest.raises(ValueError, match="pipeline .* is not a file"):
+        write_report(tmp_path / "run", pipeline=tmp_path / "missing.yaml")
     (tmp_path / "run" / "bad.json").write_text("{not json")
     text = write_report(tmp_path / "run").read_text()
     assert "cannot be read as a table" in text and "{not json" in text
 
 
-def test_report_cli(run_dir):
+def test_a_csv_and_json_with_different_rows_are_both_shown(tmp_path):
+    (tmp_path / "results.csv").write_text("a,b\n1,2\n")
+    (tmp_path / "results.json").write_text(json.dumps([{"a": 1, "b": 2}, {"a": 3, "b": 4}]))
+    text = write_report(tmp_path).read_text()
+    assert text.count("<table>") == 2
+
+
+def test_report_cli(run_dir, tmp_path):
     from click.testing import CliRunner
 
     from meshdenoise.cli import cli
@@ -140,3 +305,8 @@ def test_report_cli(run_dir):
     res = CliRunner().invoke(cli, ["report", str(run_dir)])
     assert res.exit_code == 0, res.output
     assert (run_dir / "report.html").is_file() and "wrote" in res.output
+    pipeline = tmp_path / "p.yaml"
+    pipeline.write_text("steps: [sobolev]  # <i>\n")
+    res = CliRunner().invoke(cli, ["report", str(run_dir), "--pipeline", str(pipeline)])
+    assert res.exit_code == 0, res.output
+    assert "steps: [sobolev]  # &lt;i&gt;" in (run_dir / "report.html").read_text()

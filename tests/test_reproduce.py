@@ -169,6 +169,7 @@ def test_timing_cross_check_catches_a_wrong_search(nefertiti_batch):
         time_best(r, batch, budget=0.01)
 
 
+@pytest.mark.data
 def test_full_run_on_nefertiti_writes_every_file(tmp_path):
     data = data_mesh_path("nefertiti.off").parent
     rows = run_reproduction(data, tmp_path, seeds=1, meshes=["nefertiti"], quick=True)

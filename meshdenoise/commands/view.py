@@ -177,11 +177,13 @@ def render(before, after, reference, png, size, view, error_mode, vmax, percenti
 @click.command()
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--embed", is_flag=True, help="Put the pictures inside the page (it can then be moved alone).")
-def report(run_dir, embed):
-    """Write RUN_DIR/report.html: the results tables, plots and renders of a run (static, no server)."""
+@click.option("--pipeline", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="The run's pipeline file, shown in the page (run does not copy it into RUN_DIR).")
+def report(run_dir, embed, pipeline):
+    """Write RUN_DIR/report.html: the pipeline, one results table, a chart per swept parameter, plots and renders."""
     from ..report import write_report
 
-    path = write_report(run_dir, embed=embed)
+    path = write_report(run_dir, embed=embed, pipeline=pipeline)
     click.echo(f"wrote {path}")
     sys.stdout.flush()
 
