@@ -279,3 +279,52 @@ def test_render_step_names_are_checked_before_running(tmp_path):
     p = _write(tmp_path, "inputs: sphere.ply\nsteps:\n  - render: {path: a.png, mehses: [input]}\n")
     result = _run("run", p)
     assert result.exit_code == 2 and "did you mean 'meshes'" in result.output
+
+
+# --- pipeline state: arrays and attributes, a MeshSet only around pymeshlab steps -------------------
+def test_mesh_state_round_trips_attributes_through_a_meshset():
+    from meshdenoise.pipeline.state import MeshState
+
+    V, F = icosphere(1)
+    rng = np.random.default_rng(0)
+    vsel = rng.random(len(V)) < 0.3
+    fsel = rng.random(len(F)) < 0.3
+    state = MeshState(V, F, rng.random((len(V), 4)), rng.random((len(F), 4)), rng.random(len(V)), rng.random(len(F)), vsel, fsel)
+    back = MeshState.from_meshset(state.meshset())
+    np.testing.assert_array_equal(back.V, V)
+    np.testing.assert_array_equal(back.F, F)
+    np.testing.assert_array_equal(back.vertex_selection, vsel)
+    np.testing.assert_array_equal(back.face_selection, fsel)
+    np.testing.assert_allclose(back.vertex_quality, state.vertex_quality)
+    np.testing.assert_allclose(back.face_quality, state.face_quality)
+    # MeshLab stores colours as 8-bit
+    np.testing.assert_allclose(back.vertex_colors, state.vertex_colors, atol=1 / 255)
+    np.testing.assert_allclose(back.face_colors, state.face_colors, atol=1 / 255)
+    # our filter keeps every attribute (same vertices), and drops the cached MeshSet
+    moved = back.with_vertices(V * 2)
+    assert moved._meshset is None and moved.vertex_selection is back.vertex_selection
+
+
+def test_pipeline_selection_and_quality_survive_our_filters(tmp_path):
+    """pymeshlab selects, our filter moves only the selection, a later pymeshlab step still sees quality."""
+    V, F = icosphere(2)
+    Vn, _ = md.add_normal_noise((V, F), rho=0.02, seed=1)
+    save_mesh(tmp_path / "s.ply", Vn, F)
+    p = _write(tmp_path, f"""inputs: s.ply
+output_dir: {tmp_path / 'out'}
+steps:
+  - compute_scalar_by_function_per_vertex: {{q: "x"}}
+  - compute_selection_by_condition_per_vertex: {{condselect: "x > 0"}}
+  - sobolev: {{mu: 1, region: selection}}
+  - compute_selection_by_condition_per_vertex: {{condselect: "q > 0"}}
+  - sobolev: {{mu: 1, pinned: selection}}
+  - save: {{path: r.ply}}
+""")
+    result = _run("run", p)
+    assert result.exit_code == 0, result.output
+    R = load_arrays(tmp_path / "out" / "r.ply")[0]
+    first = md.sobolev((Vn, F), mu=1, region=Vn[:, 0] > 0)[0]
+    # the quality q = x was set before the first filter moved the vertices: the selection is by the old x
+    second = md.sobolev((first, F), mu=1, pinned=Vn[:, 0] > 0)[0]
+    np.testing.assert_allclose(R, second, atol=1e-6)  # PLY stores float32
+    assert not np.allclose(second, first)

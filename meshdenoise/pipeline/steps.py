@@ -1,8 +1,8 @@
 """Pipeline steps: parsing and checking each step before anything runs, and running it.
 
-The working mesh of a pipeline is a ``pymeshlab.MeshSet``: pymeshlab filters apply to it
-directly, our filters change it in place keeping colours (see :mod:`meshdenoise.adapters`),
-Open3D operations go through arrays and back.
+The working mesh of a pipeline is a :class:`~meshdenoise.pipeline.state.MeshState` (arrays
+and attributes): our filters, Open3D operations and the built-in steps work on the arrays; a
+``pymeshlab.MeshSet`` is made only around pymeshlab steps.
 """
 
 from __future__ import annotations
@@ -20,6 +20,7 @@ import numpy as np
 from ..registry import Param, get_filter, list_filters
 from . import pymeshlab_steps
 from .errors import PipelineValidationError, where
+from .state import MeshState
 
 __all__ = ["Step", "parse_step", "run_step", "RunContext", "BUILTIN_STEPS", "OPEN3D_OPS", "step_names"]
 
@@ -310,88 +311,80 @@ def _named_key(message: str, given: dict) -> str | None:
 # --- running ------------------------------------------------------------------------------------
 @dataclass
 class RunContext:
-    """State of one input going through the steps."""
+    """State of one input going through the steps.
 
-    ms: Any  # pymeshlab.MeshSet
+    Attributes
+    ----------
+    state : MeshState
+        The working mesh (arrays and attributes); each step replaces it.
+    input_path : Path
+    input_arrays : tuple
+        ``(V, F)`` as loaded (the ``input`` of ``metrics`` and ``render``).
+    output_paths : dict
+        Path template of a ``save``/``render`` step -> the resolved output path (made by the plan).
+    snapshots : dict
+        Step label -> ``(V, F)`` before that step.
+    row : dict
+        The results row being filled.
+    staged, staged_files : list
+        Meshes ``(path, V, F, colors, binary)`` and files ``(temporary, path)`` written once every step succeeded.
+    echo : callable, optional
+        Called with a message (automatic parameters).
+    """
+
+    state: MeshState
     input_path: Path
-    input_arrays: tuple  # (V, F) as loaded
-    snapshots: dict = field(default_factory=dict)  # label -> (V, F) before that step
+    input_arrays: tuple
+    output_paths: dict = field(default_factory=dict)
+    snapshots: dict = field(default_factory=dict)
     row: dict = field(default_factory=dict)
-    staged: list = field(default_factory=list)  # (path, V, F, colors, binary) written at the end
-    staged_files: list = field(default_factory=list)  # (temporary, path) renamed at the end (images)
-    resolve_path: Any = None  # template -> Path
-    echo: Any = None  # callable(str) for messages (auto parameters)
+    staged: list = field(default_factory=list)
+    staged_files: list = field(default_factory=list)
+    echo: Any = None
 
-
-def meshset_from_arrays(V: np.ndarray, F: np.ndarray, colors: np.ndarray | None = None,
-                        selection: np.ndarray | None = None):
-    """A new MeshSet holding one mesh made of these arrays (colours RGBA in [0, 1] and a vertex
-    selection (n,) bool, as read from a MeshLab PLY, optional)."""
-    import pymeshlab
-
-    kwargs = {}
-    if colors is not None:
-        kwargs["v_color_matrix"] = np.asarray(colors, dtype=np.float64)
-    if selection is not None and np.any(selection):  # no setter in pymeshlab: select by a temporary quality
-        kwargs["v_scalar_array"] = np.asarray(selection, dtype=np.float64)
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=np.asarray(F, dtype=np.int32).reshape(-1, 3), **kwargs))
-    if "v_scalar_array" in kwargs:
-        ms.apply_filter("compute_selection_by_condition_per_vertex", condselect="q > 0.5")
-        ms.apply_filter("compute_scalar_by_function_per_vertex", q="0")  # the quality a new mesh has
-    return ms
-
-
-def current_arrays(ms) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """``(V, F, colours or None)`` of the MeshSet's current mesh (compacted first)."""
-    m = ms.current_mesh()
-    if not m.is_compact():
-        m.compact()
-    colors = m.vertex_color_matrix() if m.has_vertex_color() else None
-    return (np.array(m.vertex_matrix(), dtype=np.float64), np.array(m.face_matrix(), dtype=np.int64), colors)
-
-
-def _replace_mesh(ctx: RunContext, V, F, colors) -> None:
-    import pymeshlab
-
-    kwargs = {} if colors is None else {"v_color_matrix": colors}
-    ctx.ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=np.asarray(F, dtype=np.int32).reshape(-1, 3), **kwargs))
+    def resolve_path(self, template: str) -> Path:
+        """The output path the plan resolved for a ``save``/``render`` path template."""
+        try:
+            return Path(self.output_paths[template])
+        except KeyError:
+            raise KeyError(f"no output path was resolved for {template!r}: build the task with build_plan") from None
 
 
 def run_step(step: Step, ctx: RunContext) -> None:
-    """Apply one step to ``ctx.ms`` (in place) and record what it measured in ``ctx.row``."""
+    """Apply one step to ``ctx.state`` (replacing it) and record what it measured in ``ctx.row``."""
+    state = ctx.state
     if step.label:
-        V, F, _ = current_arrays(ctx.ms)
-        ctx.snapshots[step.label] = (V, F)
+        ctx.snapshots[step.label] = state.arrays()
     if step.kind == "ours":
         _run_ours(step, ctx)
     elif step.kind == "pymeshlab":
         params = {k: pymeshlab_steps.to_pymeshlab_value(step.name, k, v) for k, v in step.params.items()}
-        ctx.ms.apply_filter(step.name, **params)
+        ms = state.meshset()
+        ms.apply_filter(step.name, **params)
+        ctx.state = MeshState.from_meshset(ms)
     elif step.kind == "open3d":
         _run_open3d(step, ctx)
     elif step.kind == "add_noise":
         from ..noise import add_normal_noise
 
-        V, _, _ = current_arrays(ctx.ms)
         rho = step.params["rho"]
         if step.params["relative"]:
-            rho *= float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
-        add_normal_noise(ctx.ms, rho=rho, seed=step.params["seed"])
+            rho *= float(np.linalg.norm(state.V.max(axis=0) - state.V.min(axis=0)))
+        V, _ = add_normal_noise(state.arrays(), rho=rho, seed=step.params["seed"])
+        ctx.state = state.with_vertices(V)
     elif step.kind == "metrics":
         _run_metrics(step, ctx)
     elif step.kind == "save":
-        V, F, colors = current_arrays(ctx.ms)
         path = ctx.resolve_path(step.params["path"])
-        ctx.staged.append((path, V, F, colors if step.params["colors"] else None, step.params["binary"]))
+        colors = state.vertex_colors if step.params["colors"] else None
+        ctx.staged.append((path, state.V, state.F, colors, step.params["binary"]))
         ctx.row.setdefault("outputs", []).append(str(path))
     elif step.kind == "render":
         from ..render import new_file_mode, render_comparison  # written separately; imported only when used
 
         p = step.params
-        V, F, _ = current_arrays(ctx.ms)
-        named = {"input": tuple(ctx.input_arrays[:2]), **{k: v[:2] for k, v in ctx.snapshots.items()}, "result": (V, F)}
-        path = Path(ctx.resolve_path(p["path"]))
+        named = {"input": tuple(ctx.input_arrays[:2]), **{k: v[:2] for k, v in ctx.snapshots.items()}, "result": state.arrays()}
+        path = ctx.resolve_path(p["path"])
         # staged like a saved mesh: drawn into a hidden file beside the target, renamed once every step succeeded
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
@@ -408,31 +401,44 @@ def run_step(step: Step, ctx: RunContext) -> None:
         raise AssertionError(step.kind)
 
 
+def _vertex_option(value: Any, state: MeshState, key: str) -> Any:
+    """``pinned``/``region`` for the array core: ``"selection"`` becomes the state's selection mask."""
+    if isinstance(value, list):
+        return np.asarray(value, dtype=np.int64)
+    if value == "selection":
+        if state.vertex_selection is None:
+            return np.zeros(state.n_vertices, dtype=bool)
+        return np.asarray(state.vertex_selection, dtype=bool)
+    return value
+
+
 def _run_ours(step: Step, ctx: RunContext) -> None:
     spec = get_filter(step.name)
+    state = ctx.state
     params = dict(step.params)
     options = {k: v for k, v in step.options.items() if k != "parameters"}
     for key in ("pinned", "region"):
-        if isinstance(options.get(key), list):
-            options[key] = np.asarray(options[key], dtype=np.int64)
+        if key in options:
+            options[key] = _vertex_option(options[key], state, key)
     if step.options.get("parameters") == "auto":
         from ..auto import choose_parameters  # written separately; imported only when used
 
-        V, F, _ = current_arrays(ctx.ms)
-        chosen = choose_parameters((V, F), method=step.name)
+        chosen = choose_parameters(state.arrays(), method=step.name)
         chosen = {**chosen, **params}  # values written in the pipeline win
         params = spec.resolve(chosen, step.where)
         for k, v in params.items():
             ctx.row[f"auto.{step.name}.{k}"] = v
         if ctx.echo:
             ctx.echo(f"{ctx.input_path.name}: {step.name} parameters chosen automatically: {params}")
-    spec.public(ctx.ms, **params, **options)
+    V, _ = spec.public(state.arrays(), **params, **options)
+    ctx.state = state.with_vertices(V)
 
 
 def _run_open3d(step: Step, ctx: RunContext) -> None:
     import open3d as o3d
 
-    V, F, colors = current_arrays(ctx.ms)
+    state = ctx.state
+    V, F, colors = state.V, state.F, state.vertex_colors
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F.astype(np.int32)))
     if colors is not None:
         mesh.vertex_colors = o3d.utility.Vector3dVector(colors[:, :3])
@@ -447,7 +453,7 @@ def _run_open3d(step: Step, ctx: RunContext) -> None:
         c2 = np.hstack([np.asarray(mesh.vertex_colors), np.ones((V2.shape[0], 1))])
         if colors is not None and V2.shape[0] == V.shape[0]:
             c2[:, 3] = colors[:, 3]  # Open3D has no alpha: keep the input's when vertices are unchanged
-    _replace_mesh(ctx, V2, F2, c2)
+    ctx.state = state.with_mesh(V2, F2, c2)
 
 
 def _run_metrics(step: Step, ctx: RunContext) -> None:
@@ -460,11 +466,10 @@ def _run_metrics(step: Step, ctx: RunContext) -> None:
         reference = ctx.snapshots[ref["before"]][:2]
     elif ref == "input":
         reference = tuple(ctx.input_arrays[:2])
-    else:
-        loaded = load_mesh(ctx.resolve_input(ref) if hasattr(ctx, "resolve_input") else ref)
+    else:  # a file, made absolute when the plan was checked
+        loaded = load_mesh(ref)
         reference = (loaded.V, loaded.F)
-    V, F, _ = current_arrays(ctx.ms)
-    values = compute_metrics(reference, (V, F), step.params["metrics"])
+    values = compute_metrics(reference, ctx.state.arrays(), step.params["metrics"])
     prefix = f"{step.label}." if step.label else ""
     for k, v in values.items():
         ctx.row[f"{prefix}{k}"] = v
