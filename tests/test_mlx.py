@@ -55,3 +55,51 @@ def test_produced_mlx_applied_by_pymeshlab_equals_our_runner(tmp_path):
     run_task(plan.tasks[0])
     got, _ = load_arrays(tmp_path / "out" / "o.ply")
     np.testing.assert_allclose(got, ms.current_mesh().vertex_matrix(), atol=1e-6)
+
+
+# --- the MeshLab name table: versioned data, checked against the installed pymeshlab ------------------
+def test_meshlab_table_agrees_with_installed_pymeshlab():
+    from importlib.metadata import version
+
+    from meshdenoise.pipeline.meshlab_names import FILTERS, PYMESHLAB_VERSION, table_differences
+
+    assert len(FILTERS) > 200
+    diff = table_differences()
+    assert not diff, (
+        f"the table was recorded with pymeshlab {PYMESHLAB_VERSION}, pymeshlab {version('pymeshlab')} is installed; "
+        "regenerate it (python -m meshdenoise.pipeline.meshlab_table -o meshdenoise/pipeline/meshlab_filters.json). "
+        "Differences:\n" + "\n".join(diff)
+    )
+
+
+def test_meshlab_table_file_is_what_the_generator_writes():
+    from importlib import resources
+
+    from meshdenoise.pipeline import meshlab_table
+    from meshdenoise.pipeline.meshlab_names import FILTERS, PYMESHLAB_VERSION, TABLE_FILE
+
+    text = resources.files("meshdenoise.pipeline").joinpath(TABLE_FILE).read_text(encoding="utf-8")
+    assert meshlab_table.to_json(FILTERS, PYMESHLAB_VERSION) == text
+    # one filter recorded afresh from pymeshlab's save_filter_script gives the stored entry
+    assert meshlab_table.record("apply_coord_taubin_smoothing") == FILTERS["apply_coord_taubin_smoothing"]
+    assert FILTERS["apply_coord_taubin_smoothing"]["meshlab"] == "Taubin Smooth"
+
+
+def test_meshlab_table_is_package_data():
+    import tomllib
+    from pathlib import Path
+
+    conf = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
+    assert "meshlab_filters.json" in conf["tool"]["setuptools"]["package-data"]["meshdenoise.pipeline"]
+
+
+def test_meshlab_table_check_reports_what_pymeshlab_lacks(monkeypatch):
+    from meshdenoise.pipeline import meshlab_names
+
+    fake = {
+        "no_such_filter": {"meshlab": "Nothing", "params": {}},
+        "apply_coord_taubin_smoothing": {"meshlab": "Taubin Smooth", "params": {"lambda_": {}, "mu": {}, "stepsmoothnum": {}, "selected": {}, "bogus": {}}},
+    }
+    monkeypatch.setattr(meshlab_names, "FILTERS", fake)
+    diff = "\n".join(meshlab_names.table_differences())
+    assert "'no_such_filter'" in diff and "'bogus'" in diff, diff

@@ -3,7 +3,7 @@
 MeshLab's GUI saves MeshLab's names ("Laplacian Smooth", ``stepSmoothNum``); pipelines
 use pymeshlab's (``apply_coord_laplacian_smoothing``, ``stepsmoothnum``). The table
 between them was recorded from pymeshlab's own ``save_filter_script``
-(:mod:`~meshdenoise.pipeline.meshlab_names`); a filter missing from it falls back to
+(``meshdenoise/pipeline/meshlab_filters.json``, read by :mod:`~meshdenoise.pipeline.meshlab_names`); a filter missing from it falls back to
 pymeshlab's rule (lower-cased MeshLab name, then pymeshlab's ``keys.txt`` renaming).
 
 Our own denoisers are written as ``<filter name="meshdenoise:sobolev">`` with
