@@ -344,3 +344,35 @@ def test_one_metrics_module_lists_every_metric_explicitly():
     imports = [n for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module and "quality_metrics" in n.module]
     assert not imports
     assert "METRICS" not in inspect.getsource(alias)
+
+
+def test_check_reports_every_problem_at_once_with_lines(tmp_path):
+    _sphere_file(tmp_path)
+    p = _write(tmp_path, f"""inputs: [s.ply, missing.ply]
+output_dir: {tmp_path / 'out'}
+colour: red
+steps:
+  - sobolv: {{mu: 1}}
+  - apply_coord_laplacian_smoothing: {{stepsmothnum: 3}}
+  - sobolev: {{mu: -1}}
+  - save: {{path: x.ply}}
+""")
+    result = _run("run", "--check", p)
+    assert result.exit_code == 2, result.output
+    out = result.output
+    for expected in (f"{p}:1: inputs: no such file 'missing.ply'", f"{p}:3: unknown key 'colour'",
+                     f"{p}:5: step 1 'sobolv': unknown step", f"{p}:6: step 2", "did you mean 'stepsmoothnum'",
+                     f"{p}:7: step 3 'sobolev'", "out of range", "5 problems; nothing was run"):
+        assert expected in out, out
+    assert out.count("error:") == 5, out
+    assert not (tmp_path / "out").exists()
+
+
+def test_problems_under_a_sweep_are_reported_once(tmp_path):
+    from meshdenoise.pipeline import PipelineValidationError, load_pipeline
+
+    _sphere_file(tmp_path)
+    p = _write(tmp_path, "inputs: s.ply\nsweep: {mu: [1, 2, 3]}\nsteps:\n  - sobolv: {mu: '${mu}'}\n  - heat: {tau: -1}\n")
+    with pytest.raises(PipelineValidationError) as info:
+        load_pipeline(p)
+    assert [line.split(": ")[1] for line in info.value.problems] == ["step 1 'sobolv'", "step 2 'heat'"]

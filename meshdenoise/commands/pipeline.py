@@ -50,7 +50,8 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
     try:
         plan = load_pipeline(pipeline, overrides=overrides, inputs=list(inputs) or None, output_dir=out_dir)
     except PipelineValidationError as exc:
-        _fail(str(exc), 2)
+        problems = getattr(exc, "problems", None)  # every problem --check (or a run) found, one line each
+        _fail("\nerror: ".join(problems) + f"\n{len(problems)} problems; nothing was run" if problems else str(exc), 2)
     n = len(plan.tasks)
     console.print(f"{pipeline}: {n} task(s) ({len(plan.inputs)} input(s) x {n // max(len(plan.inputs), 1)} setting(s)), "
                   f"outputs in {plan.output_dir}", highlight=False)

@@ -28,7 +28,7 @@ from .steps import Step, parse_step
 from .variables import substitute
 from .yamlsource import LineDict, LineList, line_of, load_yaml
 
-__all__ = ["Plan", "Task", "load_pipeline", "build_plan", "TOP_LEVEL_KEYS"]
+__all__ = ["Plan", "Task", "load_pipeline", "build_plan", "TOP_LEVEL_KEYS", "PipelineProblems"]
 
 TOP_LEVEL_KEYS = ("variables", "inputs", "output_dir", "steps", "sweep", "results", "description")
 
@@ -74,33 +74,50 @@ def _placeholders() -> dict[str, str]:
     return {"samples": samples, "data": str(data_dir())}
 
 
-def _expand_inputs(spec: Any, base: Path, at: str) -> list[Path]:
+def _expand_inputs(spec: Any, base: Path, at: str, problems: list[str] | None = None) -> list[Path]:
+    """Files named by ``inputs`` (a file, a glob or a list of them); with ``problems``, every bad item is reported there."""
     items = spec if isinstance(spec, list) else [spec]
     found: list[Path] = []
     for k, item in enumerate(items):
         line_at = where(at.split(":")[0], line_of(spec, k) if isinstance(spec, LineList) else None) if isinstance(spec, list) else at
-        if not isinstance(item, str):
-            raise PipelineValidationError(f"{line_at}: inputs: expected a file name or glob, got {item!r}")
-        text = item
-        for key, value in _placeholders().items():
-            text = text.replace("{" + key + "}", value)
-        path = Path(text).expanduser()
-        if not path.is_absolute():
-            path = base / path
-        if glob.has_magic(str(path)):
-            matches = sorted(Path(p) for p in glob.glob(str(path), recursive=True) if Path(p).is_file())
-            if not matches:
-                raise PipelineValidationError(f"{line_at}: inputs: no file matches {item!r} (looked for {path})")
-            found.extend(matches)
-        else:
-            if not path.is_file():
-                raise PipelineValidationError(f"{line_at}: inputs: no such file {item!r} ({path})")
-            found.append(path)
+        try:
+            found.extend(_expand_one(item, base, line_at))
+        except PipelineValidationError as exc:
+            if problems is None:
+                raise
+            problems.append(str(exc))
     return [p.resolve() for p in found]
+
+
+def _expand_one(item: Any, base: Path, line_at: str) -> list[Path]:
+    if not isinstance(item, str):
+        raise PipelineValidationError(f"{line_at}: inputs: expected a file name or glob, got {item!r}")
+    text = item
+    for key, value in _placeholders().items():
+        text = text.replace("{" + key + "}", value)
+    path = Path(text).expanduser()
+    if not path.is_absolute():
+        path = base / path
+    if glob.has_magic(str(path)):
+        matches = sorted(Path(p) for p in glob.glob(str(path), recursive=True) if Path(p).is_file())
+        if not matches:
+            raise PipelineValidationError(f"{line_at}: inputs: no file matches {item!r} (looked for {path})")
+        return matches
+    if not path.is_file():
+        raise PipelineValidationError(f"{line_at}: inputs: no such file {item!r} ({path})")
+    return [path]
 
 
 def _setting_text(setting: dict) -> str:
     return ",".join(f"{k}={v}" for k, v in setting.items())
+
+
+class PipelineProblems(PipelineValidationError):
+    """Several problems found in one pipeline: :attr:`problems` holds one line each (file:line: step: what)."""
+
+    def __init__(self, problems: list[str]):
+        self.problems = list(dict.fromkeys(problems))  # the same problem under several settings is said once
+        super().__init__("\n".join(self.problems))
 
 
 def build_plan(
@@ -112,7 +129,16 @@ def build_plan(
     inputs: list[str] | None = None,
     output_dir: str | Path | None = None,
 ) -> Plan:
-    """Check a parsed pipeline document and expand it into tasks. Raises :class:`PipelineValidationError`."""
+    """Check a parsed pipeline document and expand it into tasks.
+
+    Every problem that can be found is reported at once (top-level keys, inputs, each step);
+    checks that need earlier parts to be right (labels, output paths) run when those are.
+
+    Raises
+    ------
+    PipelineValidationError
+        A :class:`PipelineProblems` when there are several problems (one line each).
+    """
     if not isinstance(doc, dict):
         raise PipelineValidationError(f"{source}: a pipeline is a mapping with 'inputs' and 'steps', got {type(doc).__name__}")
     doc = doc if isinstance(doc, LineDict) else LineDict(doc)
@@ -120,68 +146,90 @@ def build_plan(
         doc.key_lines, doc.line = {}, 1
     import difflib
 
+    problems: list[str] = []
+
+    def problem(text: str) -> None:
+        problems.append(text)
+
     for key in doc:
         if key not in TOP_LEVEL_KEYS:
             hint = difflib.get_close_matches(str(key), TOP_LEVEL_KEYS, n=1)
             extra = f" (did you mean '{hint[0]}'?)" if hint else ""
-            raise PipelineValidationError(
-                f"{where(source, line_of(doc, key))}: unknown key '{key}'{extra}; the keys are {', '.join(TOP_LEVEL_KEYS)}"
-            )
+            problem(f"{where(source, line_of(doc, key))}: unknown key '{key}'{extra}; the keys are {', '.join(TOP_LEVEL_KEYS)}")
     variables = doc.get("variables") or {}
     if not isinstance(variables, dict):
-        raise PipelineValidationError(f"{where(source, line_of(doc, 'variables'))}: variables must be a mapping")
+        problem(f"{where(source, line_of(doc, 'variables'))}: variables must be a mapping")
+        variables = {}
     variables = dict(variables)
     overrides = dict(overrides or {})
     sweep = doc.get("sweep") or {}
     if not isinstance(sweep, dict):
-        raise PipelineValidationError(f"{where(source, line_of(doc, 'sweep'))}: sweep must be a mapping name: [values]")
+        problem(f"{where(source, line_of(doc, 'sweep'))}: sweep must be a mapping name: [values]")
+        sweep = {}
     sweep = {k: (v if isinstance(v, list) else [v]) for k, v in sweep.items() if k not in overrides}
-    for k, v in sweep.items():
+    for k, v in list(sweep.items()):
         if not v:
-            raise PipelineValidationError(f"{where(source, line_of(doc['sweep'], k))}: sweep: '{k}' has no values")
+            problem(f"{where(source, line_of(doc['sweep'], k))}: sweep: '{k}' has no values")
+            del sweep[k]
     variables.update(overrides)
 
+    input_paths: list[Path] = []
+    n_problems = len(problems)
     if inputs is not None:
-        input_paths = _expand_inputs(list(inputs), Path.cwd(), f"{source}: --input")
+        input_paths = _expand_inputs(list(inputs), Path.cwd(), f"{source}: --input", problems)
+    elif "inputs" not in doc:
+        problem(f"{source}: no 'inputs' (a file, a glob or a list) and no --input given")
     else:
-        if "inputs" not in doc:
-            raise PipelineValidationError(f"{source}: no 'inputs' (a file, a glob or a list) and no --input given")
-        input_paths = _expand_inputs(
-            substitute(doc["inputs"], variables, where(source, line_of(doc, "inputs"))),
-            base_dir,
-            where(source, line_of(doc, "inputs")),
-        )
-    if not input_paths:
-        raise PipelineValidationError(f"{where(source, line_of(doc, 'inputs'))}: inputs: the list is empty")
+        try:
+            spec = substitute(doc["inputs"], variables, where(source, line_of(doc, "inputs")))
+        except PipelineValidationError as exc:
+            problem(str(exc))
+        else:
+            input_paths = _expand_inputs(spec, base_dir, where(source, line_of(doc, "inputs")), problems)
+            if not input_paths and len(problems) == n_problems:
+                problem(f"{where(source, line_of(doc, 'inputs'))}: inputs: the list is empty")
 
     out = output_dir if output_dir is not None else doc.get("output_dir", f"out/{Path(source).stem}")
+    out_dir = Path()
     if not isinstance(out, (str, Path)):
-        raise PipelineValidationError(f"{where(source, line_of(doc, 'output_dir'))}: output_dir must be a folder name")
-    out_dir = Path(str(out)).expanduser().resolve()
+        problem(f"{where(source, line_of(doc, 'output_dir'))}: output_dir must be a folder name")
+    else:
+        out_dir = Path(str(out)).expanduser().resolve()
+
+    results = doc.get("results", "results")
+    if results is not None and not isinstance(results, str):
+        problem(f"{where(source, line_of(doc, 'results'))}: results must be a file stem")
 
     raw_steps = doc.get("steps")
-    if not isinstance(raw_steps, list) or not raw_steps:
-        raise PipelineValidationError(f"{where(source, line_of(doc, 'steps'))}: 'steps' must be a non-empty list")
-
+    steps_by_setting: list[list[Step]] = []
     settings = [dict(zip(sweep, values)) for values in itertools.product(*sweep.values())] if sweep else [{}]
+    if not isinstance(raw_steps, list) or not raw_steps:
+        problem(f"{where(source, line_of(doc, 'steps'))}: 'steps' must be a non-empty list")
+    else:
+        for setting in settings:
+            values = {**variables, **setting}
+            steps = []
+            before = len(problems)
+            for k, item in enumerate(raw_steps):
+                line = line_of(raw_steps, k)
+                try:
+                    item = substitute(item, values, where(source, line, f"step {k + 1}"))
+                    steps.append(parse_step(item, k + 1, source, line))
+                except PipelineValidationError as exc:
+                    problem(str(exc))
+            if len(problems) == before:
+                try:
+                    _check_labels(steps, base_dir)
+                except PipelineValidationError as exc:
+                    problem(str(exc))
+            steps_by_setting.append(steps)
+    if problems:
+        raise PipelineProblems(problems) if len(set(problems)) > 1 else PipelineValidationError(problems[0])
     tasks: list[Task] = []
-    steps_by_setting = []
-    for setting in settings:
-        values = {**variables, **setting}
-        steps = []
-        for k, item in enumerate(raw_steps):
-            line = line_of(raw_steps, k)
-            item = substitute(item, values, where(source, line, f"step {k + 1}"))
-            steps.append(parse_step(item, k + 1, source, line))
-        _check_labels(steps, base_dir)
-        steps_by_setting.append(steps)
     for s_index, setting in enumerate(settings):
         for inp in input_paths:
             tasks.append(Task(len(tasks), inp, setting, _setting_text(setting), steps_by_setting[s_index]))
     _resolve_outputs(tasks, out_dir, input_paths, source)
-    results = doc.get("results", "results")
-    if results is not None and not isinstance(results, str):
-        raise PipelineValidationError(f"{where(source, line_of(doc, 'results'))}: results must be a file stem")
     return Plan(source, input_paths, out_dir, tasks, results, variables, sweep)
 
 
