@@ -52,6 +52,8 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
     except PipelineValidationError as exc:
         problems = getattr(exc, "problems", None)  # every problem --check (or a run) found, one line each
         _fail("\nerror: ".join(problems) + f"\n{len(problems)} problems; nothing was run" if problems else str(exc), 2)
+    for note in plan.notes:
+        _note(note)
     n = len(plan.tasks)
     console.print(f"{pipeline}: {n} task(s) ({len(plan.inputs)} input(s) x {n // max(len(plan.inputs), 1)} setting(s)), "
                   f"outputs in {plan.output_dir}", highlight=False)
@@ -204,60 +206,88 @@ def info_command(mesh, as_json):
 
 
 def _write_text(path: str | None, text: str) -> None:
+    """Write ``text`` to stdout or atomically to ``path`` (its folder is made, as for every output); exit 2 when it cannot be."""
     if path is None:
         click.echo(text, nl=False)
         return
-    from ..io import atomic_path
+    from ..io import MeshFileError, atomic_path
 
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text(text, encoding="utf-8")
-    err_console.print(f"written {path}", highlight=False)
+    try:
+        with atomic_path(path) as tmp:
+            Path(tmp).write_text(text, encoding="utf-8")
+    except MeshFileError as exc:
+        _fail(str(exc), 2)
+    err_console.print(f"written {path}", highlight=False, markup=False)
+
+
+def _note(text: str) -> None:
+    err_console.print(f"note: {text}", highlight=False, markup=False)
+
+
+def _read_text(path: str) -> str:
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        _fail(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})", 2)
+    except OSError as exc:
+        _fail(f"{path}: cannot be read ({exc.strerror or exc})", 2)
 
 
 @click.command("mlx2yaml")
 @click.argument("script", type=click.Path(exists=True, dir_okay=False))
-@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False), help="Write here instead of stdout.")
-@click.option("--input", "input_glob", default="mesh.ply", show_default=True, help="The 'inputs' of the pipeline written.")
+@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False), help="Write here instead of stdout (its folder is made).")
+@click.option("--input", "input_glob", default=None,
+              help="The 'inputs' of the pipeline written (default: a placeholder you must set, or pass --input to run).")
 def mlx2yaml_command(script, output, input_glob):
     """Convert a MeshLab filter SCRIPT (.mlx) to a pipeline YAML (pymeshlab names)."""
     import yaml
 
     from ..pipeline.mlx import mlx_to_steps
+    from ..pipeline.schema import PLACEHOLDER_INPUT
 
+    notes: list[str] = []
     try:
-        steps = mlx_to_steps(Path(script).read_text(encoding="utf-8"), script)
+        steps = mlx_to_steps(_read_text(script), script, warn=notes.append)
     except ValueError as exc:
         _fail(str(exc), 2)
-    doc = {"inputs": input_glob, "steps": steps + [{"save": {"path": "{stem}_out.ply"}}]}
-    _write_text(output, f"# converted from {Path(script).name} by meshdenoise mlx2yaml\n" + yaml.safe_dump(doc, sort_keys=False))
+    for text in notes:
+        _note(text)
+    if input_glob is None:
+        inputs = (f"inputs: {PLACEHOLDER_INPUT}   # set your mesh file(s): a file, a glob or a list "
+                  "(or give meshdenoise run --input FILE)\n")
+        _note(f"the pipeline's inputs are a placeholder ({PLACEHOLDER_INPUT}): set them, or run it with --input FILE")
+    else:
+        inputs = yaml.safe_dump({"inputs": input_glob}, sort_keys=False)
+    body = yaml.safe_dump({"steps": steps + [{"save": {"path": "{stem}_out.ply"}}]}, sort_keys=False)
+    _write_text(output, f"# converted from {Path(script).name} by meshdenoise mlx2yaml\n" + inputs + body)
 
 
 @click.command("yaml2mlx")
 @click.argument("pipeline", type=click.Path(exists=True, dir_okay=False))
-@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False), help="Write here instead of stdout.")
-@click.option("--skip-other", is_flag=True, help="Leave out steps with no filter-script form (save, metrics, open3d.*).")
+@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False), help="Write here instead of stdout (its folder is made).")
+@click.option("--skip-other", is_flag=True, help="Leave out steps with no filter-script form (metrics, render, add_noise, open3d.*); save is always left out.")
 def yaml2mlx_command(pipeline, output, skip_other):
     """Convert the steps of a PIPELINE YAML to a MeshLab filter script (.mlx)."""
     from ..pipeline.errors import PipelineValidationError
     from ..pipeline.mlx import steps_to_mlx
-    from ..pipeline.yamlsource import load_yaml
+    from ..pipeline.yamlsource import line_of, load_yaml
 
     try:
-        doc = load_yaml(Path(pipeline).read_text(encoding="utf-8"), pipeline)
+        doc = load_yaml(_read_text(pipeline), pipeline)
     except PipelineValidationError as exc:
         _fail(str(exc), 2)
     steps = doc.get("steps") if isinstance(doc, dict) else None
     if not isinstance(steps, list):
         _fail(f"{pipeline}: no 'steps' list", 2)
-    if skip_other:
-        from ..pipeline.steps import BUILTIN_STEPS
-
-        steps = [s for s in steps if (s if isinstance(s, str) else next(iter(s))) not in BUILTIN_STEPS
-                 and not (s if isinstance(s, str) else next(iter(s))).startswith("open3d.")]
+    notes: list[str] = []
     try:
-        text = steps_to_mlx(steps)
+        text = steps_to_mlx(steps, skip_other=skip_other, notes=notes)
     except ValueError as exc:
-        _fail(f"{pipeline}: {exc}", 2)
+        index = getattr(exc, "index", None)  # the step's position, for its line
+        line = line_of(steps, index - 1) if index else None
+        _fail(f"{pipeline}{':' + str(line) if line else ''}: {exc}", 2)
+    for note in notes:
+        _note(f"{pipeline}: {note}")
     _write_text(output, text)
 
 

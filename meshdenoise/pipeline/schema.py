@@ -28,7 +28,10 @@ from .steps import Step, parse_step
 from .variables import substitute
 from .yamlsource import LineDict, LineList, line_of, load_yaml
 
-__all__ = ["Plan", "Task", "load_pipeline", "build_plan", "TOP_LEVEL_KEYS", "PipelineProblems"]
+__all__ = ["Plan", "Task", "load_pipeline", "build_plan", "TOP_LEVEL_KEYS", "PipelineProblems", "PLACEHOLDER_INPUT"]
+
+# what ``mlx2yaml`` writes as the inputs when none is given: --check says to set it
+PLACEHOLDER_INPUT = "SET-YOUR-MESH.ply"
 
 TOP_LEVEL_KEYS = ("variables", "inputs", "output_dir", "steps", "sweep", "results", "description")
 
@@ -56,6 +59,11 @@ class Plan:
     results: str | None
     variables: dict
     sweep: dict
+
+    @property
+    def notes(self) -> list[str]:
+        """Things worth telling about the pipeline (MeshLab GUI names used...), each once."""
+        return list(dict.fromkeys(n for t in self.tasks for s in t.steps for n in s.notes))
 
     @property
     def writes_results(self) -> bool:
@@ -92,6 +100,11 @@ def _expand_inputs(spec: Any, base: Path, at: str, problems: list[str] | None = 
 def _expand_one(item: Any, base: Path, line_at: str) -> list[Path]:
     if not isinstance(item, str):
         raise PipelineValidationError(f"{line_at}: inputs: expected a file name or glob, got {item!r}")
+    if item == PLACEHOLDER_INPUT:
+        raise PipelineValidationError(
+            f"{line_at}: inputs: {item!r} is the placeholder mlx2yaml writes: set your mesh file(s) there "
+            "(a file, a glob or a list), or give run --input FILE"
+        )
     text = item
     for key, value in _placeholders().items():
         text = text.replace("{" + key + "}", value)

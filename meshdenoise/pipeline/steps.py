@@ -74,6 +74,7 @@ class Step:
     source: str
     line: int | None
     options: dict = field(default_factory=dict)  # pinned / region / preserve_volume / parameters
+    notes: list = field(default_factory=list)  # things worth telling (a MeshLab GUI name was used...)
 
     @property
     def where(self) -> str:
@@ -289,14 +290,17 @@ def _parse(name, given, index, label, source, line, at_param) -> Step:
         return Step(index, name, "metrics", _check_metrics(given, at), label, source, line)
     if name == "render":
         return Step(index, name, "render", _check_render(given, at), label, source, line)
-    if name in pymeshlab_steps.filter_names():
+    from .mlx import gui_names  # MeshLab's GUI names ("Taubin Smooth", "stepSmoothNum") are accepted, with a note
+
+    canonical, given, renamed = gui_names(name, given)
+    if canonical in pymeshlab_steps.filter_names():
         try:
-            params = pymeshlab_steps.check_parameters(name, given, at)
+            params = pymeshlab_steps.check_parameters(canonical, given, at)
         except ValueError as exc:
             key = _named_key(str(exc), given)
             msg = str(exc) if key is None else str(exc).replace(at, at_param(key), 1)
             raise PipelineValidationError(msg) from None
-        return Step(index, name, "pymeshlab", params, label, source, line)
+        return Step(index, canonical, "pymeshlab", params, label, source, line, notes=[f"{at}: {n}" for n in renamed])
     _ = bad_key
     raise _unknown_step(name, at)
 
