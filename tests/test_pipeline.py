@@ -376,3 +376,69 @@ def test_problems_under_a_sweep_are_reported_once(tmp_path):
     with pytest.raises(PipelineValidationError) as info:
         load_pipeline(p)
     assert [line.split(": ")[1] for line in info.value.problems] == ["step 1 'sobolv'", "step 2 'heat'"]
+
+
+# --- batches of inputs sharing a file name (a benchmark folder of pairs) ------------------------------------
+def _pairs(tmp_path, names=("Bunny", "Block", "Fandisk")):
+    V, F = icosphere(2)
+    for k, name in enumerate(names):
+        d = tmp_path / "bench" / name
+        d.mkdir(parents=True)
+        save_mesh(d / "Original.obj", V * (k + 1), F)
+        Vn, _ = md.add_normal_noise((V * (k + 1), F), rho=0.02, seed=k)
+        save_mesh(d / "Noisy.obj", Vn, F)
+    return V, F
+
+
+def test_benchmark_folder_of_pairs_runs_in_one_pipeline(tmp_path):
+    V, F = _pairs(tmp_path)
+    p = _write(tmp_path, f"""inputs: bench/*/Noisy.obj
+output_dir: {tmp_path / 'out'}
+steps:
+  - sobolev: {{mu: 1}}
+  - metrics: {{reference: "{{dir}}/Original.obj", metrics: [snr, mean_distance, normal_error_deg]}}
+  - save: {{path: "{{parent}}_clean.ply"}}
+""")
+    result = _run("run", p, "--serial")
+    assert result.exit_code == 0, result.output
+    rows = json.loads((tmp_path / "out" / "results.json").read_text())
+    for k, name in enumerate(("Block", "Bunny", "Fandisk")):  # inputs sorted by path
+        row = next(r for r in rows if f"/{name}/" in r["input"])
+        k_orig = ("Bunny", "Block", "Fandisk").index(name)
+        noisy = load_arrays(tmp_path / "bench" / name / "Noisy.obj")[0]
+        expected = md.snr((V * (k_orig + 1), F), md.sobolev((noisy, F), mu=1)[0])
+        assert row["snr"] == pytest.approx(expected, rel=1e-6)
+        assert (tmp_path / "out" / f"{name}_clean.ply").is_file()
+    # the terminal table names each input by its shortest distinguishing path, and cuts no column
+    for name in ("Block/Noisy.obj", "Bunny/Noisy.obj", "Fandisk/Noisy.obj", "mean_distance", "normal_error_deg"):
+        assert name in result.output, result.output
+    assert "…" not in result.output
+
+
+def test_per_input_reference_must_exist_for_every_input(tmp_path):
+    _pairs(tmp_path)
+    (tmp_path / "bench" / "Block" / "Original.obj").unlink()
+    p = _write(tmp_path, "inputs: bench/*/Noisy.obj\nsteps:\n  - metrics: {reference: '{dir}/Original.obj'}\n")
+    result = _run("run", "--check", p)
+    assert result.exit_code == 2
+    assert f"{p}:3: step 1 'metrics': reference: no such file" in result.output and "for input Block/Noisy.obj" in result.output
+
+
+def test_output_collision_names_two_different_tasks(tmp_path):
+    _pairs(tmp_path, ("Bunny", "Block"))
+    p = _write(tmp_path, f"inputs: bench/*/Noisy.obj\noutput_dir: {tmp_path / 'out'}\nsteps:\n  - save: {{path: '{{stem}}_clean.ply'}}\n")
+    result = _run("run", "--check", p)
+    assert result.exit_code == 2
+    text = " ".join(result.output.split())
+    assert "for both Block/Noisy.obj (step 1) and Bunny/Noisy.obj (step 1)" in text, text
+    assert "{parent}" in text
+
+
+def test_distinguishing_names():
+    from pathlib import Path
+
+    from meshdenoise.pipeline.schema import distinguishing_names
+
+    paths = [Path("/a/x/m.ply"), Path("/b/x/m.ply"), Path("/b/y/m.ply"), Path("/c/n.ply")]
+    assert [distinguishing_names(paths)[p] for p in paths] == ["a/x/m.ply", "b/x/m.ply", "y/m.ply", "n.ply"]
+    assert distinguishing_names([Path("/a/m.ply")]) == {Path("/a/m.ply"): "m.ply"}

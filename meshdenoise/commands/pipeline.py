@@ -82,21 +82,33 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
 
 
 def _print_rows(rows: list[dict]) -> None:
+    """The results as a table: inputs by their shortest distinguishing path, no column cut.
+
+    On a terminal, a cell too wide for its column is folded onto more lines; into a file or
+    a pipe the table gets the width it needs (nothing is cut at 80 characters).
+    """
+    from ..pipeline.schema import distinguishing_names
     from ..pipeline.sweep import columns
 
     # The terminal shows the measurements; the chosen parameters, mesh sizes and output paths are in
     # the CSV/JSON (a table of every column does not fit a terminal).
     hidden = ("outputs", "error", "vertices", "faces")
     cols = [c for c in columns(rows) if c not in hidden and not c.startswith("auto.")]
+    names = distinguishing_names([Path(r["input"]) for r in rows if r.get("input")])
+    from rich.text import Text  # user text (paths, variable names) is never read as markup
+
     table = Table()
     for c in cols:
-        table.add_column(c)
+        table.add_column(Text(c), overflow="fold")
     for r in rows:
         cells = []
         for c in cols:
             v = r.get(c, "")
-            cells.append(Path(v).name if c == "input" else f"{v:.4g}" if isinstance(v, float) else str(v))
-        table.add_row(*cells)
+            cells.append(names.get(Path(v), str(v)) if c == "input" and v else f"{v:.4g}" if isinstance(v, float) else str(v))
+        table.add_row(*(Text(cell) for cell in cells))
+    if not console.is_terminal:  # a file or a pipe: the width the table needs
+        needed = console.measure(table, options=console.options.update_width(100_000)).maximum
+        table.width = max(console.width, needed) if needed > console.width else None
     console.print(table)
 
 

@@ -34,7 +34,8 @@ def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
     selection = getattr(mesh, "selection", None)  # MeshLab's selection flags of a PLY
     state = MeshState(mesh.V, mesh.F, mesh.vertex_colors,
                       vertex_selection=selection if selection is not None and selection.any() else None)
-    ctx = RunContext(state, task.input, (mesh.V, mesh.F), output_paths=task.output_paths, row=row, echo=echo)
+    ctx = RunContext(state, task.input, (mesh.V, mesh.F), output_paths=task.output_paths,
+                     reference_paths=task.reference_paths, row=row, echo=echo)
     try:
         for step in task.steps:
             try:

@@ -28,7 +28,7 @@ from .steps import Step, parse_step
 from .variables import substitute
 from .yamlsource import LineDict, LineList, line_of, load_yaml
 
-__all__ = ["Plan", "Task", "load_pipeline", "build_plan", "TOP_LEVEL_KEYS", "PipelineProblems", "PLACEHOLDER_INPUT"]
+__all__ = ["Plan", "Task", "load_pipeline", "build_plan", "TOP_LEVEL_KEYS", "PipelineProblems", "PLACEHOLDER_INPUT", "fill_template", "distinguishing_names"]
 
 # what ``mlx2yaml`` writes as the inputs when none is given: --check says to set it
 PLACEHOLDER_INPUT = "SET-YOUR-MESH.ply"
@@ -46,6 +46,8 @@ class Task:
     setting_text: str
     steps: list[Step]
     output_paths: dict = field(default_factory=dict)  # template -> resolved Path
+    reference_paths: dict = field(default_factory=dict)  # metrics reference pattern ({dir}/Original.obj) -> Path
+    label: str = ""  # the shortest part of the input's path that tells it from the other inputs
 
 
 @dataclass
@@ -239,10 +241,12 @@ def build_plan(
     if problems:
         raise PipelineProblems(problems) if len(set(problems)) > 1 else PipelineValidationError(problems[0])
     tasks: list[Task] = []
+    labels = distinguishing_names(input_paths)
     for s_index, setting in enumerate(settings):
         for inp in input_paths:
-            tasks.append(Task(len(tasks), inp, setting, _setting_text(setting), steps_by_setting[s_index]))
+            tasks.append(Task(len(tasks), inp, setting, _setting_text(setting), steps_by_setting[s_index], label=labels[inp]))
     _resolve_outputs(tasks, out_dir, input_paths, source)
+    _resolve_references(tasks, base_dir)
     return Plan(source, input_paths, out_dir, tasks, results, variables, sweep)
 
 
@@ -264,7 +268,7 @@ def _check_labels(steps: list[Step], base_dir: Path) -> None:
                     f"{step.where}: reference: no earlier step has label '{ref['before']}' "
                     f"(labels so far: {', '.join(sorted(seen)) or 'none'}; add 'label: {ref['before']}' to a step)"
                 )
-            if isinstance(ref, str) and ref != "input":
+            if isinstance(ref, str) and ref != "input" and "{" not in ref:  # a pattern is filled per input
                 path = Path(ref).expanduser()
                 path = path if path.is_absolute() else base_dir / path
                 if not path.is_file():
@@ -276,19 +280,47 @@ def _check_labels(steps: list[Step], base_dir: Path) -> None:
             seen.add(step.label)
 
 
+TEMPLATE_FIELDS = ("stem", "name", "suffix", "parent", "dir", "setting", "index")
+
+
 def fill_template(template: str, task: Task) -> str:
+    """A path template filled for one task: ``{stem}`` ``{name}`` ``{suffix}`` of the input, ``{parent}``
+    (its folder's name), ``{dir}`` (its folder), ``{setting}`` (``mu=1,k=2``), ``{index}`` and the sweep variables."""
     inp = task.input
-    fields = {"stem": inp.stem, "name": inp.name, "suffix": inp.suffix, "index": task.index, "setting": task.setting_text}
+    fields = {"stem": inp.stem, "name": inp.name, "suffix": inp.suffix, "parent": inp.parent.name, "dir": str(inp.parent),
+              "index": task.index, "setting": task.setting_text}
     fields.update({k: v for k, v in task.setting.items() if isinstance(k, str)})
     try:
         return template.format(**fields)
-    except (KeyError, IndexError, ValueError) as exc:
-        raise ValueError(f"path template {template!r}: {exc!r} is not a field; use {{stem}} {{name}} {{setting}} {{index}}") from None
+    except (KeyError, IndexError, ValueError, AttributeError) as exc:
+        raise ValueError(
+            f"path template {template!r}: {exc!r} is not a field; use {' '.join('{' + f + '}' for f in TEMPLATE_FIELDS)}"
+        ) from None
+
+
+def distinguishing_names(paths: list[Path]) -> dict[Path, str]:
+    """For each path, its shortest trailing part (``name``, ``folder/name``, ...) that no other path ends with.
+
+    >>> names = distinguishing_names([Path("/b/Bunny/Noisy.obj"), Path("/b/Block/Noisy.obj"), Path("/b/x.ply")])
+    >>> [names[Path(p)] for p in ("/b/Bunny/Noisy.obj", "/b/Block/Noisy.obj", "/b/x.ply")]
+    ['Bunny/Noisy.obj', 'Block/Noisy.obj', 'x.ply']
+    """
+    unique = list(dict.fromkeys(Path(p) for p in paths))
+    out = {}
+    for p in unique:
+        parts = p.parts
+        for k in range(1, len(parts) + 1):
+            tail = parts[-k:]
+            if not any(q != p and q.parts[-k:] == tail for q in unique):
+                break
+        out[p] = "/".join(tail) if k < len(parts) else str(p)
+    return out
 
 
 def _resolve_outputs(tasks: list[Task], out_dir: Path, inputs: list[Path], source: str) -> None:
     owner: dict[Path, str] = {}
     protected = set(inputs)
+    problems: list[str] = []
     for task in tasks:
         for step in task.steps:
             if step.kind not in ("save", "render"):
@@ -297,19 +329,47 @@ def _resolve_outputs(tasks: list[Task], out_dir: Path, inputs: list[Path], sourc
             try:
                 text = fill_template(template, task)
             except ValueError as exc:
-                raise PipelineValidationError(f"{step.where}: {exc}") from None
+                problems.append(f"{step.where}: {exc}")
+                continue
             path = Path(text).expanduser()
             path = (path if path.is_absolute() else out_dir / path).resolve()
             if path in protected:
-                raise PipelineValidationError(f"{step.where}: path {template!r} would overwrite the input file {path}: input files are never written")
-            me = f"{task.input.name} {task.setting_text}".strip() + f" step {step.index}"
+                problems.append(f"{step.where}: path {template!r} would overwrite the input file {path}: input files are never written")
+                continue
+            me = f"{task.label} {task.setting_text}".strip() + f" (step {step.index})"
             if path in owner:
-                raise PipelineValidationError(
+                problems.append(
                     f"{step.where}: path {template!r} gives {path} for both {owner[path]} and {me}; "
-                    "add {stem}, {setting} or {index} to the path"
+                    "add {stem}, {parent}, {setting} or {index} to the path"
                 )
+                continue
             owner[path] = me
             task.output_paths[template] = path
+    if problems:
+        raise PipelineProblems(problems) if len(set(problems)) > 1 else PipelineValidationError(problems[0])
+
+
+def _resolve_references(tasks: list[Task], base_dir: Path) -> None:
+    """Per-input metrics references (``reference: "{dir}/Original.obj"``): filled for each task, each checked to exist."""
+    problems: list[str] = []
+    for task in tasks:
+        for step in task.steps:
+            ref = step.params.get("reference") if step.kind == "metrics" else None
+            if not isinstance(ref, str) or "{" not in ref:
+                continue
+            try:
+                text = fill_template(ref, task)
+            except ValueError as exc:
+                problems.append(f"{step.where}: reference: {exc}")
+                continue
+            path = Path(text).expanduser()
+            path = path if path.is_absolute() else base_dir / path
+            if not path.is_file():
+                problems.append(f"{step.where}: reference: no such file {text!r} ({path}) for input {task.label}")
+                continue
+            task.reference_paths[ref] = path.resolve()
+    if problems:
+        raise PipelineProblems(problems) if len(set(problems)) > 1 else PipelineValidationError(problems[0])
 
 
 def load_pipeline(

@@ -51,7 +51,7 @@ BUILTIN_STEPS: dict[str, list[Param]] = {
         Param("seed", int, 0, help="random seed"),
     ],
     "save": [
-        Param("path", str, "", help="output file; {stem} {name} {setting} {index} are filled in"),
+        Param("path", str, "", help="output file; {stem} {name} {parent} {dir} {setting} {index} are filled in"),
         Param("binary", bool, True, help="binary PLY/STL"),
         Param("colors", bool, True, help="write vertex colours when the mesh has them"),
     ],
@@ -326,6 +326,8 @@ class RunContext:
         ``(V, F)`` as loaded (the ``input`` of ``metrics`` and ``render``).
     output_paths : dict
         Path template of a ``save``/``render`` step -> the resolved output path (made by the plan).
+    reference_paths : dict
+        A ``metrics`` reference pattern (``{dir}/Original.obj``) -> this input's file (made by the plan).
     snapshots : dict
         Step label -> ``(V, F)`` before that step.
     row : dict
@@ -340,6 +342,7 @@ class RunContext:
     input_path: Path
     input_arrays: tuple
     output_paths: dict = field(default_factory=dict)
+    reference_paths: dict = field(default_factory=dict)
     snapshots: dict = field(default_factory=dict)
     row: dict = field(default_factory=dict)
     staged: list = field(default_factory=list)
@@ -470,8 +473,8 @@ def _run_metrics(step: Step, ctx: RunContext) -> None:
         reference = ctx.snapshots[ref["before"]][:2]
     elif ref == "input":
         reference = tuple(ctx.input_arrays[:2])
-    else:  # a file, made absolute when the plan was checked
-        loaded = load_mesh(ref)
+    else:  # a file made absolute when the plan was checked, or a pattern the plan filled for this input
+        loaded = load_mesh(ctx.reference_paths.get(ref, ref))
         reference = (loaded.V, loaded.F)
     values = compute_metrics(reference, ctx.state.arrays(), step.params["metrics"])
     prefix = f"{step.label}." if step.label else ""
