@@ -442,3 +442,25 @@ def test_distinguishing_names():
     paths = [Path("/a/x/m.ply"), Path("/b/x/m.ply"), Path("/b/y/m.ply"), Path("/c/n.ply")]
     assert [distinguishing_names(paths)[p] for p in paths] == ["a/x/m.ply", "b/x/m.ply", "y/m.ply", "n.ply"]
     assert distinguishing_names([Path("/a/m.ply")]) == {Path("/a/m.ply"): "m.ply"}
+
+
+def test_steps_command_lists_every_step_and_only_parameters_the_checker_knows(tmp_path):
+    from meshdenoise.pipeline.errors import PipelineValidationError
+    from meshdenoise.pipeline.steps import BUILTIN_STEPS, OPEN3D_OPS, parse_step
+    from meshdenoise.registry import list_filters
+
+    result = _run("steps", "--json")
+    assert result.exit_code == 0, result.output
+    steps = {s["name"]: s for s in json.loads(result.output)}
+    expected = set(BUILTIN_STEPS) | {f"open3d.{k}" for k in OPEN3D_OPS} | {s.name for s in list_filters()}
+    assert expected <= set(steps)
+    assert [p["name"] for p in steps["render"]["params"]] == ["path", "meshes", "reference", "titles", "size", "backend", "cmap", "vmax"]
+    # every listed parameter is one the step's checker accepts by name (a wrong value, never an unknown name)
+    for name in expected:
+        for p in steps[name]["params"]:
+            try:
+                parse_step({name: {p["name"]: object()}}, 1, "t.yaml", 1)
+            except PipelineValidationError as exc:
+                assert "unknown parameter" not in str(exc), (name, p["name"], str(exc))
+    text = _run("steps").output
+    assert "render: draw meshes" in text and "    vmax (float): top of the colour bar" in text

@@ -1,4 +1,4 @@
-"""CLI commands: run, denoise, info, mlx2yaml, yaml2mlx. Exit codes: 0 ok, 1 runtime failure, 2 bad input."""
+"""CLI commands: run, denoise, info, mlx2yaml, yaml2mlx, steps. Exit codes: 0 ok, 1 runtime failure, 2 bad input."""
 
 from __future__ import annotations
 
@@ -303,4 +303,21 @@ def yaml2mlx_command(pipeline, output, skip_other):
     _write_text(output, text)
 
 
-COMMANDS = [run_command, denoise_command, info_command, mlx2yaml_command, yaml2mlx_command]
+@click.command("steps")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")
+def steps_command(as_json):
+    """List every step a pipeline may use, with its parameters (types, defaults, what they do)."""
+    from ..pipeline.steps import describe_steps
+
+    steps = describe_steps()
+    if as_json:
+        click.echo(json.dumps(steps, indent=1, default=str))
+        return
+    for step in steps:
+        click.echo(f"{step['name']}: {step['summary']}")
+        for p in step["params"]:
+            default = "" if p["default"] is None else f", default {p['default']!r}"
+            click.echo(f"    {p['name']} ({p['type']}{default}): {p['help']}")
+
+
+COMMANDS = [run_command, denoise_command, info_command, mlx2yaml_command, yaml2mlx_command, steps_command]

@@ -22,7 +22,7 @@ from . import pymeshlab_steps
 from .errors import PipelineValidationError, where
 from .state import MeshState
 
-__all__ = ["Step", "parse_step", "run_step", "RunContext", "BUILTIN_STEPS", "OPEN3D_OPS", "step_names"]
+__all__ = ["Step", "parse_step", "run_step", "RunContext", "BUILTIN_STEPS", "OPEN3D_OPS", "step_names", "describe_steps"]
 
 # Open3D's clean-up and smoothing operations, under "open3d.<method name>", with their parameters.
 OPEN3D_OPS: dict[str, list[Param]] = {
@@ -55,8 +55,8 @@ BUILTIN_STEPS: dict[str, list[Param]] = {
         Param("binary", bool, True, help="binary PLY/STL"),
         Param("colors", bool, True, help="write vertex colours when the mesh has them"),
     ],
-    "metrics": [],  # checked by _check_metrics
-    "render": [],  # passed to meshdenoise.render.render_comparison
+    "metrics": [],  # checked by _check_metrics, described by METRICS_DOC
+    "render": [],  # checked by _check_render, described by RENDER_DOC
 }
 COMMON = {"pinned", "region", "preserve_volume", "parameters"}
 RESERVED = {"label"}
@@ -154,7 +154,63 @@ def _our_filter(index, name, given, label, source, line) -> Step:
     return Step(index, name, "ours", params, label, source, line, options)
 
 
-RENDER_PARAMS = ("path", "meshes", "reference", "titles", "size", "backend", "cmap", "vmax")
+# render's parameters, with what `meshdenoise steps` says of each: (name, type, default, help)
+RENDER_DOC = (
+    ("path", "str", None, "image file to write, ending in .png (required); {stem} {name} {parent} {dir} {setting} {index} are filled in"),
+    ("meshes", "list of str", ["input", "result"], "meshes drawn side by side: input, result, or a step label (the mesh before that step)"),
+    ("reference", "str", None, "draw an error heat map of each mesh against this one (input, result or a step label)"),
+    ("titles", "list of str", None, "one title per mesh (default: the names in meshes)"),
+    ("size", "[int, int]", [400, 400], "width and height of each panel in pixels, 16..4096"),
+    ("backend", "str", "auto", "rasteriser: one of the meshdenoise.render backends (auto picks the first that works)"),
+    ("cmap", "str", "viridis", "matplotlib colour map of the heat map"),
+    ("vmax", "float", None, "top of the colour bar (default: the largest error); > 0"),
+)
+RENDER_PARAMS = tuple(d[0] for d in RENDER_DOC)
+METRICS_DOC = (
+    ("reference", "str or {before: LABEL}", "input",
+     "what the mesh is compared with: input, a mesh file, a per-input pattern like '{dir}/Original.obj', "
+     "or {before: LABEL} (the mesh before the step labelled LABEL)"),
+    ("metrics", "list of str", "all", "metric names (meshdenoise.metrics.METRICS)"),
+)
+OURS_OPTIONS_DOC = (
+    ("pinned", "boundary | selection | list of int", None, "vertices that never move"),
+    ("region", "selection | list of int", None, "only these vertices may move"),
+    ("preserve_volume", "bool", False, "rescale so the enclosed volume equals the input's"),
+    ("parameters", "auto", None, "choose the parameters not written automatically (recorded in the results as auto.*)"),
+)
+
+
+def describe_steps() -> list[dict]:
+    """Every built-in step with its parameters (``meshdenoise steps``): name, what it is, and
+    ``params`` as ``{"name", "type", "default", "help"}``; our filters and pymeshlab's are summarised."""
+
+    def entry(name, summary, params):
+        return {"name": name, "summary": summary,
+                "params": [{"name": n, "type": t, "default": d, "help": h} for n, t, d, h in params]}
+
+    def from_params(params):
+        out = []
+        for p in params:
+            allowed = p.range_text()
+            allowed = "" if p.kind is bool or allowed.startswith("any ") else allowed
+            out.append((p.name, p.kind.__name__, p.default, "; ".join(x for x in (p.help, allowed) if x)))
+        return out
+
+    out = [
+        entry("add_noise", "displace every vertex along its normal by Gaussian noise", from_params(BUILTIN_STEPS["add_noise"])),
+        entry("save", "write the current mesh (PLY, OBJ, OFF, STL) once every step succeeded", from_params(BUILTIN_STEPS["save"])),
+        entry("metrics", "measure the current mesh against a reference; values go to the results table", METRICS_DOC),
+        entry("render", "draw meshes side by side into a PNG, with an error heat map against a reference", RENDER_DOC),
+    ]
+    for op, params in OPEN3D_OPS.items():
+        out.append(entry(f"open3d.{op}", f"Open3D's TriangleMesh.{op}", from_params(params)))
+    for spec in list_filters():
+        out.append(entry(spec.name, f"our filter: {spec.summary}", from_params(spec.params) + list(OURS_OPTIONS_DOC)))
+    out.append(entry("<any pymeshlab filter>",
+                     f"one of pymeshlab's {len(pymeshlab_steps.filter_names())} filters by its pymeshlab name (or MeshLab's GUI name); "
+                     "parameters: python -c \"import pymeshlab; pymeshlab.print_filter_parameter_list('NAME')\"", []))
+    out.append(entry("(every step)", "keys every step takes", [("label", "str", None, "name the mesh before this step (for metrics and render)")]))
+    return out
 
 
 def _check_render(given: dict, at: str) -> dict:
@@ -214,6 +270,8 @@ def _check_metrics(given: dict, at: str) -> dict:
     names = given.get("metrics", list(METRICS))
     if isinstance(names, str):
         names = [names]
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise PipelineValidationError(f"{at}: metrics: expected a metric name or a list of them ({', '.join(METRICS)}), got {names!r}")
     for n in names:
         if n not in METRICS:
             hint = difflib.get_close_matches(str(n), list(METRICS), n=1)
