@@ -464,3 +464,20 @@ def test_steps_command_lists_every_step_and_only_parameters_the_checker_knows(tm
                 assert "unknown parameter" not in str(exc), (name, p["name"], str(exc))
     text = _run("steps").output
     assert "render: draw meshes" in text and "    vmax (float): top of the colour bar" in text
+
+
+def test_help_groups_commands_by_what_the_user_does_and_every_command_still_works():
+    from meshdenoise.cli import SECTIONS
+
+    result = _run("--help")
+    assert result.exit_code == 0
+    text = result.output
+    heads = [text.index(f"\n{title}:\n") for title, _ in SECTIONS]
+    assert heads == sorted(heads)
+    listed = [name for _, names in SECTIONS for name in names]
+    assert sorted(listed) == sorted(cli.commands), "every command is in exactly one section"
+    for title, names in SECTIONS:
+        section = text[text.index(f"\n{title}:\n"):]
+        for name in names:
+            assert f"\n  {name} " in section.split("\n\n")[0] + "\n", (title, name)
+            assert _run(name, "--help").exit_code == 0
