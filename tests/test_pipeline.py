@@ -39,7 +39,7 @@ def _digest(path):
         ("  - sobolv: {mu: 1}\n", 4, "did you mean 'sobolev'"),
         ("  - sobolev: {mu: 1}\n  - apply_coord_laplacian_smoothing: {stepsmothnum: 3}\n", 5, "did you mean 'stepsmoothnum'"),
         ("  - sobolev:\n      mu: -1\n", 5, "out of range"),
-        ("  - apply_coord_laplacian_smoothing: {stepsmoothnum: 2.5}\n", 4, "must be an integer"),
+        ("  - apply_coord_laplacian_smoothing: {stepsmoothnum: 2.5}\n", 4, "must be an int, got 2.5 (RichInt)"),
         ("  - compute_normal_per_vertex: {weightmode: By Angel}\n", 4, "did you mean 'By Angle'"),
         ("  - filtering: {pinned: boundry}\n", 4, "did you mean 'boundary'"),
         ("  - sobolev: {mu: '${nu}'}\n", 4, "undefined variable"),
@@ -481,3 +481,28 @@ def test_help_groups_commands_by_what_the_user_does_and_every_command_still_work
         for name in names:
             assert f"\n  {name} " in section.split("\n\n")[0] + "\n", (title, name)
             assert _run(name, "--help").exit_code == 0
+
+
+def test_one_parameter_check_for_our_filters_builtin_open3d_and_pymeshlab_steps(monkeypatch):
+    """registry.Param.check is the one check: every kind of step goes through it."""
+    from meshdenoise.pipeline.errors import PipelineValidationError
+    from meshdenoise.pipeline.steps import parse_step
+    from meshdenoise.registry import Param
+
+    calls = []
+    original = Param.check
+
+    def spy(self, value, where=""):
+        calls.append(self.name)
+        return original(self, value, where)
+
+    monkeypatch.setattr(Param, "check", spy)
+    for step, name in [({"sobolev": {"mu": 2}}, "mu"), ({"add_noise": {"rho": 0.1}}, "rho"),
+                       ({"open3d.filter_smooth_simple": {"number_of_iterations": 2}}, "number_of_iterations"),
+                       ({"apply_coord_laplacian_smoothing": {"stepsmoothnum": 2}}, "stepsmoothnum")]:
+        calls.clear()
+        parse_step(step, 1, "t.yaml", 1)
+        assert name in calls, (step, calls)
+    # and so a non-finite number is refused for a pymeshlab float as for ours
+    with pytest.raises(PipelineValidationError, match=r"t.yaml:1: step 1 'apply_coord_taubin_smoothing': parameter 'lambda_' = nan must be finite"):
+        parse_step({"apply_coord_taubin_smoothing": {"lambda_": float("nan")}}, 1, "t.yaml", 1)

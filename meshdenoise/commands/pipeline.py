@@ -151,11 +151,11 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
         from ..registry import get_filter
 
         get_filter(method)
-        step = parse_step({method: given}, 1, "--method", None)
+        step = parse_step({method: given}, None, "--method", None)
     except KeyError as exc:
         _fail(f"--method: {exc.args[0]}", 2)
     except PipelineValidationError as exc:
-        _fail(str(exc).replace("--method: step 1 ", "--method ").replace("--method: ", ""), 2)
+        _fail(str(exc), 2)
     save = parse_step({"save": {"path": str(dst.resolve())}}, 2, "denoise", None)
     task = Task(0, src.resolve(), {}, "", [step, save], {str(dst.resolve()): dst.resolve()})
     try:

@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from .meshlab_names import FILTERS
-from .pymeshlab_steps import PERCENT, _check_one, filter_names, parameter_types
+from .pymeshlab_steps import PERCENT, check_value, filter_names, parameter_types
 
 __all__ = ["mlx_to_steps", "steps_to_mlx", "OURS_PREFIX", "pythonize", "pymeshlab_name", "NO_SCRIPT_FORM"]
 
@@ -389,9 +389,11 @@ def steps_to_mlx(steps: list, *, skip_other: bool = False, notes: list | None = 
                 known = ", ".join(entry["params"])
                 raise ScriptStepError(k, f"step {k} '{name}': unknown parameter {key!r}; its parameters: {known}")
             info = entry["params"][key]
-            problem = _check_one(key, value, types[key]) if key in types else None
-            if problem:
-                raise ScriptStepError(k, f"step {k} '{name}': parameter {key!r} = {value!r} {problem} ({types[key]['type']})")
+            if key in types:
+                try:
+                    value = check_value(key, value, types[key], f"step {k} '{name}'")
+                except ValueError as exc:
+                    raise ScriptStepError(k, str(exc)) from None
             try:
                 _write_param(node, info["name"], value, {**types.get(key, {}), **info})
             except (TypeError, ValueError) as exc:

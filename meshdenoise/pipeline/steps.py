@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ..registry import Param, get_filter, list_filters
+from ..registry import FilterSpec, Param, get_filter, list_filters
 from . import pymeshlab_steps
 from .errors import PipelineValidationError, where
 from .state import MeshState
@@ -78,7 +78,15 @@ class Step:
 
     @property
     def where(self) -> str:
-        return where(self.source, self.line, f"step {self.index} '{self.name}'")
+        return _step_at(self.source, self.line, self.index, self.name)
+
+
+def _step_at(source: str, line: int | None, index: int | None, name: str) -> str:
+    """Where a step is, for messages: ``file:line: step 3 'sobolev'``, or ``--method 'sobolev'``
+    for a step that is not in a file (``index`` None, ``source`` the option that gave it)."""
+    if index is None:
+        return f"{source} '{name}'"
+    return where(source, line, f"step {index} '{name}'")
 
 
 def step_names() -> list[str]:
@@ -97,16 +105,9 @@ def _unknown_step(name: str, at: str) -> PipelineValidationError:
 
 
 def _check_params(params: list[Param], given: dict, at: str) -> dict:
-    known = {p.name: p for p in params}
-    for key in given:
-        if key not in known:
-            hint = difflib.get_close_matches(str(key), list(known), n=1)
-            extra = f" (did you mean '{hint[0]}'?)" if hint else ""
-            raise PipelineValidationError(
-                f"{at}: unknown parameter '{key}'{extra}; its parameters: {', '.join(known) or 'none'}"
-            )
+    """Names, types and ranges of a built-in step's parameters, by the registry's one check (FilterSpec.resolve / Param.check)."""
     try:
-        return {p.name: p.check(given.get(p.name, p.default), at) for p in params}
+        return FilterSpec("", "", tuple(params), core=None).resolve(given, at)
     except (TypeError, ValueError) as exc:
         raise PipelineValidationError(str(exc)) from None
 
@@ -125,7 +126,7 @@ def _check_vertex_spec(key: str, value: Any, at: str, keywords: tuple[str, ...])
 
 def _our_filter(index, name, given, label, source, line) -> Step:
     spec = get_filter(name)
-    at = where(source, line, f"step {index} '{name}'")
+    at = _step_at(source, line, index, name)
     options = {}
     rest = {}
     for key, value in given.items():
@@ -280,8 +281,12 @@ def _check_metrics(given: dict, at: str) -> dict:
     return {"reference": ref, "metrics": list(names)}
 
 
-def parse_step(item: Any, index: int, source: str, line: int | None) -> Step:
-    """Check one step of the ``steps:`` list (a name, or ``{name: {params}}``) and return it."""
+def parse_step(item: Any, index: int | None, source: str, line: int | None) -> Step:
+    """Check one step of the ``steps:`` list (a name, or ``{name: {params}}``) and return it.
+
+    ``index`` is the step's position (from 1) in ``source``; ``None`` for a step given
+    another way (``denoise --method``: messages then read ``--method 'sobolev': ...``).
+    """
     if isinstance(item, str):
         name, given = item, {}
     elif isinstance(item, dict) and len(item) == 1:
@@ -291,7 +296,7 @@ def parse_step(item: Any, index: int, source: str, line: int | None) -> Step:
             given = {}
         if not isinstance(given, dict):
             raise PipelineValidationError(
-                f"{where(source, line, f'step {index} {name!r}')}: parameters must be a mapping "
+                f"{_step_at(source, line, index, name)}: parameters must be a mapping "
                 f"(name: value), got {given!r}"
             )
     else:
@@ -302,13 +307,13 @@ def parse_step(item: Any, index: int, source: str, line: int | None) -> Step:
     name = str(name)
     given = dict(given)
     label = given.pop("label", None)
-    at = where(source, line, f"step {index} '{name}'")
+    at = _step_at(source, line, index, name)
     if label is not None and not isinstance(label, str):
         raise PipelineValidationError(f"{at}: label must be a string, got {label!r}")
     param_lines = getattr(item, "get", lambda *_: None)(name) if isinstance(item, dict) else None
     # A parameter's own line makes the message point at the bad value.
     def at_param(key):
-        return where(source, getattr(param_lines, "key_lines", {}).get(key, line), f"step {index} '{name}'")
+        return _step_at(source, getattr(param_lines, "key_lines", {}).get(key, line), index, name)
 
     try:
         return _parse(name, given, index, label, source, line, at_param)
@@ -317,7 +322,7 @@ def parse_step(item: Any, index: int, source: str, line: int | None) -> Step:
 
 
 def _parse(name, given, index, label, source, line, at_param) -> Step:
-    at = where(source, line, f"step {index} '{name}'")
+    at = _step_at(source, line, index, name)
     bad_key = next(iter(given), None)
     if name in {s.name for s in list_filters()}:
         try:
