@@ -59,7 +59,7 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
                   f"outputs in {plan.output_dir}", highlight=False)
     if check:
         for t in plan.tasks:
-            console.print(f"  {t.input.name} {t.setting_text}: {', '.join(s.name for s in t.steps)}", highlight=False)
+            console.print(f"  {t.label or t.input.name} {t.setting_text}: {', '.join(s.name for s in t.steps)}", highlight=False, markup=False)
         return
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err_console, transient=True, disable=n < 2) as progress:
