@@ -271,3 +271,11 @@ def test_mlx2yaml_and_yaml2mlx_make_a_missing_output_folder(tmp_path):
     (tmp_path / "afile").write_text("x")
     blocked = _cli("mlx2yaml", script, "-o", tmp_path / "afile" / "p.yaml")
     assert blocked.exit_code == 2 and "cannot be written" in blocked.output and "Traceback" not in blocked.output
+
+
+def test_a_misspelt_meshlab_gui_name_gets_the_pymeshlab_name_as_hint(tmp_path):
+    from meshdenoise.pipeline.errors import PipelineValidationError
+    from meshdenoise.pipeline.steps import parse_step
+
+    with pytest.raises(PipelineValidationError, match=r"did you mean 'apply_coord_taubin_smoothing', MeshLab's 'Taubin Smooth'\?"):
+        parse_step({"Taubin Smoth": {}}, 1, "t.yaml", 3)

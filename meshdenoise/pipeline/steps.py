@@ -96,8 +96,13 @@ def step_names() -> list[str]:
 
 
 def _unknown_step(name: str, at: str) -> PipelineValidationError:
-    hint = difflib.get_close_matches(name, step_names(), n=1, cutoff=0.6)
-    extra = f" (did you mean '{hint[0]}'?)" if hint else ""
+    from .meshlab_names import FILTERS
+
+    gui = {entry["meshlab"]: py for py, entry in FILTERS.items()}  # a misspelt MeshLab GUI name ("Taubin Smoth")
+    hint = difflib.get_close_matches(name, step_names() + list(gui), n=1, cutoff=0.6)
+    extra = ""
+    if hint:
+        extra = f" (did you mean '{hint[0]}'?)" if hint[0] not in gui else f" (did you mean '{gui[hint[0]]}', MeshLab's '{hint[0]}'?)"
     return PipelineValidationError(
         f"{at}: unknown step '{name}'{extra}; a step is one of our filters (meshdenoise filters), "
         "a pymeshlab filter, open3d.<operation>, add_noise, metrics, save or render"
