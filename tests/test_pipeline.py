@@ -506,3 +506,24 @@ def test_one_parameter_check_for_our_filters_builtin_open3d_and_pymeshlab_steps(
     # and so a non-finite number is refused for a pymeshlab float as for ours
     with pytest.raises(PipelineValidationError, match=r"t.yaml:1: step 1 'apply_coord_taubin_smoothing': parameter 'lambda_' = nan must be finite"):
         parse_step({"apply_coord_taubin_smoothing": {"lambda_": float("nan")}}, 1, "t.yaml", 1)
+
+
+@pytest.mark.parametrize(
+    "path, expected",
+    [("{stem:>99999999999}.ply", "asks for more than 255 characters"), ("{stem.ply", "path template '{stem.ply'"),
+     ("{nope}.ply", "'nope'"), ("{stem:d}.ply", "path template '{stem:d}.ply'")],
+)
+def test_bad_path_templates_are_validation_errors(tmp_path, path, expected):
+    _sphere_file(tmp_path)
+    p = _write(tmp_path, f"inputs: s.ply\nsteps:\n  - save: {{path: '{path}'}}\n")
+    result = _run("run", "--check", p)
+    assert result.exit_code == 2 and expected in result.output and "Traceback" not in result.output, result.output
+
+
+def test_pipeline_files_that_are_not_utf8_are_refused_cleanly(tmp_path):
+    p = tmp_path / "p.yaml"
+    p.write_bytes("inputs: caf\u00e9.ply\nsteps: [sobolev]\n".encode("latin-1"))
+    result = _run("run", "--check", p)
+    assert result.exit_code == 2 and f"{p}: not UTF-8 text" in result.output, result.output
+    p.write_bytes("steps: [sobolev]\n".encode("utf-16"))
+    assert _run("run", "--check", p).exit_code == 2

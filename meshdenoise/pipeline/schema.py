@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import glob
 import itertools
+import re
+import string
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -291,11 +293,16 @@ def fill_template(template: str, task: Task) -> str:
               "index": task.index, "setting": task.setting_text}
     fields.update({k: v for k, v in task.setting.items() if isinstance(k, str)})
     try:
+        for _, _, spec, _ in string.Formatter().parse(template):
+            if spec and any(int(n) > 255 for n in re.findall(r"\d+", spec)):  # {stem:>99999999999} would exhaust memory
+                raise ValueError(f"format {spec!r} asks for more than 255 characters")
         return template.format(**fields)
-    except (KeyError, IndexError, ValueError, AttributeError) as exc:
+    except (KeyError, IndexError, AttributeError) as exc:
         raise ValueError(
             f"path template {template!r}: {exc!r} is not a field; use {' '.join('{' + f + '}' for f in TEMPLATE_FIELDS)}"
         ) from None
+    except ValueError as exc:  # a bad format ({stem:d}) or brace ({stem)
+        raise ValueError(f"path template {template!r}: {exc}; the fields are {' '.join('{' + f + '}' for f in TEMPLATE_FIELDS)}") from None
 
 
 def distinguishing_names(paths: list[Path]) -> dict[Path, str]:
@@ -389,5 +396,11 @@ def load_pipeline(
     path = Path(path)
     if not path.is_file():
         raise PipelineValidationError(f"{path}: no such pipeline file")
-    doc = load_yaml(path.read_text(encoding="utf-8"), path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise PipelineValidationError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason}); save the pipeline as UTF-8") from None
+    except OSError as exc:
+        raise PipelineValidationError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    doc = load_yaml(text, path)
     return build_plan(doc, str(path), base_dir=path.resolve().parent, overrides=overrides, inputs=inputs, output_dir=output_dir)
