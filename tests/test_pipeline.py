@@ -527,3 +527,13 @@ def test_pipeline_files_that_are_not_utf8_are_refused_cleanly(tmp_path):
     assert result.exit_code == 2 and f"{p}: not UTF-8 text" in result.output, result.output
     p.write_bytes("steps: [sobolev]\n".encode("utf-16"))
     assert _run("run", "--check", p).exit_code == 2
+
+
+def test_a_step_making_non_finite_coordinates_is_blamed_itself(tmp_path):
+    _sphere_file(tmp_path)
+    p = _write(tmp_path, f"inputs: s.ply\noutput_dir: {tmp_path / 'out'}\nsteps:\n  - add_noise: {{rho: 1.0e+308}}\n  - sobolev: {{mu: 1}}\n  - save: {{path: o.ply}}\n")
+    result = _run("run", p)
+    assert result.exit_code == 2, result.output
+    text = " ".join(result.output.split())
+    assert f"{p}:4: step 1 'add_noise' produced non-finite coordinates" in text and "rho=1e+308" in text, text
+    assert not (tmp_path / "out" / "o.ply").exists()

@@ -12,6 +12,8 @@ import time
 import traceback
 from typing import Any, Callable
 
+import numpy as np
+
 from ..arrays import MeshValidationError
 from .errors import InputError, StepFailure
 from .schema import Task
@@ -45,6 +47,11 @@ def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
             except Exception as exc:  # any library error: name the input and the step
                 detail = str(exc) or type(exc).__name__
                 raise StepFailure(f"{task.input}: {step.where} failed: {type(exc).__name__}: {detail}") from exc
+            if not np.isfinite(ctx.state.V).all():  # blame the step that made them, not the next one
+                raise InputError(
+                    f"{task.input}: {step.where} produced non-finite coordinates: a parameter is too large for this mesh "
+                    f"({', '.join(f'{k}={v!r}' for k, v in step.params.items()) or 'no parameters'})"
+                )
         for path, V, F, colors, binary in ctx.staged:
             if mesh.vertex_colors is None and colors is not None and (colors == 1.0).all():
                 colors = None  # pymeshlab's default white, not the input's: no colours in, no colours out
