@@ -537,3 +537,16 @@ def test_a_step_making_non_finite_coordinates_is_blamed_itself(tmp_path):
     text = " ".join(result.output.split())
     assert f"{p}:4: step 1 'add_noise' produced non-finite coordinates" in text and "rho=1e+308" in text, text
     assert not (tmp_path / "out" / "o.ply").exists()
+
+
+def test_batch_failure_lines_and_table_show_brackets_in_paths_verbatim(tmp_path):
+    d = tmp_path / "in[x]"
+    d.mkdir()
+    good = _sphere_file(d, "scan [final].ply")
+    (d / "bad [1].ply").write_text("ply\nformat ascii 1.0\nelement vertex 3\nend_header\n0 0 0\n")
+    p = _write(tmp_path, f"inputs: ['{d}/scan [final].ply', '{d}/bad [1].ply']\noutput_dir: {tmp_path / 'out'}\nsteps:\n  - sobolev: {{mu: 1}}\n  - save: {{path: '{{stem}}_c.ply'}}\n")
+    result = _run("run", p, "--serial")
+    assert result.exit_code == 2, result.output
+    assert "failed: " in result.output and "bad [1].ply" in result.output, result.output
+    assert "scan [final].ply" in result.output and (tmp_path / "out" / "scan [final]_c.ply").is_file()
+    assert good.is_file()

@@ -68,7 +68,9 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
         def done(row):
             progress.advance(bar)
             if row.get("status") != "ok":
-                err_console.print(f"[red]failed:[/red] {row.get('error')}", highlight=False)
+                from rich.text import Text  # the error names user paths: never markup
+
+                err_console.print(Text.assemble(("failed: ", "red"), str(row.get("error"))), highlight=False)
 
         rows = run_pipeline(plan, scheduler=scheduler, workers=workers, serial=serial, on_done=done)
     _print_rows(rows)
