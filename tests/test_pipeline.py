@@ -529,13 +529,19 @@ def test_pipeline_files_that_are_not_utf8_are_refused_cleanly(tmp_path):
     assert _run("run", "--check", p).exit_code == 2
 
 
-def test_a_step_making_non_finite_coordinates_is_blamed_itself(tmp_path):
+@pytest.mark.parametrize(
+    "step, shown",
+    [("add_noise: {rho: 1.0e+308}", "rho=1e+308"),
+     ("apply_coord_taubin_smoothing: {lambda_: 1.0e+300, stepsmoothnum: 3}", "lambda_=1e+300")],
+)
+def test_a_step_making_non_finite_coordinates_is_blamed_itself(tmp_path, step, shown):
     _sphere_file(tmp_path)
-    p = _write(tmp_path, f"inputs: s.ply\noutput_dir: {tmp_path / 'out'}\nsteps:\n  - add_noise: {{rho: 1.0e+308}}\n  - sobolev: {{mu: 1}}\n  - save: {{path: o.ply}}\n")
+    p = _write(tmp_path, f"inputs: s.ply\noutput_dir: {tmp_path / 'out'}\nsteps:\n  - {step}\n  - sobolev: {{mu: 1}}\n  - save: {{path: o.ply}}\n")
     result = _run("run", p)
     assert result.exit_code == 2, result.output
     text = " ".join(result.output.split())
-    assert f"{p}:4: step 1 'add_noise' produced non-finite coordinates" in text and "rho=1e+308" in text, text
+    name = step.split(":")[0]
+    assert f"{p}:4: step 1 '{name}' produced non-finite coordinates" in text and shown in text, text
     assert not (tmp_path / "out" / "o.ply").exists()
 
 
@@ -550,3 +556,24 @@ def test_batch_failure_lines_and_table_show_brackets_in_paths_verbatim(tmp_path)
     assert "failed: " in result.output and "bad [1].ply" in result.output, result.output
     assert "scan [final].ply" in result.output and (tmp_path / "out" / "scan [final]_c.ply").is_file()
     assert good.is_file()
+
+
+def test_pymeshlab_integers_beyond_cpp_int_are_refused_before_running(tmp_path):
+    from meshdenoise.pipeline.errors import PipelineValidationError
+    from meshdenoise.pipeline.steps import parse_step
+
+    parse_step({"apply_coord_laplacian_smoothing": {"stepsmoothnum": 2**31 - 1}}, 1, "t.yaml", 2)
+    with pytest.raises(PipelineValidationError, match=r"t.yaml:2: step 1 'apply_coord_laplacian_smoothing': parameter 'stepsmoothnum' = 2147483648 is out of range"):
+        parse_step({"apply_coord_laplacian_smoothing": {"stepsmoothnum": 2**31}}, 1, "t.yaml", 2)
+
+
+@pytest.mark.parametrize(
+    "step",
+    ["open3d.filter_smooth_laplacian: {lambda_filter: 1.0e+300}", "open3d.filter_smooth_taubin: {lambda_filter: 2}",
+     "open3d.filter_smooth_taubin: {mu: 0.5}"],
+)
+def test_open3d_smoothing_parameters_are_range_checked(tmp_path, step):
+    _sphere_file(tmp_path)
+    p = _write(tmp_path, f"inputs: s.ply\nsteps:\n  - {step}\n")
+    result = _run("run", "--check", p)
+    assert result.exit_code == 2 and "is out of range" in result.output, result.output

@@ -134,8 +134,10 @@ def check_value(param: str, value: Any, info: dict, where: str) -> Any:
     t = info["type"]
     kind = _SCALAR_KINDS.get(t)
     if kind is not None:
+        # MeshLab's integers are C++ ints: larger ones fail late with pybind11's "Unable to cast"
+        low, high = (-(2**31), 2**31 - 1) if kind is int else (None, None)
         try:
-            return Param(param, kind, info.get("default")).check(value, where)
+            return Param(param, kind, info.get("default"), low=low, high=high).check(value, where)
         except (TypeError, ValueError) as exc:
             raise ValueError(f"{exc} ({t})") from None
     problem = _check_other(value, info)

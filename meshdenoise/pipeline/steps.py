@@ -33,14 +33,15 @@ OPEN3D_OPS: dict[str, list[Param]] = {
     "remove_unreferenced_vertices": [],
     "compute_vertex_normals": [Param("normalized", bool, True, help="unit-length normals")],
     "filter_smooth_simple": [Param("number_of_iterations", int, 1, low=0)],
+    # a step weight above 1 overshoots (and 1e300 blows the mesh up): refused before running
     "filter_smooth_laplacian": [
         Param("number_of_iterations", int, 1, low=0),
-        Param("lambda_filter", float, 0.5),
+        Param("lambda_filter", float, 0.5, low=0.0, high=1.0, low_open=True, help="step weight"),
     ],
     "filter_smooth_taubin": [
         Param("number_of_iterations", int, 1, low=0),
-        Param("lambda_filter", float, 0.5),
-        Param("mu", float, -0.53),
+        Param("lambda_filter", float, 0.5, low=0.0, high=1.0, low_open=True, help="shrinking step weight"),
+        Param("mu", float, -0.53, low=-1.0, high=0.0, high_open=True, help="inflating step weight (negative)"),
     ],
 }
 
