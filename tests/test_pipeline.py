@@ -577,3 +577,17 @@ def test_open3d_smoothing_parameters_are_range_checked(tmp_path, step):
     p = _write(tmp_path, f"inputs: s.ply\nsteps:\n  - {step}\n")
     result = _run("run", "--check", p)
     assert result.exit_code == 2 and "is out of range" in result.output, result.output
+
+
+def test_a_sweep_of_a_billion_settings_is_refused_before_it_is_built(tmp_path):
+    import resource
+
+    _sphere_file(tmp_path)
+    values = "[" + ", ".join(str(k) for k in range(10)) + "]"
+    sweep = ", ".join(f"v{k}: {values}" for k in range(9))  # 10^9 settings in a few hundred bytes
+    p = _write(tmp_path, f"inputs: s.ply\nsweep: {{{sweep}}}\nsteps:\n  - sobolev: {{mu: 1}}\n")
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    result = _run("run", "--check", p)
+    assert result.exit_code == 2, result.output
+    assert f"{p}:2: sweep: 1,000,000,000 settings x 1 input(s)" in " ".join(result.output.split()), result.output
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 200_000  # kB: nothing was expanded

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import glob
 import itertools
+import math
 import re
 import string
 from dataclasses import dataclass, field
@@ -31,6 +32,10 @@ from .variables import substitute
 from .yamlsource import LineDict, LineList, line_of, load_yaml
 
 __all__ = ["Plan", "Task", "load_pipeline", "build_plan", "TOP_LEVEL_KEYS", "PipelineProblems", "PLACEHOLDER_INPUT", "fill_template", "distinguishing_names"]
+
+# a pipeline's grid: more is refused before anything is built (each setting's steps are checked, each task runs)
+MAX_SETTINGS = 10_000
+MAX_TASKS = 100_000
 
 # what ``mlx2yaml`` writes as the inputs when none is given: --check says to set it
 PLACEHOLDER_INPUT = "SET-YOUR-MESH.ply"
@@ -219,6 +224,14 @@ def build_plan(
 
     raw_steps = doc.get("steps")
     steps_by_setting: list[list[Step]] = []
+    n_settings = math.prod(len(v) for v in sweep.values())
+    if n_settings > MAX_SETTINGS or n_settings * max(len(input_paths), 1) > MAX_TASKS:
+        # refused before the grid is built: a few lines of YAML can ask for 10^9 settings
+        problem(
+            f"{where(source, line_of(doc, 'sweep'))}: sweep: {n_settings:,} settings x {len(input_paths):,} input(s) "
+            f"= {n_settings * max(len(input_paths), 1):,} tasks; the limits are {MAX_SETTINGS:,} settings and {MAX_TASKS:,} tasks"
+        )
+        raise PipelineProblems(problems) if len(set(problems)) > 1 else PipelineValidationError(problems[0])
     settings = [dict(zip(sweep, values)) for values in itertools.product(*sweep.values())] if sweep else [{}]
     if not isinstance(raw_steps, list) or not raw_steps:
         problem(f"{where(source, line_of(doc, 'steps'))}: 'steps' must be a non-empty list")
