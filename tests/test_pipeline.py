@@ -591,3 +591,20 @@ def test_a_sweep_of_a_billion_settings_is_refused_before_it_is_built(tmp_path):
     assert result.exit_code == 2, result.output
     assert f"{p}:2: sweep: 1,000,000,000 settings x 1 input(s)" in " ".join(result.output.split()), result.output
     assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 200_000  # kB: nothing was expanded
+
+
+def test_steps_command_describes_named_steps_and_pymeshlab_filters():
+    result = _run("steps", "--json", "Taubin Smooth", "render")
+    assert result.exit_code == 0, result.output
+    taubin, render = json.loads(result.output)
+    assert taubin["name"] == "apply_coord_taubin_smoothing" and render["name"] == "render"
+    params = {p["name"]: p for p in taubin["params"]}
+    from meshdenoise.pipeline.pymeshlab_steps import _probe
+
+    assert set(params) == set(_probe().filter_parameter_values("apply_coord_taubin_smoothing"))
+    assert params["stepsmoothnum"]["type"] == "RichInt" and "stepSmoothNum" in params["stepsmoothnum"]["help"]
+    assert params["mu"]["default"] == -0.53
+    normals = json.loads(_run("steps", "--json", "compute_normal_per_vertex").output)[0]
+    assert normals["params"][0]["default"] == "Simple Average"
+    bad = _run("steps", "sobolv")
+    assert bad.exit_code == 2 and "did you mean 'sobolev'" in bad.output

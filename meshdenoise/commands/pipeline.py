@@ -306,12 +306,26 @@ def yaml2mlx_command(pipeline, output, skip_other):
 
 
 @click.command("steps")
+@click.argument("names", nargs=-1, metavar="[NAME]...")
 @click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")
-def steps_command(as_json):
-    """List every step a pipeline may use, with its parameters (types, defaults, what they do)."""
-    from ..pipeline.steps import describe_steps
+def steps_command(names, as_json):
+    """List every step a pipeline may use, with its parameters (types, defaults, what they do); NAME: only these
+    steps (a pymeshlab filter too, by its pymeshlab or MeshLab name)."""
+    from ..pipeline.steps import describe_pymeshlab_step, describe_steps
 
     steps = describe_steps()
+    if names:
+        by_name = {s["name"]: s for s in steps}
+        chosen = []
+        for name in names:
+            if name in by_name:
+                chosen.append(by_name[name])
+                continue
+            try:
+                chosen.append(describe_pymeshlab_step(name))
+            except KeyError as exc:
+                _fail(str(exc.args[0]), 2)
+        steps = chosen
     if as_json:
         click.echo(json.dumps(steps, indent=1, default=str))
         return

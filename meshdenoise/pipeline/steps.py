@@ -22,7 +22,7 @@ from . import pymeshlab_steps
 from .errors import PipelineValidationError, where
 from .state import MeshState
 
-__all__ = ["Step", "parse_step", "run_step", "RunContext", "BUILTIN_STEPS", "OPEN3D_OPS", "step_names", "describe_steps"]
+__all__ = ["Step", "parse_step", "run_step", "RunContext", "BUILTIN_STEPS", "OPEN3D_OPS", "step_names", "describe_steps", "describe_pymeshlab_step"]
 
 # Open3D's clean-up and smoothing operations, under "open3d.<method name>", with their parameters.
 OPEN3D_OPS: dict[str, list[Param]] = {
@@ -185,6 +185,42 @@ OURS_OPTIONS_DOC = (
     ("preserve_volume", "bool", False, "rescale so the enclosed volume equals the input's"),
     ("parameters", "auto", None, "choose the parameters not written automatically (recorded in the results as auto.*)"),
 )
+
+
+def describe_pymeshlab_step(name: str) -> dict:
+    """A pymeshlab filter as :func:`describe_steps` describes a step (MeshLab types, defaults on a small sphere, enum labels).
+
+    Raises
+    ------
+    KeyError
+        Not a pymeshlab filter (nor a MeshLab GUI name of one), with the closest names.
+    """
+    from .mlx import gui_names
+
+    canonical, _, _ = gui_names(name, {})
+    if canonical not in pymeshlab_steps.filter_names():
+        hint = difflib.get_close_matches(name, step_names(), n=1)
+        raise KeyError(f"unknown step '{name}'" + (f" (did you mean '{hint[0]}'?)" if hint else ""))
+    from .meshlab_names import FILTERS
+
+    params = []
+    recorded = FILTERS.get(canonical, {}).get("params", {})
+    for key, info in pymeshlab_steps.parameter_types(canonical).items():
+        default = info["default"]
+        labels = info.get("enum") or []
+        if labels and isinstance(default, int) and 0 <= default < len(labels):
+            default = labels[default]
+        elif isinstance(default, float):
+            default = float(f"{default:.7g}")  # MeshLab stores floats: 0.53 reads back as 0.5299999713897705
+        elif not isinstance(default, (bool, int, str)):
+            default = str(default)
+        parts = [f"MeshLab name '{recorded[key]['name']}'"] if key in recorded else []
+        if labels:
+            parts.append("one of " + ", ".join(repr(x) for x in labels))
+        params.append({"name": key, "type": info["type"], "default": default, "help": "; ".join(parts)})
+    meshlab = FILTERS.get(canonical, {}).get("meshlab")
+    summary = f"pymeshlab filter (MeshLab: '{meshlab}')" if meshlab else "pymeshlab filter"
+    return {"name": canonical, "summary": summary + "; defaults measured on a small sphere (lengths depend on the mesh)", "params": params}
 
 
 def describe_steps() -> list[dict]:
