@@ -23,6 +23,14 @@ new coordinates as three per-vertex custom scalar attributes and apply MeshLab's
 a custom attribute, so each in-place change leaves three attributes named
 ``__meshdenoise_<k>_x|y|z`` on the mesh (8 bytes per vertex each; MeshLab does not
 save them unless asked).
+
+They cannot be reused either: pymeshlab 2025.7 refuses to add an attribute under a name
+that exists, returns attribute arrays as copies (writing into them changes nothing), and
+reads a per-vertex *point* attribute wrongly in ``compute_coord_by_function``
+(``tests/test_adapters.py`` checks these three facts, so it fails the day pymeshlab
+allows reuse). Pipelines are not affected: they carry arrays
+(:class:`meshdenoise.pipeline.state.MeshState`) and build a throw-away MeshSet only
+around pymeshlab steps, so a pipeline leaves no attribute anywhere.
 """
 
 from __future__ import annotations

@@ -13,7 +13,35 @@ from .registry import list_filters
 console = Console()
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+# `meshdenoise --help` lists the commands by what the user does; a command in no section is listed under "other"
+SECTIONS = (
+    ("Denoise", ("denoise", "filters", "demo")),
+    ("Inspect", ("info", "show", "render", "report")),
+    ("Pipelines", ("run", "steps", "mlx2yaml", "yaml2mlx")),
+    ("Reproduce", ("reproduce",)),
+)
+
+
+class SectionedGroup(click.Group):
+    """A click group whose help lists its commands in :data:`SECTIONS` (every command name still works)."""
+
+    def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
+        commands = {name: self.get_command(ctx, name) for name in self.list_commands(ctx)}
+        commands = {name: c for name, c in commands.items() if c is not None and not c.hidden}
+        if not commands:
+            return
+        longest = max(len(name) for name in commands)
+        width = formatter.width - 6 - longest
+        placed = set()
+        for title, names in SECTIONS + (("Other", tuple(sorted(commands))),):
+            rows = [(n.ljust(longest), commands[n].get_short_help_str(width)) for n in names if n in commands and n not in placed]
+            placed.update(n.strip() for n, _ in rows)
+            if rows:
+                with formatter.section(title):
+                    formatter.write_dl(rows)
+
+
+@click.group(cls=SectionedGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="meshdenoise")
 def cli() -> None:
     """Mesh-denoising filters for pymeshlab, Open3D and numpy arrays."""

@@ -6,6 +6,7 @@ import pymeshlab
 import pytest
 
 import meshdenoise as md
+from meshdenoise.shapes import icosphere
 
 from .conftest import make_mesh, noisy_sphere
 
@@ -95,3 +96,22 @@ def test_unsupported_types_are_refused():
 def test_empty_meshset_is_refused():
     with pytest.raises(ValueError, match="has no mesh"):
         md.filtering(pymeshlab.MeshSet())
+
+
+def test_pymeshlab_still_cannot_reuse_a_custom_attribute():
+    """Why the in-place MeshSet writer adds three attributes per call (see meshdenoise.adapters):
+    each fact below, once pymeshlab changes it, makes this test fail, and the writer can then reuse one set."""
+    V, F = icosphere(1)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(V, F.astype(np.int32)))
+    m = ms.current_mesh()
+    m.add_vertex_custom_scalar_attribute(np.zeros(len(V)), "a")
+    with pytest.raises(Exception, match="already has a custom attribute"):
+        m.add_vertex_custom_scalar_attribute(np.ones(len(V)), "a")
+    m.vertex_custom_scalar_attribute_array("a")[:] = 5.0  # a copy: the mesh keeps zeros
+    assert not m.vertex_custom_scalar_attribute_array("a").any()
+    W = 2 * V + 0.1
+    m.add_vertex_custom_point_attribute(W, "p")
+    ms.compute_coord_by_function(x="p_x", y="p_y", z="p_z")
+    assert not np.allclose(ms.current_mesh().vertex_matrix(), W)
+

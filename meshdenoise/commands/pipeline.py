@@ -1,4 +1,4 @@
-"""CLI commands: run, denoise, info, mlx2yaml, yaml2mlx. Exit codes: 0 ok, 1 runtime failure, 2 bad input."""
+"""CLI commands: run, denoise, info, mlx2yaml, yaml2mlx, steps. Exit codes: 0 ok, 1 runtime failure, 2 bad input."""
 
 from __future__ import annotations
 
@@ -50,13 +50,16 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
     try:
         plan = load_pipeline(pipeline, overrides=overrides, inputs=list(inputs) or None, output_dir=out_dir)
     except PipelineValidationError as exc:
-        _fail(str(exc), 2)
+        problems = getattr(exc, "problems", None)  # every problem --check (or a run) found, one line each
+        _fail("\nerror: ".join(problems) + f"\n{len(problems)} problems; nothing was run" if problems else str(exc), 2)
+    for note in plan.notes:
+        _note(note)
     n = len(plan.tasks)
     console.print(f"{pipeline}: {n} task(s) ({len(plan.inputs)} input(s) x {n // max(len(plan.inputs), 1)} setting(s)), "
                   f"outputs in {plan.output_dir}", highlight=False)
     if check:
         for t in plan.tasks:
-            console.print(f"  {t.input.name} {t.setting_text}: {', '.join(s.name for s in t.steps)}", highlight=False)
+            console.print(f"  {t.label or t.input.name} {t.setting_text}: {', '.join(s.name for s in t.steps)}", highlight=False, markup=False)
         return
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err_console, transient=True, disable=n < 2) as progress:
@@ -65,7 +68,9 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
         def done(row):
             progress.advance(bar)
             if row.get("status") != "ok":
-                err_console.print(f"[red]failed:[/red] {row.get('error')}", highlight=False)
+                from rich.text import Text  # the error names user paths: never markup
+
+                err_console.print(Text.assemble(("failed: ", "red"), str(row.get("error"))), highlight=False)
 
         rows = run_pipeline(plan, scheduler=scheduler, workers=workers, serial=serial, on_done=done)
     _print_rows(rows)
@@ -79,21 +84,33 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
 
 
 def _print_rows(rows: list[dict]) -> None:
+    """The results as a table: inputs by their shortest distinguishing path, no column cut.
+
+    On a terminal, a cell too wide for its column is folded onto more lines; into a file or
+    a pipe the table gets the width it needs (nothing is cut at 80 characters).
+    """
+    from ..pipeline.schema import distinguishing_names
     from ..pipeline.sweep import columns
 
     # The terminal shows the measurements; the chosen parameters, mesh sizes and output paths are in
     # the CSV/JSON (a table of every column does not fit a terminal).
     hidden = ("outputs", "error", "vertices", "faces")
     cols = [c for c in columns(rows) if c not in hidden and not c.startswith("auto.")]
+    names = distinguishing_names([Path(r["input"]) for r in rows if r.get("input")])
+    from rich.text import Text  # user text (paths, variable names) is never read as markup
+
     table = Table()
     for c in cols:
-        table.add_column(c)
+        table.add_column(Text(c), overflow="fold")
     for r in rows:
         cells = []
         for c in cols:
             v = r.get(c, "")
-            cells.append(Path(v).name if c == "input" else f"{v:.4g}" if isinstance(v, float) else str(v))
-        table.add_row(*cells)
+            cells.append(names.get(Path(v), str(v)) if c == "input" and v else f"{v:.4g}" if isinstance(v, float) else str(v))
+        table.add_row(*(Text(cell) for cell in cells))
+    if not console.is_terminal:  # a file or a pipe: the width the table needs
+        needed = console.measure(table, options=console.options.update_width(100_000)).maximum
+        table.width = max(console.width, needed) if needed > console.width else None
     console.print(table)
 
 
@@ -136,11 +153,11 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
         from ..registry import get_filter
 
         get_filter(method)
-        step = parse_step({method: given}, 1, "--method", None)
+        step = parse_step({method: given}, None, "--method", None)
     except KeyError as exc:
         _fail(f"--method: {exc.args[0]}", 2)
     except PipelineValidationError as exc:
-        _fail(str(exc).replace("--method: step 1 ", "--method ").replace("--method: ", ""), 2)
+        _fail(str(exc), 2)
     save = parse_step({"save": {"path": str(dst.resolve())}}, 2, "denoise", None)
     task = Task(0, src.resolve(), {}, "", [step, save], {str(dst.resolve()): dst.resolve()})
     try:
@@ -203,61 +220,120 @@ def info_command(mesh, as_json):
 
 
 def _write_text(path: str | None, text: str) -> None:
+    """Write ``text`` to stdout or atomically to ``path`` (its folder is made, as for every output); exit 2 when it cannot be."""
     if path is None:
         click.echo(text, nl=False)
         return
-    from ..io import atomic_path
+    from ..io import MeshFileError, atomic_path
 
-    with atomic_path(path) as tmp:
-        Path(tmp).write_text(text, encoding="utf-8")
-    err_console.print(f"written {path}", highlight=False)
+    try:
+        with atomic_path(path) as tmp:
+            Path(tmp).write_text(text, encoding="utf-8")
+    except MeshFileError as exc:
+        _fail(str(exc), 2)
+    err_console.print(f"written {path}", highlight=False, markup=False)
+
+
+def _note(text: str) -> None:
+    err_console.print(f"note: {text}", highlight=False, markup=False)
+
+
+def _read_text(path: str) -> str:
+    try:
+        return Path(path).read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        _fail(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason})", 2)
+    except OSError as exc:
+        _fail(f"{path}: cannot be read ({exc.strerror or exc})", 2)
 
 
 @click.command("mlx2yaml")
 @click.argument("script", type=click.Path(exists=True, dir_okay=False))
-@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False), help="Write here instead of stdout.")
-@click.option("--input", "input_glob", default="mesh.ply", show_default=True, help="The 'inputs' of the pipeline written.")
+@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False), help="Write here instead of stdout (its folder is made).")
+@click.option("--input", "input_glob", default=None,
+              help="The 'inputs' of the pipeline written (default: a placeholder you must set, or pass --input to run).")
 def mlx2yaml_command(script, output, input_glob):
     """Convert a MeshLab filter SCRIPT (.mlx) to a pipeline YAML (pymeshlab names)."""
     import yaml
 
     from ..pipeline.mlx import mlx_to_steps
+    from ..pipeline.schema import PLACEHOLDER_INPUT
 
+    notes: list[str] = []
     try:
-        steps = mlx_to_steps(Path(script).read_text(encoding="utf-8"), script)
+        steps = mlx_to_steps(_read_text(script), script, warn=notes.append)
     except ValueError as exc:
         _fail(str(exc), 2)
-    doc = {"inputs": input_glob, "steps": steps + [{"save": {"path": "{stem}_out.ply"}}]}
-    _write_text(output, f"# converted from {Path(script).name} by meshdenoise mlx2yaml\n" + yaml.safe_dump(doc, sort_keys=False))
+    for text in notes:
+        _note(text)
+    if input_glob is None:
+        inputs = (f"inputs: {PLACEHOLDER_INPUT}   # set your mesh file(s): a file, a glob or a list "
+                  "(or give meshdenoise run --input FILE)\n")
+        _note(f"the pipeline's inputs are a placeholder ({PLACEHOLDER_INPUT}): set them, or run it with --input FILE")
+    else:
+        inputs = yaml.safe_dump({"inputs": input_glob}, sort_keys=False)
+    body = yaml.safe_dump({"steps": steps + [{"save": {"path": "{stem}_out.ply"}}]}, sort_keys=False)
+    _write_text(output, f"# converted from {Path(script).name} by meshdenoise mlx2yaml\n" + inputs + body)
 
 
 @click.command("yaml2mlx")
 @click.argument("pipeline", type=click.Path(exists=True, dir_okay=False))
-@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False), help="Write here instead of stdout.")
-@click.option("--skip-other", is_flag=True, help="Leave out steps with no filter-script form (save, metrics, open3d.*).")
+@click.option("-o", "--output", default=None, type=click.Path(dir_okay=False), help="Write here instead of stdout (its folder is made).")
+@click.option("--skip-other", is_flag=True, help="Leave out steps with no filter-script form (metrics, render, add_noise, open3d.*); save is always left out.")
 def yaml2mlx_command(pipeline, output, skip_other):
     """Convert the steps of a PIPELINE YAML to a MeshLab filter script (.mlx)."""
     from ..pipeline.errors import PipelineValidationError
     from ..pipeline.mlx import steps_to_mlx
-    from ..pipeline.yamlsource import load_yaml
+    from ..pipeline.yamlsource import line_of, load_yaml
 
     try:
-        doc = load_yaml(Path(pipeline).read_text(encoding="utf-8"), pipeline)
+        doc = load_yaml(_read_text(pipeline), pipeline)
     except PipelineValidationError as exc:
         _fail(str(exc), 2)
     steps = doc.get("steps") if isinstance(doc, dict) else None
     if not isinstance(steps, list):
         _fail(f"{pipeline}: no 'steps' list", 2)
-    if skip_other:
-        from ..pipeline.steps import BUILTIN_STEPS
-
-        steps = [s for s in steps if (s if isinstance(s, str) else next(iter(s))) not in BUILTIN_STEPS
-                 and not (s if isinstance(s, str) else next(iter(s))).startswith("open3d.")]
+    notes: list[str] = []
     try:
-        text = steps_to_mlx(steps)
+        text = steps_to_mlx(steps, skip_other=skip_other, notes=notes)
     except ValueError as exc:
-        _fail(f"{pipeline}: {exc}", 2)
+        index = getattr(exc, "index", None)  # the step's position, for its line
+        line = line_of(steps, index - 1) if index else None
+        _fail(f"{pipeline}{':' + str(line) if line else ''}: {exc}", 2)
+    for note in notes:
+        _note(f"{pipeline}: {note}")
     _write_text(output, text)
 
 
-COMMANDS = [run_command, denoise_command, info_command, mlx2yaml_command, yaml2mlx_command]
+@click.command("steps")
+@click.argument("names", nargs=-1, metavar="[NAME]...")
+@click.option("--json", "as_json", is_flag=True, help="Print JSON instead of text.")
+def steps_command(names, as_json):
+    """List every step a pipeline may use, with its parameters (types, defaults, what they do); NAME: only these
+    steps (a pymeshlab filter too, by its pymeshlab or MeshLab name)."""
+    from ..pipeline.steps import describe_pymeshlab_step, describe_steps
+
+    steps = describe_steps()
+    if names:
+        by_name = {s["name"]: s for s in steps}
+        chosen = []
+        for name in names:
+            if name in by_name:
+                chosen.append(by_name[name])
+                continue
+            try:
+                chosen.append(describe_pymeshlab_step(name))
+            except KeyError as exc:
+                _fail(str(exc.args[0]), 2)
+        steps = chosen
+    if as_json:
+        click.echo(json.dumps(steps, indent=1, default=str))
+        return
+    for step in steps:
+        click.echo(f"{step['name']}: {step['summary']}")
+        for p in step["params"]:
+            default = "" if p["default"] is None else f", default {p['default']!r}"
+            click.echo(f"    {p['name']} ({p['type']}{default}): {p['help']}")
+
+
+COMMANDS = [run_command, denoise_command, info_command, mlx2yaml_command, yaml2mlx_command, steps_command]

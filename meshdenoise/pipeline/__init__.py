@@ -6,14 +6,15 @@ Use::
     plan = load_pipeline("pipelines/scan_cleanup.yaml", overrides={"mu": 2})
     rows = run_pipeline(plan)
 
-See the README section "Pipelines and the command line" for the file format.
+See docs/pipelines.md for the file format.
 """
 
 from __future__ import annotations
 
 from .batch import run_tasks
 from .errors import PipelineError, PipelineValidationError, StepFailure
-from .schema import Plan, Task, build_plan, load_pipeline
+from .schema import PipelineProblems, Plan, Task, build_plan, load_pipeline
+from .state import MeshState
 from .sweep import write_results
 
 __all__ = [
@@ -26,6 +27,8 @@ __all__ = [
     "Task",
     "PipelineError",
     "PipelineValidationError",
+    "PipelineProblems",
+    "MeshState",
     "StepFailure",
 ]
 

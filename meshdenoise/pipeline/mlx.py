@@ -3,7 +3,7 @@
 MeshLab's GUI saves MeshLab's names ("Laplacian Smooth", ``stepSmoothNum``); pipelines
 use pymeshlab's (``apply_coord_laplacian_smoothing``, ``stepsmoothnum``). The table
 between them was recorded from pymeshlab's own ``save_filter_script``
-(:mod:`~meshdenoise.pipeline.meshlab_names`); a filter missing from it falls back to
+(``meshdenoise/pipeline/meshlab_filters.json``, read by :mod:`~meshdenoise.pipeline.meshlab_names`); a filter missing from it falls back to
 pymeshlab's rule (lower-cased MeshLab name, then pymeshlab's ``keys.txt`` renaming).
 
 Our own denoisers are written as ``<filter name="meshdenoise:sobolev">`` with
@@ -23,9 +23,9 @@ from pathlib import Path
 from typing import Any
 
 from .meshlab_names import FILTERS
-from .pymeshlab_steps import PERCENT, filter_names, parameter_types
+from .pymeshlab_steps import PERCENT, check_value, filter_names, parameter_types
 
-__all__ = ["mlx_to_steps", "steps_to_mlx", "OURS_PREFIX", "pythonize"]
+__all__ = ["mlx_to_steps", "steps_to_mlx", "OURS_PREFIX", "pythonize", "pymeshlab_name", "NO_SCRIPT_FORM"]
 
 OURS_PREFIX = "meshdenoise:"
 
@@ -58,13 +58,22 @@ def pythonize(meshlab_name: str) -> str:
     return re.sub(r"[^0-9a-z]+", "_", meshlab_name.lower()).strip("_")
 
 
-def _pymeshlab_name(meshlab_name: str) -> str:
+def _pymeshlab_name(meshlab_name: str, where: str = "") -> str | None:
+    """pymeshlab's name of a MeshLab filter; ``ValueError`` naming ``where`` when there is none."""
+    found = pymeshlab_name(meshlab_name)
+    if found is None:
+        raise ValueError(f"{where + ': ' if where else ''}MeshLab filter {meshlab_name!r} has no pymeshlab equivalent in this pymeshlab version")
+    return found
+
+
+def pymeshlab_name(meshlab_name: str) -> str | None:
+    """pymeshlab's name of a filter known by its MeshLab (GUI) name (``"Taubin Smooth"``), or None."""
     if meshlab_name in _by_meshlab_name():
         return _by_meshlab_name()[meshlab_name]
     guess = _renamed().get(pythonize(meshlab_name), pythonize(meshlab_name))
     if guess in filter_names():
         return guess
-    raise ValueError(f"MeshLab filter {meshlab_name!r} has no pymeshlab equivalent in this pymeshlab version")
+    return None
 
 
 def _param_name(meshlab_param: str) -> str:
@@ -77,42 +86,93 @@ def _number(text: str) -> int | float:
     return int(value) if value.is_integer() and re.fullmatch(r"[-+]?\d+", text.strip()) else value
 
 
+# MeshLab's older scripts write a point as RichPoint3f (x, y, z attributes), as the newer RichPosition / RichDirection
+POINT_TYPES = ("RichPosition", "RichDirection", "RichPoint3f")
+
+
+def _attribute(p: ET.Element, key: str) -> str:
+    v = p.get(key)
+    if v is None:
+        raise ValueError(f"has no {key!r} attribute")
+    return v
+
+
+def _float(p: ET.Element, key: str) -> float:
+    text = _attribute(p, key)
+    try:
+        return float(text)
+    except ValueError:
+        raise ValueError(f"{key}={text!r} is not a number") from None
+
+
+class UnsupportedType(ValueError):
+    """A parameter type pipelines cannot express (a camera ``RichShotf``, a mesh chooser...)."""
+
+
 def _read_param(p: ET.Element, where: str) -> Any:
+    """The YAML value of one ``<Param>``; ``ValueError`` naming ``where`` and the parameter."""
     t = p.get("type")
-    v = p.get("value")
+    name = p.get("name")
+    try:
+        return _read_value(p, t)
+    except UnsupportedType as exc:
+        raise UnsupportedType(f"{where}: parameter {name!r} {exc}") from None
+    except ValueError as exc:
+        raise ValueError(f"{where}: parameter {name!r} ({t}) {exc}") from None
+
+
+def _read_value(p: ET.Element, t: str | None) -> Any:
     if t == "RichBool":
-        return v.strip().lower() == "true"
+        v = _attribute(p, "value").strip().lower()
+        if v not in ("true", "false"):
+            raise ValueError(f"value={p.get('value')!r} is not true or false")
+        return v == "true"
     if t in ("RichInt", "RichMesh"):
-        return int(float(v))
+        v = _float(p, "value")
+        if not v.is_integer():
+            raise ValueError(f"value={p.get('value')!r} is not an integer")
+        return int(v)
     if t in ("RichFloat", "RichDynamicFloat", "RichAbsPerc"):
-        return float(v)
+        return _float(p, "value")
     if t == "RichEnum":
-        n = int(p.get("enum_cardinality", 0))
+        n = int(_float(p, "enum_cardinality")) if p.get("enum_cardinality") is not None else 0
         labels = [p.get(f"enum_val{i}") for i in range(n)]
-        k = int(float(v))
+        k = int(_float(p, "value"))
         return labels[k] if 0 <= k < len(labels) and labels[k] is not None else k
-    if t in ("RichPosition", "RichDirection"):
-        return [float(p.get(c)) for c in "xyz"]
+    if t in POINT_TYPES:
+        return [_float(p, c) for c in "xyz"]
     if t == "RichColor":
-        return [int(float(p.get(c))) for c in "rgba"]
+        return [int(_float(p, c)) for c in "rgba"]
     if t == "RichMatrix44f":
-        return [float(p.get(f"val{i}")) for i in range(16)]
-    if t in ("RichString", "RichOpenFile", "RichSaveFile", None):
+        return [_float(p, f"val{i}") for i in range(16)]
+    if t in ("RichString", "RichOpenFile", "RichSaveFile", "RichFileOpen", "RichFileSave", None):
+        v = p.get("value")
         return v if v is not None else ""
-    raise ValueError(f"{where}: parameter {p.get('name')!r} has type {t!r}, which pipelines do not support")
+    raise UnsupportedType(f"has type {t!r}, which pipelines cannot express")
 
 
-def mlx_to_steps(text: str, source: str = "<mlx>") -> list[dict]:
+def mlx_to_steps(text: str, source: str = "<mlx>", warn: Any = None) -> list[dict]:
     """Steps (``[{pymeshlab_name: {param: value}}, ...]``) of a MeshLab filter script.
 
     Every parameter is written out, as in the script (MeshLab saves all of them).
-    ``RichAbsPerc`` values are absolute (MeshLab stores them so).
+    ``RichAbsPerc`` values are absolute (MeshLab stores them so). Points (``RichPosition``,
+    ``RichDirection``, older scripts' ``RichPoint3f``) become 3 numbers, matrices 16.
+    A parameter of a type pipelines cannot express (a camera, ``RichShotf``) is left out,
+    so pymeshlab's default is used, and ``warn`` (a callable, default :func:`warnings.warn`)
+    is told which.
 
     Raises
     ------
     ValueError
-        Not a filter script, or a filter unknown to pymeshlab (naming it and its position).
+        Not a filter script, a filter unknown to pymeshlab, or a malformed parameter: the
+        message names ``source``, the filter's position and name, and the parameter.
     """
+    if warn is None:
+        import warnings
+
+        def warn(message):
+            warnings.warn(message, UserWarning, stacklevel=3)
+
     try:
         root = ET.fromstring(text)
     except ET.ParseError as exc:
@@ -120,22 +180,27 @@ def mlx_to_steps(text: str, source: str = "<mlx>") -> list[dict]:
     if root.tag != "FilterScript":
         raise ValueError(f"{source}: the root element is <{root.tag}>, expected <FilterScript>")
     steps = []
-    for k, node in enumerate(root, start=1):
+    k = 0
+    for node in root:
         if node.tag not in ("filter", "xmlfilter"):
             continue
+        k += 1
         name = node.get("name", "")
         where = f"{source}: filter {k} {name!r}"
+        ours = name.startswith(OURS_PREFIX)
+        py = name[len(OURS_PREFIX):] if ours else _pymeshlab_name(name, where)
         params = {}
-        if name.startswith(OURS_PREFIX):
-            ours = name[len(OURS_PREFIX):]
-            for p in node.findall("Param"):
-                params[p.get("name")] = _read_param(p, where)
-            steps.append({ours: params})
-            continue
-        py = _pymeshlab_name(name)
         for p in node.findall("Param"):
-            params[_param_name(p.get("name"))] = _read_param(p, where)
-        steps.append({py: params} if params else py)
+            pname = p.get("name")
+            if not pname:
+                raise ValueError(f"{where}: a <Param> has no name")
+            try:
+                value = _read_param(p, where)
+            except UnsupportedType as exc:
+                warn(f"{exc}; left out, so pymeshlab's default is used (set it in the YAML if needed)")
+                continue
+            params[pname if ours else _param_name(pname)] = value
+        steps.append({py: params} if params or ours else py)
     return steps
 
 
@@ -159,10 +224,7 @@ def _write_param(parent: ET.Element, mesh_name: str, value: Any, info: dict) -> 
             attrs["min"], attrs["max"] = _fmt(min(0.0, value)), _fmt(max(1.0, value))
     elif t == "RichAbsPerc":
         if isinstance(value, str) and PERCENT.match(value):
-            raise ValueError(
-                f"parameter {mesh_name!r} = {value!r}: a filter script stores absolute values; "
-                "write the value in mesh units"
-            )
+            raise ValueError("a filter script stores absolute values; write the value in mesh units")
         attrs["value"] = _fmt(value)
         attrs["min"], attrs["max"] = "0", _fmt(max(float(value), 1.0) * 100)
     elif t == "RichEnum":
@@ -186,43 +248,155 @@ def _write_param(parent: ET.Element, mesh_name: str, value: Any, info: dict) -> 
     ET.SubElement(parent, "Param", attrs)
 
 
-def steps_to_mlx(steps: list) -> str:
+class ScriptStepError(ValueError):
+    """A step that cannot be written to a filter script; :attr:`index` is its position (from 1)."""
+
+    def __init__(self, index: int, message: str):
+        super().__init__(message)
+        self.index = index
+
+
+# steps with no filter-script form: ``save`` is always left out (MeshLab saves the mesh itself), the
+# others only with ``skip_other``
+NO_SCRIPT_FORM = ("save", "metrics", "render", "add_noise")
+
+
+def _step_parts(item: Any, k: int) -> tuple[str, dict]:
+    """``(name, parameters)`` of one YAML step; ``ValueError`` naming the step for anything else."""
+    if isinstance(item, str):
+        return item, {}
+    if isinstance(item, dict) and len(item) == 1:
+        name, params = next(iter(item.items()))
+        if not isinstance(name, str):
+            raise ScriptStepError(k, f"step {k}: a step's name is a string, got {name!r}")
+        if params is None:
+            return name, {}
+        if not isinstance(params, dict):
+            raise ScriptStepError(k, f"step {k} '{name}': parameters must be a mapping (name: value), got {params!r}")
+        return name, dict(params)
+    if isinstance(item, dict):
+        keys = ", ".join(repr(key) for key in item) or "none"
+        raise ScriptStepError(
+            k, f"step {k}: a step is one name with its parameters, this one has {len(item)} keys ({keys}); "
+            "indent the parameters under the name, or write two steps"
+        )
+    raise ScriptStepError(k, f"step {k}: a step is a name or a one-key mapping 'name: {{parameters}}', got {item!r}")
+
+
+def gui_names(name: str, params: dict) -> tuple[str, dict, list[str]]:
+    """Accept MeshLab's GUI names for a pymeshlab step: ``("Taubin Smooth", {"lambda": ..})`` ->
+    ``("apply_coord_taubin_smoothing", {"lambda_": ..})``, with one note per renaming naming the canonical name.
+
+    Names that are already pymeshlab's (or not MeshLab's) are returned unchanged, with no note.
+    """
+    notes = []
+    canonical = name
+    if name not in filter_names():
+        found = pymeshlab_name(name) if not name.startswith("open3d.") else None
+        if found is None or found == name:
+            return name, params, notes
+        canonical = found
+        notes.append(f"'{name}' is MeshLab's name of the pymeshlab filter '{canonical}': write '{canonical}'")
+    entry = FILTERS.get(canonical)
+    if entry is None:
+        return canonical, params, notes
+    known = parameter_types(canonical)
+    by_gui = {info["name"]: py for py, info in entry["params"].items()}
+    by_gui.update({info["name"].lower(): py for py, info in entry["params"].items() if info["name"].lower() not in known})
+    out = {}
+    for key, value in params.items():
+        if isinstance(key, str) and key not in known and (key in by_gui or key.lower() in by_gui):
+            py = by_gui.get(key, by_gui.get(key.lower()))
+            notes.append(f"'{key}' is MeshLab's name of {canonical}'s parameter '{py}': write '{py}'")
+            key = py
+        out[key] = value
+    return canonical, out, notes
+
+
+def _our_param(spec, key: str, value: Any, k: int, name: str) -> dict:
+    """A ``<Param>``'s attributes for a parameter of our filter, typed by its declaration (``mu: 1`` is a RichFloat)."""
+    try:
+        param = spec.param(key)
+    except KeyError:
+        param = None
+    if param is not None:
+        try:
+            value = param.check(value)
+        except (TypeError, ValueError) as exc:
+            raise ScriptStepError(k, f"step {k} '{name}': {exc}") from None
+        kind = param.kind
+    else:
+        if key not in ("pinned", "region", "preserve_volume", "parameters"):
+            known = ", ".join(p.name for p in spec.params)
+            raise ScriptStepError(k, f"step {k} '{name}': unknown parameter {key!r}; its parameters: {known}")
+        if isinstance(value, (list, dict)) or value is None:
+            raise ScriptStepError(k, f"step {k} '{name}': parameter {key!r} = {value!r} cannot be written to a filter script")
+        kind = type(value)
+    text = _fmt(value) if kind is float else str(value).lower() if kind is bool else str(value)
+    return {"name": key, "type": _RICH[kind], "value": text}
+
+
+def steps_to_mlx(steps: list, *, skip_other: bool = False, notes: list | None = None) -> str:
     """A MeshLab filter script for pipeline steps (pymeshlab filters and our denoisers).
 
     Only the parameters the step gives are written, in its order: MeshLab and pymeshlab
     use their defaults for the others (which for lengths depend on the mesh, so writing
-    them out would fix them to one mesh's values).
+    them out would fix them to one mesh's values). ``save`` steps are left out (MeshLab
+    saves the mesh itself); other steps with no filter-script form (:data:`NO_SCRIPT_FORM`,
+    ``open3d.*``) are refused unless ``skip_other``. MeshLab's GUI names are accepted.
+    What was left out or renamed is appended to ``notes`` when given.
+
+    Raises
+    ------
+    ValueError
+        Naming the step (its position and name) and the parameter.
     """
     from ..registry import REGISTRY, _load_plugins
 
     _load_plugins()
+    notes = notes if notes is not None else []
+    if not isinstance(steps, list):
+        raise ValueError(f"'steps' must be a list, got {steps!r}")
     root = ET.Element("FilterScript")
     for k, item in enumerate(steps, start=1):
-        name, params = (item, {}) if isinstance(item, str) else next(iter(item.items()))
-        params = dict(params or {})
+        name, params = _step_parts(item, k)
         params.pop("label", None)
+        if name in NO_SCRIPT_FORM or name.startswith("open3d."):
+            if name == "save" or skip_other:
+                notes.append(f"step {k} '{name}': left out (a filter script has no such step)")
+                continue
+            raise ScriptStepError(
+                k, f"step {k} '{name}': only pymeshlab filters and our denoisers have a filter-script form "
+                "(--skip-other leaves such steps out)"
+            )
         if name in REGISTRY:
+            spec = REGISTRY[name]
             node = ET.SubElement(root, "filter", {"name": OURS_PREFIX + name})
             for key, value in params.items():
-                if isinstance(value, (list, dict)) or value is None:
-                    raise ValueError(f"step {k} '{name}': parameter {key!r} = {value!r} cannot be written to a filter script")
-                ET.SubElement(node, "Param", {"name": key, "type": _RICH[type(value)], "value": _fmt(value) if type(value) is float else str(value).lower() if isinstance(value, bool) else str(value)})
+                ET.SubElement(node, "Param", _our_param(spec, key, value, k, name))
             continue
+        name, params, renamed = gui_names(name, params)
+        notes.extend(f"step {k}: {text}" for text in renamed)
         if name not in filter_names():
-            raise ValueError(f"step {k} '{name}': only pymeshlab filters and our denoisers have a filter-script form")
+            raise ScriptStepError(k, f"step {k} '{name}': not a pymeshlab filter nor one of ours; only those have a filter-script form")
         if name not in FILTERS:
-            raise ValueError(f"step {k} '{name}': its MeshLab name is not known (not in the recorded table)")
+            raise ScriptStepError(k, f"step {k} '{name}': its MeshLab name is not known (not in the recorded table)")
         entry = FILTERS[name]
         node = ET.SubElement(root, "filter", {"name": entry["meshlab"]})
         types = parameter_types(name)
         for key, value in params.items():
             if key not in entry["params"]:
-                raise ValueError(f"step {k} '{name}': unknown parameter {key!r}")
+                known = ", ".join(entry["params"])
+                raise ScriptStepError(k, f"step {k} '{name}': unknown parameter {key!r}; its parameters: {known}")
             info = entry["params"][key]
+            if key in types:
+                try:
+                    value = check_value(key, value, types[key], f"step {k} '{name}'")
+                except ValueError as exc:
+                    raise ScriptStepError(k, str(exc)) from None
             try:
                 _write_param(node, info["name"], value, {**types.get(key, {}), **info})
-            except ValueError as exc:
-                raise ValueError(f"step {k} '{name}': {exc}") from None
+            except (TypeError, ValueError) as exc:
+                raise ScriptStepError(k, f"step {k} '{name}': parameter {key!r} = {value!r}: {exc}") from None
     ET.indent(root, " ")
     return "<!DOCTYPE FilterScript>\n" + ET.tostring(root, encoding="unicode") + "\n"
-

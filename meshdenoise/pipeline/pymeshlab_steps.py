@@ -34,7 +34,7 @@ import numpy as np
 
 from .meshlab_names import FILTERS
 
-__all__ = ["filter_names", "parameter_types", "check_parameters", "to_pymeshlab_value", "PERCENT"]
+__all__ = ["filter_names", "parameter_types", "check_parameters", "check_value", "to_pymeshlab_value", "PERCENT"]
 
 PERCENT = re.compile(r"^\s*([-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?)\s*%\s*$")
 
@@ -82,18 +82,13 @@ def _is_number(v: Any) -> bool:
     return isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
 
 
-def _check_one(param: str, value: Any, info: dict) -> str | None:
-    """A complaint about ``value`` for a parameter of this type, or None if it is acceptable."""
+# MeshLab types checked by our one parameter check, registry.Param.check (type, finiteness)
+_SCALAR_KINDS = {"RichBool": bool, "RichInt": int, "RichMesh": int, "RichFloat": float, "RichDynamicFloat": float, "RichString": str}
+
+
+def _check_other(value: Any, info: dict) -> str | None:
+    """A complaint about ``value`` for a non-scalar MeshLab type, or None if it is acceptable."""
     t = info["type"]
-    if t == "RichBool":
-        return None if isinstance(value, bool) else "must be true or false"
-    if t in ("RichInt", "RichMesh"):
-        ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-        return None if ok else "must be an integer"
-    if t in ("RichFloat", "RichDynamicFloat"):
-        return None if _is_number(value) else "must be a number"
-    if t == "RichString":
-        return None if isinstance(value, str) else "must be a string"
     if t == "RichEnum":
         labels = info.get("enum", [])
         if isinstance(value, str):
@@ -106,11 +101,11 @@ def _check_one(param: str, value: Any, info: dict) -> str | None:
             return None
         return f"must be one of {', '.join(repr(x) for x in labels)}"
     if t == "RichAbsPerc":
-        if _is_number(value) or (isinstance(value, str) and PERCENT.match(value)):
+        if (_is_number(value) and np.isfinite(value)) or (isinstance(value, str) and PERCENT.match(value)):
             return None
         return "must be a number (absolute, in mesh units) or a percentage of the bounding-box diagonal like '2%'"
     if t in ("RichPosition", "RichDirection"):
-        ok = isinstance(value, (list, tuple)) and len(value) == 3 and all(_is_number(v) for v in value)
+        ok = isinstance(value, (list, tuple)) and len(value) == 3 and all(_is_number(v) and np.isfinite(v) for v in value)
         return None if ok else "must be a list of 3 numbers"
     if t == "RichColor":
         ok = isinstance(value, (list, tuple)) and len(value) in (3, 4)
@@ -118,13 +113,41 @@ def _check_one(param: str, value: Any, info: dict) -> str | None:
         return None if ok else "must be a list of 3 or 4 integers 0..255 (RGB[A])"
     if t == "RichMatrix44f":
         flat = np.asarray(value, dtype=object).ravel().tolist() if isinstance(value, (list, tuple)) else None
-        ok = flat is not None and len(flat) == 16 and all(_is_number(v) for v in flat)
+        ok = flat is not None and len(flat) == 16 and all(_is_number(v) and np.isfinite(v) for v in flat)
         return None if ok else "must be 16 numbers (a 4x4 matrix, row-major)"
     return None  # a type pymeshlab checks itself when the filter runs
 
 
+def check_value(param: str, value: Any, info: dict, where: str) -> Any:
+    """One parameter of a pymeshlab step checked against its MeshLab type; returns it converted.
+
+    Scalars go through :meth:`meshdenoise.registry.Param.check` (the one check of every
+    parameter: ``True`` is not an int, ``2.0`` is, non-finite floats are refused).
+
+    Raises
+    ------
+    ValueError
+        Naming ``where``, the parameter, the value and the MeshLab type.
+    """
+    from ..registry import Param
+
+    t = info["type"]
+    kind = _SCALAR_KINDS.get(t)
+    if kind is not None:
+        # MeshLab's integers are C++ ints: larger ones fail late with pybind11's "Unable to cast"
+        low, high = (-(2**31), 2**31 - 1) if kind is int else (None, None)
+        try:
+            return Param(param, kind, info.get("default"), low=low, high=high).check(value, where)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{exc} ({t})") from None
+    problem = _check_other(value, info)
+    if problem:
+        raise ValueError(f"{where}: parameter '{param}' = {value!r} {problem} ({t})")
+    return value
+
+
 def check_parameters(name: str, given: dict, where: str) -> dict:
-    """Check a pymeshlab step's parameters (names, types); return them unchanged.
+    """Check a pymeshlab step's parameters (names, types); return them (scalars converted).
 
     Raises
     ------
@@ -133,16 +156,15 @@ def check_parameters(name: str, given: dict, where: str) -> dict:
         naming ``where`` (file, line, step).
     """
     types = parameter_types(name)
+    out = {}
     for key, value in given.items():
         if key not in types:
             hint = difflib.get_close_matches(str(key), list(types), n=1)
             extra = f" (did you mean '{hint[0]}'?)" if hint else ""
             allowed = ", ".join(types) or "none"
             raise ValueError(f"{where}: pymeshlab filter '{name}' has no parameter '{key}'{extra}; its parameters: {allowed}")
-        problem = _check_one(key, value, types[key])
-        if problem:
-            raise ValueError(f"{where}: parameter '{key}' = {value!r} {problem} ({types[key]['type']})")
-    return dict(given)
+        out[key] = check_value(key, value, types[key], where)
+    return out
 
 
 def to_pymeshlab_value(name: str, param: str, value: Any) -> Any:

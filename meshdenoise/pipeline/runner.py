@@ -12,10 +12,13 @@ import time
 import traceback
 from typing import Any, Callable
 
+import numpy as np
+
 from ..arrays import MeshValidationError
 from .errors import InputError, StepFailure
 from .schema import Task
-from .steps import RunContext, meshset_from_arrays, run_step
+from .state import MeshState
+from .steps import RunContext, run_step
 
 __all__ = ["run_task", "run_task_safely"]
 
@@ -30,9 +33,11 @@ def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
         mesh = load_mesh(task.input)
     except MeshFileError as exc:  # its message already names the file
         raise InputError(str(exc)) from None
-    ms = meshset_from_arrays(mesh.V, mesh.F, mesh.vertex_colors, selection=mesh.selection)
-    ctx = RunContext(ms=ms, input_path=task.input, input_arrays=(mesh.V, mesh.F), row=row, echo=echo)
-    ctx.resolve_path = lambda template: task.output_paths[template]
+    selection = getattr(mesh, "selection", None)  # MeshLab's selection flags of a PLY
+    state = MeshState(mesh.V, mesh.F, mesh.vertex_colors,
+                      vertex_selection=selection if selection is not None and selection.any() else None)
+    ctx = RunContext(state, task.input, (mesh.V, mesh.F), output_paths=task.output_paths,
+                     reference_paths=task.reference_paths, row=row, echo=echo)
     try:
         for step in task.steps:
             try:
@@ -42,6 +47,11 @@ def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
             except Exception as exc:  # any library error: name the input and the step
                 detail = str(exc) or type(exc).__name__
                 raise StepFailure(f"{task.input}: {step.where} failed: {type(exc).__name__}: {detail}") from exc
+            if not np.isfinite(ctx.state.V).all():  # blame the step that made them, not the next one
+                raise InputError(
+                    f"{task.input}: {step.where} produced non-finite coordinates: a parameter is too large for this mesh "
+                    f"({', '.join(f'{k}={v!r}' for k, v in step.params.items()) or 'no parameters'})"
+                )
         for path, V, F, colors, binary in ctx.staged:
             if mesh.vertex_colors is None and colors is not None and (colors == 1.0).all():
                 colors = None  # pymeshlab's default white, not the input's: no colours in, no colours out
@@ -51,9 +61,8 @@ def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
     finally:
         for tmp, _ in ctx.staged_files:  # left only when the task failed
             tmp.unlink(missing_ok=True)
-    V = ms.current_mesh()
-    row["vertices"] = V.vertex_number()
-    row["faces"] = V.face_number()
+    row["vertices"] = ctx.state.n_vertices
+    row["faces"] = ctx.state.n_faces
     row["seconds"] = round(time.perf_counter() - start, 4)
     row["status"] = "ok"
     return row

@@ -19,6 +19,9 @@ from __future__ import annotations
 
 import glob
 import itertools
+import math
+import re
+import string
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -28,7 +31,14 @@ from .steps import Step, parse_step
 from .variables import substitute
 from .yamlsource import LineDict, LineList, line_of, load_yaml
 
-__all__ = ["Plan", "Task", "load_pipeline", "build_plan", "TOP_LEVEL_KEYS"]
+__all__ = ["Plan", "Task", "load_pipeline", "build_plan", "TOP_LEVEL_KEYS", "PipelineProblems", "PLACEHOLDER_INPUT", "fill_template", "distinguishing_names"]
+
+# a pipeline's grid: more is refused before anything is built (each setting's steps are checked, each task runs)
+MAX_SETTINGS = 10_000
+MAX_TASKS = 100_000
+
+# what ``mlx2yaml`` writes as the inputs when none is given: --check says to set it
+PLACEHOLDER_INPUT = "SET-YOUR-MESH.ply"
 
 TOP_LEVEL_KEYS = ("variables", "inputs", "output_dir", "steps", "sweep", "results", "description")
 
@@ -43,6 +53,8 @@ class Task:
     setting_text: str
     steps: list[Step]
     output_paths: dict = field(default_factory=dict)  # template -> resolved Path
+    reference_paths: dict = field(default_factory=dict)  # metrics reference pattern ({dir}/Original.obj) -> Path
+    label: str = ""  # the shortest part of the input's path that tells it from the other inputs
 
 
 @dataclass
@@ -56,6 +68,11 @@ class Plan:
     results: str | None
     variables: dict
     sweep: dict
+
+    @property
+    def notes(self) -> list[str]:
+        """Things worth telling about the pipeline (MeshLab GUI names used...), each once."""
+        return list(dict.fromkeys(n for t in self.tasks for s in t.steps for n in s.notes))
 
     @property
     def writes_results(self) -> bool:
@@ -74,33 +91,55 @@ def _placeholders() -> dict[str, str]:
     return {"samples": samples, "data": str(data_dir())}
 
 
-def _expand_inputs(spec: Any, base: Path, at: str) -> list[Path]:
+def _expand_inputs(spec: Any, base: Path, at: str, problems: list[str] | None = None) -> list[Path]:
+    """Files named by ``inputs`` (a file, a glob or a list of them); with ``problems``, every bad item is reported there."""
     items = spec if isinstance(spec, list) else [spec]
     found: list[Path] = []
     for k, item in enumerate(items):
         line_at = where(at.split(":")[0], line_of(spec, k) if isinstance(spec, LineList) else None) if isinstance(spec, list) else at
-        if not isinstance(item, str):
-            raise PipelineValidationError(f"{line_at}: inputs: expected a file name or glob, got {item!r}")
-        text = item
-        for key, value in _placeholders().items():
-            text = text.replace("{" + key + "}", value)
-        path = Path(text).expanduser()
-        if not path.is_absolute():
-            path = base / path
-        if glob.has_magic(str(path)):
-            matches = sorted(Path(p) for p in glob.glob(str(path), recursive=True) if Path(p).is_file())
-            if not matches:
-                raise PipelineValidationError(f"{line_at}: inputs: no file matches {item!r} (looked for {path})")
-            found.extend(matches)
-        else:
-            if not path.is_file():
-                raise PipelineValidationError(f"{line_at}: inputs: no such file {item!r} ({path})")
-            found.append(path)
+        try:
+            found.extend(_expand_one(item, base, line_at))
+        except PipelineValidationError as exc:
+            if problems is None:
+                raise
+            problems.append(str(exc))
     return [p.resolve() for p in found]
+
+
+def _expand_one(item: Any, base: Path, line_at: str) -> list[Path]:
+    if not isinstance(item, str):
+        raise PipelineValidationError(f"{line_at}: inputs: expected a file name or glob, got {item!r}")
+    if item == PLACEHOLDER_INPUT:
+        raise PipelineValidationError(
+            f"{line_at}: inputs: {item!r} is the placeholder mlx2yaml writes: set your mesh file(s) there "
+            "(a file, a glob or a list), or give run --input FILE"
+        )
+    text = item
+    for key, value in _placeholders().items():
+        text = text.replace("{" + key + "}", value)
+    path = Path(text).expanduser()
+    if not path.is_absolute():
+        path = base / path
+    if glob.has_magic(str(path)) and not path.is_file():  # a file literally named 'scan [final].ply' is that file
+        matches = sorted(Path(p) for p in glob.glob(str(path), recursive=True) if Path(p).is_file())
+        if not matches:
+            raise PipelineValidationError(f"{line_at}: inputs: no file matches {item!r} (looked for {path})")
+        return matches
+    if not path.is_file():
+        raise PipelineValidationError(f"{line_at}: inputs: no such file {item!r} ({path})")
+    return [path]
 
 
 def _setting_text(setting: dict) -> str:
     return ",".join(f"{k}={v}" for k, v in setting.items())
+
+
+class PipelineProblems(PipelineValidationError):
+    """Several problems found in one pipeline: :attr:`problems` holds one line each (file:line: step: what)."""
+
+    def __init__(self, problems: list[str]):
+        self.problems = list(dict.fromkeys(problems))  # the same problem under several settings is said once
+        super().__init__("\n".join(self.problems))
 
 
 def build_plan(
@@ -112,7 +151,16 @@ def build_plan(
     inputs: list[str] | None = None,
     output_dir: str | Path | None = None,
 ) -> Plan:
-    """Check a parsed pipeline document and expand it into tasks. Raises :class:`PipelineValidationError`."""
+    """Check a parsed pipeline document and expand it into tasks.
+
+    Every problem that can be found is reported at once (top-level keys, inputs, each step);
+    checks that need earlier parts to be right (labels, output paths) run when those are.
+
+    Raises
+    ------
+    PipelineValidationError
+        A :class:`PipelineProblems` when there are several problems (one line each).
+    """
     if not isinstance(doc, dict):
         raise PipelineValidationError(f"{source}: a pipeline is a mapping with 'inputs' and 'steps', got {type(doc).__name__}")
     doc = doc if isinstance(doc, LineDict) else LineDict(doc)
@@ -120,68 +168,100 @@ def build_plan(
         doc.key_lines, doc.line = {}, 1
     import difflib
 
+    problems: list[str] = []
+
+    def problem(text: str) -> None:
+        problems.append(text)
+
     for key in doc:
         if key not in TOP_LEVEL_KEYS:
             hint = difflib.get_close_matches(str(key), TOP_LEVEL_KEYS, n=1)
             extra = f" (did you mean '{hint[0]}'?)" if hint else ""
-            raise PipelineValidationError(
-                f"{where(source, line_of(doc, key))}: unknown key '{key}'{extra}; the keys are {', '.join(TOP_LEVEL_KEYS)}"
-            )
+            problem(f"{where(source, line_of(doc, key))}: unknown key '{key}'{extra}; the keys are {', '.join(TOP_LEVEL_KEYS)}")
     variables = doc.get("variables") or {}
     if not isinstance(variables, dict):
-        raise PipelineValidationError(f"{where(source, line_of(doc, 'variables'))}: variables must be a mapping")
+        problem(f"{where(source, line_of(doc, 'variables'))}: variables must be a mapping")
+        variables = {}
     variables = dict(variables)
     overrides = dict(overrides or {})
     sweep = doc.get("sweep") or {}
     if not isinstance(sweep, dict):
-        raise PipelineValidationError(f"{where(source, line_of(doc, 'sweep'))}: sweep must be a mapping name: [values]")
+        problem(f"{where(source, line_of(doc, 'sweep'))}: sweep must be a mapping name: [values]")
+        sweep = {}
     sweep = {k: (v if isinstance(v, list) else [v]) for k, v in sweep.items() if k not in overrides}
-    for k, v in sweep.items():
+    for k, v in list(sweep.items()):
         if not v:
-            raise PipelineValidationError(f"{where(source, line_of(doc['sweep'], k))}: sweep: '{k}' has no values")
+            problem(f"{where(source, line_of(doc['sweep'], k))}: sweep: '{k}' has no values")
+            del sweep[k]
     variables.update(overrides)
 
+    input_paths: list[Path] = []
+    n_problems = len(problems)
     if inputs is not None:
-        input_paths = _expand_inputs(list(inputs), Path.cwd(), f"{source}: --input")
+        input_paths = _expand_inputs(list(inputs), Path.cwd(), f"{source}: --input", problems)
+    elif "inputs" not in doc:
+        problem(f"{source}: no 'inputs' (a file, a glob or a list) and no --input given")
     else:
-        if "inputs" not in doc:
-            raise PipelineValidationError(f"{source}: no 'inputs' (a file, a glob or a list) and no --input given")
-        input_paths = _expand_inputs(
-            substitute(doc["inputs"], variables, where(source, line_of(doc, "inputs"))),
-            base_dir,
-            where(source, line_of(doc, "inputs")),
-        )
-    if not input_paths:
-        raise PipelineValidationError(f"{where(source, line_of(doc, 'inputs'))}: inputs: the list is empty")
+        try:
+            spec = substitute(doc["inputs"], variables, where(source, line_of(doc, "inputs")))
+        except PipelineValidationError as exc:
+            problem(str(exc))
+        else:
+            input_paths = _expand_inputs(spec, base_dir, where(source, line_of(doc, "inputs")), problems)
+            if not input_paths and len(problems) == n_problems:
+                problem(f"{where(source, line_of(doc, 'inputs'))}: inputs: the list is empty")
 
     out = output_dir if output_dir is not None else doc.get("output_dir", f"out/{Path(source).stem}")
+    out_dir = Path()
     if not isinstance(out, (str, Path)):
-        raise PipelineValidationError(f"{where(source, line_of(doc, 'output_dir'))}: output_dir must be a folder name")
-    out_dir = Path(str(out)).expanduser().resolve()
+        problem(f"{where(source, line_of(doc, 'output_dir'))}: output_dir must be a folder name")
+    else:
+        out_dir = Path(str(out)).expanduser().resolve()
 
-    raw_steps = doc.get("steps")
-    if not isinstance(raw_steps, list) or not raw_steps:
-        raise PipelineValidationError(f"{where(source, line_of(doc, 'steps'))}: 'steps' must be a non-empty list")
-
-    settings = [dict(zip(sweep, values)) for values in itertools.product(*sweep.values())] if sweep else [{}]
-    tasks: list[Task] = []
-    steps_by_setting = []
-    for setting in settings:
-        values = {**variables, **setting}
-        steps = []
-        for k, item in enumerate(raw_steps):
-            line = line_of(raw_steps, k)
-            item = substitute(item, values, where(source, line, f"step {k + 1}"))
-            steps.append(parse_step(item, k + 1, source, line))
-        _check_labels(steps, base_dir)
-        steps_by_setting.append(steps)
-    for s_index, setting in enumerate(settings):
-        for inp in input_paths:
-            tasks.append(Task(len(tasks), inp, setting, _setting_text(setting), steps_by_setting[s_index]))
-    _resolve_outputs(tasks, out_dir, input_paths, source)
     results = doc.get("results", "results")
     if results is not None and not isinstance(results, str):
-        raise PipelineValidationError(f"{where(source, line_of(doc, 'results'))}: results must be a file stem")
+        problem(f"{where(source, line_of(doc, 'results'))}: results must be a file stem")
+
+    raw_steps = doc.get("steps")
+    steps_by_setting: list[list[Step]] = []
+    n_settings = math.prod(len(v) for v in sweep.values())
+    if n_settings > MAX_SETTINGS or n_settings * max(len(input_paths), 1) > MAX_TASKS:
+        # refused before the grid is built: a few lines of YAML can ask for 10^9 settings
+        problem(
+            f"{where(source, line_of(doc, 'sweep'))}: sweep: {n_settings:,} settings x {len(input_paths):,} input(s) "
+            f"= {n_settings * max(len(input_paths), 1):,} tasks; the limits are {MAX_SETTINGS:,} settings and {MAX_TASKS:,} tasks"
+        )
+        raise PipelineProblems(problems) if len(set(problems)) > 1 else PipelineValidationError(problems[0])
+    settings = [dict(zip(sweep, values)) for values in itertools.product(*sweep.values())] if sweep else [{}]
+    if not isinstance(raw_steps, list) or not raw_steps:
+        problem(f"{where(source, line_of(doc, 'steps'))}: 'steps' must be a non-empty list")
+    else:
+        for setting in settings:
+            values = {**variables, **setting}
+            steps = []
+            before = len(problems)
+            for k, item in enumerate(raw_steps):
+                line = line_of(raw_steps, k)
+                try:
+                    item = substitute(item, values, where(source, line, f"step {k + 1}"))
+                    steps.append(parse_step(item, k + 1, source, line))
+                except PipelineValidationError as exc:
+                    problem(str(exc))
+            if len(problems) == before:
+                try:
+                    _check_labels(steps, base_dir)
+                except PipelineValidationError as exc:
+                    problem(str(exc))
+            steps_by_setting.append(steps)
+    if problems:
+        raise PipelineProblems(problems) if len(set(problems)) > 1 else PipelineValidationError(problems[0])
+    tasks: list[Task] = []
+    labels = distinguishing_names(input_paths)
+    for s_index, setting in enumerate(settings):
+        for inp in input_paths:
+            tasks.append(Task(len(tasks), inp, setting, _setting_text(setting), steps_by_setting[s_index], label=labels[inp]))
+    _resolve_outputs(tasks, out_dir, input_paths, source)
+    _resolve_references(tasks, base_dir)
     return Plan(source, input_paths, out_dir, tasks, results, variables, sweep)
 
 
@@ -203,7 +283,7 @@ def _check_labels(steps: list[Step], base_dir: Path) -> None:
                     f"{step.where}: reference: no earlier step has label '{ref['before']}' "
                     f"(labels so far: {', '.join(sorted(seen)) or 'none'}; add 'label: {ref['before']}' to a step)"
                 )
-            if isinstance(ref, str) and ref != "input":
+            if isinstance(ref, str) and ref != "input" and "{" not in ref:  # a pattern is filled per input
                 path = Path(ref).expanduser()
                 path = path if path.is_absolute() else base_dir / path
                 if not path.is_file():
@@ -215,19 +295,52 @@ def _check_labels(steps: list[Step], base_dir: Path) -> None:
             seen.add(step.label)
 
 
+TEMPLATE_FIELDS = ("stem", "name", "suffix", "parent", "dir", "setting", "index")
+
+
 def fill_template(template: str, task: Task) -> str:
+    """A path template filled for one task: ``{stem}`` ``{name}`` ``{suffix}`` of the input, ``{parent}``
+    (its folder's name), ``{dir}`` (its folder), ``{setting}`` (``mu=1,k=2``), ``{index}`` and the sweep variables."""
     inp = task.input
-    fields = {"stem": inp.stem, "name": inp.name, "suffix": inp.suffix, "index": task.index, "setting": task.setting_text}
+    fields = {"stem": inp.stem, "name": inp.name, "suffix": inp.suffix, "parent": inp.parent.name, "dir": str(inp.parent),
+              "index": task.index, "setting": task.setting_text}
     fields.update({k: v for k, v in task.setting.items() if isinstance(k, str)})
     try:
+        for _, _, spec, _ in string.Formatter().parse(template):
+            if spec and any(int(n) > 255 for n in re.findall(r"\d+", spec)):  # {stem:>99999999999} would exhaust memory
+                raise ValueError(f"format {spec!r} asks for more than 255 characters")
         return template.format(**fields)
-    except (KeyError, IndexError, ValueError) as exc:
-        raise ValueError(f"path template {template!r}: {exc!r} is not a field; use {{stem}} {{name}} {{setting}} {{index}}") from None
+    except (KeyError, IndexError, AttributeError) as exc:
+        raise ValueError(
+            f"path template {template!r}: {exc!r} is not a field; use {' '.join('{' + f + '}' for f in TEMPLATE_FIELDS)}"
+        ) from None
+    except ValueError as exc:  # a bad format ({stem:d}) or brace ({stem)
+        raise ValueError(f"path template {template!r}: {exc}; the fields are {' '.join('{' + f + '}' for f in TEMPLATE_FIELDS)}") from None
+
+
+def distinguishing_names(paths: list[Path]) -> dict[Path, str]:
+    """For each path, its shortest trailing part (``name``, ``folder/name``, ...) that no other path ends with.
+
+    >>> names = distinguishing_names([Path("/b/Bunny/Noisy.obj"), Path("/b/Block/Noisy.obj"), Path("/b/x.ply")])
+    >>> [names[Path(p)] for p in ("/b/Bunny/Noisy.obj", "/b/Block/Noisy.obj", "/b/x.ply")]
+    ['Bunny/Noisy.obj', 'Block/Noisy.obj', 'x.ply']
+    """
+    unique = list(dict.fromkeys(Path(p) for p in paths))
+    out = {}
+    for p in unique:
+        parts = p.parts
+        for k in range(1, len(parts) + 1):
+            tail = parts[-k:]
+            if not any(q != p and q.parts[-k:] == tail for q in unique):
+                break
+        out[p] = "/".join(tail) if k < len(parts) else str(p)
+    return out
 
 
 def _resolve_outputs(tasks: list[Task], out_dir: Path, inputs: list[Path], source: str) -> None:
     owner: dict[Path, str] = {}
     protected = set(inputs)
+    problems: list[str] = []
     for task in tasks:
         for step in task.steps:
             if step.kind not in ("save", "render"):
@@ -236,19 +349,47 @@ def _resolve_outputs(tasks: list[Task], out_dir: Path, inputs: list[Path], sourc
             try:
                 text = fill_template(template, task)
             except ValueError as exc:
-                raise PipelineValidationError(f"{step.where}: {exc}") from None
+                problems.append(f"{step.where}: {exc}")
+                continue
             path = Path(text).expanduser()
             path = (path if path.is_absolute() else out_dir / path).resolve()
             if path in protected:
-                raise PipelineValidationError(f"{step.where}: path {template!r} would overwrite the input file {path}: input files are never written")
-            me = f"{task.input.name} {task.setting_text}".strip() + f" step {step.index}"
+                problems.append(f"{step.where}: path {template!r} would overwrite the input file {path}: input files are never written")
+                continue
+            me = f"{task.label} {task.setting_text}".strip() + f" (step {step.index})"
             if path in owner:
-                raise PipelineValidationError(
+                problems.append(
                     f"{step.where}: path {template!r} gives {path} for both {owner[path]} and {me}; "
-                    "add {stem}, {setting} or {index} to the path"
+                    "add {stem}, {parent}, {setting} or {index} to the path"
                 )
+                continue
             owner[path] = me
             task.output_paths[template] = path
+    if problems:
+        raise PipelineProblems(problems) if len(set(problems)) > 1 else PipelineValidationError(problems[0])
+
+
+def _resolve_references(tasks: list[Task], base_dir: Path) -> None:
+    """Per-input metrics references (``reference: "{dir}/Original.obj"``): filled for each task, each checked to exist."""
+    problems: list[str] = []
+    for task in tasks:
+        for step in task.steps:
+            ref = step.params.get("reference") if step.kind == "metrics" else None
+            if not isinstance(ref, str) or "{" not in ref:
+                continue
+            try:
+                text = fill_template(ref, task)
+            except ValueError as exc:
+                problems.append(f"{step.where}: reference: {exc}")
+                continue
+            path = Path(text).expanduser()
+            path = path if path.is_absolute() else base_dir / path
+            if not path.is_file():
+                problems.append(f"{step.where}: reference: no such file {text!r} ({path}) for input {task.label}")
+                continue
+            task.reference_paths[ref] = path.resolve()
+    if problems:
+        raise PipelineProblems(problems) if len(set(problems)) > 1 else PipelineValidationError(problems[0])
 
 
 def load_pipeline(
@@ -268,5 +409,11 @@ def load_pipeline(
     path = Path(path)
     if not path.is_file():
         raise PipelineValidationError(f"{path}: no such pipeline file")
-    doc = load_yaml(path.read_text(encoding="utf-8"), path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except UnicodeDecodeError as exc:
+        raise PipelineValidationError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason}); save the pipeline as UTF-8") from None
+    except OSError as exc:
+        raise PipelineValidationError(f"{path}: cannot be read ({exc.strerror or exc})") from None
+    doc = load_yaml(text, path)
     return build_plan(doc, str(path), base_dir=path.resolve().parent, overrides=overrides, inputs=inputs, output_dir=output_dir)

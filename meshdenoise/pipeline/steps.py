@@ -1,8 +1,8 @@
 """Pipeline steps: parsing and checking each step before anything runs, and running it.
 
-The working mesh of a pipeline is a ``pymeshlab.MeshSet``: pymeshlab filters apply to it
-directly, our filters change it in place keeping colours (see :mod:`meshdenoise.adapters`),
-Open3D operations go through arrays and back.
+The working mesh of a pipeline is a :class:`~meshdenoise.pipeline.state.MeshState` (arrays
+and attributes): our filters, Open3D operations and the built-in steps work on the arrays; a
+``pymeshlab.MeshSet`` is made only around pymeshlab steps.
 """
 
 from __future__ import annotations
@@ -17,11 +17,12 @@ from typing import Any
 
 import numpy as np
 
-from ..registry import Param, get_filter, list_filters
+from ..registry import FilterSpec, Param, get_filter, list_filters
 from . import pymeshlab_steps
 from .errors import PipelineValidationError, where
+from .state import MeshState
 
-__all__ = ["Step", "parse_step", "run_step", "RunContext", "BUILTIN_STEPS", "OPEN3D_OPS", "step_names"]
+__all__ = ["Step", "parse_step", "run_step", "RunContext", "BUILTIN_STEPS", "OPEN3D_OPS", "step_names", "describe_steps", "describe_pymeshlab_step"]
 
 # Open3D's clean-up and smoothing operations, under "open3d.<method name>", with their parameters.
 OPEN3D_OPS: dict[str, list[Param]] = {
@@ -32,14 +33,15 @@ OPEN3D_OPS: dict[str, list[Param]] = {
     "remove_unreferenced_vertices": [],
     "compute_vertex_normals": [Param("normalized", bool, True, help="unit-length normals")],
     "filter_smooth_simple": [Param("number_of_iterations", int, 1, low=0)],
+    # a step weight above 1 overshoots (and 1e300 blows the mesh up): refused before running
     "filter_smooth_laplacian": [
         Param("number_of_iterations", int, 1, low=0),
-        Param("lambda_filter", float, 0.5),
+        Param("lambda_filter", float, 0.5, low=0.0, high=1.0, low_open=True, help="step weight"),
     ],
     "filter_smooth_taubin": [
         Param("number_of_iterations", int, 1, low=0),
-        Param("lambda_filter", float, 0.5),
-        Param("mu", float, -0.53),
+        Param("lambda_filter", float, 0.5, low=0.0, high=1.0, low_open=True, help="shrinking step weight"),
+        Param("mu", float, -0.53, low=-1.0, high=0.0, high_open=True, help="inflating step weight (negative)"),
     ],
 }
 
@@ -50,12 +52,12 @@ BUILTIN_STEPS: dict[str, list[Param]] = {
         Param("seed", int, 0, help="random seed"),
     ],
     "save": [
-        Param("path", str, "", help="output file; {stem} {name} {setting} {index} are filled in"),
+        Param("path", str, "", help="output file; {stem} {name} {parent} {dir} {setting} {index} are filled in"),
         Param("binary", bool, True, help="binary PLY/STL"),
         Param("colors", bool, True, help="write vertex colours when the mesh has them"),
     ],
-    "metrics": [],  # checked by _check_metrics
-    "render": [],  # passed to meshdenoise.render.render_comparison
+    "metrics": [],  # checked by _check_metrics, described by METRICS_DOC
+    "render": [],  # checked by _check_render, described by RENDER_DOC
 }
 COMMON = {"pinned", "region", "preserve_volume", "parameters"}
 RESERVED = {"label"}
@@ -73,10 +75,19 @@ class Step:
     source: str
     line: int | None
     options: dict = field(default_factory=dict)  # pinned / region / preserve_volume / parameters
+    notes: list = field(default_factory=list)  # things worth telling (a MeshLab GUI name was used...)
 
     @property
     def where(self) -> str:
-        return where(self.source, self.line, f"step {self.index} '{self.name}'")
+        return _step_at(self.source, self.line, self.index, self.name)
+
+
+def _step_at(source: str, line: int | None, index: int | None, name: str) -> str:
+    """Where a step is, for messages: ``file:line: step 3 'sobolev'``, or ``--method 'sobolev'``
+    for a step that is not in a file (``index`` None, ``source`` the option that gave it)."""
+    if index is None:
+        return f"{source} '{name}'"
+    return where(source, line, f"step {index} '{name}'")
 
 
 def step_names() -> list[str]:
@@ -86,8 +97,13 @@ def step_names() -> list[str]:
 
 
 def _unknown_step(name: str, at: str) -> PipelineValidationError:
-    hint = difflib.get_close_matches(name, step_names(), n=1, cutoff=0.6)
-    extra = f" (did you mean '{hint[0]}'?)" if hint else ""
+    from .meshlab_names import FILTERS
+
+    gui = {entry["meshlab"]: py for py, entry in FILTERS.items()}  # a misspelt MeshLab GUI name ("Taubin Smoth")
+    hint = difflib.get_close_matches(name, step_names() + list(gui), n=1, cutoff=0.6)
+    extra = ""
+    if hint:
+        extra = f" (did you mean '{hint[0]}'?)" if hint[0] not in gui else f" (did you mean '{gui[hint[0]]}', MeshLab's '{hint[0]}'?)"
     return PipelineValidationError(
         f"{at}: unknown step '{name}'{extra}; a step is one of our filters (meshdenoise filters), "
         "a pymeshlab filter, open3d.<operation>, add_noise, metrics, save or render"
@@ -95,16 +111,9 @@ def _unknown_step(name: str, at: str) -> PipelineValidationError:
 
 
 def _check_params(params: list[Param], given: dict, at: str) -> dict:
-    known = {p.name: p for p in params}
-    for key in given:
-        if key not in known:
-            hint = difflib.get_close_matches(str(key), list(known), n=1)
-            extra = f" (did you mean '{hint[0]}'?)" if hint else ""
-            raise PipelineValidationError(
-                f"{at}: unknown parameter '{key}'{extra}; its parameters: {', '.join(known) or 'none'}"
-            )
+    """Names, types and ranges of a built-in step's parameters, by the registry's one check (FilterSpec.resolve / Param.check)."""
     try:
-        return {p.name: p.check(given.get(p.name, p.default), at) for p in params}
+        return FilterSpec("", "", tuple(params), core=None).resolve(given, at)
     except (TypeError, ValueError) as exc:
         raise PipelineValidationError(str(exc)) from None
 
@@ -123,7 +132,7 @@ def _check_vertex_spec(key: str, value: Any, at: str, keywords: tuple[str, ...])
 
 def _our_filter(index, name, given, label, source, line) -> Step:
     spec = get_filter(name)
-    at = where(source, line, f"step {index} '{name}'")
+    at = _step_at(source, line, index, name)
     options = {}
     rest = {}
     for key, value in given.items():
@@ -152,7 +161,99 @@ def _our_filter(index, name, given, label, source, line) -> Step:
     return Step(index, name, "ours", params, label, source, line, options)
 
 
-RENDER_PARAMS = ("path", "meshes", "reference", "titles", "size", "backend", "cmap", "vmax")
+# render's parameters, with what `meshdenoise steps` says of each: (name, type, default, help)
+RENDER_DOC = (
+    ("path", "str", None, "image file to write, ending in .png (required); {stem} {name} {parent} {dir} {setting} {index} are filled in"),
+    ("meshes", "list of str", ["input", "result"], "meshes drawn side by side: input, result, or a step label (the mesh before that step)"),
+    ("reference", "str", None, "draw an error heat map of each mesh against this one (input, result or a step label)"),
+    ("titles", "list of str", None, "one title per mesh (default: the names in meshes)"),
+    ("size", "[int, int]", [400, 400], "width and height of each panel in pixels, 16..4096"),
+    ("backend", "str", "auto", "rasteriser: one of the meshdenoise.render backends (auto picks the first that works)"),
+    ("cmap", "str", "viridis", "matplotlib colour map of the heat map"),
+    ("vmax", "float", None, "top of the colour bar (default: the largest error); > 0"),
+)
+RENDER_PARAMS = tuple(d[0] for d in RENDER_DOC)
+METRICS_DOC = (
+    ("reference", "str or {before: LABEL}", "input",
+     "what the mesh is compared with: input, a mesh file, a per-input pattern like '{dir}/Original.obj', "
+     "or {before: LABEL} (the mesh before the step labelled LABEL)"),
+    ("metrics", "list of str", "all", "metric names (meshdenoise.metrics.METRICS)"),
+)
+OURS_OPTIONS_DOC = (
+    ("pinned", "boundary | selection | list of int", None, "vertices that never move"),
+    ("region", "selection | list of int", None, "only these vertices may move"),
+    ("preserve_volume", "bool", False, "rescale so the enclosed volume equals the input's"),
+    ("parameters", "auto", None, "choose the parameters not written automatically (recorded in the results as auto.*)"),
+)
+
+
+def describe_pymeshlab_step(name: str) -> dict:
+    """A pymeshlab filter as :func:`describe_steps` describes a step (MeshLab types, defaults on a small sphere, enum labels).
+
+    Raises
+    ------
+    KeyError
+        Not a pymeshlab filter (nor a MeshLab GUI name of one), with the closest names.
+    """
+    from .mlx import gui_names
+
+    canonical, _, _ = gui_names(name, {})
+    if canonical not in pymeshlab_steps.filter_names():
+        hint = difflib.get_close_matches(name, step_names(), n=1)
+        raise KeyError(f"unknown step '{name}'" + (f" (did you mean '{hint[0]}'?)" if hint else ""))
+    from .meshlab_names import FILTERS
+
+    params = []
+    recorded = FILTERS.get(canonical, {}).get("params", {})
+    for key, info in pymeshlab_steps.parameter_types(canonical).items():
+        default = info["default"]
+        labels = info.get("enum") or []
+        if labels and isinstance(default, int) and 0 <= default < len(labels):
+            default = labels[default]
+        elif isinstance(default, float):
+            default = float(f"{default:.7g}")  # MeshLab stores floats: 0.53 reads back as 0.5299999713897705
+        elif not isinstance(default, (bool, int, str)):
+            default = str(default)
+        parts = [f"MeshLab name '{recorded[key]['name']}'"] if key in recorded else []
+        if labels:
+            parts.append("one of " + ", ".join(repr(x) for x in labels))
+        params.append({"name": key, "type": info["type"], "default": default, "help": "; ".join(parts)})
+    meshlab = FILTERS.get(canonical, {}).get("meshlab")
+    summary = f"pymeshlab filter (MeshLab: '{meshlab}')" if meshlab else "pymeshlab filter"
+    return {"name": canonical, "summary": summary + "; defaults measured on a small sphere (lengths depend on the mesh)", "params": params}
+
+
+def describe_steps() -> list[dict]:
+    """Every built-in step with its parameters (``meshdenoise steps``): name, what it is, and
+    ``params`` as ``{"name", "type", "default", "help"}``; our filters and pymeshlab's are summarised."""
+
+    def entry(name, summary, params):
+        return {"name": name, "summary": summary,
+                "params": [{"name": n, "type": t, "default": d, "help": h} for n, t, d, h in params]}
+
+    def from_params(params):
+        out = []
+        for p in params:
+            allowed = p.range_text()
+            allowed = "" if p.kind is bool or allowed.startswith("any ") else allowed
+            out.append((p.name, p.kind.__name__, p.default, "; ".join(x for x in (p.help, allowed) if x)))
+        return out
+
+    out = [
+        entry("add_noise", "displace every vertex along its normal by Gaussian noise", from_params(BUILTIN_STEPS["add_noise"])),
+        entry("save", "write the current mesh (PLY, OBJ, OFF, STL) once every step succeeded", from_params(BUILTIN_STEPS["save"])),
+        entry("metrics", "measure the current mesh against a reference; values go to the results table", METRICS_DOC),
+        entry("render", "draw meshes side by side into a PNG, with an error heat map against a reference", RENDER_DOC),
+    ]
+    for op, params in OPEN3D_OPS.items():
+        out.append(entry(f"open3d.{op}", f"Open3D's TriangleMesh.{op}", from_params(params)))
+    for spec in list_filters():
+        out.append(entry(spec.name, f"our filter: {spec.summary}", from_params(spec.params) + list(OURS_OPTIONS_DOC)))
+    out.append(entry("<any pymeshlab filter>",
+                     f"one of pymeshlab's {len(pymeshlab_steps.filter_names())} filters by its pymeshlab name (or MeshLab's GUI name); "
+                     "parameters: python -c \"import pymeshlab; pymeshlab.print_filter_parameter_list('NAME')\"", []))
+    out.append(entry("(every step)", "keys every step takes", [("label", "str", None, "name the mesh before this step (for metrics and render)")]))
+    return out
 
 
 def _check_render(given: dict, at: str) -> dict:
@@ -212,6 +313,8 @@ def _check_metrics(given: dict, at: str) -> dict:
     names = given.get("metrics", list(METRICS))
     if isinstance(names, str):
         names = [names]
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise PipelineValidationError(f"{at}: metrics: expected a metric name or a list of them ({', '.join(METRICS)}), got {names!r}")
     for n in names:
         if n not in METRICS:
             hint = difflib.get_close_matches(str(n), list(METRICS), n=1)
@@ -220,8 +323,12 @@ def _check_metrics(given: dict, at: str) -> dict:
     return {"reference": ref, "metrics": list(names)}
 
 
-def parse_step(item: Any, index: int, source: str, line: int | None) -> Step:
-    """Check one step of the ``steps:`` list (a name, or ``{name: {params}}``) and return it."""
+def parse_step(item: Any, index: int | None, source: str, line: int | None) -> Step:
+    """Check one step of the ``steps:`` list (a name, or ``{name: {params}}``) and return it.
+
+    ``index`` is the step's position (from 1) in ``source``; ``None`` for a step given
+    another way (``denoise --method``: messages then read ``--method 'sobolev': ...``).
+    """
     if isinstance(item, str):
         name, given = item, {}
     elif isinstance(item, dict) and len(item) == 1:
@@ -231,7 +338,7 @@ def parse_step(item: Any, index: int, source: str, line: int | None) -> Step:
             given = {}
         if not isinstance(given, dict):
             raise PipelineValidationError(
-                f"{where(source, line, f'step {index} {name!r}')}: parameters must be a mapping "
+                f"{_step_at(source, line, index, name)}: parameters must be a mapping "
                 f"(name: value), got {given!r}"
             )
     else:
@@ -242,13 +349,13 @@ def parse_step(item: Any, index: int, source: str, line: int | None) -> Step:
     name = str(name)
     given = dict(given)
     label = given.pop("label", None)
-    at = where(source, line, f"step {index} '{name}'")
+    at = _step_at(source, line, index, name)
     if label is not None and not isinstance(label, str):
         raise PipelineValidationError(f"{at}: label must be a string, got {label!r}")
     param_lines = getattr(item, "get", lambda *_: None)(name) if isinstance(item, dict) else None
     # A parameter's own line makes the message point at the bad value.
     def at_param(key):
-        return where(source, getattr(param_lines, "key_lines", {}).get(key, line), f"step {index} '{name}'")
+        return _step_at(source, getattr(param_lines, "key_lines", {}).get(key, line), index, name)
 
     try:
         return _parse(name, given, index, label, source, line, at_param)
@@ -257,7 +364,7 @@ def parse_step(item: Any, index: int, source: str, line: int | None) -> Step:
 
 
 def _parse(name, given, index, label, source, line, at_param) -> Step:
-    at = where(source, line, f"step {index} '{name}'")
+    at = _step_at(source, line, index, name)
     bad_key = next(iter(given), None)
     if name in {s.name for s in list_filters()}:
         try:
@@ -288,14 +395,17 @@ def _parse(name, given, index, label, source, line, at_param) -> Step:
         return Step(index, name, "metrics", _check_metrics(given, at), label, source, line)
     if name == "render":
         return Step(index, name, "render", _check_render(given, at), label, source, line)
-    if name in pymeshlab_steps.filter_names():
+    from .mlx import gui_names  # MeshLab's GUI names ("Taubin Smooth", "stepSmoothNum") are accepted, with a note
+
+    canonical, given, renamed = gui_names(name, given)
+    if canonical in pymeshlab_steps.filter_names():
         try:
-            params = pymeshlab_steps.check_parameters(name, given, at)
+            params = pymeshlab_steps.check_parameters(canonical, given, at)
         except ValueError as exc:
             key = _named_key(str(exc), given)
             msg = str(exc) if key is None else str(exc).replace(at, at_param(key), 1)
             raise PipelineValidationError(msg) from None
-        return Step(index, name, "pymeshlab", params, label, source, line)
+        return Step(index, canonical, "pymeshlab", params, label, source, line, notes=[f"{at}: {n}" for n in renamed])
     _ = bad_key
     raise _unknown_step(name, at)
 
@@ -310,88 +420,83 @@ def _named_key(message: str, given: dict) -> str | None:
 # --- running ------------------------------------------------------------------------------------
 @dataclass
 class RunContext:
-    """State of one input going through the steps."""
+    """State of one input going through the steps.
 
-    ms: Any  # pymeshlab.MeshSet
+    Attributes
+    ----------
+    state : MeshState
+        The working mesh (arrays and attributes); each step replaces it.
+    input_path : Path
+    input_arrays : tuple
+        ``(V, F)`` as loaded (the ``input`` of ``metrics`` and ``render``).
+    output_paths : dict
+        Path template of a ``save``/``render`` step -> the resolved output path (made by the plan).
+    reference_paths : dict
+        A ``metrics`` reference pattern (``{dir}/Original.obj``) -> this input's file (made by the plan).
+    snapshots : dict
+        Step label -> ``(V, F)`` before that step.
+    row : dict
+        The results row being filled.
+    staged, staged_files : list
+        Meshes ``(path, V, F, colors, binary)`` and files ``(temporary, path)`` written once every step succeeded.
+    echo : callable, optional
+        Called with a message (automatic parameters).
+    """
+
+    state: MeshState
     input_path: Path
-    input_arrays: tuple  # (V, F) as loaded
-    snapshots: dict = field(default_factory=dict)  # label -> (V, F) before that step
+    input_arrays: tuple
+    output_paths: dict = field(default_factory=dict)
+    reference_paths: dict = field(default_factory=dict)
+    snapshots: dict = field(default_factory=dict)
     row: dict = field(default_factory=dict)
-    staged: list = field(default_factory=list)  # (path, V, F, colors, binary) written at the end
-    staged_files: list = field(default_factory=list)  # (temporary, path) renamed at the end (images)
-    resolve_path: Any = None  # template -> Path
-    echo: Any = None  # callable(str) for messages (auto parameters)
+    staged: list = field(default_factory=list)
+    staged_files: list = field(default_factory=list)
+    echo: Any = None
 
-
-def meshset_from_arrays(V: np.ndarray, F: np.ndarray, colors: np.ndarray | None = None,
-                        selection: np.ndarray | None = None):
-    """A new MeshSet holding one mesh made of these arrays (colours RGBA in [0, 1] and a vertex
-    selection (n,) bool, as read from a MeshLab PLY, optional)."""
-    import pymeshlab
-
-    kwargs = {}
-    if colors is not None:
-        kwargs["v_color_matrix"] = np.asarray(colors, dtype=np.float64)
-    if selection is not None and np.any(selection):  # no setter in pymeshlab: select by a temporary quality
-        kwargs["v_scalar_array"] = np.asarray(selection, dtype=np.float64)
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=np.asarray(F, dtype=np.int32).reshape(-1, 3), **kwargs))
-    if "v_scalar_array" in kwargs:
-        ms.apply_filter("compute_selection_by_condition_per_vertex", condselect="q > 0.5")
-        ms.apply_filter("compute_scalar_by_function_per_vertex", q="0")  # the quality a new mesh has
-    return ms
-
-
-def current_arrays(ms) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
-    """``(V, F, colours or None)`` of the MeshSet's current mesh (compacted first)."""
-    m = ms.current_mesh()
-    if not m.is_compact():
-        m.compact()
-    colors = m.vertex_color_matrix() if m.has_vertex_color() else None
-    return (np.array(m.vertex_matrix(), dtype=np.float64), np.array(m.face_matrix(), dtype=np.int64), colors)
-
-
-def _replace_mesh(ctx: RunContext, V, F, colors) -> None:
-    import pymeshlab
-
-    kwargs = {} if colors is None else {"v_color_matrix": colors}
-    ctx.ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=np.asarray(F, dtype=np.int32).reshape(-1, 3), **kwargs))
+    def resolve_path(self, template: str) -> Path:
+        """The output path the plan resolved for a ``save``/``render`` path template."""
+        try:
+            return Path(self.output_paths[template])
+        except KeyError:
+            raise KeyError(f"no output path was resolved for {template!r}: build the task with build_plan") from None
 
 
 def run_step(step: Step, ctx: RunContext) -> None:
-    """Apply one step to ``ctx.ms`` (in place) and record what it measured in ``ctx.row``."""
+    """Apply one step to ``ctx.state`` (replacing it) and record what it measured in ``ctx.row``."""
+    state = ctx.state
     if step.label:
-        V, F, _ = current_arrays(ctx.ms)
-        ctx.snapshots[step.label] = (V, F)
+        ctx.snapshots[step.label] = state.arrays()
     if step.kind == "ours":
         _run_ours(step, ctx)
     elif step.kind == "pymeshlab":
         params = {k: pymeshlab_steps.to_pymeshlab_value(step.name, k, v) for k, v in step.params.items()}
-        ctx.ms.apply_filter(step.name, **params)
+        ms = state.meshset()
+        ms.apply_filter(step.name, **params)
+        ctx.state = MeshState.from_meshset(ms)
     elif step.kind == "open3d":
         _run_open3d(step, ctx)
     elif step.kind == "add_noise":
         from ..noise import add_normal_noise
 
-        V, _, _ = current_arrays(ctx.ms)
         rho = step.params["rho"]
         if step.params["relative"]:
-            rho *= float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
-        add_normal_noise(ctx.ms, rho=rho, seed=step.params["seed"])
+            rho *= float(np.linalg.norm(state.V.max(axis=0) - state.V.min(axis=0)))
+        V, _ = add_normal_noise(state.arrays(), rho=rho, seed=step.params["seed"])
+        ctx.state = state.with_vertices(V)
     elif step.kind == "metrics":
         _run_metrics(step, ctx)
     elif step.kind == "save":
-        V, F, colors = current_arrays(ctx.ms)
         path = ctx.resolve_path(step.params["path"])
-        ctx.staged.append((path, V, F, colors if step.params["colors"] else None, step.params["binary"]))
+        colors = state.vertex_colors if step.params["colors"] else None
+        ctx.staged.append((path, state.V, state.F, colors, step.params["binary"]))
         ctx.row.setdefault("outputs", []).append(str(path))
     elif step.kind == "render":
         from ..render import new_file_mode, render_comparison  # written separately; imported only when used
 
         p = step.params
-        V, F, _ = current_arrays(ctx.ms)
-        named = {"input": tuple(ctx.input_arrays[:2]), **{k: v[:2] for k, v in ctx.snapshots.items()}, "result": (V, F)}
-        path = Path(ctx.resolve_path(p["path"]))
+        named = {"input": tuple(ctx.input_arrays[:2]), **{k: v[:2] for k, v in ctx.snapshots.items()}, "result": state.arrays()}
+        path = ctx.resolve_path(p["path"])
         # staged like a saved mesh: drawn into a hidden file beside the target, renamed once every step succeeded
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=".png", dir=path.parent)
@@ -408,31 +513,44 @@ def run_step(step: Step, ctx: RunContext) -> None:
         raise AssertionError(step.kind)
 
 
+def _vertex_option(value: Any, state: MeshState, key: str) -> Any:
+    """``pinned``/``region`` for the array core: ``"selection"`` becomes the state's selection mask."""
+    if isinstance(value, list):
+        return np.asarray(value, dtype=np.int64)
+    if value == "selection":
+        if state.vertex_selection is None:
+            return np.zeros(state.n_vertices, dtype=bool)
+        return np.asarray(state.vertex_selection, dtype=bool)
+    return value
+
+
 def _run_ours(step: Step, ctx: RunContext) -> None:
     spec = get_filter(step.name)
+    state = ctx.state
     params = dict(step.params)
     options = {k: v for k, v in step.options.items() if k != "parameters"}
     for key in ("pinned", "region"):
-        if isinstance(options.get(key), list):
-            options[key] = np.asarray(options[key], dtype=np.int64)
+        if key in options:
+            options[key] = _vertex_option(options[key], state, key)
     if step.options.get("parameters") == "auto":
         from ..auto import choose_parameters  # written separately; imported only when used
 
-        V, F, _ = current_arrays(ctx.ms)
-        chosen = choose_parameters((V, F), method=step.name)
+        chosen = choose_parameters(state.arrays(), method=step.name)
         chosen = {**chosen, **params}  # values written in the pipeline win
         params = spec.resolve(chosen, step.where)
         for k, v in params.items():
             ctx.row[f"auto.{step.name}.{k}"] = v
         if ctx.echo:
             ctx.echo(f"{ctx.input_path.name}: {step.name} parameters chosen automatically: {params}")
-    spec.public(ctx.ms, **params, **options)
+    V, _ = spec.public(state.arrays(), **params, **options)
+    ctx.state = state.with_vertices(V)
 
 
 def _run_open3d(step: Step, ctx: RunContext) -> None:
     import open3d as o3d
 
-    V, F, colors = current_arrays(ctx.ms)
+    state = ctx.state
+    V, F, colors = state.V, state.F, state.vertex_colors
     mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F.astype(np.int32)))
     if colors is not None:
         mesh.vertex_colors = o3d.utility.Vector3dVector(colors[:, :3])
@@ -447,7 +565,7 @@ def _run_open3d(step: Step, ctx: RunContext) -> None:
         c2 = np.hstack([np.asarray(mesh.vertex_colors), np.ones((V2.shape[0], 1))])
         if colors is not None and V2.shape[0] == V.shape[0]:
             c2[:, 3] = colors[:, 3]  # Open3D has no alpha: keep the input's when vertices are unchanged
-    _replace_mesh(ctx, V2, F2, c2)
+    ctx.state = state.with_mesh(V2, F2, c2)
 
 
 def _run_metrics(step: Step, ctx: RunContext) -> None:
@@ -460,11 +578,10 @@ def _run_metrics(step: Step, ctx: RunContext) -> None:
         reference = ctx.snapshots[ref["before"]][:2]
     elif ref == "input":
         reference = tuple(ctx.input_arrays[:2])
-    else:
-        loaded = load_mesh(ctx.resolve_input(ref) if hasattr(ctx, "resolve_input") else ref)
+    else:  # a file made absolute when the plan was checked, or a pattern the plan filled for this input
+        loaded = load_mesh(ctx.reference_paths.get(ref, ref))
         reference = (loaded.V, loaded.F)
-    V, F, _ = current_arrays(ctx.ms)
-    values = compute_metrics(reference, (V, F), step.params["metrics"])
+    values = compute_metrics(reference, ctx.state.arrays(), step.params["metrics"])
     prefix = f"{step.label}." if step.label else ""
     for k, v in values.items():
         ctx.row[f"{prefix}{k}"] = v

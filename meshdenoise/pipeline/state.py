@@ -1,0 +1,129 @@
+"""The working mesh of a pipeline: arrays plus per-element attributes.
+
+A pipeline carries its mesh as a :class:`MeshState` (coordinates, faces and the attributes
+a step may read or set: colours, quality, selection). Our filters, Open3D operations,
+``add_noise``, ``metrics``, ``save`` and ``render`` work on the arrays; a
+``pymeshlab.MeshSet`` is built only around pymeshlab steps (and kept while several
+pymeshlab steps follow each other), then read back. No custom attribute is ever left on a
+mesh: the MeshSet is ours and thrown away.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+__all__ = ["MeshState"]
+
+_SELECTION_ATTRIBUTE = "__meshdenoise_selection"
+
+
+@dataclass
+class MeshState:
+    """A triangle mesh and its attributes, as arrays.
+
+    Attributes
+    ----------
+    V : ndarray, shape (n, 3), float64
+    F : ndarray, shape (m, 3), int64
+    vertex_colors, face_colors : ndarray, shape (n, 4) / (m, 4), float64 in [0, 1], or None
+        RGBA.
+    vertex_quality, face_quality : ndarray, shape (n,) / (m,), float64, or None
+        MeshLab's per-element scalar ("quality"), set by some pymeshlab filters.
+    vertex_selection, face_selection : ndarray, shape (n,) / (m,), bool, or None
+        MeshLab's selection (``None``: nothing selected).
+    """
+
+    V: np.ndarray
+    F: np.ndarray
+    vertex_colors: np.ndarray | None = None
+    face_colors: np.ndarray | None = None
+    vertex_quality: np.ndarray | None = None
+    face_quality: np.ndarray | None = None
+    vertex_selection: np.ndarray | None = None
+    face_selection: np.ndarray | None = None
+    _meshset: Any = field(default=None, repr=False, compare=False)  # in step with the arrays when not None
+
+    @property
+    def n_vertices(self) -> int:
+        return int(self.V.shape[0])
+
+    @property
+    def n_faces(self) -> int:
+        return int(self.F.shape[0])
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(V, F)``."""
+        return self.V, self.F
+
+    def with_vertices(self, V: np.ndarray) -> "MeshState":
+        """The same mesh with new coordinates (same vertices, faces and attributes).
+
+        Raises
+        ------
+        ValueError
+            ``V`` is not ``(n, 3)`` with this mesh's ``n``.
+        """
+        V = np.asarray(V, dtype=np.float64)
+        if V.shape != self.V.shape:
+            raise ValueError(f"new coordinates have shape {V.shape}, the mesh {self.V.shape}")
+        return replace(self, V=V, _meshset=None)
+
+    def with_mesh(self, V: np.ndarray, F: np.ndarray, vertex_colors: np.ndarray | None = None) -> "MeshState":
+        """A new mesh (new vertices and faces): only the vertex colours given are kept."""
+        return MeshState(np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64).reshape(-1, 3), vertex_colors)
+
+    # --- pymeshlab --------------------------------------------------------------------------
+    def meshset(self):
+        """A ``pymeshlab.MeshSet`` holding this mesh and its attributes (built once, then reused)."""
+        if self._meshset is None:
+            self._meshset = _to_meshset(self)
+        return self._meshset
+
+    @classmethod
+    def from_meshset(cls, ms) -> "MeshState":
+        """The current mesh of ``ms`` (compacted first) as a state that keeps ``ms`` for the next pymeshlab step."""
+        m = ms.current_mesh()
+        if not m.is_compact():
+            m.compact()
+        vsel = np.asarray(m.vertex_selection_array(), dtype=bool)
+        fsel = np.asarray(m.face_selection_array(), dtype=bool)
+        state = cls(
+            np.array(m.vertex_matrix(), dtype=np.float64),
+            np.array(m.face_matrix(), dtype=np.int64).reshape(-1, 3),
+            np.array(m.vertex_color_matrix()) if m.has_vertex_color() else None,
+            np.array(m.face_color_matrix()) if m.has_face_color() else None,
+            np.array(m.vertex_scalar_array(), dtype=np.float64) if m.has_vertex_scalar() else None,
+            np.array(m.face_scalar_array(), dtype=np.float64) if m.has_face_scalar() else None,
+            vsel if vsel.any() else None,
+            fsel if fsel.any() else None,
+        )
+        state._meshset = ms
+        return state
+
+
+def _to_meshset(state: MeshState):
+    import pymeshlab
+
+    kwargs = {}
+    for key, value in (
+        ("v_color_matrix", state.vertex_colors),
+        ("f_color_matrix", state.face_colors),
+        ("v_scalar_array", state.vertex_quality),
+        ("f_scalar_array", state.face_quality),
+    ):
+        if value is not None:
+            kwargs[key] = np.asarray(value, dtype=np.float64)
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=state.V, face_matrix=np.asarray(state.F, dtype=np.int32).reshape(-1, 3), **kwargs))
+    m = ms.current_mesh()
+    # pymeshlab has no selection setter: a 0/1 attribute of this throw-away MeshSet, then MeshLab's selection by condition
+    if state.vertex_selection is not None:
+        m.add_vertex_custom_scalar_attribute(np.asarray(state.vertex_selection, dtype=np.float64), _SELECTION_ATTRIBUTE)
+        ms.compute_selection_by_condition_per_vertex(condselect=f"{_SELECTION_ATTRIBUTE} > 0.5")
+    if state.face_selection is not None:
+        m.add_face_custom_scalar_attribute(np.asarray(state.face_selection, dtype=np.float64), _SELECTION_ATTRIBUTE)
+        ms.compute_selection_by_condition_per_face(condselect=f"{_SELECTION_ATTRIBUTE} > 0.5")
+    return ms
