@@ -63,7 +63,7 @@ def test_bad_arrays_raise_clear_errors(V, F, exc, match):
     [
         ("filtering", {"iterations": -1}, ValueError, r"'iterations' = -1 is out of range: 0 <= iterations"),
         ("filtering", {"iterations": 2.5}, TypeError, "must be an int"),
-        ("filtering", {"iterations": True}, TypeError, "must be a int"),
+        ("filtering", {"iterations": True}, TypeError, "must be an int"),
         ("filtering", {"weights": "cotan"}, ValueError, r"'weights' = 'cotan' is not allowed: one of"),
         ("filtering", {"weights": "meshlab_"}, ValueError, "did you mean 'meshlab'"),
         ("filtering", {"lam": 1.5}, ValueError, r"'lam' = 1.5 is out of range: 0 < lam <= 1"),

@@ -27,12 +27,16 @@ from __future__ import annotations
 
 import difflib
 import functools
+import math
 import re
 from typing import Any
 
 import numpy as np
 
+from ..registry import parse_number
 from .meshlab_names import FILTERS
+
+INT32 = (-(2**31), 2**31 - 1)  # pymeshlab's C++ int: larger values fail with "Unable to cast Python instance"
 
 __all__ = ["filter_names", "parameter_types", "check_parameters", "to_pymeshlab_value", "PERCENT"]
 
@@ -88,10 +92,16 @@ def _check_one(param: str, value: Any, info: dict) -> str | None:
     if t == "RichBool":
         return None if isinstance(value, bool) else "must be true or false"
     if t in ("RichInt", "RichMesh"):
-        ok = isinstance(value, (int, np.integer)) and not isinstance(value, bool)
-        return None if ok else "must be an integer"
+        try:
+            value = parse_number(value, int)
+        except TypeError:
+            return "must be an integer"
+        return None if INT32[0] <= value <= INT32[1] else f"is out of range: pymeshlab takes {INT32[0]}..{INT32[1]}"
     if t in ("RichFloat", "RichDynamicFloat"):
-        return None if _is_number(value) else "must be a number"
+        try:
+            return None if math.isfinite(parse_number(value, float)) else "must be finite"
+        except TypeError:
+            return "must be a number"
     if t == "RichString":
         return None if isinstance(value, str) else "must be a string"
     if t == "RichEnum":
@@ -142,7 +152,9 @@ def check_parameters(name: str, given: dict, where: str) -> dict:
         problem = _check_one(key, value, types[key])
         if problem:
             raise ValueError(f"{where}: parameter '{key}' = {value!r} {problem} ({types[key]['type']})")
-    return dict(given)
+    # numbers written as text ('1e-3': YAML 1.1 reads it as a string) become numbers
+    numeric = {"RichInt": int, "RichMesh": int, "RichFloat": float, "RichDynamicFloat": float}
+    return {k: parse_number(v, numeric[types[k]["type"]]) if types[k]["type"] in numeric else v for k, v in given.items()}
 
 
 def to_pymeshlab_value(name: str, param: str, value: Any) -> Any:

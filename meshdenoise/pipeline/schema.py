@@ -25,8 +25,9 @@ from typing import Any
 
 from .errors import PipelineValidationError, where
 from .steps import Step, parse_step
-from .variables import substitute
-from .yamlsource import LineDict, LineList, line_of, load_yaml
+from .sweep import check_sweep_size
+from .variables import check_template, substitute
+from .yamlsource import LineDict, LineList, line_of, load_yaml, read_text
 
 __all__ = ["Plan", "Task", "load_pipeline", "build_plan", "TOP_LEVEL_KEYS"]
 
@@ -163,6 +164,7 @@ def build_plan(
     if not isinstance(raw_steps, list) or not raw_steps:
         raise PipelineValidationError(f"{where(source, line_of(doc, 'steps'))}: 'steps' must be a non-empty list")
 
+    check_sweep_size(sweep, len(input_paths), where(source, line_of(doc, "sweep")))  # before expanding anything
     settings = [dict(zip(sweep, values)) for values in itertools.product(*sweep.values())] if sweep else [{}]
     tasks: list[Task] = []
     steps_by_setting = []
@@ -219,6 +221,7 @@ def fill_template(template: str, task: Task) -> str:
     inp = task.input
     fields = {"stem": inp.stem, "name": inp.name, "suffix": inp.suffix, "index": task.index, "setting": task.setting_text}
     fields.update({k: v for k, v in task.setting.items() if isinstance(k, str)})
+    check_template(template)  # plain {name} placeholders, bounded widths: before formatting
     try:
         return template.format(**fields)
     except (KeyError, IndexError, ValueError) as exc:
@@ -268,5 +271,5 @@ def load_pipeline(
     path = Path(path)
     if not path.is_file():
         raise PipelineValidationError(f"{path}: no such pipeline file")
-    doc = load_yaml(path.read_text(encoding="utf-8"), path)
+    doc = load_yaml(read_text(path), path)
     return build_plan(doc, str(path), base_dir=path.resolve().parent, overrides=overrides, inputs=inputs, output_dir=output_dir)
