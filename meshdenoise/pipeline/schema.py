@@ -88,7 +88,7 @@ def _expand_inputs(spec: Any, base: Path, at: str) -> list[Path]:
         path = Path(text).expanduser()
         if not path.is_absolute():
             path = base / path
-        if glob.has_magic(str(path)):
+        if glob.has_magic(str(path)) and not path.is_file():  # "scan [final].ply" is a file, not a glob
             matches = sorted(Path(p) for p in glob.glob(str(path), recursive=True) if Path(p).is_file())
             if not matches:
                 raise PipelineValidationError(f"{line_at}: inputs: no file matches {item!r} (looked for {path})")

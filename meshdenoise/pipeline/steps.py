@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ..registry import Param, get_filter, list_filters
+from ..registry import MAX_ITERATIONS, Param, get_filter, list_filters
 from . import pymeshlab_steps
 from .errors import PipelineValidationError, where
 
@@ -31,15 +31,16 @@ OPEN3D_OPS: dict[str, list[Param]] = {
     "remove_non_manifold_edges": [],
     "remove_unreferenced_vertices": [],
     "compute_vertex_normals": [Param("normalized", bool, True, help="unit-length normals")],
-    "filter_smooth_simple": [Param("number_of_iterations", int, 1, low=0)],
+    # bounded: a step of lambda >> 1 only blows the mesh up (lambda_filter: 1e300 gave a mesh at 1e300)
+    "filter_smooth_simple": [Param("number_of_iterations", int, 1, low=0, high=MAX_ITERATIONS)],
     "filter_smooth_laplacian": [
-        Param("number_of_iterations", int, 1, low=0),
-        Param("lambda_filter", float, 0.5),
+        Param("number_of_iterations", int, 1, low=0, high=MAX_ITERATIONS),
+        Param("lambda_filter", float, 0.5, low=-1.0, high=1.0),
     ],
     "filter_smooth_taubin": [
-        Param("number_of_iterations", int, 1, low=0),
-        Param("lambda_filter", float, 0.5),
-        Param("mu", float, -0.53),
+        Param("number_of_iterations", int, 1, low=0, high=MAX_ITERATIONS),
+        Param("lambda_filter", float, 0.5, low=-1.0, high=1.0),
+        Param("mu", float, -0.53, low=-1.0, high=1.0),
     ],
 }
 
