@@ -59,7 +59,7 @@ def demo(out_dir: str, mesh_path: str | None, noise: float, seed: int) -> None:
     except OSError as exc:
         _fail(f"{out_dir}: {exc.strerror or exc}", 2)
     console.print(demo_table(rows, path, n, noise, seed, width=console.width))
-    console.print(f"meshes written to {click.format_filename(out_dir)}/")
+    console.print(f"meshes written to {click.format_filename(out_dir)}/", soft_wrap=True)
 
 
 def filters_json() -> dict:

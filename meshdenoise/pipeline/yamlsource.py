@@ -100,6 +100,14 @@ def read_text(path: str | Path) -> str:
             f"{path}:{line}: not {encoding.replace('-sig', '')} text: byte 0x{data[exc.start]:02x} at byte offset "
             f"{exc.start} ({exc.reason}); save the file as UTF-8"
         ) from None
+    nul = text.find("\x00")
+    if nul >= 0:
+        offset = len(text[:nul].encode(encoding.replace("-sig", ""))) if encoding == "utf-8" else nul
+        line = text.count("\n", 0, nul) + 1
+        raise PipelineValidationError(
+            f"{path}:{line}: a NUL byte at byte offset {offset}: not a text file "
+            "(UTF-16 without a byte-order mark?); save the file as UTF-8"
+        )
     return text.lstrip("\ufeff")
 
 
@@ -147,7 +155,10 @@ def load_yaml(text: str, name: str | Path = "<string>") -> Any:
 
     The document is checked against :data:`MAX_NODES` and :data:`MAX_DEPTH` before it is built.
     """
-    loader = _Loader(text)
+    try:
+        loader = _Loader(text)  # the reader checks the characters here
+    except yaml.YAMLError as exc:
+        raise PipelineValidationError(f"{name}: not valid YAML: {exc}") from None
     loader.name = str(name)
     try:
         node = loader.get_single_node()
