@@ -538,3 +538,23 @@ def test_no_numpy_warning_before_the_error_line(tmp_path, mesh_file):
     r = _cli("denoise", mesh_file, tmp_path / "o.ply", "--method", "sobolev", "--param", "mu=1e20")
     line = _one_line_error(r, "'sobolev'", "mu=1e+20")
     assert math.isfinite(len(line))
+
+
+def test_a_full_disk_while_writing_is_exit_2_with_the_message(tmp_path, mesh_file, monkeypatch):
+    """ENOSPC from the writer (simulated: no file system to fill here) in denoise, in a task and in the results table."""
+    import errno
+
+    import meshdenoise.io
+    import meshdenoise.pipeline.sweep
+
+    def full(*args, **kwargs):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(meshdenoise.io, "save_mesh", full)
+    _one_line_error(_cli("denoise", mesh_file, tmp_path / "o.ply", "--method", "sobolev"), "No space left on device")
+    monkeypatch.setattr(meshdenoise.pipeline.sweep, "atomic_path", full)
+    body = f"inputs: {mesh_file}\noutput_dir: {tmp_path / 'out'}\nsteps: [sobolev, {{save: {{path: o.ply}}}}]\nsweep: {{s: [0]}}\n"
+    r = _cli("run", _pipeline(tmp_path, body), "--serial")
+    _one_line_error(r, "results table not written", "No space left on device")
+    assert "failed:" in r.stderr and "No space left on device" in r.stderr.split("failed:")[1]
+    assert not (tmp_path / "o.ply").exists() and not (tmp_path / "out" / "o.ply").exists()

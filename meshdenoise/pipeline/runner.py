@@ -82,9 +82,17 @@ def _check_finite(step, ctx) -> None:
 
 
 def run_task_safely(task: Task) -> dict:
-    """:func:`run_task`, with a failure turned into a row (``status: failed``, ``error``); for batches."""
+    """:func:`run_task`, with a failure turned into a row (``status: failed``, ``error``); for batches.
+
+    numpy's overflow warnings are not printed (also on Dask workers): a non-finite result is
+    refused by the task's own check, whose message names the step and its parameters.
+    """
+    import warnings
+
     try:
-        return run_task(task)
+        with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return run_task(task)
     except StepFailure as exc:
         kind = exc.failure if isinstance(exc, InputError) else "step"
         return {"input": str(task.input), **task.setting, "status": "failed", "error": str(exc), "failure": kind}
