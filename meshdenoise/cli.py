@@ -42,18 +42,19 @@ def _fail(message: str, code: int = 2) -> None:
               help="Folder for the noisy and denoised meshes.")
 @click.option("--mesh", "mesh_path", default=None, type=click.Path(exists=True, dir_okay=False),
               help="Mesh to use instead of pymeshlab's sample bunny.")
-@click.option("--noise", default=0.01, show_default=True, type=click.FloatRange(min=0),
+@click.option("--noise", default=0.01, show_default=True, type=click.FloatRange(min=0, max=1),
               help="Noise amplitude rho as a fraction of the bounding-box diagonal.")
-@click.option("--seed", default=0, show_default=True, type=int, help="Noise seed.")
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Noise seed.")
 def demo(out_dir: str, mesh_path: str | None, noise: float, seed: int) -> None:
     """Add normal noise to a built-in mesh, denoise it with the three filters (parameters chosen from the noisy mesh alone), print a table."""
     from .arrays import MeshValidationError
     from .demo import demo_table, run_demo
     from .io import MeshFileError
+    from .registry import ParameterError
 
     try:
         rows, path, n = run_demo(out_dir, mesh_path, noise, seed)
-    except (MeshFileError, MeshValidationError) as exc:  # a NaN coordinate, a point cloud, an unwritable --out
+    except (MeshFileError, MeshValidationError, ParameterError) as exc:  # NaN coordinates, a point cloud, an unwritable --out
         text = str(exc)
         _fail(text if mesh_path is None or str(mesh_path) in text else f"{mesh_path}: {text}", 2)
     except OSError as exc:

@@ -51,6 +51,8 @@ def parse_number(value: Any, kind: type) -> int | float:
     ------
     TypeError
         Not a number (``True`` is not a number), or a fraction for an ``int``.
+    OverflowError
+        An integer too large for a ``float``.
 
     Examples
     --------
@@ -153,6 +155,8 @@ class Param:
             return value
         try:
             value = parse_number(value, k)
+        except OverflowError:  # an integer of hundreds of digits for a float parameter
+            raise ValueError(f"{prefix}parameter '{self.name}' = {value!r} is too large for a float ({self.range_text()})") from None
         except TypeError:
             raise TypeError(f"{prefix}parameter '{self.name}' must be a{'n' if k is int else ''} {k.__name__}, got {value!r}") from None
         if k is float and not math.isfinite(value):

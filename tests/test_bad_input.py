@@ -558,3 +558,36 @@ def test_a_full_disk_while_writing_is_exit_2_with_the_message(tmp_path, mesh_fil
     _one_line_error(r, "results table not written", "No space left on device")
     assert "failed:" in r.stderr and "No space left on device" in r.stderr.split("failed:")[1]
     assert not (tmp_path / "o.ply").exists() and not (tmp_path / "out" / "o.ply").exists()
+
+
+@pytest.mark.parametrize(
+    "step,match",
+    [
+        ("sobolev: {mu: 1" + "0" * 400 + "}", "'mu' = 1" + "0" * 400 + " is too large for a float"),
+        ("add_noise: {seed: -1}", "'seed' = -1 is out of range"),
+        ("two_stage: {iterations: 100000, normal_iterations: 1000}", None),  # the product is checked when run
+        ("apply_coord_laplacian_smoothing: {stepsmoothnum: 1" + "0" * 400 + "}", "out of range"),
+        ("apply_coord_taubin_smoothing: {lambda_: 1" + "0" * 400 + "}", "too large for a float"),
+    ],
+)
+def test_more_out_of_range_values_are_exit_2(tmp_path, mesh_file, step, match):
+    body = f"inputs: {mesh_file}\noutput_dir: {tmp_path / 'out'}\nsteps:\n  - {step}\n  - save: {{path: o.ply}}\n"
+    r = _cli("run", _pipeline(tmp_path, body), "--serial")
+    if match is None:
+        assert r.exit_code == 2 and "110000 passes, more than the limit" not in r.stderr and "passes, more than" in r.stderr
+        assert "Traceback" not in r.stderr
+    else:
+        _one_line_error(r, "p.yaml:4", match)
+    assert not (tmp_path / "out" / "o.ply").exists()
+
+
+@pytest.mark.parametrize("args,match", [(["--noise", "1e308"], "--noise"), (["--seed", "-1"], "--seed")])
+def test_demo_options_out_of_range(tmp_path, args, match):
+    r = _cli("demo", "--out", tmp_path / "out", *args)
+    assert r.exit_code == 2 and match in r.stderr and "Traceback" not in r.stderr
+    assert not (tmp_path / "out").exists()
+
+
+def test_too_many_local_workers_are_refused(tmp_path, mesh_file):
+    body = f"inputs: {mesh_file}\noutput_dir: {tmp_path / 'out'}\nsteps: [sobolev, {{save: {{path: o.ply}}}}]\n"
+    _one_line_error(_cli("run", _pipeline(tmp_path, body), "--workers", "100000"), "--workers 100000")

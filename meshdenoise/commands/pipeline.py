@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -58,6 +59,10 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
         _fail(str(exc), 2)
     if scheduler is not None:
         _check_scheduler(scheduler)
+    cores = os.cpu_count() or 1
+    if workers is not None and workers > MAX_WORKERS_PER_CORE * cores:
+        _fail(f"--workers {workers}: at most {MAX_WORKERS_PER_CORE} x {cores} cores = {MAX_WORKERS_PER_CORE * cores} "
+              "local worker processes", 2)
     n = len(plan.tasks)
     console.print(f"{pipeline}: {n} task(s) ({len(plan.inputs)} input(s) x {n // max(len(plan.inputs), 1)} setting(s)), "
                   f"outputs in {plan.output_dir}")
@@ -88,6 +93,9 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
         err_console.print(f"{len(failed)} of {n} task(s) failed")
         sys.exit(2 if all(r.get("failure") in BAD_INPUT_FAILURES for r in failed) else 1)
 
+
+#: Local Dask worker processes allowed per core (``--workers``): each is a Python process of 100+ MB.
+MAX_WORKERS_PER_CORE = 4
 
 #: Seconds to wait for a Dask scheduler to accept a connection before giving up.
 SCHEDULER_TIMEOUT = 3.0

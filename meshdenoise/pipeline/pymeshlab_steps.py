@@ -100,6 +100,8 @@ def _check_one(param: str, value: Any, info: dict) -> str | None:
     if t in ("RichFloat", "RichDynamicFloat"):
         try:
             return None if math.isfinite(parse_number(value, float)) else "must be finite"
+        except OverflowError:
+            return "is out of range (too large for a float)"
         except TypeError:
             return "must be a number"
     if t == "RichString":

@@ -48,7 +48,7 @@ BUILTIN_STEPS: dict[str, list[Param]] = {
     "add_noise": [
         Param("rho", float, 0.01, low=0.0, help="noise amplitude (absolute, or x bbox diagonal if relative)"),
         Param("relative", bool, False, help="rho is a fraction of the bounding-box diagonal"),
-        Param("seed", int, 0, help="random seed"),
+        Param("seed", int, 0, low=0, help="random seed (numpy takes non-negative seeds)"),
     ],
     "save": [
         Param("path", str, "", help="output file; {stem} {name} {setting} {index} are filled in"),

@@ -455,6 +455,12 @@ def two_stage(V, F, *, ops, pinned, iterations, normal_iterations, vertex_iterat
     >>> bool(V1[:, 2].std() < 0.3 * Vn[:, 2].std())  # much flatter
     True
     """
+    passes = iterations * (normal_iterations + vertex_iterations)
+    if passes > MAX_ITERATIONS:  # each count is bounded, their product too
+        raise ValueError(
+            f"parameters 'iterations' = {iterations} x ('normal_iterations' = {normal_iterations} + 'vertex_iterations' = "
+            f"{vertex_iterations}) = {passes} passes, more than the limit {MAX_ITERATIONS}"
+        )
     X = np.array(V, dtype=np.float64, order="C")
     if F.shape[0] == 0 or iterations == 0:
         return X
