@@ -100,6 +100,7 @@ def test_heat_tau_between_one_and_bound_is_accepted_on_non_bipartite_mesh():
 # the input unchanged. Cases are counted in docs/reliability.md.
 
 import hashlib  # noqa: E402
+from pathlib import Path  # noqa: E402
 import json  # noqa: E402
 import math  # noqa: E402
 import re  # noqa: E402
@@ -591,3 +592,26 @@ def test_demo_options_out_of_range(tmp_path, args, match):
 def test_too_many_local_workers_are_refused(tmp_path, mesh_file):
     body = f"inputs: {mesh_file}\noutput_dir: {tmp_path / 'out'}\nsteps: [sobolev, {{save: {{path: o.ply}}}}]\n"
     _one_line_error(_cli("run", _pipeline(tmp_path, body), "--workers", "100000"), "--workers 100000")
+
+
+def test_every_refused_corpus_file_under_a_bracketed_name_is_named_whole(tmp_path):
+    """The broken-file corpus (tests/brokenmeshes.py) under names like "[bold]x[/bold] [final].ply":
+    denoise and info stop with exit 2 and print the whole name; nothing is written."""
+    from .brokenmeshes import cases
+
+    refused = [c for c in cases() if c.expect == "refuse"]
+    assert len(refused) >= 30
+    bad = {}
+    for k, case in enumerate(refused):
+        src = tmp_path / f"[bold]{k}[" / f"bold] [{case.name}]{Path(case.name).suffix}"  # .../[bold]0[/bold] [x].ply
+        src.parent.mkdir()
+        src.write_bytes(case.data)
+        out = tmp_path / f"out{k}"
+        out.mkdir()
+        for args in (["info", src], ["denoise", src, out / "o [/x].ply", "--method", "sobolev"]):
+            r = _cli(*args)
+            flat = re.sub(r"\s", "", r.stderr)
+            if r.exit_code != 2 or re.sub(r"\s", "", str(src)) not in flat or "Traceback" in r.stderr:
+                bad[f"{args[0]} {case.name}"] = (r.exit_code, r.stderr[-300:])
+        assert list(out.iterdir()) == []
+    assert bad == {}
