@@ -615,3 +615,14 @@ def test_every_refused_corpus_file_under_a_bracketed_name_is_named_whole(tmp_pat
                 bad[f"{args[0]} {case.name}"] = (r.exit_code, r.stderr[-300:])
         assert list(out.iterdir()) == []
     assert bad == {}
+
+
+def test_sweep_values_in_scientific_notation_are_numbers_in_the_results(tmp_path, mesh_file):
+    out = tmp_path / "out"
+    body = (f"inputs: {mesh_file}\noutput_dir: {out}\nsteps:\n  - sobolev: {{mu: '${{mu}}'}}\n"
+            "  - save: {path: '{stem}_{mu:.0e}.ply'}\nsweep: {mu: [1e-3, 2E-2]}\n")
+    r = _cli("run", _pipeline(tmp_path, body), "--serial")
+    assert r.exit_code == 0, r.stderr
+    rows = json.loads((out / "results.json").read_text())
+    assert [row["mu"] for row in rows] == [0.001, 0.02]
+    assert sorted(p.name for p in out.glob("*.ply")) == ["sphere_1e-03.ply", "sphere_2e-02.ply"]

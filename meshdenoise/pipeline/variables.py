@@ -13,7 +13,7 @@ from typing import Any
 import yaml
 
 from .errors import PipelineValidationError
-from .yamlsource import LineDict, LineList
+from .yamlsource import LineDict, LineList, NumberLoader
 
 __all__ = ["substitute", "parse_assignment", "check_template", "VARIABLE", "MAX_FIELD_WIDTH"]
 
@@ -27,8 +27,8 @@ VARIABLE = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
 def parse_assignment(text: str) -> tuple[str, Any]:
     """``"mu=5"`` -> ``("mu", 5)``: the value is read as YAML (numbers, booleans, lists).
 
-    >>> parse_assignment("mu=0.5"), parse_assignment("name=a b")
-    (('mu', 0.5), ('name', 'a b'))
+    >>> parse_assignment("mu=0.5"), parse_assignment("name=a b"), parse_assignment("mu=1e-3")
+    (('mu', 0.5), ('name', 'a b'), ('mu', 0.001))
     """
     if "=" not in text:
         raise ValueError(f"expected NAME=VALUE, got {text!r}")
@@ -37,7 +37,7 @@ def parse_assignment(text: str) -> tuple[str, Any]:
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
         raise ValueError(f"{text!r}: {name!r} is not a variable name (letters, digits, _)")
     try:
-        value = yaml.safe_load(raw) if raw.strip() else ""
+        value = yaml.load(raw, Loader=NumberLoader) if raw.strip() else ""  # noqa: S506 (a safe loader)
     except yaml.YAMLError:
         value = raw
     return name, value

@@ -6,6 +6,7 @@ of every node, so a loader that copies them onto the constructed containers is e
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +14,7 @@ import yaml
 
 from .errors import PipelineValidationError
 
-__all__ = ["LineDict", "LineList", "load_yaml", "read_text", "line_of", "MAX_NODES", "MAX_DEPTH", "MAX_BYTES"]
+__all__ = ["LineDict", "LineList", "NumberLoader", "load_yaml", "read_text", "line_of", "MAX_NODES", "MAX_DEPTH", "MAX_BYTES"]
 
 #: Limits of a pipeline document, checked before it is built: values counted with every ``*alias``
 #: expanded (a few bytes of anchors can stand for billions of values), nesting depth, and file size.
@@ -39,7 +40,18 @@ class LineList(list):
     item_lines: list
 
 
-class _Loader(yaml.SafeLoader):
+class NumberLoader(yaml.SafeLoader):
+    """PyYAML's safe loader that also reads ``1e-3`` and ``2E5`` as floats (YAML 1.2; YAML 1.1 wants a dot)."""
+
+
+NumberLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
+
+class _Loader(NumberLoader):
     pass
 
 
