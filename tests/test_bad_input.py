@@ -403,10 +403,11 @@ def test_report_on_deeply_nested_json_exits_2(tmp_path):
 
 
 # item 13: messages -------------------------------------------------------------------------------------
-@pytest.mark.parametrize("view", ["nan,nan", "inf,0", "0,-inf"])
-def test_render_view_must_be_finite(tmp_path, mesh_file, view):
-    r = _cli("render", mesh_file, mesh_file, "--reference", mesh_file, "--png", tmp_path / "x.png", "--view", view)
-    assert r.exit_code == 2 and "--view" in r.stderr and "finite" in r.stderr and "Traceback" not in r.stderr
+@pytest.mark.parametrize("option,value", [("--view", "nan,nan"), ("--view", "inf,0"), ("--view", "0,-inf"),
+                                          ("--vmax", "nan"), ("--vmax", "inf"), ("--size", "0x0"), ("--size", "99999x99999")])
+def test_render_options_must_be_finite_and_bounded(tmp_path, mesh_file, option, value):
+    r = _cli("render", mesh_file, mesh_file, "--reference", mesh_file, "--png", tmp_path / "x.png", option, value)
+    assert r.exit_code == 2 and option in r.stderr and "Traceback" not in r.stderr, r.stderr
     assert not (tmp_path / "x.png").exists()
 
 

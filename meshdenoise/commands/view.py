@@ -87,6 +87,8 @@ def _render(meshes, png, reference, titles, size, view, error_mode, vmax, backen
     from ..io import MeshFileError
     from ..render import render_comparison
 
+    if vmax is not None and not math.isfinite(vmax):  # click's FloatRange lets nan and inf through
+        raise click.BadParameter(f"{vmax!r}: the top of the colour bar must be a finite positive number", param_hint="--vmax")
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", UserWarning)
