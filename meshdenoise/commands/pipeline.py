@@ -57,12 +57,6 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
         plan = load_pipeline(pipeline, overrides=overrides, inputs=list(inputs) or None, output_dir=out_dir)
     except PipelineValidationError as exc:
         _fail(str(exc), 2)
-    if scheduler is not None:
-        _check_scheduler(scheduler)
-    cores = os.cpu_count() or 1
-    if workers is not None and workers > MAX_WORKERS_PER_CORE * cores:
-        _fail(f"--workers {workers}: at most {MAX_WORKERS_PER_CORE} x {cores} cores = {MAX_WORKERS_PER_CORE * cores} "
-              "local worker processes", 2)
     n = len(plan.tasks)
     console.print(f"{pipeline}: {n} task(s) ({len(plan.inputs)} input(s) x {n // max(len(plan.inputs), 1)} setting(s)), "
                   f"outputs in {plan.output_dir}")
@@ -70,6 +64,12 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
         for t in plan.tasks:
             console.print(f"  {t.input.name} {t.setting_text}: {', '.join(s.name for s in t.steps)}")
         return
+    if scheduler is not None:
+        _check_scheduler(scheduler)
+    cores = os.cpu_count() or 1
+    if workers is not None and workers > MAX_WORKERS_PER_CORE * cores:
+        _fail(f"--workers {workers}: at most {MAX_WORKERS_PER_CORE} x {cores} cores = {MAX_WORKERS_PER_CORE * cores} "
+              "local worker processes", 2)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err_console, transient=True, disable=n < 2) as progress:
         bar = progress.add_task("meshes", total=n)
