@@ -6,7 +6,6 @@ import sys
 
 import click
 from rich.console import Console
-from rich.table import Table
 from rich.text import Text
 
 from .registry import list_filters
