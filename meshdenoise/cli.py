@@ -6,11 +6,12 @@ import sys
 
 import click
 from rich.console import Console
-from rich.table import Table
+from rich.text import Text
 
 from .registry import list_filters
 
-console = Console()
+# User text is never read as rich markup (a mesh called "scan [final].ply" is printed as it is).
+console = Console(markup=False, highlight=False)
 
 
 # `meshdenoise --help` lists the commands by what the user does; a command in no section is listed under "other"
@@ -43,8 +44,24 @@ class SectionedGroup(click.Group):
 
 @click.group(cls=SectionedGroup, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="meshdenoise")
-def cli() -> None:
+@click.pass_context
+def cli(ctx: click.Context) -> None:
     """Mesh-denoising filters for pymeshlab, Open3D and numpy arrays."""
+    import warnings
+
+    import numpy as np
+
+    # Overflow and invalid-value warnings of numpy would be printed before the one-line error that
+    # refuses the non-finite result they lead to; the command's own check says what went wrong.
+    ctx.with_resource(np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"))
+    ctx.with_resource(warnings.catch_warnings())
+    warnings.filterwarnings("ignore", category=RuntimeWarning)
+
+
+def _fail(message: str, code: int = 2) -> None:
+    Console(stderr=True, markup=False, highlight=False, soft_wrap=True).print(
+        Text.assemble(("error:", "red"), " ", str(message)))
+    sys.exit(code)
 
 
 @cli.command()
@@ -52,23 +69,75 @@ def cli() -> None:
               help="Folder for the noisy and denoised meshes.")
 @click.option("--mesh", "mesh_path", default=None, type=click.Path(exists=True, dir_okay=False),
               help="Mesh to use instead of pymeshlab's sample bunny.")
-@click.option("--noise", default=0.01, show_default=True, type=click.FloatRange(min=0),
+@click.option("--noise", default=0.01, show_default=True, type=click.FloatRange(min=0, max=1),
               help="Noise amplitude rho as a fraction of the bounding-box diagonal.")
-@click.option("--seed", default=0, show_default=True, type=int, help="Noise seed.")
+@click.option("--seed", default=0, show_default=True, type=click.IntRange(min=0), help="Noise seed.")
 def demo(out_dir: str, mesh_path: str | None, noise: float, seed: int) -> None:
     """Add normal noise to a built-in mesh, denoise it with the three filters (parameters chosen from the noisy mesh alone), print a table."""
+    from .arrays import MeshValidationError
     from .demo import demo_table, run_demo
+    from .io import MeshFileError
+    from .registry import ParameterError
 
-    rows, path, n = run_demo(out_dir, mesh_path, noise, seed)
+    try:
+        rows, path, n = run_demo(out_dir, mesh_path, noise, seed)
+    except (MeshFileError, MeshValidationError, ParameterError) as exc:  # NaN coordinates, a point cloud, an unwritable --out
+        text = str(exc)
+        _fail(text if mesh_path is None or str(mesh_path) in text else f"{mesh_path}: {text}", 2)
+    except OSError as exc:
+        _fail(f"{out_dir}: {exc.strerror or exc}", 2)
     console.print(demo_table(rows, path, n, noise, seed, width=console.width))
-    console.print(f"meshes written to {click.format_filename(out_dir)}/")
+    console.print(f"meshes written to {click.format_filename(out_dir)}/", soft_wrap=True)
+
+
+def filters_json() -> dict:
+    """Every filter and built-in pipeline step with its parameters (:meth:`Param.describe`), for ``filters --json``.
+
+    ``{"filters": [{"name", "summary", "params": [...]}], "steps": [{"name", "kind", "params": [...]}]}``;
+    the pipeline-only options of our filters (``pinned``, ``region``, ``preserve_volume``, ``parameters``)
+    are listed once under ``"filter_options"``. pymeshlab's own filters are not listed (``pymeshlab.filter_list()``).
+    """
+    from .pipeline.steps import BUILTIN_STEPS, OPEN3D_OPS, RENDER_PARAMS
+
+    steps = [{"name": name, "kind": "builtin", "params": [p.describe() for p in params]}
+             for name, params in BUILTIN_STEPS.items() if params]
+    steps.append({"name": "metrics", "kind": "builtin", "params": [
+        {"name": "reference", "type": "str", "default": "input", "range": "input, a mesh file or {before: LABEL}",
+         "help": "the mesh the metrics compare with"},
+        {"name": "metrics", "type": "list", "default": None, "range": "names of meshdenoise.metrics.METRICS",
+         "help": "metrics to compute (default: all)"}]})
+    steps.append({"name": "render", "kind": "builtin", "params": [
+        {"name": k, "type": "any", "default": None, "range": "see the render step", "help": ""} for k in RENDER_PARAMS]})
+    steps += [{"name": f"open3d.{op}", "kind": "open3d", "params": [p.describe() for p in params]}
+              for op, params in OPEN3D_OPS.items()]
+    return {
+        "filters": [{"name": f.name, "summary": f.summary, "params": [p.describe() for p in f.params]}
+                    for f in list_filters()],
+        "filter_options": [
+            {"name": "pinned", "type": "str|list", "default": None, "range": "boundary, selection or vertex indices",
+             "help": "vertices kept exactly fixed"},
+            {"name": "region", "type": "str|list", "default": None, "range": "selection or vertex indices",
+             "help": "only these vertices move"},
+            {"name": "preserve_volume", "type": "bool", "default": False, "range": "True or False",
+             "help": "rescale so the enclosed volume equals the input's"},
+            {"name": "parameters", "type": "str", "default": None, "range": "auto",
+             "help": "choose the filter's parameters from the mesh"},
+        ],
+        "steps": steps,
+    }
 
 
 @cli.command()
-def filters() -> None:
+@click.option("--json", "as_json", is_flag=True, help="Print every filter and built-in pipeline step as JSON.")
+def filters(as_json: bool) -> None:
     """List every filter with its parameters, types, ranges and defaults."""
+    if as_json:
+        import json
+
+        click.echo(json.dumps(filters_json(), indent=1, allow_nan=False))
+        return
     for spec in list_filters():
-        console.print(f"[bold]{spec.name}[/bold]: {spec.summary}")
+        console.print(Text.assemble((spec.name, "bold"), f": {spec.summary}"))
         for p in spec.params:
             console.print(f"    {p.name} ({p.kind.__name__}, default {p.default!r}, {p.range_text()}): {p.help}")
 

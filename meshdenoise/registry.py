@@ -24,7 +24,62 @@ from typing import Any, Callable
 
 import numpy as np
 
-__all__ = ["Param", "AutoRule", "FilterSpec", "register", "get_filter", "list_filters", "apply_filter", "REGISTRY"]
+__all__ = [
+    "Param", "AutoRule", "FilterSpec", "register", "get_filter", "list_filters", "apply_filter", "REGISTRY",
+    "parse_number", "MAX_ITERATIONS", "ParameterError",
+]
+
+
+class ParameterError(ValueError):
+    """Parameters each in their range that fail together on this mesh (a singular system, an overflow,
+    non-finite output); the message names the filter and its parameters."""
+
+#: Upper bound of every iteration or step count (``iterations``, heat's ``ceil(time / tau)``...):
+#: a count above it would run for hours and is refused before anything is allocated.
+MAX_ITERATIONS = 100_000
+
+
+def parse_number(value: Any, kind: type) -> int | float:
+    """``value`` as ``kind`` (``int`` or ``float``): the one conversion of numbers given as text or numbers.
+
+    The command line (``--param mu=1e-3``, ``--set mu=1e-3``) and YAML files (PyYAML reads
+    ``mu: 1e-3`` as the *string* ``'1e-3'``: YAML 1.1's float rule wants a dot) all come here.
+    A string is accepted when Python's ``float()`` accepts it; an ``int`` parameter takes an
+    integral number however written (``10``, ``1e3``, ``10.0``), never a fraction.
+
+    Raises
+    ------
+    TypeError
+        Not a number (``True`` is not a number), or a fraction for an ``int``.
+    OverflowError
+        An integer too large for a ``float``.
+
+    Examples
+    --------
+    >>> parse_number("1e-3", float), parse_number("1e3", int), parse_number(" 7 ", int)
+    (0.001, 1000, 7)
+    """
+    if isinstance(value, (bool, np.bool_)):
+        raise TypeError(f"expected a number, got {value!r}")
+    if isinstance(value, str):
+        text = value.strip()
+        if kind is int:
+            try:
+                return int(text)  # exact, however many digits
+            except ValueError:
+                pass
+        try:
+            value = float(text)
+        except ValueError:
+            raise TypeError(f"expected a number, got {value!r}") from None
+    elif not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"expected a number, got {value!r}")
+    if kind is int:
+        if isinstance(value, (float, np.floating)):
+            if not (math.isfinite(value) and float(value).is_integer()):
+                raise TypeError(f"expected an integer, got {value!r}")
+        return int(value)
+    return float(value)
 
 
 @dataclass(frozen=True)
@@ -98,17 +153,14 @@ class Param:
                     f"{prefix}parameter '{self.name}' = {value!r} is not allowed: {self.range_text()}{extra}"
                 )
             return value
-        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
-            raise TypeError(f"{prefix}parameter '{self.name}' must be a {k.__name__}, got {value!r}")
-        if k is int:
-            if isinstance(value, (float, np.floating)):
-                if not float(value).is_integer():
-                    raise TypeError(f"{prefix}parameter '{self.name}' must be an int, got {value!r}")
-            value = int(value)
-        else:
-            value = float(value)
-            if not math.isfinite(value):
-                raise ValueError(f"{prefix}parameter '{self.name}' = {value!r} must be finite ({self.range_text()})")
+        try:
+            value = parse_number(value, k)
+        except OverflowError:  # an integer of hundreds of digits for a float parameter
+            raise ValueError(f"{prefix}parameter '{self.name}' = {value!r} is too large for a float ({self.range_text()})") from None
+        except TypeError:
+            raise TypeError(f"{prefix}parameter '{self.name}' must be a{'n' if k is int else ''} {k.__name__}, got {value!r}") from None
+        if k is float and not math.isfinite(value):
+            raise ValueError(f"{prefix}parameter '{self.name}' = {value!r} must be finite ({self.range_text()})")
         too_low = self.low is not None and (value <= self.low if self.low_open else value < self.low)
         too_high = self.high is not None and (value >= self.high if self.high_open else value > self.high)
         if too_low or too_high:
@@ -116,11 +168,24 @@ class Param:
         return value
 
     def describe(self) -> dict:
-        """A JSON-friendly description (CLI listing, docs)."""
+        """A JSON-friendly description (``meshdenoise filters --json``, docs).
+
+        Keys: ``name``, ``type`` (``int``, ``float``, ``bool``, ``str``), ``default``, ``low``,
+        ``high`` (``null`` when unbounded), ``low_open``, ``high_open``, ``choices`` (a list or
+        ``null``), ``range`` (in words) and ``help``.
+        """
+        default = self.default
+        if isinstance(default, tuple):
+            default = list(default)
         return {
             "name": self.name,
             "type": self.kind.__name__,
-            "default": self.default,
+            "default": default,
+            "low": self.low,
+            "high": self.high,
+            "low_open": self.low_open,
+            "high_open": self.high_open,
+            "choices": None if self.choices is None else list(self.choices),
             "range": self.range_text(),
             "help": self.help,
         }
@@ -234,6 +299,7 @@ def register(
 def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
     # Imported here: adapters and constraints import the registry's users, not the reverse.
     from .adapters import read_mesh
+    from .arrays import MeshValidationError
     from .constraints import fixed_mask, restore_volume
     from .operators import Operators, get_operators
 
@@ -253,7 +319,18 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
     scale = power_of_two_scale(V) if spec.scale_free else 1.0
     V_in = V.view() if scale == 1.0 else V / scale
     V_in.flags.writeable = False  # a core must return new arrays, never write into its input
-    V_out = np.array(spec.core(V_in, F, ops=ops, pinned=pinned, **values), dtype=np.float64)
+    try:
+        V_out = np.array(spec.core(V_in, F, ops=ops, pinned=pinned, **values), dtype=np.float64)
+    except MeshValidationError:
+        raise
+    except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
+        text = str(exc) or type(exc).__name__
+        if f"'{spec.name}'" in text or "parameter" in text:  # already names the filter or the parameter
+            raise ParameterError(text) from exc
+        raise ParameterError(
+            f"filter '{spec.name}' with {_settings_text(values)} failed on this mesh: {text} "
+            "(a parameter is too large or too small for it)"
+        ) from exc
     if scale != 1.0:
         V_out *= scale
     if pinned is not None:
@@ -261,9 +338,9 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
     if preserve_volume:
         V_out = restore_volume(V, V_out, F, pinned)
     if not np.isfinite(V_out).all():
-        raise FloatingPointError(
-            f"filter '{spec.name}' with {values} produced non-finite coordinates; "
-            "this is a bug or an unstable parameter: please report it with the mesh"
+        raise ParameterError(
+            f"filter '{spec.name}' with {_settings_text(values)} produced non-finite coordinates "
+            "(overflow: a parameter is too large or too small for this mesh)"
         )
     return data.write(V_out)
 
@@ -288,6 +365,11 @@ def power_of_two_scale(V: np.ndarray) -> float:
     if not (d > 0 and math.isfinite(d)):
         return 1.0
     return 2.0 ** round(math.log2(d))
+
+
+def _settings_text(values: dict) -> str:
+    """``mu=1e+20, solver='cg'``: the parameters of a run, for messages."""
+    return ", ".join(f"{k}={v!r}" for k, v in values.items()) or "no parameters"
 
 
 def get_filter(name: str) -> FilterSpec:

@@ -140,8 +140,8 @@ def test_default_solver_is_cholesky_bit_identical():
     "params,error,message",
     [
         ({"solver": "lu"}, ValueError, "'solver' = 'lu'.*one of 'auto', 'cholesky', 'cg'"),
-        ({"solver": "cg", "tol": 0.0}, ValueError, r"'tol' = 0.0 .*0 < tol <= 0.01"),
-        ({"solver": "cg", "tol": 0.5}, ValueError, r"'tol' = 0.5 .*0 < tol <= 0.01"),
+        ({"solver": "cg", "tol": 0.0}, ValueError, r"'tol' = 0.0 .*1e-14 <= tol <= 0.01"),
+        ({"solver": "cg", "tol": 0.5}, ValueError, r"'tol' = 0.5 .*1e-14 <= tol <= 0.01"),
         ({"solver": "cg", "tol": "small"}, TypeError, "'tol'.*float"),
     ],
 )

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -10,13 +11,16 @@ import click
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 from rich.table import Table
+from rich.text import Text
 
-console = Console(soft_wrap=True)
-err_console = Console(stderr=True, soft_wrap=True)
+# User text (paths, file content, parameter values, messages) is never read as rich markup:
+# "scan [final].ply" and "out/r[/b].ply" are printed as they are. Styles go through Text.
+console = Console(soft_wrap=True, markup=False, highlight=False)
+err_console = Console(stderr=True, soft_wrap=True, markup=False, highlight=False)
 
 
 def _fail(message: str, code: int) -> None:
-    err_console.print(f"[red]error:[/red] {message}", highlight=False, markup=True, soft_wrap=True)
+    err_console.print(Text.assemble(("error:", "red"), " ", str(message)), soft_wrap=True)
     sys.exit(code)
 
 
@@ -44,7 +48,9 @@ def _assignments(values: tuple[str, ...], option: str) -> dict:
 @click.option("--check", is_flag=True, help="Only check the pipeline and list its tasks; run nothing.")
 def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, check):
     """Run a YAML PIPELINE on its inputs (several inputs run in parallel on Dask)."""
-    from ..pipeline import PipelineValidationError, load_pipeline, run_pipeline
+    from ..io import MeshFileError
+    from ..pipeline import PipelineValidationError, load_pipeline, run_tasks, write_results
+    from ..pipeline.errors import BAD_INPUT_FAILURES
 
     overrides = _assignments(sets, "--set")
     try:
@@ -56,11 +62,17 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
         _note(note)
     n = len(plan.tasks)
     console.print(f"{pipeline}: {n} task(s) ({len(plan.inputs)} input(s) x {n // max(len(plan.inputs), 1)} setting(s)), "
-                  f"outputs in {plan.output_dir}", highlight=False)
+                  f"outputs in {plan.output_dir}")
     if check:
         for t in plan.tasks:
             console.print(f"  {t.label or t.input.name} {t.setting_text}: {', '.join(s.name for s in t.steps)}", highlight=False, markup=False)
         return
+    if scheduler is not None:
+        _check_scheduler(scheduler)
+    cores = os.cpu_count() or 1
+    if workers is not None and workers > MAX_WORKERS_PER_CORE * cores:
+        _fail(f"--workers {workers}: at most {MAX_WORKERS_PER_CORE} x {cores} cores = {MAX_WORKERS_PER_CORE * cores} "
+              "local worker processes", 2)
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
                   console=err_console, transient=True, disable=n < 2) as progress:
         bar = progress.add_task("meshes", total=n)
@@ -72,15 +84,66 @@ def run_command(pipeline, sets, inputs, out_dir, scheduler, workers, serial, che
 
                 err_console.print(Text.assemble(("failed: ", "red"), str(row.get("error"))), highlight=False)
 
-        rows = run_pipeline(plan, scheduler=scheduler, workers=workers, serial=serial, on_done=done)
+        rows = run_tasks(plan.tasks, scheduler=scheduler, workers=workers, serial=serial, on_done=done)
     _print_rows(rows)
     if plan.writes_results and plan.results:
-        console.print(f"results: {plan.output_dir / (plan.results + '.csv')} and .json", highlight=False)
+        try:
+            csv_path, _ = write_results(rows, plan.output_dir, plan.results)
+        except (MeshFileError, OSError) as exc:  # read-only folder, full disk: the outputs of the tasks are kept
+            _fail(f"results table not written: {exc}", 2)
+        console.print(f"results: {csv_path} and .json")
     failed = [r for r in rows if r.get("status") != "ok"]
     if failed:
         # each failure was printed as it happened; bad inputs alone are bad input (2), anything else a failure (1)
-        err_console.print(f"{len(failed)} of {n} task(s) failed", highlight=False)
-        sys.exit(2 if all(r.get("failure") == "input" for r in failed) else 1)
+        err_console.print(f"{len(failed)} of {n} task(s) failed")
+        sys.exit(2 if all(r.get("failure") in BAD_INPUT_FAILURES for r in failed) else 1)
+
+
+#: Local Dask worker processes allowed per core (``--workers``): each is a Python process of 100+ MB.
+MAX_WORKERS_PER_CORE = 4
+
+#: Seconds to wait for a Dask scheduler to accept a connection before giving up.
+SCHEDULER_TIMEOUT = 3.0
+
+
+def _check_scheduler(address: str) -> None:
+    """Exit 2 at once (one line) when ``--scheduler`` is not an address or nothing listens there."""
+    import socket
+    from urllib.parse import urlsplit
+
+    text = address if "://" in address else f"tcp://{address}"
+    try:
+        parts = urlsplit(text)
+        host, port = parts.hostname, parts.port
+    except ValueError as exc:
+        _fail(f"--scheduler {address!r}: not an address like tcp://host:8786 ({exc})", 2)
+    if parts.scheme not in ("tcp", "tls", "ws", "wss") or not host or port is None or parts.path not in ("", "/"):
+        _fail(f"--scheduler {address!r}: not an address like tcp://host:8786", 2)
+    try:
+        with socket.create_connection((host, port), timeout=SCHEDULER_TIMEOUT):
+            pass
+    except OSError as exc:
+        reason = exc.strerror or str(exc) or type(exc).__name__
+        _fail(f"--scheduler {address!r}: no scheduler answers at {host}:{port} ({reason}, waited at most "
+              f"{SCHEDULER_TIMEOUT:g} s); start one with `dask scheduler` or leave out --scheduler", 2)
+    # Something listens: check that it speaks Dask (a proxy or another service may accept any connection).
+    import logging
+
+    from distributed import Client
+
+    quiet = [logging.getLogger(n) for n in ("distributed", "distributed.comm", "distributed.client")]
+    levels = [q.level for q in quiet]
+    for q in quiet:
+        q.setLevel(logging.CRITICAL)
+    try:
+        Client(address, timeout=f"{SCHEDULER_TIMEOUT}s").close()
+    except (Exception, MemoryError) as exc:  # a garbage reply can ask for an absurd buffer
+        reason = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        _fail(f"--scheduler {address!r}: {host}:{port} does not answer as a Dask scheduler "
+              f"within {SCHEDULER_TIMEOUT:g} s ({type(exc).__name__}: {reason})", 2)
+    finally:
+        for q, level in zip(quiet, levels):
+            q.setLevel(level)
 
 
 def _print_rows(rows: list[dict]) -> None:
@@ -162,13 +225,13 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
     task = Task(0, src.resolve(), {}, "", [step, save], {str(dst.resolve()): dst.resolve()})
     try:
         # a spinner with the elapsed time while the mesh is read, filtered and written (stderr, terminals only)
-        with err_console.status(f"{method} on {src.name}", spinner="dots"):
-            row = run_task(task, echo=lambda m: console.print(m, highlight=False))
-    except InputError as exc:
+        with err_console.status(Text(f"{method} on {src.name}"), spinner="dots"):
+            row = run_task(task, echo=lambda m: console.print(str(m)))
+    except InputError as exc:  # also a bad parameter on this mesh and an output that cannot be written
         _fail(str(exc), 2)
     except StepFailure as exc:
         _fail(str(exc), 1)
-    console.print(f"{dst}: {row['vertices']} vertices, {row['faces']} faces, {method} in {row['seconds']:.2f} s", highlight=False)
+    console.print(f"{dst}: {row['vertices']} vertices, {row['faces']} faces, {method} in {row['seconds']:.2f} s")
 
 
 def _selected_vertices(path: str) -> list[int]:
@@ -208,7 +271,7 @@ def info_command(mesh, as_json):
     info = mesh_info(m.V, m.F)
     info["vertex_colors"] = m.vertex_colors is not None
     if as_json:
-        click.echo(json.dumps(info, indent=1))
+        click.echo(json.dumps(_finite_json(info), indent=1, allow_nan=False))
         return
     table = Table(title=str(mesh))
     table.add_column("property")
@@ -217,6 +280,19 @@ def info_command(mesh, as_json):
         text = ", ".join(f"{x:.6g}" for x in v) if isinstance(v, list) else f"{v:.6g}" if isinstance(v, float) else str(v)
         table.add_row(k.replace("_", " "), text)
     console.print(table)
+
+
+def _finite_json(value):
+    """``value`` with every NaN or infinite float written as the string "nan", "inf" or "-inf" (JSON has none)."""
+    import math
+
+    if isinstance(value, float) and not math.isfinite(value):
+        return str(value)
+    if isinstance(value, dict):
+        return {k: _finite_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_finite_json(v) for v in value]
+    return value
 
 
 def _write_text(path: str | None, text: str) -> None:

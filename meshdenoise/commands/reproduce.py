@@ -31,7 +31,7 @@ def reproduce(data_dir: str, out_dir: str, seeds: int, meshes: tuple[str, ...], 
     from ..reproduce.runner import run_reproduction
     from ..reproduce.strategies import available_methods
 
-    console = Console()
+    console = Console(markup=False, highlight=False)  # paths are printed as they are, never as markup
     if quick and click.get_current_context().get_parameter_source("seeds").name == "DEFAULT":
         seeds = 1
     unknown = [m for m in methods if m not in available_methods()]

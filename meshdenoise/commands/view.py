@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+import math
 import os
 import sys
 import warnings
@@ -12,11 +14,19 @@ import click
 MESH = click.Path(exists=True, dir_okay=False, path_type=Path)
 
 
+def _fail(message: str) -> None:
+    """One line on stderr, exit code 2 (bad input); the message is printed as it is (no markup)."""
+    click.echo(f"error: {message}", err=True)
+    sys.exit(2)
+
+
 def _parse_size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(x) for x in text.lower().split("x"))
     except ValueError:
-        raise click.BadParameter(f"expected WIDTHxHEIGHT in pixels, e.g. 400x400; got {text!r}") from None
+        raise click.BadParameter(f"expected WIDTHxHEIGHT in pixels, e.g. 400x400; got {text!r}", param_hint="--size") from None
+    if not (16 <= w <= 4096 and 16 <= h <= 4096):
+        raise click.BadParameter(f"{text!r}: width and height must be 16..4096 pixels", param_hint="--size")
     return w, h
 
 
@@ -24,7 +34,9 @@ def _parse_view(text: str) -> tuple[float, float]:
     try:
         az, el = (float(x) for x in text.split(","))
     except ValueError:
-        raise click.BadParameter(f"expected AZIMUTH,ELEVATION in degrees, e.g. 30,20; got {text!r}") from None
+        raise click.BadParameter(f"expected AZIMUTH,ELEVATION in degrees, e.g. 30,20; got {text!r}", param_hint="--view") from None
+    if not (math.isfinite(az) and math.isfinite(el)):
+        raise click.BadParameter(f"{text!r}: azimuth and elevation must be finite numbers of degrees", param_hint="--view")
     return az, el
 
 
@@ -75,6 +87,8 @@ def _render(meshes, png, reference, titles, size, view, error_mode, vmax, backen
     from ..io import MeshFileError
     from ..render import render_comparison
 
+    if vmax is not None and not math.isfinite(vmax):  # click's FloatRange lets nan and inf through
+        raise click.BadParameter(f"{vmax!r}: the top of the colour bar must be a finite positive number", param_hint="--vmax")
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", UserWarning)
@@ -183,7 +197,14 @@ def report(run_dir, embed, pipeline):
     """Write RUN_DIR/report.html: the pipeline, one results table, a chart per swept parameter, plots and renders."""
     from ..report import write_report
 
-    path = write_report(run_dir, embed=embed, pipeline=pipeline)
+    try:
+        path = write_report(run_dir, embed=embed, pipeline=pipeline)
+    except RecursionError:  # json.load on [[[[...]]]]: a results file nested thousands of levels deep
+        _fail(f"{run_dir}: a JSON file there is nested too deeply to be a results table")
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        _fail(f"{run_dir}: a JSON file there cannot be read: {exc}")
+    except (ValueError, TypeError, OSError) as exc:
+        _fail(f"{run_dir}: {exc}")
     click.echo(f"wrote {path}")
     sys.stdout.flush()
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-__all__ = ["PipelineError", "PipelineValidationError", "StepFailure", "InputError", "where"]
+__all__ = ["PipelineError", "PipelineValidationError", "StepFailure", "InputError", "ParameterFailure", "OutputError", "where"]
 
 
 class PipelineError(Exception):
@@ -18,7 +18,29 @@ class StepFailure(PipelineError, RuntimeError):
 
 
 class InputError(StepFailure):
-    """The input is bad (unreadable file, or a mesh no filter can work on): exit code 2, not 1."""
+    """The input is bad (unreadable file, or a mesh no filter can work on): exit code 2, not 1.
+
+    ``failure`` is the class written in the results table: ``input`` here, ``parameter`` and
+    ``output`` in the subclasses; all three are bad input (exit code 2).
+    """
+
+    failure = "input"
+
+
+class ParameterFailure(InputError):
+    """A step's parameters, each in its range, fail on this mesh (singular system, overflow, non-finite output)."""
+
+    failure = "parameter"
+
+
+class OutputError(InputError):
+    """An output cannot be written (read-only folder, full disk, a path under /proc...)."""
+
+    failure = "output"
+
+
+#: Failure classes of a results row that are bad input (exit code 2); anything else is exit code 1.
+BAD_INPUT_FAILURES = ("input", "parameter", "output")
 
 
 def where(source: str, line: int | None, step: str | None = None) -> str:

@@ -138,7 +138,7 @@ def check_value(param: str, value: Any, info: dict, where: str) -> Any:
         low, high = (-(2**31), 2**31 - 1) if kind is int else (None, None)
         try:
             return Param(param, kind, info.get("default"), low=low, high=high).check(value, where)
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, OverflowError) as exc:
             raise ValueError(f"{exc} ({t})") from None
     problem = _check_other(value, info)
     if problem:

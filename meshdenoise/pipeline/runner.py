@@ -15,7 +15,8 @@ from typing import Any, Callable
 import numpy as np
 
 from ..arrays import MeshValidationError
-from .errors import InputError, StepFailure
+from ..registry import ParameterError
+from .errors import InputError, OutputError, ParameterFailure, StepFailure
 from .schema import Task
 from .state import MeshState
 from .steps import RunContext, run_step
@@ -42,22 +43,23 @@ def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
         for step in task.steps:
             try:
                 run_step(step, ctx)
+            except ParameterError as exc:  # in range, but failing on this mesh (overflow, singular system)
+                raise ParameterFailure(f"{task.input}: {step.where}: {exc}") from None
             except MeshValidationError as exc:  # the mesh itself is unusable (a point cloud, NaN coordinates...)
                 raise InputError(f"{task.input}: {step.where}: {exc}") from None
             except Exception as exc:  # any library error: name the input and the step
                 detail = str(exc) or type(exc).__name__
                 raise StepFailure(f"{task.input}: {step.where} failed: {type(exc).__name__}: {detail}") from exc
-            if not np.isfinite(ctx.state.V).all():  # blame the step that made them, not the next one
-                raise InputError(
-                    f"{task.input}: {step.where} produced non-finite coordinates: a parameter is too large for this mesh "
-                    f"({', '.join(f'{k}={v!r}' for k, v in step.params.items()) or 'no parameters'})"
-                )
-        for path, V, F, colors, binary in ctx.staged:
-            if mesh.vertex_colors is None and colors is not None and (colors == 1.0).all():
-                colors = None  # pymeshlab's default white, not the input's: no colours in, no colours out
-            save_mesh(path, V, F, colors, binary=binary)
-        for tmp, path in ctx.staged_files:
-            os.replace(tmp, path)
+            _check_finite(step, ctx)
+        try:
+            for path, V, F, colors, binary in ctx.staged:
+                if mesh.vertex_colors is None and colors is not None and (colors == 1.0).all():
+                    colors = None  # pymeshlab's default white, not the input's: no colours in, no colours out
+                save_mesh(path, V, F, colors, binary=binary)
+            for tmp, path in ctx.staged_files:
+                os.replace(tmp, path)
+        except (MeshFileError, OSError) as exc:  # read-only folder, full disk, /proc/x.ply: its message names the file
+            raise OutputError(f"{task.input}: {exc}") from None
     finally:
         for tmp, _ in ctx.staged_files:  # left only when the task failed
             tmp.unlink(missing_ok=True)
@@ -68,12 +70,32 @@ def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
     return row
 
 
+def _check_finite(step, ctx) -> None:
+    """Refuse a step whose output has NaN or infinite coordinates (an overflowing parameter), naming it."""
+    if step.kind in ("save", "metrics", "render"):
+        return
+    if not np.isfinite(ctx.state.V).all():
+        settings = ", ".join(f"{k}={v!r}" for k, v in step.params.items()) or "its defaults"
+        raise ParameterFailure(
+            f"{ctx.input_path}: {step.where} with {settings} produced non-finite coordinates "
+            "(overflow: a parameter is too large or too small for this mesh)"
+        )
+
+
 def run_task_safely(task: Task) -> dict:
-    """:func:`run_task`, with a failure turned into a row (``status: failed``, ``error``); for batches."""
+    """:func:`run_task`, with a failure turned into a row (``status: failed``, ``error``); for batches.
+
+    numpy's overflow warnings are not printed (also on Dask workers): a non-finite result is
+    refused by the task's own check, whose message names the step and its parameters.
+    """
+    import warnings
+
     try:
-        return run_task(task)
+        with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return run_task(task)
     except StepFailure as exc:
-        kind = "input" if isinstance(exc, InputError) else "step"
+        kind = exc.failure if isinstance(exc, InputError) else "step"
         return {"input": str(task.input), **task.setting, "status": "failed", "error": str(exc), "failure": kind}
     except Exception as exc:  # a bug or an I/O error while writing: still one row, never a lost batch
         return {

@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import glob
 import itertools
-import math
 import re
 import string
 from dataclasses import dataclass, field
@@ -28,14 +27,11 @@ from typing import Any
 
 from .errors import PipelineValidationError, where
 from .steps import Step, parse_step
-from .variables import substitute
-from .yamlsource import LineDict, LineList, line_of, load_yaml
+from .sweep import check_sweep_size
+from .variables import check_template, substitute
+from .yamlsource import LineDict, LineList, line_of, load_yaml, read_text
 
 __all__ = ["Plan", "Task", "load_pipeline", "build_plan", "TOP_LEVEL_KEYS", "PipelineProblems", "PLACEHOLDER_INPUT", "fill_template", "distinguishing_names"]
-
-# a pipeline's grid: more is refused before anything is built (each setting's steps are checked, each task runs)
-MAX_SETTINGS = 10_000
-MAX_TASKS = 100_000
 
 # what ``mlx2yaml`` writes as the inputs when none is given: --check says to set it
 PLACEHOLDER_INPUT = "SET-YOUR-MESH.ply"
@@ -224,13 +220,10 @@ def build_plan(
 
     raw_steps = doc.get("steps")
     steps_by_setting: list[list[Step]] = []
-    n_settings = math.prod(len(v) for v in sweep.values())
-    if n_settings > MAX_SETTINGS or n_settings * max(len(input_paths), 1) > MAX_TASKS:
-        # refused before the grid is built: a few lines of YAML can ask for 10^9 settings
-        problem(
-            f"{where(source, line_of(doc, 'sweep'))}: sweep: {n_settings:,} settings x {len(input_paths):,} input(s) "
-            f"= {n_settings * max(len(input_paths), 1):,} tasks; the limits are {MAX_SETTINGS:,} settings and {MAX_TASKS:,} tasks"
-        )
+    try:  # refused before the grid is built: a few lines of YAML can ask for 10^9 settings
+        check_sweep_size(sweep, max(len(input_paths), 1), where(source, line_of(doc, "sweep")))
+    except PipelineValidationError as exc:
+        problem(str(exc))
         raise PipelineProblems(problems) if len(set(problems)) > 1 else PipelineValidationError(problems[0])
     settings = [dict(zip(sweep, values)) for values in itertools.product(*sweep.values())] if sweep else [{}]
     if not isinstance(raw_steps, list) or not raw_steps:
@@ -305,6 +298,7 @@ def fill_template(template: str, task: Task) -> str:
     fields = {"stem": inp.stem, "name": inp.name, "suffix": inp.suffix, "parent": inp.parent.name, "dir": str(inp.parent),
               "index": task.index, "setting": task.setting_text}
     fields.update({k: v for k, v in task.setting.items() if isinstance(k, str)})
+    check_template(template)  # plain {name} placeholders, bounded widths: before formatting
     try:
         for _, _, spec, _ in string.Formatter().parse(template):
             if spec and any(int(n) > 255 for n in re.findall(r"\d+", spec)):  # {stem:>99999999999} would exhaust memory
@@ -409,11 +403,5 @@ def load_pipeline(
     path = Path(path)
     if not path.is_file():
         raise PipelineValidationError(f"{path}: no such pipeline file")
-    try:
-        text = path.read_text(encoding="utf-8")
-    except UnicodeDecodeError as exc:
-        raise PipelineValidationError(f"{path}: not UTF-8 text (byte {exc.start}: {exc.reason}); save the pipeline as UTF-8") from None
-    except OSError as exc:
-        raise PipelineValidationError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    doc = load_yaml(text, path)
+    doc = load_yaml(read_text(path), path)
     return build_plan(doc, str(path), base_dir=path.resolve().parent, overrides=overrides, inputs=inputs, output_dir=output_dir)

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from ..registry import FilterSpec, Param, get_filter, list_filters
+from ..registry import MAX_ITERATIONS, FilterSpec, Param, get_filter, list_filters
 from . import pymeshlab_steps
 from .errors import PipelineValidationError, where
 from .state import MeshState
@@ -32,14 +32,14 @@ OPEN3D_OPS: dict[str, list[Param]] = {
     "remove_non_manifold_edges": [],
     "remove_unreferenced_vertices": [],
     "compute_vertex_normals": [Param("normalized", bool, True, help="unit-length normals")],
-    "filter_smooth_simple": [Param("number_of_iterations", int, 1, low=0)],
+    "filter_smooth_simple": [Param("number_of_iterations", int, 1, low=0, high=MAX_ITERATIONS)],
     # a step weight above 1 overshoots (and 1e300 blows the mesh up): refused before running
     "filter_smooth_laplacian": [
-        Param("number_of_iterations", int, 1, low=0),
+        Param("number_of_iterations", int, 1, low=0, high=MAX_ITERATIONS),
         Param("lambda_filter", float, 0.5, low=0.0, high=1.0, low_open=True, help="step weight"),
     ],
     "filter_smooth_taubin": [
-        Param("number_of_iterations", int, 1, low=0),
+        Param("number_of_iterations", int, 1, low=0, high=MAX_ITERATIONS),
         Param("lambda_filter", float, 0.5, low=0.0, high=1.0, low_open=True, help="shrinking step weight"),
         Param("mu", float, -0.53, low=-1.0, high=0.0, high_open=True, help="inflating step weight (negative)"),
     ],
@@ -49,7 +49,7 @@ BUILTIN_STEPS: dict[str, list[Param]] = {
     "add_noise": [
         Param("rho", float, 0.01, low=0.0, help="noise amplitude (absolute, or x bbox diagonal if relative)"),
         Param("relative", bool, False, help="rho is a fraction of the bounding-box diagonal"),
-        Param("seed", int, 0, help="random seed"),
+        Param("seed", int, 0, low=0, help="random seed (numpy takes non-negative seeds)"),
     ],
     "save": [
         Param("path", str, "", help="output file; {stem} {name} {parent} {dir} {setting} {index} are filled in"),

@@ -14,9 +14,41 @@ from pathlib import Path
 
 from ..io import atomic_path
 
-__all__ = ["write_results", "columns"]
+__all__ = ["write_results", "columns", "count_settings", "check_sweep_size", "MAX_SETTINGS", "MAX_TASKS"]
+
+#: Most settings a ``sweep:`` may expand to, and most tasks (settings x inputs) of one run.
+#: Counted before anything is expanded: a few bytes of YAML must not fill the memory.
+MAX_SETTINGS = 10_000
+MAX_TASKS = 100_000
 
 _FIRST = ("input", "status")
+
+
+def count_settings(sweep: dict) -> int:
+    """Number of settings of a sweep (the product of the lengths of its value lists), without expanding it.
+
+    >>> count_settings({"mu": [1, 2, 3], "iterations": [5, 10]}), count_settings({})
+    (6, 1)
+    """
+    return math.prod(len(v) if isinstance(v, list) else 1 for v in sweep.values())
+
+
+def check_sweep_size(sweep: dict, n_inputs: int, at: str) -> int:
+    """The number of settings, or :class:`PipelineValidationError` above :data:`MAX_SETTINGS` / :data:`MAX_TASKS`."""
+    from .errors import PipelineValidationError
+
+    n = count_settings(sweep)
+    sizes = " x ".join(f"{len(v) if isinstance(v, list) else 1} {k}" for k, v in sweep.items())
+    if n > MAX_SETTINGS:
+        raise PipelineValidationError(
+            f"{at}: sweep: {sizes} = {n} settings, more than the limit {MAX_SETTINGS}; sweep fewer values"
+        )
+    if n * n_inputs > MAX_TASKS:
+        raise PipelineValidationError(
+            f"{at}: {n} setting(s) x {n_inputs} input(s) = {n * n_inputs} tasks, more than the limit {MAX_TASKS}; "
+            "split the run"
+        )
+    return n
 
 
 def columns(rows: list[dict]) -> list[str]:

@@ -13,9 +13,13 @@ from typing import Any
 import yaml
 
 from .errors import PipelineValidationError
-from .yamlsource import LineDict, LineList
+from .yamlsource import LineDict, LineList, NumberLoader
 
-__all__ = ["substitute", "parse_assignment", "VARIABLE"]
+__all__ = ["substitute", "parse_assignment", "check_template", "VARIABLE", "MAX_FIELD_WIDTH"]
+
+#: Largest width or precision allowed in a ``{name:>8}`` placeholder of an output path.
+MAX_FIELD_WIDTH = 255
+_FORMAT_SPEC = re.compile(r"(?:.?[<>=^])?[+\- ]?z?#?0?(?P<width>\d+)?[_,]?(?:\.(?P<precision>\d+))?[bcdeEfFgGnosxX%]?", re.S)
 
 VARIABLE = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
 
@@ -23,8 +27,8 @@ VARIABLE = re.compile(r"\$\{([A-Za-z_][A-Za-z0-9_]*)\}")
 def parse_assignment(text: str) -> tuple[str, Any]:
     """``"mu=5"`` -> ``("mu", 5)``: the value is read as YAML (numbers, booleans, lists).
 
-    >>> parse_assignment("mu=0.5"), parse_assignment("name=a b")
-    (('mu', 0.5), ('name', 'a b'))
+    >>> parse_assignment("mu=0.5"), parse_assignment("name=a b"), parse_assignment("mu=1e-3")
+    (('mu', 0.5), ('name', 'a b'), ('mu', 0.001))
     """
     if "=" not in text:
         raise ValueError(f"expected NAME=VALUE, got {text!r}")
@@ -33,10 +37,52 @@ def parse_assignment(text: str) -> tuple[str, Any]:
     if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
         raise ValueError(f"{text!r}: {name!r} is not a variable name (letters, digits, _)")
     try:
-        value = yaml.safe_load(raw) if raw.strip() else ""
+        value = yaml.load(raw, Loader=NumberLoader) if raw.strip() else ""  # noqa: S506 (a safe loader)
     except yaml.YAMLError:
         value = raw
     return name, value
+
+
+def check_template(template: str) -> None:
+    """Refuse a path template whose placeholders are more than ``{name}`` or ``{name:format}``.
+
+    Only plain names are allowed (no ``{0}``, ``{stem.attr}``, ``{stem[0]}``, ``{stem!r}``), and a
+    format's width and precision are at most :data:`MAX_FIELD_WIDTH`: ``{stem:>99999999999}``
+    would otherwise try to build a string of 100 GB. Checked before anything is formatted.
+
+    Raises
+    ------
+    ValueError
+        Naming the placeholder and the rule.
+
+    >>> check_template("{stem}_{mu:.3g}.ply")
+    >>> check_template("{stem:>99999999999}.ply")
+    Traceback (most recent call last):
+    ...
+    ValueError: path template '{stem:>99999999999}.ply': placeholder {stem:>99999999999}: width 99999999999 is more than 255
+    """
+    import string
+
+    try:
+        parts = list(string.Formatter().parse(template))
+    except ValueError as exc:  # a lone { or }
+        raise ValueError(f"path template {template!r}: {exc} (write {{{{ and }}}} for literal braces)") from None
+    for _, name, spec, conversion in parts:
+        if name is None:
+            continue
+        shown = "{" + name + (f"!{conversion}" if conversion else "") + (f":{spec}" if spec else "") + "}"
+        if not re.fullmatch(r"[A-Za-z_][A-Za-z0-9_]*", name):
+            raise ValueError(f"path template {template!r}: placeholder {shown}: only plain names like {{stem}} are allowed")
+        if conversion:
+            raise ValueError(f"path template {template!r}: placeholder {shown}: conversions (!r, !s) are not allowed")
+        m = _FORMAT_SPEC.fullmatch(spec or "")
+        if m is None:
+            raise ValueError(f"path template {template!r}: placeholder {shown}: {spec!r} is not a format like >8 or .3g")
+        for what in ("width", "precision"):
+            if m.group(what) and int(m.group(what)) > MAX_FIELD_WIDTH:
+                raise ValueError(
+                    f"path template {template!r}: placeholder {shown}: {what} {int(m.group(what))} is more than {MAX_FIELD_WIDTH}"
+                )
 
 
 def substitute(value: Any, variables: dict, where: str) -> Any:

@@ -6,6 +6,7 @@ of every node, so a loader that copies them onto the constructed containers is e
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 from typing import Any
 
@@ -13,7 +14,16 @@ import yaml
 
 from .errors import PipelineValidationError
 
-__all__ = ["LineDict", "LineList", "load_yaml", "line_of"]
+__all__ = ["LineDict", "LineList", "NumberLoader", "load_yaml", "read_text", "line_of", "MAX_NODES", "MAX_DEPTH", "MAX_BYTES"]
+
+#: Limits of a pipeline document, checked before it is built: values counted with every ``*alias``
+#: expanded (a few bytes of anchors can stand for billions of values), nesting depth, and file size.
+MAX_NODES = 200_000
+MAX_DEPTH = 64
+MAX_BYTES = 10_000_000
+
+_BOMS = ((b"\xef\xbb\xbf", "utf-8-sig"), (b"\xff\xfe\x00\x00", "utf-32"), (b"\x00\x00\xfe\xff", "utf-32"),
+         (b"\xff\xfe", "utf-16"), (b"\xfe\xff", "utf-16"))
 
 
 class LineDict(dict):
@@ -30,7 +40,18 @@ class LineList(list):
     item_lines: list
 
 
-class _Loader(yaml.SafeLoader):
+class NumberLoader(yaml.SafeLoader):
+    """PyYAML's safe loader that also reads ``1e-3`` and ``2E5`` as floats (YAML 1.2; YAML 1.1 wants a dot)."""
+
+
+NumberLoader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
+    list("-+0123456789."),
+)
+
+
+class _Loader(NumberLoader):
     pass
 
 
@@ -64,12 +85,101 @@ _Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _mapping
 _Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_SEQUENCE_TAG, _sequence)
 
 
+def read_text(path: str | Path) -> str:
+    """The text of a pipeline file: UTF-8, or UTF-8/16/32 with a byte-order mark.
+
+    Raises
+    ------
+    PipelineValidationError
+        Anything else (Latin-1, UTF-16 without a byte-order mark, binary data), naming the
+        file, the byte offset and the line of the first undecodable byte; or a file larger
+        than :data:`MAX_BYTES`.
+    """
+    path = Path(path)
+    try:
+        size = path.stat().st_size
+        if size > MAX_BYTES:
+            raise PipelineValidationError(f"{path}: {size} bytes; a pipeline file is at most {MAX_BYTES} bytes")
+        data = path.read_bytes()
+    except OSError as exc:
+        raise PipelineValidationError(f"{path}: cannot be read: {exc.strerror or exc}") from None
+    encoding = next((enc for bom, enc in _BOMS if data.startswith(bom)), "utf-8")
+    try:
+        text = data.decode(encoding)
+    except UnicodeDecodeError as exc:
+        line = data[: exc.start].count(b"\n") + 1
+        raise PipelineValidationError(
+            f"{path}:{line}: not {encoding.replace('-sig', '')} text: byte 0x{data[exc.start]:02x} at byte offset "
+            f"{exc.start} ({exc.reason}); save the file as UTF-8"
+        ) from None
+    nul = text.find("\x00")
+    if nul >= 0:
+        offset = len(text[:nul].encode(encoding.replace("-sig", ""))) if encoding == "utf-8" else nul
+        line = text.count("\n", 0, nul) + 1
+        raise PipelineValidationError(
+            f"{path}:{line}: a NUL byte at byte offset {offset}: not a text file "
+            "(UTF-16 without a byte-order mark?); save the file as UTF-8"
+        )
+    return text.lstrip("\ufeff")
+
+
+def _check_size(node: yaml.Node, name: str) -> None:
+    """Refuse a document with more than MAX_NODES values (aliases expanded), deeper than MAX_DEPTH, or recursive."""
+    size: dict[int, int] = {}
+    height: dict[int, int] = {}
+    state: dict[int, int] = {}  # 1: being expanded (an ancestor), 2: done
+
+    def children(n):
+        if isinstance(n, yaml.SequenceNode):
+            return n.value
+        if isinstance(n, yaml.MappingNode):
+            return [x for pair in n.value for x in pair]
+        return []
+
+    stack = [(node, False)]
+    while stack:
+        n, done = stack.pop()
+        k = id(n)
+        if done:
+            kids = children(n)
+            size[k] = 1 + sum(size[id(c)] for c in kids)
+            height[k] = 1 + max((height[id(c)] for c in kids), default=0)
+            state[k] = 2
+            line = n.start_mark.line + 1
+            if size[k] > MAX_NODES:
+                raise PipelineValidationError(
+                    f"{name}:{line}: this value expands to {size[k]} values (aliases counted), more than the limit {MAX_NODES}"
+                )
+            if height[k] > MAX_DEPTH:
+                raise PipelineValidationError(f"{name}:{line}: nested more than {MAX_DEPTH} levels deep")
+            continue
+        if state.get(k) == 2:
+            continue
+        if state.get(k) == 1:
+            raise PipelineValidationError(f"{name}:{n.start_mark.line + 1}: a value contains itself (a recursive alias)")
+        state[k] = 1
+        stack.append((n, True))
+        stack.extend((c, False) for c in children(n) if state.get(id(c)) != 2)
+
+
 def load_yaml(text: str, name: str | Path = "<string>") -> Any:
-    """Parse one YAML document; syntax errors become :class:`PipelineValidationError` with file and line."""
-    loader = _Loader(text)
+    """Parse one YAML document; syntax errors become :class:`PipelineValidationError` with file and line.
+
+    The document is checked against :data:`MAX_NODES` and :data:`MAX_DEPTH` before it is built.
+    """
+    try:
+        loader = _Loader(text)  # the reader checks the characters here
+    except yaml.YAMLError as exc:
+        raise PipelineValidationError(f"{name}: not valid YAML: {exc}") from None
     loader.name = str(name)
     try:
-        return loader.get_single_data()
+        node = loader.get_single_node()
+        if node is None:
+            return None
+        _check_size(node, str(name))
+        return loader.construct_document(node)
+    except RecursionError:
+        raise PipelineValidationError(f"{name}: nested too deeply (more than {MAX_DEPTH} levels)") from None
     except yaml.MarkedYAMLError as exc:
         mark = exc.problem_mark or exc.context_mark
         line = f":{mark.line + 1}" if mark is not None else ""

@@ -9,7 +9,7 @@ import scipy.sparse as sp
 
 from ..gpu import BACKENDS, Backend, get_backend
 from ..operators import Operators, gather_rows
-from ..registry import AutoRule, Param, register
+from ..registry import MAX_ITERATIONS, AutoRule, Param, register
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import averaging_step, best_on_path, iterative_path
@@ -218,7 +218,7 @@ def choose_filtering(ctx: TuningContext) -> tuple[dict, Point]:
     auto=AutoRule(("iterations",), choose_filtering),
     summary="Linear filtering: average each vertex with its neighbours, k times (X <- D^-1 W X)",
     params=[
-        Param("iterations", int, 10, low=0, help="number of averaging steps k"),
+        Param("iterations", int, 10, low=0, high=MAX_ITERATIONS, help="number of averaging steps k"),
         Param(
             "weights",
             str,

@@ -10,7 +10,7 @@ from scipy.special import ive
 
 from ..gpu import BACKENDS, Backend, get_backend
 from ..operators import Operators, mask_key
-from ..registry import AutoRule, Param, register
+from ..registry import MAX_ITERATIONS, AutoRule, Param, register
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import averaging_step, best_on_path, iterative_path
@@ -30,7 +30,13 @@ def stable_tau(ops: Operators) -> float:
 def heat_steps(tau: float, time: float) -> int:
     """Number of Euler steps for ``time``: ``ceil(time / tau)`` (0 for time 0)."""
     # the tolerance keeps time = k * tau from becoming k + 1 steps through rounding
-    return max(0, math.ceil(time / tau - 1e-9))
+    ratio = time / tau
+    if not ratio <= MAX_ITERATIONS:  # also inf (tau = 1e-300) and nan
+        raise ValueError(
+            f"parameters 'time' = {time!r} and 'tau' = {tau!r} give ceil(time / tau) = {ratio:.3g} Euler steps, "
+            f"more than the limit {MAX_ITERATIONS}: use a larger tau, a shorter time or method: chebyshev"
+        )
+    return max(0, math.ceil(ratio - 1e-9))
 
 
 def _check_tau(ops: Operators, tau: float) -> None:
@@ -78,6 +84,10 @@ def chebyshev_coefficients(time: float, tol: float, upper: float = 2.0) -> np.nd
     t = time * upper / 2.0
     if t == 0:
         return np.ones(1)
+    if not t <= MAX_ITERATIONS:  # the series needs about t terms
+        raise ValueError(
+            f"parameter 'time' = {time!r} needs about {t:.3g} Chebyshev terms, more than the limit {MAX_ITERATIONS}"
+        )
     kmax = int(math.ceil(t + 12.0 * math.sqrt(t) + 30))
     c = ive(np.arange(kmax + 1), t)
     tails = 2.0 * np.cumsum(c[::-1])[::-1]  # tails[k] = 2 sum_{j >= k} c_j

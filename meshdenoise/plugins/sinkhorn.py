@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..ot import ot_denoise
-from ..registry import AutoRule, Param, get_filter, register
+from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
 from ..tuning.context import TuningContext
 from ..tuning.memo import MEMO, digest
 from ..tuning.risk import Point, probe_block
@@ -79,7 +79,7 @@ def choose_sinkhorn(ctx: TuningContext) -> tuple[dict, Point]:
     summary="OT: move each vertex to its barycentric projection under the Sinkhorn-scaled heat-kernel plan",
     params=[
         Param("t", float, 10.0, low=0.0, low_open=True, help="diffusion time of the heat kernel (I + tL)^-1"),
-        Param("iterations", int, 3, low=0, help="number of projections"),
+        Param("iterations", int, 3, low=0, high=MAX_ITERATIONS, help="number of projections"),
         Param("laplacian", str, "graph", choices=("graph", "cotangent"), help="Laplacian of the heat kernel"),
         Param("measure", str, "uniform", choices=("uniform", "area"), help="vertex measure m of the plan"),
         Param("debias", bool, True, help="twicing X <- 2TX - T(TX) against shrinkage"),

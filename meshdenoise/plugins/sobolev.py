@@ -105,7 +105,7 @@ def choose_sobolev(ctx: TuningContext) -> tuple[dict, Point]:
         Param("mu", float, 1.0, low=0.0, help="regularisation weight (0 returns the input)"),
         Param("solver", str, "auto", choices=SOLVERS,
               help="'cholesky' (cached factor), 'cg' (iterative, no factor), or 'auto': cg for a one-off solve on a large mesh"),
-        Param("tol", float, 1e-10, low=0.0, high=1e-2, low_open=True, help="relative residual at which 'cg' stops"),
+        Param("tol", float, 1e-10, low=1e-14, high=1e-2, help="relative residual at which 'cg' stops"),
     ],
     linear=True,
 )
@@ -154,7 +154,7 @@ def sobolev(V, F, *, ops, pinned, mu, solver="auto", tol=1e-10):
         Cached sparse Cholesky factor, block conjugate gradient, or ``"auto"`` (default):
         :func:`choose_solver`, Cholesky below 200,000 vertices or when the factor is
         already stored, CG for a one-off solve on a larger mesh with moderate ``mu``.
-    tol : float, 0 < tol <= 1e-2
+    tol : float, 1e-14 <= tol <= 1e-2
         Relative residual at which ``"cg"`` stops (ignored by ``"cholesky"``).
     pinned, region, preserve_volume, operators
         Options shared by every filter; see the README.

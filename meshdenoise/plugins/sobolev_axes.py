@@ -8,7 +8,7 @@ import numpy as np
 
 from ..geometry import vertex_normals
 from ..operators import Operators
-from ..registry import AutoRule, Param, get_filter, register
+from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
 from ..solvers import shifted_solver
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
@@ -183,7 +183,7 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
         Param("mu2", float, 1.0, low=0.0, help="weight on the middle axis"),
         Param("mu3", float, 1.0, low=0.0, help="weight on the axis the normals point along most"),
         Param("order", int, 3, low=1, high=4, help="power p of the Laplacian in the penalty ||L^{p/2} y||^2"),
-        Param("frame_steps", int, 10, low=0, help="averaging steps before the normals that define the axes"),
+        Param("frame_steps", int, 10, low=0, high=MAX_ITERATIONS, help="averaging steps before the normals that define the axes"),
     ],
     linear=False,
 )

@@ -6,7 +6,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..operators import Operators
-from ..registry import AutoRule, Param, get_filter, register
+from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import averaging_step, best_on_path, iterative_path
@@ -118,7 +118,7 @@ def choose_taubin(ctx: TuningContext) -> tuple[dict, Point]:
     auto=AutoRule(("iterations", "lam", "mu"), choose_taubin),
     summary="Taubin lambda/mu smoothing: per iteration X += lam (AX - X), then X += mu (AX - X), mu < 0",
     params=[
-        Param("iterations", int, 10, low=0, help="number of (lambda pass + mu pass) pairs"),
+        Param("iterations", int, 10, low=0, high=MAX_ITERATIONS, help="number of (lambda pass + mu pass) pairs"),
         Param("lam", float, 0.5, low=0.0, high=1.0, low_open=True, help="shrinking step lambda, 0 < lam <= 1"),
         Param("mu", float, -0.53, low=-1.0, high=0.0, high_open=True, help="inflating step mu < 0 (added)"),
         Param(

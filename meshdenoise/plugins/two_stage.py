@@ -7,7 +7,7 @@ import scipy.sparse as sp
 
 from ..geometry import vertex_normals
 from ..operators import Operators, gather_rows
-from ..registry import AutoRule, Param, get_filter, register
+from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
 from ..tuning.context import TuningContext
 from ..tuning.memo import MEMO, digest
 from ..tuning.risk import MC_SURE_STEP, Point
@@ -375,9 +375,9 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     auto=AutoRule(("iterations",), choose_two_stage),
     summary="Feature-preserving: guided/bilateral filtering of face normals, then vertex update (Zheng 2011, Zhang 2015)",
     params=[
-        Param("iterations", int, 3, low=0, help="outer iterations (normal filtering + vertex update)"),
-        Param("normal_iterations", int, 10, low=0, help="normal-filtering passes per outer iteration"),
-        Param("vertex_iterations", int, 10, low=0, help="vertex-update steps per outer iteration"),
+        Param("iterations", int, 3, low=0, high=MAX_ITERATIONS, help="outer iterations (normal filtering + vertex update)"),
+        Param("normal_iterations", int, 10, low=0, high=MAX_ITERATIONS, help="normal-filtering passes per outer iteration"),
+        Param("vertex_iterations", int, 10, low=0, high=MAX_ITERATIONS, help="vertex-update steps per outer iteration"),
         Param("sigma_r", float, 0.35, low=0.0, low_open=True, help="range width on normal differences (0.2-0.6)"),
         Param(
             "sigma_s",
@@ -455,6 +455,12 @@ def two_stage(V, F, *, ops, pinned, iterations, normal_iterations, vertex_iterat
     >>> bool(V1[:, 2].std() < 0.3 * Vn[:, 2].std())  # much flatter
     True
     """
+    passes = iterations * (normal_iterations + vertex_iterations)
+    if passes > MAX_ITERATIONS:  # each count is bounded, their product too
+        raise ValueError(
+            f"parameters 'iterations' = {iterations} x ('normal_iterations' = {normal_iterations} + 'vertex_iterations' = "
+            f"{vertex_iterations}) = {passes} passes, more than the limit {MAX_ITERATIONS}"
+        )
     X = np.array(V, dtype=np.float64, order="C")
     if F.shape[0] == 0 or iterations == 0:
         return X
