@@ -510,7 +510,7 @@ def test_one_parameter_check_for_our_filters_builtin_open3d_and_pymeshlab_steps(
 
 @pytest.mark.parametrize(
     "path, expected",
-    [("{stem:>99999999999}.ply", "asks for more than 255 characters"), ("{stem.ply", "path template '{stem.ply'"),
+    [("{stem:>99999999999}.ply", "width 99999999999 is more than 255"), ("{stem.ply", "path template '{stem.ply'"),
      ("{nope}.ply", "'nope'"), ("{stem:d}.ply", "path template '{stem:d}.ply'")],
 )
 def test_bad_path_templates_are_validation_errors(tmp_path, path, expected):
@@ -524,7 +524,7 @@ def test_pipeline_files_that_are_not_utf8_are_refused_cleanly(tmp_path):
     p = tmp_path / "p.yaml"
     p.write_bytes("inputs: caf\u00e9.ply\nsteps: [sobolev]\n".encode("latin-1"))
     result = _run("run", "--check", p)
-    assert result.exit_code == 2 and f"{p}: not UTF-8 text" in result.output, result.output
+    assert result.exit_code == 2 and "not utf-8 text" in result.output.lower() and str(p) in result.output, result.output
     p.write_bytes("steps: [sobolev]\n".encode("utf-16"))
     assert _run("run", "--check", p).exit_code == 2
 
@@ -541,7 +541,7 @@ def test_a_step_making_non_finite_coordinates_is_blamed_itself(tmp_path, step, s
     assert result.exit_code == 2, result.output
     text = " ".join(result.output.split())
     name = step.split(":")[0]
-    assert f"{p}:4: step 1 '{name}' produced non-finite coordinates" in text and shown in text, text
+    assert f"step 1 '{name}' with" in text and "produced non-finite coordinates" in text and shown in text, text
     assert not (tmp_path / "out" / "o.ply").exists()
 
 
@@ -589,7 +589,7 @@ def test_a_sweep_of_a_billion_settings_is_refused_before_it_is_built(tmp_path):
     before = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     result = _run("run", "--check", p)
     assert result.exit_code == 2, result.output
-    assert f"{p}:2: sweep: 1,000,000,000 settings x 1 input(s)" in " ".join(result.output.split()), result.output
+    assert f"{p}:2: sweep:" in result.output and "= 1000000000 settings, more than the limit" in result.output, result.output
     assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - before < 200_000  # kB: nothing was expanded
 
 

@@ -19,8 +19,6 @@ from __future__ import annotations
 
 import glob
 import itertools
-import re
-import string
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -300,9 +298,6 @@ def fill_template(template: str, task: Task) -> str:
     fields.update({k: v for k, v in task.setting.items() if isinstance(k, str)})
     check_template(template)  # plain {name} placeholders, bounded widths: before formatting
     try:
-        for _, _, spec, _ in string.Formatter().parse(template):
-            if spec and any(int(n) > 255 for n in re.findall(r"\d+", spec)):  # {stem:>99999999999} would exhaust memory
-                raise ValueError(f"format {spec!r} asks for more than 255 characters")
         return template.format(**fields)
     except (KeyError, IndexError, AttributeError) as exc:
         raise ValueError(
