@@ -10,7 +10,7 @@ wins on very large, well-conditioned systems such as ``I + mu L`` with moderate 
 from __future__ import annotations
 
 from collections import OrderedDict
-from typing import Callable
+from typing import Any, Callable
 
 import warnings
 
@@ -81,6 +81,45 @@ class DirichletSystem:
         return Y
 
 
+def _without_cholmod_warnings(build: Callable[[], Any]) -> Any:
+    """``build()`` with CHOLMOD's own C-level warning lines kept off the terminal.
+
+    A failed factorisation (``RuntimeError: Matrix is not positive definite!``) is reported
+    by our error message, which names the filter and its parameters; CHOLMOD also prints
+    ``CHOLMOD warning: not positive definite ...`` through C's buffered ``stdout``. File
+    descriptors 1 and 2 are sent to temporary files while the factor is built (C's buffers
+    flushed before they are restored), then everything else written there meanwhile (other
+    threads' output) is written back.
+    """
+    import ctypes
+    import os
+    import sys
+    import tempfile
+
+    try:
+        libc = ctypes.CDLL(None)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        saved = {fd: os.dup(fd) for fd in (1, 2)}
+    except (OSError, ValueError, AttributeError):  # no usable descriptors (embedded interpreters): build as is
+        return build()
+    tmps = {fd: tempfile.TemporaryFile() for fd in (1, 2)}
+    try:
+        for fd, tmp in tmps.items():
+            os.dup2(tmp.fileno(), fd)
+        return build()
+    finally:
+        libc.fflush(None)
+        for fd, tmp in tmps.items():
+            os.dup2(saved[fd], fd)
+            os.close(saved[fd])
+            tmp.seek(0)
+            kept = [line for line in tmp.read().splitlines(keepends=True) if not line.startswith(b"CHOLMOD warning")]
+            tmp.close()
+            if kept:
+                os.write(fd, b"".join(kept))
+
+
 class SPDSolver(DirichletSystem):
     """A sparse Cholesky factorisation (cholespy) of SPD ``A``, reduced to free rows when some are fixed.
 
@@ -99,10 +138,10 @@ class SPDSolver(DirichletSystem):
         super().__init__(A, fixed)
         A = self.A
         self._solver = (
-            CholeskySolverD(
+            _without_cholmod_warnings(lambda: CholeskySolverD(
                 self.size, A.indptr.astype(np.int32), A.indices.astype(np.int32), A.data.astype(np.float64),
                 MatrixType.CSR,
-            )
+            ))
             if self.size
             else None
         )

@@ -627,3 +627,23 @@ def test_sweep_values_in_scientific_notation_are_numbers_in_the_results(tmp_path
     rows = json.loads((out / "results.json").read_text())
     assert [row["mu"] for row in rows] == [0.001, 0.02]
     assert sorted(p.name for p in out.glob("*.ply")) == ["sphere_1e-03.ply", "sphere_2e-02.ply"]
+
+
+def test_a_failed_factorisation_prints_one_line_and_no_cholmod_warning(tmp_path):
+    """CHOLMOD prints its own warning through C's stdout; only our error line may reach the terminal."""
+    import subprocess
+    import sys
+
+    from meshdenoise import save_mesh
+    from meshdenoise.shapes import icosphere
+
+    save_mesh(tmp_path / "s.ply", *icosphere(2))
+    out = subprocess.run(
+        [sys.executable, "-c", "from meshdenoise.cli import main; main()", "denoise", str(tmp_path / "s.ply"), str(tmp_path / "o.ply"),
+         "--method", "sobolev", "--param", "mu=1e20"],
+        capture_output=True, text=True, timeout=120,
+    )
+    lines = (out.stdout + out.stderr).strip().splitlines()
+    assert out.returncode == 2 and len(lines) == 1 and "CHOLMOD" not in out.stdout + out.stderr, lines
+    assert "mu=1e+20" in lines[0] and lines[0].startswith("error:")
+    assert not (tmp_path / "o.ply").exists()
