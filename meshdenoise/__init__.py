@@ -23,6 +23,7 @@ from .plugins.two_stage import two_stage
 from .plugins.sobolev import SobolevSolver, sobolev
 from .plugins.sobolev_axes import sobolev_axes
 from .plugins.sobolev_normal import sobolev_normal
+from .plugins.sobolev_gls import sobolev_gls
 from .plugins.sobolev_bilaplacian import sobolev_bilaplacian
 from .plugins.taubin import taubin
 from .quality_metrics import max_distance, mean_distance, normal_error_deg, volume_change
@@ -57,6 +58,7 @@ __all__ = [
     "sobolev_bilaplacian",
     "sobolev_axes",
     "sobolev_normal",
+    "sobolev_gls",
     "two_stage",
     "normal_error_deg",
     "mean_distance",

@@ -121,3 +121,9 @@ def test_nbytes_looks_inside_plain_objects():
             self.b = {"c": np.zeros(5)}
 
     assert nbytes(Holder()) == 120
+
+
+def test_every_registered_filter_is_exported_at_the_top_level():
+    for spec in meshdenoise.list_filters():
+        assert getattr(meshdenoise, spec.name) is spec.public, spec.name
+        assert spec.name in meshdenoise.__all__
