@@ -281,6 +281,47 @@ def test_render_step_names_are_checked_before_running(tmp_path):
     assert result.exit_code == 2 and "did you mean 'meshes'" in result.output
 
 
+def test_render_step_draws_a_scans_change_and_a_zoom_like_the_api(tmp_path):
+    """change / percentile / zoom reach render_comparison: the step's PNG equals the API's on the same meshes."""
+    from PIL import Image
+
+    from meshdenoise.render import render_comparison
+
+    V, F = icosphere(3)
+    Vn, _ = md.add_normal_noise((V, F), rho=0.02, seed=0)
+    save_mesh(tmp_path / "scan.ply", Vn, F)
+    out = tmp_path / "out"
+    p = _write(tmp_path, (
+        "inputs: scan.ply\n"
+        f"output_dir: {out}\n"
+        "steps:\n"
+        "  - sobolev: {mu: 1}\n"
+        "  - render: {path: '{stem}.png', change: true, percentile: 95, zoom: [0, 4], size: [96, 96], backend: matplotlib}\n"
+    ))
+    result = _run("run", p, "--serial")
+    assert result.exit_code == 0, result.output
+    Vs = md.sobolev((Vn, F), mu=1)[0]
+    api = render_comparison([(Vn, F), (Vs, F)], tmp_path / "api.png", titles=["input", "result"], size=(96, 96), backend="matplotlib",
+                            show_change=True, percentile=95, zoom=(0, 4.0))
+    assert api.percentile == 95
+    assert np.array_equal(np.asarray(Image.open(out / "scan.png")), np.asarray(Image.open(tmp_path / "api.png")))
+
+
+@pytest.mark.parametrize("bad, shown", [
+    ("change: 1", "change: expected true or false"),
+    ("change: true, reference: input", "it goes without reference"),
+    ("percentile: 0", "0 < p <= 100"),
+    ("zoom: [0]", "zoom: expected [vertex, radius]"),
+    ("zoom: [1.5, 2]", "zoom: expected [vertex, radius]"),
+    ("zoom: [0, 0, 0, -1]", "radius > 0"),
+])
+def test_render_step_change_options_are_checked(tmp_path, bad, shown):
+    save_mesh(tmp_path / "sphere.ply", *icosphere(1))
+    p = _write(tmp_path, f"inputs: sphere.ply\nsteps:\n  - render: {{path: a.png, {bad}}}\n")
+    result = _run("run", p, "--check")
+    assert result.exit_code == 2 and shown in result.output, result.output
+
+
 # --- pipeline state: arrays and attributes, a MeshSet only around pymeshlab steps -------------------
 def test_mesh_state_round_trips_attributes_through_a_meshset():
     from meshdenoise.pipeline.state import MeshState

@@ -7,6 +7,8 @@ and attributes): our filters, Open3D operations and the built-in steps work on t
 
 from __future__ import annotations
 
+import math
+
 import os
 import tempfile
 
@@ -171,6 +173,9 @@ RENDER_DOC = (
     ("backend", "str", "auto", "rasteriser: one of the meshdenoise.render backends (auto picks the first that works)"),
     ("cmap", "str", "viridis", "matplotlib colour map of the heat map"),
     ("vmax", "float", None, "top of the colour bar (default: the largest error); > 0"),
+    ("change", "bool", False, "without reference: heat maps of the displacement from the first mesh (a scan's change)"),
+    ("percentile", "float", None, "where the colour bar tops when vmax is not given, 0 < p <= 100 (default 100, 99 for change)"),
+    ("zoom", "[vertex, r] or [x, y, z, r]", None, "draw only the ball of radius r (mean edge lengths) around a vertex or point"),
 )
 RENDER_PARAMS = tuple(d[0] for d in RENDER_DOC)
 METRICS_DOC = (
@@ -290,8 +295,29 @@ def _check_render(given: dict, at: str) -> dict:
     vmax = given.get("vmax")
     if vmax is not None and (isinstance(vmax, bool) or not isinstance(vmax, (int, float)) or not vmax > 0):
         raise PipelineValidationError(f"{at}: vmax: expected a positive number (top of the colour bar), got {vmax!r}")
+    change = given.get("change", False)
+    if not isinstance(change, bool):
+        raise PipelineValidationError(f"{at}: change: expected true or false, got {change!r}")
+    if change and reference is not None:
+        raise PipelineValidationError(f"{at}: change: draws the displacement from the first mesh; it goes without reference")
+    percentile = given.get("percentile")
+    if percentile is not None and (isinstance(percentile, bool) or not isinstance(percentile, (int, float))
+                                   or not 0 < percentile <= 100):
+        raise PipelineValidationError(f"{at}: percentile: expected a number with 0 < p <= 100, got {percentile!r}")
+    zoom = given.get("zoom")
+    if zoom is not None:
+        numbers = isinstance(zoom, list) and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in zoom)
+        ok = numbers and len(zoom) in (2, 4) and math.isfinite(sum(zoom)) and zoom[-1] > 0
+        if ok and len(zoom) == 2:
+            ok = isinstance(zoom[0], int) and zoom[0] >= 0
+        if not ok:
+            raise PipelineValidationError(
+                f"{at}: zoom: expected [vertex, radius] or [x, y, z, radius], radius > 0 in mean edge lengths, got {zoom!r}"
+            )
+        zoom = (zoom[0], float(zoom[1])) if len(zoom) == 2 else (tuple(float(v) for v in zoom[:3]), float(zoom[3]))
     return {"path": path, "meshes": meshes, "reference": reference, "titles": titles or list(meshes),
-            "size": tuple(size), "backend": backend, "cmap": str(given.get("cmap", "viridis")), "vmax": vmax}
+            "size": tuple(size), "backend": backend, "cmap": str(given.get("cmap", "viridis")), "vmax": vmax,
+            "change": change, "percentile": None if percentile is None else float(percentile), "zoom": zoom}
 
 
 def _check_metrics(given: dict, at: str) -> dict:
@@ -506,6 +532,7 @@ def run_step(step: Step, ctx: RunContext) -> None:
         result = render_comparison(
             [named[m] for m in p["meshes"]], tmp, reference=named[p["reference"]] if p["reference"] else None,
             titles=p["titles"], size=p["size"], backend=p["backend"], cmap=p["cmap"], vmax=p["vmax"],
+            show_change=p["change"], percentile=p["percentile"], zoom=p["zoom"],
         )
         ctx.row[f"{step.label + '.' if step.label else ''}render.backend"] = result.backend
         ctx.row.setdefault("outputs", []).append(str(path))
