@@ -495,7 +495,7 @@ def test_steps_command_lists_every_step_and_only_parameters_the_checker_knows(tm
     steps = {s["name"]: s for s in json.loads(result.output)}
     expected = set(BUILTIN_STEPS) | {f"open3d.{k}" for k in OPEN3D_OPS} | {s.name for s in list_filters()}
     assert expected <= set(steps)
-    assert [p["name"] for p in steps["render"]["params"]] == ["path", "meshes", "reference", "titles", "size", "backend", "cmap", "vmax"]
+    assert [p["name"] for p in steps["render"]["params"]] == ["path", "meshes", "reference", "titles", "size", "backend", "cmap", "vmax", "change", "percentile", "zoom"]
     # every listed parameter is one the step's checker accepts by name (a wrong value, never an unknown name)
     for name in expected:
         for p in steps[name]["params"]:
