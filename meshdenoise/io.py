@@ -134,7 +134,8 @@ def _sniff(ext: str, head: bytes, size: int, more: bool) -> bool:
         known = {w.encode() for w in _OBJ_IGNORED} | {b"v", b"f", b"l", b"p", b"#"}
         if sum(w in known for w in words) * 2 < len(words) or not words:
             shown = ", ".join(repr(w[:20].decode("latin-1")) for w in words[:3])
-            raise _Malformed(f"not an OBJ file: most lines of its first 64 KiB are not OBJ statements (v, f, vt, #...)"                             + (f" (it starts with {shown})" if shown else " (no complete line)"))
+            raise _Malformed("not an OBJ file: most lines of its first 64 KiB are not OBJ statements (v, f, vt, #...)"
+                            + (f" (it starts with {shown})" if shown else " (no complete line)"))
     if ext == ".off":
         m = _OFF_FIRST_WORD.match(h)
         if m and (m.end() < len(h) or not more):
@@ -423,6 +424,17 @@ def _line_table(block: bytes) -> tuple[np.ndarray, np.ndarray] | None:
     return T, ends
 
 
+def _vertex_and_face_rows(table, nv: int, nf: int, min_face_columns: int):
+    """The ``nv`` vertex rows (3 numbers each) and ``nf`` face rows (at least ``min_face_columns``) of a
+    number table, or ``None`` when the table does not have that shape (the line reader then says why)."""
+    T, ends = table
+    V = _rows_of(T, ends, 0, nv)
+    Fr = _rows_of(T, ends, nv, nv + nf)
+    if V is None or V.shape[1] != 3 or Fr is None or (nf and Fr.shape[1] < min_face_columns):
+        return None
+    return np.ascontiguousarray(V), Fr
+
+
 def _rows_of(T: np.ndarray, ends: np.ndarray, a: int, b: int) -> np.ndarray | None:
     """Lines ``a..b-1`` of a :func:`_line_table` as a ``(b - a, k)`` array when all have k numbers, else None."""
     if b <= a:
@@ -457,19 +469,17 @@ def _read_off_fast(data: bytes, notes: list[str]):
     table = _line_table(rest)
     if table is None or table[1].size != nv + nf or nv == 0:
         return None
-    T, ends = table
-    V = _rows_of(T, ends, 0, nv)
-    Fr = _rows_of(T, ends, nv, nv + nf)
-    if V is None or V.shape[1] != 3 or Fr is None or (nf and Fr.shape[1] < 4):
+    rows = _vertex_and_face_rows(table, nv, nf, 4)  # OFF faces start with their vertex count
+    if rows is None:
         return None
-    V = np.ascontiguousarray(V)
+    V, Fr = rows
     if nf == 0:
         return V, np.zeros((0, 3), np.int64), None
     k = Fr.shape[1] - 1
     if not (Fr[:, 0] == k).all() or not np.all(np.mod(Fr[:, 1:], 1) == 0):
         return None
     P = Fr[:, 1:].astype(np.int64)
-    del T, Fr
+    del table, Fr  # the number table: free it before the faces are split
     ids = np.arange(nf)
     _check_indices(P, ids, nv)
     return V, _triangulate([(ids, P)], notes), None
@@ -618,18 +628,16 @@ def _read_obj_fast(data: bytes, notes: list[str]):
     del body
     if table is None or table[1].size != nv + nf:
         return None
-    T, ends = table
-    V = _rows_of(T, ends, 0, nv)
-    Fr = _rows_of(T, ends, nv, nv + nf)
-    if V is None or V.shape[1] != 3 or Fr is None or (nf and Fr.shape[1] < 3):
+    rows = _vertex_and_face_rows(table, nv, nf, 3)
+    if rows is None:
         return None
-    V = np.ascontiguousarray(V)
+    V, Fr = rows
     if nf == 0:
         return V, np.zeros((0, 3), np.int64), None
     if not (np.all(np.mod(Fr, 1) == 0) and Fr.min() >= 1 and Fr.max() <= nv):
         return None  # relative or out-of-range indices: the line reader says which line
     P = Fr.astype(np.int64)
-    del T, Fr
+    del table, Fr  # the number table: free it before the faces are split
     P -= 1
     return V, _triangulate([(np.arange(nf), P)], notes), None
 
