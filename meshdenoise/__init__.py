@@ -27,7 +27,8 @@ from .plugins.sobolev_gls import sobolev_gls
 from .plugins.sobolev_bilaplacian import sobolev_bilaplacian
 from .plugins.taubin import taubin
 from .quality_metrics import max_distance, mean_distance, normal_error_deg, volume_change
-from .tuning import auto_filters, choose_parameters, denoise, estimate_noise
+from .tuning import auto_filters, choose_parameters, estimate_noise
+from .default import DefaultChoice, choose_default, denoise, detect_features
 from .cache import clear_caches
 from .io import MeshFile, MeshFileError, load_mesh, save_mesh
 from .meshinfo import mesh_info
@@ -68,6 +69,9 @@ __all__ = [
     "estimate_noise",
     "choose_parameters",
     "denoise",
+    "choose_default",
+    "detect_features",
+    "DefaultChoice",
     "auto_filters",
     "clear_caches",
     "mesh_info",

@@ -11,11 +11,11 @@ from .tuning import (
     EXACT_TRACE_MAX,
     auto_filters,
     choose_parameters,
-    denoise,
     estimate_noise,
     gcv,
     probe_block,
     sure,
 )
+from .default import denoise
 
 __all__ = ["estimate_noise", "choose_parameters", "denoise", "auto_filters", "sure", "gcv", "probe_block", "EXACT_TRACE_MAX"]

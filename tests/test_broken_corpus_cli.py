@@ -140,7 +140,10 @@ def test_unusual_but_legal_file_gives_the_right_result(tmp_path, case, command):
         return
     assert [p.name for p in out_dir.iterdir()] == [target.name]  # nothing else, no temporary file
     out = load_mesh(target)
-    expected = md.sobolev((case.V, case.F), mu=1.0)[0]  # the filter on the intended arrays
+    # the filter on the intended arrays; `denoise` moves open borders along their normals by default, a pipeline's
+    # filter step moves them freely (as the API's filter does)
+    motion = "normal" if command == "denoise" else "free"
+    expected = md.sobolev((case.V, case.F), mu=1.0, boundary_motion=motion)[0]
     if case.same_faces_geometry:  # STL: the reader numbers the vertices
         np.testing.assert_allclose(out.V[out.F], expected[case.F], rtol=0, atol=1e-9)
     else:

@@ -179,15 +179,26 @@ def _print_rows(rows: list[dict]) -> None:
 
 @click.command("denoise")
 @click.argument("input_path", metavar="IN", type=click.Path(dir_okay=False))
-@click.argument("output_path", metavar="OUT", type=click.Path(dir_okay=False))
-@click.option("--method", required=True, help="A filter of ours (see `meshdenoise filters`).")
-@click.option("--param", "params", multiple=True, metavar="NAME=VALUE", help="A filter parameter (repeatable).")
+@click.argument("output_path", metavar="OUT", type=click.Path(dir_okay=False), required=False)
+@click.option("--method", default=None,
+              help="A filter of ours (see `meshdenoise filters`). Default: chosen for the mesh, with its parameters "
+                   "(two_stage for sharp features, else sobolev_bilaplacian; the choice and why are printed).")
+@click.option("--param", "params", multiple=True, metavar="NAME=VALUE", help="A filter parameter (repeatable; needs --method).")
 @click.option("--pinned", type=click.Choice(["boundary", "selection"]), default=None, help="Keep these vertices exactly fixed.")
 @click.option("--region-from-selection", is_flag=True, help="Move only the vertices selected in IN (PLY vertex flags).")
 @click.option("--preserve-volume", is_flag=True, help="Rescale so the enclosed volume equals the input's.")
-@click.option("--auto", "auto", is_flag=True, help="Choose the filter's parameters automatically (printed).")
-def denoise_command(input_path, output_path, method, params, pinned, region_from_selection, preserve_volume, auto):
-    """Denoise the mesh IN with one filter and write OUT (PLY, OBJ, OFF or STL; colours kept)."""
+@click.option("--auto", "auto", is_flag=True, help="With --method: choose the filter's parameters automatically (printed).")
+@click.option("--boundary-motion", type=click.Choice(["normal", "free"]), default="normal", show_default=True,
+              help="normal: vertices on open borders move along their normals only, so borders do not shrink inward; "
+                   "free: as the filter moves them.")
+@click.option("--dry-run", is_flag=True, help="Only print the noise estimate and what would be chosen; write nothing.")
+def denoise_command(input_path, output_path, method, params, pinned, region_from_selection, preserve_volume, auto,
+                    boundary_motion, dry_run):
+    """Denoise the mesh IN and write OUT (PLY, OBJ, OFF or STL; colours kept).
+
+    With no --method the filter and its parameters are chosen from the mesh alone and
+    printed with the noise estimate and the reasons (the default for scans).
+    """
     from ..pipeline.schema import Task
     from ..pipeline.errors import PipelineValidationError
     from ..pipeline.runner import run_task
@@ -195,43 +206,104 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
     from ..pipeline.errors import InputError, StepFailure
 
     given = _assignments(params, "--param")
+    if method is None and given:
+        _fail(f"--param {next(iter(given))}: a filter parameter needs --method (with no method the filter and its "
+              "parameters are chosen for the mesh)", 2)
     if pinned:
         given["pinned"] = pinned
     if region_from_selection:
         given["region"] = _selected_vertices(input_path)
     if preserve_volume:
         given["preserve_volume"] = True
-    if auto:
+    if auto and method is not None:
         given["parameters"] = "auto"
-    src, dst = Path(input_path), Path(output_path)
+    given["boundary_motion"] = boundary_motion
+    src = Path(input_path)
     if not src.is_file():
         _fail(f"{src}: no such file", 2)
+    if dry_run:
+        _dry_run(src, method, given)
+        return
+    if output_path is None:
+        _fail("OUT is missing: give the output file (or --dry-run to only see the choice)", 2)
+    dst = Path(output_path)
     if dst.resolve() == src.resolve():
         _fail(f"{dst}: OUT is the input file; input files are never overwritten", 2)
     from ..io import SUPPORTED_EXTENSIONS
 
     if dst.suffix.lower() not in SUPPORTED_EXTENSIONS:
         _fail(f"{dst}: unsupported extension {dst.suffix!r}; use one of {', '.join(SUPPORTED_EXTENSIONS)}", 2)
+    name = method or "denoise"
     try:
-        from ..registry import get_filter
+        if method is not None:
+            from ..registry import get_filter
 
-        get_filter(method)
-        step = parse_step({method: given}, None, "--method", None)
+            get_filter(method)
+        step = parse_step({name: given}, None, "--method" if method else "denoise", None)
     except KeyError as exc:
         _fail(f"--method: {exc.args[0]}", 2)
     except PipelineValidationError as exc:
         _fail(str(exc), 2)
     save = parse_step({"save": {"path": str(dst.resolve())}}, 2, "denoise", None)
     task = Task(0, src.resolve(), {}, "", [step, save], {str(dst.resolve()): dst.resolve()})
+
+    def echo(message) -> None:
+        text = str(message)
+        if ": warning: " in text:
+            err_console.print(Text.assemble(("warning:", "yellow"), " ", text.split(": warning: ", 1)[1]))
+        else:
+            console.print(text)
+
     try:
         # a spinner with the elapsed time while the mesh is read, filtered and written (stderr, terminals only)
-        with err_console.status(Text(f"{method} on {src.name}"), spinner="dots"):
-            row = run_task(task, echo=lambda m: console.print(str(m)))
+        with err_console.status(Text(f"{name} on {src.name}"), spinner="dots"):
+            row = run_task(task, echo=echo)
     except InputError as exc:  # also a bad parameter on this mesh and an output that cannot be written
         _fail(str(exc), 2)
     except StepFailure as exc:
         _fail(str(exc), 1)
-    console.print(f"{dst}: {row['vertices']} vertices, {row['faces']} faces, {method} in {row['seconds']:.2f} s")
+    used = row.get("denoise.method", method)
+    console.print(f"{dst}: {row['vertices']} vertices, {row['faces']} faces, {used} in {row['seconds']:.2f} s")
+
+
+def _dry_run(src: Path, method: str | None, given: dict) -> None:
+    """``denoise --dry-run``: the noise estimate and the choice, nothing written."""
+    from ..io import MeshFileError, load_mesh
+
+    try:
+        mesh = load_mesh(src)
+    except MeshFileError as exc:
+        _fail(str(exc), 2)
+    arrays = (mesh.V, mesh.F)
+    try:
+        if method is None:
+            from ..default import choose_default
+
+            choice = choose_default(arrays)
+            lines = choice.lines()
+        else:
+            from ..operators import get_operators
+            from ..registry import get_filter
+            from ..tuning import choose_parameters, estimate_noise
+            from ..tuning.noise_level import mean_edge_length
+
+            spec = get_filter(method)
+            h = mean_edge_length(mesh.V, get_operators(mesh.F, mesh.V.shape[0]))
+            rho = estimate_noise(arrays)
+            own = {k: v for k, v in given.items() if k not in ("pinned", "region", "preserve_volume", "parameters",
+                                                               "boundary_motion")}
+            if given.get("parameters") == "auto" and spec.auto is not None:
+                own = choose_parameters(arrays, method, noise=rho, **own)
+            settings = spec.resolve(own, f"--method '{method}'")
+            lines = [f"noise: {rho:.4g} ({rho / h:.3g} mean edge lengths; mean edge {h:.4g})",
+                     f"method: {method} ({', '.join(f'{k}={v!r}' for k, v in settings.items())})"]
+    except KeyError as exc:
+        _fail(f"--method: {exc.args[0]}", 2)
+    except (TypeError, ValueError) as exc:
+        _fail(f"{src}: {exc}", 2)
+    for line in lines:
+        console.print(f"{src.name}: {line}")
+    console.print(f"{src.name}: dry run: nothing written")
 
 
 def _selected_vertices(path: str) -> list[int]:

@@ -258,7 +258,7 @@ class ScriptStepError(ValueError):
 
 # steps with no filter-script form: ``save`` is always left out (MeshLab saves the mesh itself), the
 # others only with ``skip_other``
-NO_SCRIPT_FORM = ("save", "metrics", "render", "add_noise")
+NO_SCRIPT_FORM = ("save", "metrics", "render", "add_noise", "denoise")  # denoise: its filter is chosen per mesh
 
 
 def _step_parts(item: Any, k: int) -> tuple[str, dict]:
@@ -326,7 +326,7 @@ def _our_param(spec, key: str, value: Any, k: int, name: str) -> dict:
             raise ScriptStepError(k, f"step {k} '{name}': {exc}") from None
         kind = param.kind
     else:
-        if key not in ("pinned", "region", "preserve_volume", "parameters"):
+        if key not in ("pinned", "region", "preserve_volume", "parameters", "boundary_motion"):
             known = ", ".join(p.name for p in spec.params)
             raise ScriptStepError(k, f"step {k} '{name}': unknown parameter {key!r}; its parameters: {known}")
         if isinstance(value, (list, dict)) or value is None:

@@ -61,7 +61,7 @@ BUILTIN_STEPS: dict[str, list[Param]] = {
     "metrics": [],  # checked by _check_metrics, described by METRICS_DOC
     "render": [],  # checked by _check_render, described by RENDER_DOC
 }
-COMMON = {"pinned", "region", "preserve_volume", "parameters"}
+COMMON = {"pinned", "region", "preserve_volume", "parameters", "boundary_motion"}
 RESERVED = {"label"}
 
 
@@ -71,12 +71,12 @@ class Step:
 
     index: int
     name: str
-    kind: str  # "ours", "pymeshlab", "open3d", "add_noise", "save", "metrics", "render"
+    kind: str  # "ours", "default", "pymeshlab", "open3d", "add_noise", "save", "metrics", "render"
     params: dict
     label: str | None
     source: str
     line: int | None
-    options: dict = field(default_factory=dict)  # pinned / region / preserve_volume / parameters
+    options: dict = field(default_factory=dict)  # pinned / region / preserve_volume / parameters / boundary_motion
     notes: list = field(default_factory=list)  # things worth telling (a MeshLab GUI name was used...)
 
     @property
@@ -108,7 +108,7 @@ def _unknown_step(name: str, at: str) -> PipelineValidationError:
         extra = f" (did you mean '{hint[0]}'?)" if hint[0] not in gui else f" (did you mean '{gui[hint[0]]}', MeshLab's '{hint[0]}'?)"
     return PipelineValidationError(
         f"{at}: unknown step '{name}'{extra}; a step is one of our filters (meshdenoise filters), "
-        "a pymeshlab filter, open3d.<operation>, add_noise, metrics, save or render"
+        "a pymeshlab filter, open3d.<operation>, denoise, add_noise, metrics, save or render"
     )
 
 
@@ -132,13 +132,14 @@ def _check_vertex_spec(key: str, value: Any, at: str, keywords: tuple[str, ...])
     raise PipelineValidationError(f"{at}: {key}: expected {', '.join(keywords)} or a list of vertex indices, got {value!r}")
 
 
-def _our_filter(index, name, given, label, source, line) -> Step:
-    spec = get_filter(name)
-    at = _step_at(source, line, index, name)
+def _filter_options(given: dict, at: str, allowed: tuple[str, ...] = tuple(sorted(COMMON))) -> tuple[dict, dict]:
+    """Split a filter step's keys into the common options (checked) and the filter's own parameters."""
     options = {}
     rest = {}
     for key, value in given.items():
-        if key == "pinned":
+        if key not in allowed:
+            rest[key] = value
+        elif key == "pinned":
             options[key] = _check_vertex_spec(key, value, at, ("boundary", "selection"))
         elif key == "region":
             options[key] = _check_vertex_spec(key, value, at, ("selection",))
@@ -146,12 +147,21 @@ def _our_filter(index, name, given, label, source, line) -> Step:
             if not isinstance(value, bool):
                 raise PipelineValidationError(f"{at}: preserve_volume must be true or false, got {value!r}")
             options[key] = value
+        elif key == "boundary_motion":
+            if value not in ("free", "normal"):
+                raise PipelineValidationError(f"{at}: boundary_motion must be 'free' or 'normal', got {value!r}")
+            options[key] = value
         elif key == "parameters":
             if value != "auto":
                 raise PipelineValidationError(f"{at}: parameters: only 'auto' is understood, got {value!r}")
             options[key] = value
-        else:
-            rest[key] = value
+    return options, rest
+
+
+def _our_filter(index, name, given, label, source, line) -> Step:
+    spec = get_filter(name)
+    at = _step_at(source, line, index, name)
+    options, rest = _filter_options(given, at)
     try:
         if options.get("parameters") == "auto":
             spec.resolve(rest, at)  # explicit values are still checked; auto fills the others
@@ -189,6 +199,7 @@ OURS_OPTIONS_DOC = (
     ("region", "selection | list of int", None, "only these vertices may move"),
     ("preserve_volume", "bool", False, "rescale so the enclosed volume equals the input's"),
     ("parameters", "auto", None, "choose the parameters not written automatically (recorded in the results as auto.*)"),
+    ("boundary_motion", "free | normal", "free", "normal: open borders move along their normals only (no inward shrinking)"),
 )
 
 
@@ -245,6 +256,10 @@ def describe_steps() -> list[dict]:
         return out
 
     out = [
+        entry("denoise", "the default for scans: chooses the filter (two_stage for sharp features, else "
+              "sobolev_bilaplacian) and its parameters from the mesh alone, and records why (denoise.* columns)",
+              [(n, t, "normal" if n == "boundary_motion" else d, h) for n, t, d, h in OURS_OPTIONS_DOC
+               if n != "parameters"]),
         entry("add_noise", "displace every vertex along its normal by Gaussian noise", from_params(BUILTIN_STEPS["add_noise"])),
         entry("save", "write the current mesh (PLY, OBJ, OFF, STL) once every step succeeded", from_params(BUILTIN_STEPS["save"])),
         entry("metrics", "measure the current mesh against a reference; values go to the results table", METRICS_DOC),
@@ -405,6 +420,17 @@ def _parse(name, given, index, label, source, line, at_param) -> Step:
         if op not in OPEN3D_OPS:
             raise _unknown_step(name, at)
         return Step(index, name, "open3d", _check_params(OPEN3D_OPS[op], given, at), label, source, line)
+    if name == "denoise":
+        options, rest = _filter_options(given, at, ("pinned", "region", "preserve_volume", "boundary_motion"))
+        if rest:
+            key = next(iter(rest))
+            raise PipelineValidationError(
+                f"{at_param(key)}: unknown parameter '{key}': denoise chooses the filter and its parameters "
+                "(its options: pinned, region, preserve_volume, boundary_motion); to set a filter's parameters, "
+                "use the filter as the step"
+            )
+        options.setdefault("boundary_motion", "normal")
+        return Step(index, name, "default", {}, label, source, line, options)
     if name in ("add_noise", "save"):
         params = _check_params(BUILTIN_STEPS[name], given, at)
         if name == "save" and not params["path"]:
@@ -495,6 +521,8 @@ def run_step(step: Step, ctx: RunContext) -> None:
         ctx.snapshots[step.label] = state.arrays()
     if step.kind == "ours":
         _run_ours(step, ctx)
+    elif step.kind == "default":
+        _run_default(step, ctx)
     elif step.kind == "pymeshlab":
         params = {k: pymeshlab_steps.to_pymeshlab_value(step.name, k, v) for k, v in step.params.items()}
         ms = state.meshset()
@@ -570,6 +598,40 @@ def _run_ours(step: Step, ctx: RunContext) -> None:
         if ctx.echo:
             ctx.echo(f"{ctx.input_path.name}: {step.name} parameters chosen automatically: {params}")
     V, _ = spec.public(state.arrays(), **params, **options)
+    ctx.state = state.with_vertices(V)
+
+
+def _run_default(step: Step, ctx: RunContext) -> None:
+    """The ``denoise`` step: :func:`meshdenoise.default.choose_default`, then the chosen filter; the decision is recorded."""
+    import warnings
+
+    from ..default import choose_default, warn_if_not_smoothing
+
+    state = ctx.state
+    options = dict(step.options)
+    for key in ("pinned", "region"):
+        if key in options:
+            options[key] = _vertex_option(options[key], state, key)
+    choice = choose_default(state.arrays())
+    V, _ = get_filter(choice.method).public(state.arrays(), **choice.params, **options)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        warn_if_not_smoothing(state.V, V, choice)
+    row = ctx.row
+    row["denoise.method"] = choice.method
+    row["denoise.noise"] = choice.noise
+    row["denoise.noise_edges"] = choice.noise_in_edges
+    row["denoise.sharp_share"] = choice.features.share
+    for k, v in choice.params.items():
+        row[f"auto.{choice.method}.{k}"] = v
+    if ctx.echo:
+        for line in choice.lines():
+            ctx.echo(f"{ctx.input_path.name}: {line}")
+        for w in caught:
+            ctx.echo(f"{ctx.input_path.name}: warning: {w.message}")
+    if not ctx.echo:  # told through echo (the CLI), else still a warning for Python callers and logs
+        for w in caught:
+            warnings.warn(str(w.message), UserWarning, stacklevel=2)
     ctx.state = state.with_vertices(V)
 
 

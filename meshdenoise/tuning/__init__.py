@@ -7,18 +7,18 @@ and is registered with it, ``register(..., auto=AutoRule(...))``):
 - :mod:`~meshdenoise.tuning.search`: the searches (along an iterative run, over a log weight) and shifted solves;
 - :mod:`~meshdenoise.tuning.noise_level`: :func:`estimate_noise` and the normals' spread;
 - :mod:`~meshdenoise.tuning.context`: the :class:`TuningContext` a rule is given;
-- :mod:`~meshdenoise.tuning.choose`: :func:`choose_parameters` and :func:`denoise`;
+- :mod:`~meshdenoise.tuning.choose`: :func:`choose_parameters` (``meshdenoise.denoise``, which also chooses
+  the filter, is the policy above this floor: :mod:`meshdenoise.default`);
 - :mod:`~meshdenoise.tuning.memo`: the bounded memo of repeated solves.
 """
 
-from .choose import auto_filters, choose_parameters, denoise
+from .choose import auto_filters, choose_parameters
 from .context import TuningContext
 from .noise_level import estimate_noise
 from .risk import EXACT_TRACE_MAX, Criterion, Point, gcv, probe_block, sure
 
 __all__ = [
     "choose_parameters",
-    "denoise",
     "auto_filters",
     "estimate_noise",
     "TuningContext",

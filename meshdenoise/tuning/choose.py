@@ -1,4 +1,4 @@
-"""Choosing a filter's parameters from the noisy mesh alone, and denoising with them.
+"""Choosing a filter's parameters from the noisy mesh alone (``meshdenoise.denoise`` uses it: :mod:`meshdenoise.default`).
 
 :func:`choose_parameters` finds the filter in the registry, builds a
 :class:`~meshdenoise.tuning.context.TuningContext` (noise level from
@@ -16,12 +16,12 @@ import numpy as np
 
 from ..adapters import read_mesh
 from ..operators import get_operators
-from ..registry import COMMON_OPTIONS, apply_filter, get_filter, list_filters
+from ..registry import get_filter, list_filters
 from .context import TuningContext
 from .noise_level import estimate_noise
 from .risk import Criterion
 
-__all__ = ["choose_parameters", "denoise", "auto_filters"]
+__all__ = ["choose_parameters", "auto_filters"]
 
 log = logging.getLogger("meshdenoise.auto")
 
@@ -127,48 +127,3 @@ def choose_parameters(
     params = {**chosen, **given}
     log.info("choose_parameters(%s): %s (rho=%s, %s score %.6g)", method, params, rho, criterion, point.score)
     return params
-
-
-def denoise(
-    mesh: Any, method: str = "sobolev", *, noise: float | None = None, return_params: bool = False, **params: Any
-) -> Any:
-    """Denoise with ``method``; parameters not given are chosen by :func:`choose_parameters`.
-
-    Parameters
-    ----------
-    mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
-    method : str
-        A registered filter.
-    noise : float, optional
-        The noise level if known (else :func:`estimate_noise`), used only when choosing.
-    return_params : bool
-        Also return the parameters used (given and chosen).
-    **params
-        Filter parameters (held fixed) and the common options (``pinned``, ``region``,
-        ``preserve_volume``, ``operators``). With none of the filter's own parameters
-        given, all of them are chosen automatically; the chosen values are logged
-        (logger ``meshdenoise.auto``) and returned with ``return_params=True``.
-
-    Returns
-    -------
-    Same type as ``mesh`` (a MeshSet is changed in place), or ``(mesh, params)``.
-
-    Examples
-    --------
-    >>> from meshdenoise.shapes import icosphere
-    >>> from meshdenoise import add_normal_noise, snr
-    >>> V, F = icosphere(3)
-    >>> Vn, _ = add_normal_noise((V, F), rho=0.02, seed=0)
-    >>> (Vd, Fd), used = denoise((Vn, F), method="sobolev", return_params=True)
-    >>> bool(snr(V, Vd) > snr(V, Vn))
-    True
-    """
-    spec = get_filter(method)
-    options = {k: params.pop(k) for k in list(params) if k in COMMON_OPTIONS}
-    if spec.auto is not None and set(spec.auto.tunes) - set(params):
-        chosen = choose_parameters(mesh, method, noise=noise, **params)
-        log.info("denoise(%s): automatic parameters %s", method, chosen)
-    else:
-        chosen = dict(params)
-    out = apply_filter(method, mesh, **chosen, **options)
-    return (out, chosen) if return_params else out

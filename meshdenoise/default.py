@@ -1,0 +1,343 @@
+"""What :func:`denoise` does with no method: the default for scans, which chooses the filter and its parameters.
+
+The policy, in three measurements of the noisy mesh alone:
+
+1. the noise level (:func:`~meshdenoise.tuning.noise_level.estimate_noise`), absolute and in
+   mean edge lengths;
+2. sharp features (:func:`detect_features`): after a short feature-preserving pre-smoothing,
+   CAD parts have almost all their creased edges sharp (a bimodal dihedral-angle
+   distribution), scans and organic shapes have gradual creases;
+3. open borders (vertices on a boundary edge), which then move only along their normals
+   (``boundary_motion="normal"``, :func:`meshdenoise.registry.boundary_along_normals`).
+
+Sharp features choose ``two_stage`` (feature-preserving normal filtering); otherwise
+``sobolev_bilaplacian`` (a smooth prior: within 0.5 dB of the best filter on the smooth rows of
+the quality benchmark, one sparse factorisation per candidate). Parameters are then chosen by
+the filter's own automatic rule. This module names filters: it is policy, above the generic
+tuning machinery.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+import warnings
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .adapters import read_mesh
+from .geometry import face_normals
+from .operators import Operators, get_operators
+from .registry import COMMON_OPTIONS, apply_filter, get_filter
+from .tuning.choose import choose_parameters
+from .tuning.noise_level import estimate_noise, mean_edge_length
+
+__all__ = ["DefaultChoice", "FeatureTest", "choose_default", "denoise", "detect_features",
+           "SMOOTH_METHOD", "FEATURE_METHOD"]
+
+log = logging.getLogger("meshdenoise.auto")
+
+SMOOTH_METHOD = "sobolev_bilaplacian"
+FEATURE_METHOD = "two_stage"
+# The pre-smoothing of the feature test, written out so that a change of two_stage's defaults does not move it.
+PRESMOOTH = {"iterations": 2, "normal_iterations": 10, "vertex_iterations": 10, "sigma_r": 0.35, "sigma_s": 1.0,
+             "guidance": "guided"}
+CREASE_DEG = 20.0  # an edge is creased above this dihedral angle ...
+SHARP_DEG = 45.0  # ... and sharp above this one
+SHARP_SHARE = 0.70  # sharp features when at least this share of the creased edges is sharp
+TOO_NOISY = 0.10  # above this fraction of sharp edges the pre-smoothing has not removed the noise: no decision on features
+MIN_SHARP_EDGES = 12  # fewer sharp edges than this are no feature lines
+NOT_SMOOTHING = 0.01  # a run that moves vertices by less than this many mean edge lengths (rms) is said not to smooth
+
+
+@dataclass(frozen=True)
+class FeatureTest:
+    """The outcome of :func:`detect_features`.
+
+    Attributes
+    ----------
+    sharp : bool
+        Whether the mesh has sharp features.
+    share : float
+        Sharp edges / creased edges after the pre-smoothing (NaN with no creased edge).
+    sharp_fraction : float
+        Sharp edges / interior edges after the pre-smoothing.
+    reason : str
+        One sentence saying why.
+    """
+
+    sharp: bool
+    share: float
+    sharp_fraction: float
+    reason: str
+
+
+def _dihedral_angles(V: np.ndarray, F: np.ndarray, ops: Operators) -> np.ndarray:
+    """Dihedral angles (degrees, 0 for a flat pair) of the edges shared by exactly two faces."""
+    N = face_normals(V, F)
+    n = ops.n
+    e = np.sort(np.stack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]], axis=1).reshape(-1, 2), axis=1)
+    face = np.repeat(np.arange(F.shape[0]), 3)
+    key = e[:, 0] * (n + 1) + e[:, 1]
+    order = np.argsort(key, kind="stable")
+    _, start, counts = np.unique(key[order], return_index=True, return_counts=True)
+    first = start[counts == 2]  # manifold edges: a key seen exactly twice, adjacent once sorted
+    a, b = face[order][first], face[order][first + 1]
+    c = np.clip(np.einsum("ij,ij->i", N[a], N[b]), -1.0, 1.0)
+    return np.degrees(np.arccos(c))
+
+
+def detect_features(mesh: Any, *, ops: Operators | None = None) -> FeatureTest:
+    """Whether a (noisy) mesh has sharp features, from its dihedral angles after a feature-preserving pre-smoothing.
+
+    Two outer iterations of ``two_stage`` (fixed parameters, :data:`PRESMOOTH`) remove most
+    of the noise while keeping creases sharp. Then, among the edges creased by more than
+    :data:`CREASE_DEG` degrees, the share sharper than :data:`SHARP_DEG`:
+
+    .. math:: s = \\frac{\\#\\{e : \\theta_e > 45^\\circ\\}}{\\#\\{e : \\theta_e > 20^\\circ\\}}
+
+    is near 1 on CAD parts (flat faces meeting at sharp edges) and well below on scans and
+    organic shapes, whose creases are gradual. Measured (``python benchmarks/feature_test.py``,
+    ``benchmarks/results/feature-test.md``): CAD parts with noise 0.74 to 0.98, scans and smooth
+    meshes with or without noise 0.28 to 0.64; the threshold is :data:`SHARP_SHARE`. When more
+    than :data:`TOO_NOISY` of all edges stay sharp the noise (several edge lengths) was not
+    removed and no sharp feature is reported: a smooth prior is the safe choice there.
+
+    Parameters
+    ----------
+    mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
+    ops : Operators, optional
+        The topology's operators, if the caller holds them.
+
+    Returns
+    -------
+    FeatureTest
+
+    Examples
+    --------
+    >>> from meshdenoise.shapes import icosphere
+    >>> detect_features(icosphere(3)).sharp
+    False
+    """
+    data = read_mesh(mesh)
+    V, F = data.V, data.F
+    ops = ops if ops is not None else get_operators(F, V.shape[0])
+    if F.shape[0] < 2:
+        return FeatureTest(False, float("nan"), 0.0, "fewer than two faces: no dihedral angle")
+    smooth = np.asarray(get_filter(FEATURE_METHOD).public((V, F), operators=ops, **PRESMOOTH)[0])
+    theta = _dihedral_angles(smooth, F, ops)
+    creased = int(np.count_nonzero(theta > CREASE_DEG))
+    sharp = int(np.count_nonzero(theta > SHARP_DEG))
+    share = sharp / creased if creased else float("nan")
+    fraction = sharp / theta.size if theta.size else 0.0
+    where = (f"after a feature-preserving pre-smoothing {sharp:,} edges are sharp (> {SHARP_DEG:g} deg), "
+             f"{share:.0%} of the {creased:,} creased ones (> {CREASE_DEG:g} deg)" if creased else
+             f"after a feature-preserving pre-smoothing no edge is creased (> {CREASE_DEG:g} deg)")
+    if fraction > TOO_NOISY:
+        return FeatureTest(False, share, fraction, f"{where}, but that is {fraction:.0%} of all edges: the noise hides "
+                           "any feature, so no sharp feature is assumed")
+    if not creased:
+        return FeatureTest(False, share, fraction, f"{where}: no sharp features")
+    if sharp < MIN_SHARP_EDGES or not share >= SHARP_SHARE:
+        return FeatureTest(False, share, fraction, f"{where}: gradual creases, no sharp features "
+                           f"(sharp features from {SHARP_SHARE:.0%})")
+    return FeatureTest(True, share, fraction, f"{where}: sharp features (from {SHARP_SHARE:.0%})")
+
+
+@dataclass
+class DefaultChoice:
+    """What the default decided for one mesh, and why (:func:`choose_default`).
+
+    Attributes
+    ----------
+    method : str
+        The filter chosen.
+    params : dict
+        Its parameters (chosen by its automatic rule).
+    noise : float
+        The estimated noise level rho (mesh units).
+    edge_length : float
+        The mean edge length (mesh units).
+    features : FeatureTest
+    boundary_vertices : int
+        Vertices on open borders (they move along their normals only).
+    reasons : list of str
+        Sentences saying why.
+    seconds : float
+        Time taken to decide.
+    """
+
+    method: str
+    params: dict
+    noise: float
+    edge_length: float
+    features: FeatureTest
+    boundary_vertices: int
+    reasons: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+
+    @property
+    def noise_in_edges(self) -> float:
+        """The noise level in mean edge lengths."""
+        return self.noise / self.edge_length if self.edge_length > 0 else float("nan")
+
+    def lines(self) -> list[str]:
+        """The decision as short lines for a terminal or a log."""
+        settings = ", ".join(f"{k}={_short(v)}" for k, v in self.params.items()) or "its defaults"
+        return [
+            f"noise: {self.noise:.4g} ({self.noise_in_edges:.3g} mean edge lengths; mean edge {self.edge_length:.4g})",
+            f"method: {self.method} ({settings})",
+            *(f"  because {r}" for r in self.reasons),
+        ]
+
+    def as_dict(self) -> dict:
+        """Plain values (JSON-ready)."""
+        return {
+            "method": self.method, "params": dict(self.params), "noise": self.noise, "edge_length": self.edge_length,
+            "noise_in_edges": self.noise_in_edges, "sharp_features": self.features.sharp,
+            "sharp_share": self.features.share, "boundary_vertices": self.boundary_vertices,
+            "reasons": list(self.reasons), "seconds": self.seconds,
+        }
+
+
+def _short(v: Any) -> str:
+    return f"{v:.4g}" if isinstance(v, float) else repr(v) if isinstance(v, str) else str(v)
+
+
+def choose_default(mesh: Any, *, noise: float | None = None) -> DefaultChoice:
+    """Choose the filter and its parameters for a noisy mesh, and say why.
+
+    Parameters
+    ----------
+    mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
+    noise : float, optional
+        The noise level rho if known (mesh units); estimated otherwise.
+
+    Returns
+    -------
+    DefaultChoice
+
+    Examples
+    --------
+    >>> from meshdenoise.shapes import icosphere
+    >>> from meshdenoise import add_normal_noise
+    >>> V, F = icosphere(3)
+    >>> Vn, _ = add_normal_noise((V, F), rho=0.02, seed=0)
+    >>> choose_default((Vn, F)).method
+    'sobolev_bilaplacian'
+    """
+    start = time.perf_counter()
+    data = read_mesh(mesh)
+    V, F = data.V, data.F
+    ops = get_operators(F, V.shape[0])
+    h = mean_edge_length(V, ops)
+    rho = estimate_noise((V, F)) if noise is None else noise
+    features = detect_features((V, F), ops=ops)
+    method = FEATURE_METHOD if features.sharp else SMOOTH_METHOD
+    params = choose_parameters((V, F), method, noise=rho)
+    reasons = [features.reason + f" -> {method}",
+               f"its parameters minimise {get_filter(method).name}'s risk estimate (SURE) for that noise level"]
+    nb = int(np.count_nonzero(ops.boundary_vertices))
+    if nb:
+        reasons.append(f"{nb:,} vertices are on open borders: they move along their normals only (no inward shrinking)")
+    choice = DefaultChoice(method, params, float(rho), float(h), features, nb, reasons, time.perf_counter() - start)
+    for line in choice.lines():
+        log.info("default: %s", line)
+    return choice
+
+
+def denoise(
+    mesh: Any,
+    method: str | None = None,
+    *,
+    noise: float | None = None,
+    return_params: bool = False,
+    boundary_motion: str = "normal",
+    **params: Any,
+) -> Any:
+    """Denoise a mesh; with no method, the default for scans chooses the filter and its parameters.
+
+    Parameters
+    ----------
+    mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
+    method : str, optional
+        A registered filter. ``None`` (default): :func:`choose_default` chooses
+        ``two_stage`` for meshes with sharp features, ``sobolev_bilaplacian`` otherwise, and
+        their parameters.
+    noise : float, optional
+        The noise level if known (else estimated), used only when choosing.
+    return_params : bool
+        Also return the parameters used: with a method, the dict of parameters; with none,
+        the :class:`DefaultChoice` (method, parameters, noise estimate, reasons).
+    boundary_motion : {"normal", "free"}
+        ``"normal"`` (default): vertices on open borders move only along their normals, so
+        borders do not shrink inward (:func:`meshdenoise.registry.boundary_along_normals`);
+        ``"free"``: the filter as it is (what ``apply_filter`` does).
+    **params
+        Filter parameters (held fixed) and the common options (``pinned``, ``region``,
+        ``preserve_volume``, ``operators``). With none of the filter's own parameters
+        given, all of them are chosen automatically.
+
+    Returns
+    -------
+    Same type as ``mesh`` (a MeshSet is changed in place), or ``(mesh, params or choice)``.
+
+    Warns
+    -----
+    UserWarning
+        When the result moves the vertices by less than 1 % of a mean edge length (rms): the
+        noise estimate (printed) was too small for the risk estimate to prefer smoothing.
+
+    Examples
+    --------
+    >>> from meshdenoise.shapes import icosphere
+    >>> from meshdenoise import add_normal_noise, snr
+    >>> V, F = icosphere(3)
+    >>> Vn, _ = add_normal_noise((V, F), rho=0.02, seed=0)
+    >>> (Vd, Fd), choice = denoise((Vn, F), return_params=True)
+    >>> choice.method, bool(snr(V, Vd) > snr(V, Vn))
+    ('sobolev_bilaplacian', True)
+    """
+    options = {k: params.pop(k) for k in list(params) if k in COMMON_OPTIONS}
+    options["boundary_motion"] = boundary_motion
+    choice = None
+    if method is None:
+        if params:
+            raise TypeError(f"denoise: filter parameters {sorted(params)} need method=; "
+                            "with no method the default chooses the filter and its parameters")
+        choice = choose_default(mesh, noise=noise)
+        method, chosen = choice.method, dict(choice.params)
+    else:
+        if not isinstance(method, str):
+            raise TypeError(f"denoise: method must be a filter name (str) or None, got {method!r}")
+        spec = get_filter(method)
+        if spec.auto is not None and set(spec.auto.tunes) - set(params):
+            chosen = choose_parameters(mesh, method, noise=noise, **params)
+            log.info("denoise(%s): automatic parameters %s", method, chosen)
+        else:
+            chosen = dict(params)
+    before = read_mesh(mesh).V.copy() if choice is not None else None
+    out = apply_filter(method, mesh, **chosen, **options)
+    if choice is not None:
+        warn_if_not_smoothing(before, read_mesh(out).V, choice)
+    if return_params:
+        return out, (choice if choice is not None else chosen)
+    return out
+
+
+def warn_if_not_smoothing(before: np.ndarray, after: np.ndarray, choice: DefaultChoice) -> float:
+    """Warn when the default barely moved the mesh; return the rms move in mean edge lengths."""
+    h = choice.edge_length
+    move = float(np.sqrt(np.mean(np.sum((after - before) ** 2, axis=1)))) / h if h > 0 and before.size else 0.0
+    if move < NOT_SMOOTHING:
+        warnings.warn(
+            f"denoise: not smoothing: the estimated noise is {choice.noise:.3g} ({choice.noise_in_edges:.3g} mean edge "
+            f"lengths), too small for {choice.method}'s risk estimate to prefer any smoothing (vertices moved "
+            f"{move:.2g} edge lengths rms); to smooth anyway choose a filter and its parameters "
+            "(--method and --param, or method= in Python)",
+            UserWarning,
+            stacklevel=3,
+        )
+    return move

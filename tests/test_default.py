@@ -1,0 +1,271 @@
+"""The default for scans (meshdenoise.default): the feature test, the choice, open borders, and the CLI."""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+import meshdenoise as md
+from meshdenoise.cli import cli
+from meshdenoise.default import _dihedral_angles, choose_default, detect_features
+from meshdenoise.geometry import vertex_normals
+from meshdenoise.io import load_mesh, save_mesh
+from meshdenoise.operators import get_operators
+from meshdenoise.shapes import box, grid, icosphere
+from meshdenoise.tuning.noise_level import mean_edge_length
+
+
+def open_cap(subdivisions: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """The upper part of a sphere (faces with centroid z > -0.3): an open, curved scan-like patch."""
+    V, F = icosphere(subdivisions)
+    keep = V[F].mean(axis=1)[:, 2] > -0.3
+    F = F[keep]
+    used = np.unique(F)
+    remap = np.full(V.shape[0], -1)
+    remap[used] = np.arange(used.size)
+    return V[used], remap[F]
+
+
+# --- the feature test -------------------------------------------------------------------------------------------
+def test_dihedral_angles_of_a_cube_are_90_degrees_on_its_edges_and_0_inside_its_faces():
+    V, F = box(3)
+    theta = _dihedral_angles(V, F, get_operators(F, V.shape[0]))
+    # 12 cube edges of 2 segments each; every other edge is inside a flat face
+    assert np.count_nonzero(np.isclose(theta, 90.0)) == 24
+    assert np.count_nonzero(np.isclose(theta, 0.0, atol=1e-6)) == theta.size - 24
+
+
+def test_dihedral_angles_against_the_angle_between_two_faces_by_hand():
+    # two triangles hinged on the x axis, the second tilted by 30 degrees
+    t = np.radians(30.0)
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0.5, 1, 0], [0.5, -np.cos(t), -np.sin(t)]])
+    F = np.array([[0, 1, 2], [1, 0, 3]])
+    theta = _dihedral_angles(V, F, get_operators(F, 4))
+    np.testing.assert_allclose(theta, [30.0], atol=1e-9)
+
+
+def test_noisy_box_has_sharp_features_and_noisy_sphere_and_plane_have_none():
+    Vb, Fb = box(10)
+    Vs, Fs = icosphere(3)
+    assert detect_features((md.add_normal_noise((Vb, Fb), 0.01, seed=0)[0], Fb)).sharp
+    assert not detect_features((md.add_normal_noise((Vs, Fs), 0.01, seed=0)[0], Fs)).sharp
+    Vp, Fp = grid(20, 20)
+    Vp = Vp + np.c_[np.zeros((len(Vp), 2)), np.random.default_rng(0).normal(0, 0.01, len(Vp))]
+    test = detect_features((Vp, Fp))
+    assert not test.sharp and "no sharp features" in test.reason
+
+
+def test_feature_test_is_scale_and_rotation_invariant():
+    V, F = box(8)
+    Vn = md.add_normal_noise((V, F), 0.01, seed=1)[0]
+    a = detect_features((Vn, F))
+    q, _ = np.linalg.qr(np.random.default_rng(2).normal(size=(3, 3)))
+    b = detect_features((1e3 * Vn @ q.T, F))
+    assert a.sharp == b.sharp
+    assert a.share == pytest.approx(b.share, abs=0.03)
+
+
+@pytest.mark.data
+@pytest.mark.parametrize("name, sharp", [("Fandisk0.3", True), ("Block0.4", True), ("Twelve0.5Impulsive", True),
+                                         ("Bunny0.2", False)])
+def test_feature_test_on_the_benchmark_pairs(name, sharp):
+    # CAD parts have sharp features, the scanned bunny none (benchmarks/results/feature-test.md)
+    from meshdenoise.io import load_arrays
+
+    from .conftest import data_mesh_path
+
+    assert detect_features(load_arrays(data_mesh_path(f"benchmark/{name}/Noisy.obj"))).sharp is sharp
+
+
+# --- the choice ---------------------------------------------------------------------------------------------------
+def test_choice_names_the_method_the_noise_and_why():
+    V, F = icosphere(3)
+    Vn = md.add_normal_noise((V, F), 0.02, seed=0)[0]
+    choice = choose_default((Vn, F))
+    assert choice.method == "sobolev_bilaplacian" and set(choice.params) == {"mu"}
+    h = mean_edge_length(Vn, get_operators(F, V.shape[0]))
+    assert choice.noise == pytest.approx(md.estimate_noise((Vn, F)))
+    assert choice.noise_in_edges == pytest.approx(choice.noise / h)
+    text = "\n".join(choice.lines())
+    assert f"{choice.noise:.4g}" in text and "mean edge lengths" in text and "sobolev_bilaplacian" in text
+    json.dumps(choice.as_dict())  # plain values
+    Vb, Fb = box(10)
+    assert choose_default((md.add_normal_noise((Vb, Fb), 0.01, seed=0)[0], Fb)).method == "two_stage"
+
+
+def test_given_noise_is_used():
+    V, F = icosphere(3)
+    Vn = md.add_normal_noise((V, F), 0.02, seed=0)[0]
+    assert choose_default((Vn, F), noise=0.05).noise == 0.05
+    assert choose_default((Vn, F), noise=0.05).params["mu"] > choose_default((Vn, F), noise=0.005).params["mu"]
+
+
+def test_default_denoise_improves_a_noisy_sphere_and_returns_its_choice():
+    V, F = icosphere(3)
+    Vn = md.add_normal_noise((V, F), 0.02, seed=0)[0]
+    (Vd, _), choice = md.denoise((Vn, F), return_params=True)
+    assert md.snr(V, Vd) > md.snr(V, Vn) + 3
+    np.testing.assert_allclose(Vd, md.apply_filter(choice.method, (Vn, F), **choice.params)[0], atol=1e-12)
+
+
+def test_default_denoise_warns_when_it_does_not_smooth():
+    V, F = icosphere(3)  # no noise
+    with pytest.warns(UserWarning, match=r"not smoothing: the estimated noise is .* mean edge lengths"):
+        md.denoise((V, F))
+
+
+def test_default_denoise_refuses_filter_parameters_without_a_method():
+    V, F = icosphere(2)
+    with pytest.raises(TypeError, match=r"\['mu'\] need method="):
+        md.denoise((V, F), mu=1.0)
+
+
+# --- open borders -------------------------------------------------------------------------------------------------
+def test_boundary_motion_normal_changes_nothing_on_a_closed_mesh():
+    V, F = icosphere(3)
+    Vn = md.add_normal_noise((V, F), 0.02, seed=0)[0]
+    for name, params in (("sobolev", {"mu": 1.0}), ("taubin", {"iterations": 5}), ("two_stage", {"iterations": 1})):
+        a = md.apply_filter(name, (Vn, F), **params)[0]
+        b = md.apply_filter(name, (Vn, F), boundary_motion="normal", **params)[0]
+        np.testing.assert_array_equal(a, b)
+
+
+def test_boundary_motion_normal_moves_border_vertices_along_their_normals_and_solves_the_rest_with_them_held():
+    V, F = open_cap(3)
+    Vn = md.add_normal_noise((V, F), 0.02, seed=0)[0]
+    ops = get_operators(F, V.shape[0])
+    b = ops.boundary_vertices
+    mu = 2.0
+    free = md.sobolev((Vn, F), mu=mu)[0]
+    out = md.sobolev((Vn, F), mu=mu, boundary_motion="normal")[0]
+    # border: the free move projected on the free result's normals
+    N = vertex_normals(free, F)[b]
+    expected_b = Vn[b] + np.einsum("ij,ij->i", free[b] - Vn[b], N)[:, None] * N
+    np.testing.assert_allclose(out[b], expected_b, atol=1e-12)
+    # interior: (I + mu L) Y = X on the interior rows with the border held, by a dense solve
+    W = np.zeros((ops.n, ops.n))
+    for a, c in ((0, 1), (1, 2), (2, 0)):  # the 0/1 adjacency, built here from the faces
+        W[F[:, a], F[:, c]] = W[F[:, c], F[:, a]] = 1.0
+    L = np.diag(W.sum(axis=1)) - W
+    A = np.eye(ops.n) + mu * L
+    i = ~b
+    rhs = Vn[i] - A[np.ix_(i, b)] @ expected_b
+    np.testing.assert_allclose(out[i], np.linalg.solve(A[np.ix_(i, i)], rhs), atol=1e-9)
+
+
+def test_open_scan_border_moves_at_most_twice_the_interior():
+    # the issue's measure: mean displacement of border vertices <= 2 x the interior's; free borders fail it
+    V, F = open_cap(4)
+    ops = get_operators(F, V.shape[0])
+    h = mean_edge_length(V, ops)
+    Vn = md.add_scanner_noise((V, F), 0.3 * h, correlation_length=1.0, seed=0)[0]
+    b = ops.boundary_vertices
+
+    def ratio(Y):
+        move = np.linalg.norm(Y - Vn, axis=1)
+        return move[b].mean() / move[~b].mean()
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        Yd = md.denoise((Vn, F))
+    assert ratio(Yd[0]) <= 2.0
+    assert ratio(md.sobolev((Vn, F), mu=2.0, boundary_motion="normal")[0]) <= 2.0
+    assert ratio(md.sobolev((Vn, F), mu=2.0)[0]) > 2.0  # what the option prevents
+
+
+def test_boundary_motion_keeps_pinned_vertices_and_a_plane_planar():
+    V, F = grid(12, 9)
+    rng = np.random.default_rng(0)
+    Vn = V + np.c_[rng.normal(0, 0.01, (len(V), 2)), np.zeros(len(V))]  # in-plane noise only
+    pinned = np.zeros(len(V), dtype=bool)
+    pinned[[0, 5, 50]] = True
+    out = md.sobolev((Vn, F), mu=1.0, boundary_motion="normal", pinned=pinned)[0]
+    np.testing.assert_array_equal(out[pinned], Vn[pinned])
+    np.testing.assert_allclose(out[:, 2], 0.0, atol=1e-12)
+
+
+def test_bad_boundary_motion_is_refused_with_its_value():
+    V, F = icosphere(1)
+    with pytest.raises(ValueError, match=r"'boundary_motion' = 'curve'"):
+        md.sobolev((V, F), mu=1.0, boundary_motion="curve")
+
+
+# --- the command line and the pipeline step -----------------------------------------------------------------------
+@pytest.fixture
+def noisy_cap_file(tmp_path):
+    V, F = open_cap(3)
+    Vn = md.add_normal_noise((V, F), 0.02, seed=0)[0]
+    path = tmp_path / "scan [1].ply"  # a name rich would read as markup
+    save_mesh(path, Vn, F)
+    return path, Vn, F
+
+
+def test_cli_denoise_with_no_method_prints_the_choice_and_writes_the_default_result(noisy_cap_file, tmp_path):
+    src, Vn, F = noisy_cap_file
+    dst = tmp_path / "out.ply"
+    result = CliRunner().invoke(cli, ["denoise", str(src), str(dst)])
+    assert result.exit_code == 0, result.output
+    choice = choose_default((Vn, F))
+    assert f"noise: {choice.noise:.4g}" in result.output
+    assert f"method: {choice.method}" in result.output and "open borders" in result.output
+    assert "scan [1].ply" in result.output
+    expected = md.denoise((Vn, F))[0]
+    np.testing.assert_allclose(load_mesh(dst).V, expected, atol=1e-9)
+
+
+def test_cli_dry_run_writes_nothing(noisy_cap_file, tmp_path):
+    src, Vn, F = noisy_cap_file
+    before = sorted(tmp_path.iterdir())
+    result = CliRunner().invoke(cli, ["denoise", str(src), "--dry-run"])
+    assert result.exit_code == 0, result.output
+    assert "method: sobolev_bilaplacian" in result.output and "dry run: nothing written" in result.output
+    assert sorted(tmp_path.iterdir()) == before
+    result = CliRunner().invoke(cli, ["denoise", str(src), "--method", "sobolev", "--auto", "--dry-run"])
+    assert result.exit_code == 0 and "method: sobolev (mu=" in result.output
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--param", "mu=1"], "--param mu: a filter parameter needs --method"),
+    ([], "OUT is missing"),
+])
+def test_cli_denoise_bad_use_is_one_line_and_exit_2(noisy_cap_file, args, message):
+    src = noisy_cap_file[0]
+    result = CliRunner().invoke(cli, ["denoise", str(src), *args])
+    assert result.exit_code == 2
+    assert message in result.output and "Traceback" not in result.output
+
+
+def test_cli_warns_on_stderr_when_not_smoothing(tmp_path):
+    V, F = icosphere(3)
+    src, dst = tmp_path / "clean.ply", tmp_path / "out.ply"
+    save_mesh(src, V, F)
+    result = CliRunner().invoke(cli, ["denoise", str(src), str(dst)])
+    assert result.exit_code == 0
+    assert "warning: denoise: not smoothing" in result.stderr and "--method and --param" in result.stderr
+    assert "UserWarning" not in result.stderr  # said once, as a line
+
+
+def test_pipeline_denoise_step_records_the_choice(noisy_cap_file, tmp_path):
+    src, Vn, F = noisy_cap_file
+    yaml = tmp_path / "p.yaml"
+    yaml.write_text(f"inputs: ['{src}']\noutput_dir: '{tmp_path / 'out'}'\nsteps:\n  - denoise\n"
+                    "  - save: {path: '{stem}_clean.ply'}\n")
+    rows = md.run_pipeline(md.load_pipeline(yaml), serial=True)
+    choice = choose_default((Vn, F))
+    assert rows[0]["status"] == "ok", rows[0]
+    assert rows[0]["denoise.method"] == choice.method
+    assert rows[0]["denoise.noise"] == pytest.approx(choice.noise)
+    assert rows[0][f"auto.{choice.method}.mu"] == pytest.approx(choice.params["mu"])
+
+
+def test_pipeline_denoise_step_refuses_a_filter_parameter(tmp_path):
+    from meshdenoise.pipeline import PipelineValidationError
+
+    yaml = tmp_path / "p.yaml"
+    yaml.write_text("inputs: ['x.ply']\nsteps:\n  - denoise: {mu: 1}\n")
+    with pytest.raises(PipelineValidationError, match=r"unknown parameter 'mu': denoise chooses the filter"):
+        md.load_pipeline(yaml)
