@@ -30,6 +30,7 @@ import numpy as np
 from .adapters import read_mesh
 from .geometry import face_normals
 from .operators import Operators, get_operators
+from .progress import stage
 from .registry import COMMON_OPTIONS, apply_filter, get_filter
 from .tuning.choose import choose_parameters
 from .tuning.noise_level import estimate_noise, mean_edge_length
@@ -233,8 +234,10 @@ def choose_default(mesh: Any, *, noise: float | None = None) -> DefaultChoice:
     V, F = data.V, data.F
     ops = get_operators(F, V.shape[0])
     h = mean_edge_length(V, ops)
-    rho = estimate_noise((V, F)) if noise is None else noise
-    features = detect_features((V, F), ops=ops)
+    with stage("estimating the noise"):
+        rho = estimate_noise((V, F)) if noise is None else noise
+    with stage("looking for sharp features"):
+        features = detect_features((V, F), ops=ops)
     method = FEATURE_METHOD if features.sharp else SMOOTH_METHOD
     params = choose_parameters((V, F), method, noise=rho)
     reasons = [features.reason + f" -> {method}",
@@ -319,7 +322,8 @@ def denoise(
         else:
             chosen = dict(params)
     before = read_mesh(mesh).V.copy() if choice is not None else None
-    out = apply_filter(method, mesh, **chosen, **options)
+    with stage(f"running {method}"):
+        out = apply_filter(method, mesh, **chosen, **options)
     if choice is not None:
         warn_if_not_smoothing(before, read_mesh(out).V, choice)
     if return_params:

@@ -254,9 +254,14 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
         else:
             console.print(text)
 
+    from ..progress import LogProgress, RichProgress, listening
+
+    # stages: (noise, features,) parameters, filter; a bar on a terminal after 2 s, else a line per stage over 2 s
+    total = 4 if method is None else 2 if auto else 1
+    listener = (RichProgress(src.name, err_console, total) if err_console.is_terminal
+                else LogProgress(src.name, lambda line: err_console.print(line)))
     try:
-        # a spinner with the elapsed time while the mesh is read, filtered and written (stderr, terminals only)
-        with err_console.status(Text(f"{name} on {src.name}"), spinner="dots"):
+        with listening(listener):
             row = run_task(task, echo=echo)
     except InputError as exc:  # also a bad parameter on this mesh and an output that cannot be written
         _fail(str(exc), 2)

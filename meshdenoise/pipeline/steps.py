@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 
+from ..progress import stage
 from ..registry import MAX_ITERATIONS, FilterSpec, Param, get_filter, list_filters
 from . import pymeshlab_steps
 from .errors import PipelineValidationError, where
@@ -597,7 +598,8 @@ def _run_ours(step: Step, ctx: RunContext) -> None:
             ctx.row[f"auto.{step.name}.{k}"] = v
         if ctx.echo:
             ctx.echo(f"{ctx.input_path.name}: {step.name} parameters chosen automatically: {params}")
-    V, _ = spec.public(state.arrays(), **params, **options)
+    with stage(f"running {step.name}"):
+        V, _ = spec.public(state.arrays(), **params, **options)
     ctx.state = state.with_vertices(V)
 
 
@@ -613,7 +615,8 @@ def _run_default(step: Step, ctx: RunContext) -> None:
         if key in options:
             options[key] = _vertex_option(options[key], state, key)
     choice = choose_default(state.arrays())
-    V, _ = get_filter(choice.method).public(state.arrays(), **choice.params, **options)
+    with stage(f"running {choice.method}"):
+        V, _ = get_filter(choice.method).public(state.arrays(), **choice.params, **options)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         warn_if_not_smoothing(state.V, V, choice)

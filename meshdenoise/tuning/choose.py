@@ -16,6 +16,7 @@ import numpy as np
 
 from ..adapters import read_mesh
 from ..operators import get_operators
+from ..progress import stage
 from ..registry import get_filter, list_filters
 from .context import TuningContext
 from .noise_level import estimate_noise
@@ -123,7 +124,8 @@ def choose_parameters(
         if Y.shape != V.shape:
             raise ValueError(f"choose_parameters: reference has {Y.shape[0]} vertices, the mesh {V.shape[0]}")
     ctx = TuningContext(V, F, ops, rho, Criterion(criterion, Y), exact_trace, dict(given))
-    chosen, point = spec.auto.choose(ctx)
+    with stage(f"choosing {method}'s parameters"):
+        chosen, point = spec.auto.choose(ctx)
     params = {**chosen, **given}
     log.info("choose_parameters(%s): %s (rho=%s, %s score %.6g)", method, params, rho, criterion, point.score)
     return params
