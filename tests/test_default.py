@@ -86,15 +86,47 @@ def test_choice_names_the_method_the_noise_and_why():
     V, F = icosphere(3)
     Vn = md.add_normal_noise((V, F), 0.02, seed=0)[0]
     choice = choose_default((Vn, F))
-    assert choice.method == "sobolev_bilaplacian" and set(choice.params) == {"mu"}
     h = mean_edge_length(Vn, get_operators(F, V.shape[0]))
     assert choice.noise == pytest.approx(md.estimate_noise((Vn, F)))
     assert choice.noise_in_edges == pytest.approx(choice.noise / h)
     text = "\n".join(choice.lines())
-    assert f"{choice.noise:.4g}" in text and "mean edge lengths" in text and "sobolev_bilaplacian" in text
+    assert f"{choice.noise:.4g}" in text and "mean edge lengths" in text and f"method: {choice.method}" in text
+    assert "smaller estimated error" in text
     json.dumps(choice.as_dict())  # plain values
-    Vb, Fb = box(10)
-    assert choose_default((md.add_normal_noise((Vb, Fb), 0.01, seed=0)[0], Fb)).method == "two_stage"
+
+
+@pytest.mark.parametrize("mesh", ["sphere", "box", "torus"])
+def test_the_default_keeps_the_candidate_with_the_smaller_risk_estimate(mesh):
+    from meshdenoise.shapes import torus
+
+    V, F = {"sphere": icosphere(3), "box": box(10), "torus": torus(40, 20)}[mesh]
+    Vn = md.add_normal_noise((V, F), 0.01, seed=0)[0]
+    rho = md.estimate_noise((Vn, F))
+    risks = {m: md.choose_parameters((Vn, F), m, noise=rho, return_risk=True) for m in ("two_stage", "sobolev_bilaplacian")}
+    best = min(risks, key=lambda m: risks[m][1])
+    choice = choose_default((Vn, F))
+    assert (choice.method, choice.params) == (best, risks[best][0])
+
+
+def test_noise_too_strong_for_normal_filtering_chooses_the_smooth_prior_alone():
+    V, F = icosphere(3)
+    h = mean_edge_length(V, get_operators(F, V.shape[0]))
+    Vn = md.add_normal_noise((V, F), 2.0 * h, seed=0)[0]
+    choice = choose_default((Vn, F))
+    assert choice.features.too_noisy and choice.method == "sobolev_bilaplacian"
+    assert "too strong for normals to be filtered" in choice.reasons[0]
+
+
+def test_risk_is_sure_of_the_chosen_point_and_tracks_the_true_error():
+    V, F = box(10)
+    Vn = md.add_normal_noise((V, F), 0.02, seed=0)[0]
+    # Hutchinson SURE of a linear filter is close; two_stage's Monte-Carlo SURE (one probe) scatters more
+    for m, slack in (("sobolev_bilaplacian", 0.1), ("two_stage", 0.6)):
+        params, risk = md.choose_parameters((Vn, F), m, return_risk=True)
+        assert params == md.choose_parameters((Vn, F), m)
+        true = float(np.sum((md.apply_filter(m, (Vn, F), **params)[0] - V) ** 2))
+        noise = float(np.sum((Vn - V) ** 2))
+        assert abs(risk - true) < slack * noise, m  # SURE's error next to the noise energy
 
 
 def test_given_noise_is_used():
@@ -222,7 +254,7 @@ def test_cli_dry_run_writes_nothing(noisy_cap_file, tmp_path):
     before = sorted(tmp_path.iterdir())
     result = CliRunner().invoke(cli, ["denoise", str(src), "--dry-run"])
     assert result.exit_code == 0, result.output
-    assert "method: sobolev_bilaplacian" in result.output and "dry run: nothing written" in result.output
+    assert f"method: {choose_default((Vn, F)).method}" in result.output and "dry run: nothing written" in result.output
     assert sorted(tmp_path.iterdir()) == before
     result = CliRunner().invoke(cli, ["denoise", str(src), "--method", "sobolev", "--auto", "--dry-run"])
     assert result.exit_code == 0 and "method: sobolev (mu=" in result.output
@@ -259,7 +291,8 @@ def test_pipeline_denoise_step_records_the_choice(noisy_cap_file, tmp_path):
     assert rows[0]["status"] == "ok", rows[0]
     assert rows[0]["denoise.method"] == choice.method
     assert rows[0]["denoise.noise"] == pytest.approx(choice.noise)
-    assert rows[0][f"auto.{choice.method}.mu"] == pytest.approx(choice.params["mu"])
+    for key, value in choice.params.items():
+        assert rows[0][f"auto.{choice.method}.{key}"] == value
 
 
 def test_pipeline_denoise_step_refuses_a_filter_parameter(tmp_path):

@@ -46,8 +46,9 @@ def choose_parameters(
     criterion: str = "sure",
     exact_trace: bool | None = None,
     reference: Any = None,
+    return_risk: bool = False,
     **given: Any,
-) -> dict:
+) -> dict | tuple[dict, float]:
     """Choose a filter's parameters from the noisy mesh alone.
 
     Linear filters (``filtering``: iterations; ``heat``: time and tau; ``sobolev``,
@@ -73,15 +74,19 @@ def choose_parameters(
         Force exact traces (identity probes) or Hutchinson ones.
     reference : mesh or (n, 3) array, optional
         The clean mesh, only for ``criterion="oracle"``.
+    return_risk : bool
+        Also return the chosen point's score: with ``criterion="sure"`` the estimated
+        squared error :math:`\\|f(X) - X^0\\|_F^2` of the result (summed over vertices and
+        coordinates), comparable between filters on the same mesh and noise level.
     **given
         Parameters held fixed (e.g. ``weights="meshlab"`` for filtering, ``tau`` for heat);
         the method's tuned parameters that are not given are chosen.
 
     Returns
     -------
-    dict
+    dict, or (dict, float) with ``return_risk=True``
         The filter's parameters, ready for ``apply_filter(method, mesh, **params)``
-        (given ones included).
+        (given ones included), and the score.
 
     Examples
     --------
@@ -128,4 +133,4 @@ def choose_parameters(
         chosen, point = spec.auto.choose(ctx)
     params = {**chosen, **given}
     log.info("choose_parameters(%s): %s (rho=%s, %s score %.6g)", method, params, rho, criterion, point.score)
-    return params
+    return (params, float(point.score)) if return_risk else params
