@@ -615,6 +615,9 @@ def _run_default(step: Step, ctx: RunContext) -> None:
         if key in options:
             options[key] = _vertex_option(options[key], state, key)
     choice = choose_default(state.arrays())
+    if ctx.echo:  # the choice is said before the filter runs
+        for line in choice.lines():
+            ctx.echo(f"{ctx.input_path.name}: {line}")
     with stage(f"running {choice.method}"):
         V, _ = get_filter(choice.method).public(state.arrays(), **choice.params, **options)
     with warnings.catch_warnings(record=True) as caught:
@@ -628,8 +631,6 @@ def _run_default(step: Step, ctx: RunContext) -> None:
     for k, v in choice.params.items():
         row[f"auto.{choice.method}.{k}"] = v
     if ctx.echo:
-        for line in choice.lines():
-            ctx.echo(f"{ctx.input_path.name}: {line}")
         for w in caught:
             ctx.echo(f"{ctx.input_path.name}: warning: {w.message}")
     if not ctx.echo:  # told through echo (the CLI), else still a warning for Python callers and logs
