@@ -302,3 +302,21 @@ def test_pipeline_denoise_step_refuses_a_filter_parameter(tmp_path):
     yaml.write_text("inputs: ['x.ply']\nsteps:\n  - denoise: {mu: 1}\n")
     with pytest.raises(PipelineValidationError, match=r"unknown parameter 'mu': denoise chooses the filter"):
         md.load_pipeline(yaml)
+
+
+# --- every mesh type ----------------------------------------------------------------------------------------------
+def test_the_default_on_every_mesh_type_gives_the_array_result(mesh_kind):
+    from .conftest import make_mesh, vertices_of
+
+    V, F = open_cap(3)
+    Vn = md.add_normal_noise((V, F), 0.02, seed=0)[0]
+    expected, choice = md.denoise((Vn, F), return_params=True)
+    mesh = make_mesh(mesh_kind, Vn, F)
+    out, got = md.denoise(mesh, return_params=True)
+    assert (got.method, got.params) == (choice.method, choice.params)
+    assert type(out) is type(mesh)
+    np.testing.assert_allclose(vertices_of(out), expected[0], atol=1e-9)
+    if mesh_kind == "meshset":
+        assert out is mesh  # in place, like MeshLab's own filters
+    elif mesh_kind == "open3d":
+        np.testing.assert_array_equal(np.asarray(mesh.vertices), Vn)  # the input is unchanged
