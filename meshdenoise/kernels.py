@@ -42,6 +42,8 @@ __all__ = [
     "pick_guidance",
     "bilateral_pass",
     "fit_vertices",
+    "restore_tangential",
+    "unit_into",
     "face_neighbour_lists",
     "patch_edge_lists",
     "inverse_distance_pass",
@@ -55,6 +57,26 @@ def set_threads() -> int:
     k = max(1, min(spmm_threads(), numba.config.NUMBA_NUM_THREADS))
     numba.set_num_threads(k)
     return k
+
+
+# --------------------------------------------------------------------------- small helpers
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def unit_into(out, i, s0, s1, s2):  # pragma: no cover - compiled
+    """Row ``out[i] = (s0, s1, s2) / norm``, zero for a zero vector; returns the norm.
+
+    The division by ``np.sqrt`` of the sum of squares is numpy's arithmetic for
+    ``v / np.linalg.norm(v)`` on one row, so the kernels agree with the numpy code bit for bit.
+    """
+    norm = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+    if norm > 0:
+        out[i, 0] = s0 / norm
+        out[i, 1] = s1 / norm
+        out[i, 2] = s2 / norm
+    else:
+        out[i, 0] = 0.0
+        out[i, 1] = 0.0
+        out[i, 2] = 0.0
+    return norm
 
 
 # --------------------------------------------------------------------------- face geometry
@@ -77,16 +99,7 @@ def face_geometry(X, F, N, A, C):  # pragma: no cover - compiled
         n0 = u1 * v2 - u2 * v1
         n1 = u2 * v0 - u0 * v2
         n2 = u0 * v1 - u1 * v0
-        norm = np.sqrt(n0 * n0 + n1 * n1 + n2 * n2)
-        A[f] = 0.5 * norm
-        if norm > 0:
-            N[f, 0] = n0 / norm
-            N[f, 1] = n1 / norm
-            N[f, 2] = n2 / norm
-        else:
-            N[f, 0] = 0.0
-            N[f, 1] = 0.0
-            N[f, 2] = 0.0
+        A[f] = 0.5 * unit_into(N, f, n0, n1, n2)
         for d in range(3):
             C[f, d] = (X[a, d] + X[b, d] + X[c, d]) / 3.0
 
@@ -154,18 +167,10 @@ def patch_scores(N, A, indptr, indices, edge_a, edge_b, patch_ptr, patch_edge, g
             s0 += w * N[q, 0]
             s1 += w * N[q, 1]
             s2 += w * N[q, 2]
-        norm = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
-        if norm > 0:
-            s0 = s0 / norm
-            s1 = s1 / norm
-            s2 = s2 / norm
-        else:
-            s0 = 0.0
-            s1 = 0.0
-            s2 = 0.0
-        g[j, 0] = s0
-        g[j, 1] = s1
-        g[j, 2] = s2
+        unit_into(g, j, s0, s1, s2)
+        s0 = g[j, 0]
+        s1 = g[j, 1]
+        s2 = g[j, 2]
         spread2 = 0.0  # sqrt is monotone and correctly rounded: sqrt(max r^2) == max sqrt(r^2)
         for k in range(indptr[j], indptr[j + 1]):
             q = indices[k]
@@ -228,15 +233,7 @@ def bilateral_pass(N, G, S, indptr, indices, denom, out):  # pragma: no cover - 
             s0 += w * N[j, 0]
             s1 += w * N[j, 1]
             s2 += w * N[j, 2]
-        norm = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
-        if norm > 0:
-            out[i, 0] = s0 / norm
-            out[i, 1] = s1 / norm
-            out[i, 2] = s2 / norm
-        else:
-            out[i, 0] = 0.0
-            out[i, 1] = 0.0
-            out[i, 2] = 0.0
+        unit_into(out, i, s0, s1, s2)
 
 
 # --------------------------------------------------------------------------- vertex update
@@ -270,6 +267,39 @@ def fit_vertices(X, F, N, corner_ptr, corners, scale, iterations, C):  # pragma:
             X[v, 0] = x0 + scale[v] * a0
             X[v, 1] = x1 + scale[v] * a1
             X[v, 2] = x2 + scale[v] * a2
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def restore_tangential(X, Y, N, corner_ptr, corners):  # pragma: no cover - compiled
+    """``x_i += (I - u_i u_i^T)(y_i - x_i)`` in place, ``u_i = unit(sum_{corners of i} n_f)``.
+
+    Each vertex takes back the tangential part of its move from ``Y`` (n, 3), keeping the
+    part along its normal ``u_i`` (the normalised sum of the unit face normals ``N`` (m, 3)
+    around it, :func:`meshdenoise.geometry.vertex_normals`); a vertex whose normal is zero
+    (on no face, or normals cancelling) does not move.
+    """
+    n = X.shape[0]
+    for v in prange(n):
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        for t in range(corner_ptr[v], corner_ptr[v + 1]):
+            f = corners[t] // 3
+            s0 += N[f, 0]
+            s1 += N[f, 1]
+            s2 += N[f, 2]
+        norm = np.sqrt(s0 * s0 + s1 * s1 + s2 * s2)
+        if norm > 0:
+            u0 = s0 / norm
+            u1 = s1 / norm
+            u2 = s2 / norm
+            r0 = Y[v, 0] - X[v, 0]
+            r1 = Y[v, 1] - X[v, 1]
+            r2 = Y[v, 2] - X[v, 2]
+            along = r0 * u0 + r1 * u1 + r2 * u2
+            X[v, 0] += r0 - along * u0
+            X[v, 1] += r1 - along * u1
+            X[v, 2] += r2 - along * u2
 
 
 # --------------------------------------------------------------------------- topology
