@@ -318,6 +318,7 @@ TWO_STAGE_SAMPLE = 3000  # vertices of the sampled region the rule runs on (the 
 TWO_STAGE_PATCHES = 6  # ... grown from this many seed vertices
 TWO_STAGE_PILOT_ITERATIONS = 3  # outer iterations of the pilot (defaults, keep_tangential on)
 TWO_STAGE_GUARD_PROBES = 3  # Rademacher probes of the guard's Monte-Carlo SURE
+TWO_STAGE_GUARD_MARGIN = 0.1  # ... which cuts iterations only when every probe's SURE drops by this times n rho^2
 TWO_STAGE_HEAVY_TAIL = 1.5  # rms / (MAD / 0.6745) of the noise above which SURE's guard is skipped (impulsive noise)
 TWO_STAGE_MARGIN = 2  # rings of vertices next to a cut whose faces are left out of the score
 TUNED = ("iterations", "normal_iterations", "vertex_iterations", "sigma_r", "keep_tangential")
@@ -384,7 +385,7 @@ class SampledRegion:
         for _ in range(margin):
             near = inside & (near | (W @ near.astype(np.float64) > 0))
         self.inner = ~near[self.vertices]
-        self.scored = ~self.inner[self.F].any(axis=1)
+        self.scored = self.inner[self.F].all(axis=1)
 
 
 def median_angle(A: np.ndarray, B: np.ndarray, F: np.ndarray, faces: np.ndarray) -> float:
@@ -550,11 +551,13 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     heavy = bool(mad > 0 and np.sqrt(np.mean(r**2)) > TWO_STAGE_HEAVY_TAIL * mad)
     log.debug("two_stage rule: consistency chose %s; noise rms/MAD %.2f", chosen, np.sqrt(np.mean(r**2)) / mad if mad else 0)
     if not fixed_k and not heavy and chosen["iterations"] > 1:
-        # the guard: fewer outer iterations when every probe's SURE says so (a smooth mesh, where the
-        # synthetic copy of a smooth pilot asks for too much smoothing)
+        # the guard: fewer outer iterations when every probe's SURE says so by more than
+        # TWO_STAGE_GUARD_MARGIN of the noise energy (a smooth mesh, where the synthetic copy of a
+        # smooth pilot asks for too much smoothing)
         path_sure = sure_per_probe(chosen)
         last = path_sure[-1][1]
-        agreed = [p for p, per_probe in path_sure[:-1] if np.all(per_probe < last)]
+        margin = TWO_STAGE_GUARD_MARGIN * int(inner.sum()) * ctx.rho**2
+        agreed = [p for p, per_probe in path_sure[:-1] if np.all(per_probe < last - margin)]
         if agreed:
             best = min(agreed, key=lambda p: p.score)
             chosen["iterations"] = int(best.value)

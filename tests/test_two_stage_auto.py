@@ -1,0 +1,210 @@
+"""two_stage's keep_tangential step, its run iterator and its automatic rule (issue 22), against
+computations written here: numpy projections, graph distances by scipy, brute-force runs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse.csgraph as csgraph
+
+from meshdenoise import add_normal_noise, snr
+from meshdenoise.geometry import face_normals, vertex_normals
+from meshdenoise.operators import get_operators
+from meshdenoise.registry import apply_filter, get_filter
+from meshdenoise.shapes import box, grid, icosphere
+from meshdenoise.tuning import choose_parameters
+from meshdenoise.tuning.context import TuningContext
+from meshdenoise.plugins import two_stage as ts
+
+
+def noisy_box(seed=3):
+    V, F = box(12)
+    rho = 0.3 / 11
+    return V, add_normal_noise((V, F), rho, seed=seed)[0], F, rho
+
+
+# --- the kernels ------------------------------------------------------------------------------
+def test_restore_tangential_is_the_tangent_projection_of_the_move():
+    from meshdenoise import kernels
+
+    V, F = icosphere(2)
+    rng = np.random.default_rng(0)
+    Y = V + 0.05 * rng.standard_normal(V.shape)
+    X = V + 0.05 * rng.standard_normal(V.shape)
+    N = face_normals(X, F)
+    ptr, corners = ts._corner_lists(np.asarray(F, dtype=np.int64), len(V))
+    got = X.copy()
+    kernels.restore_tangential(got, Y, N, ptr, corners)
+    u = vertex_normals(X, F)  # written independently: normalised sum of the unit face normals
+    R = Y - X
+    expected = X + R - np.einsum("ij,ij->i", R, u)[:, None] * u
+    np.testing.assert_allclose(got, expected, atol=1e-14)
+    # the normal component of the move is kept, the tangential one undone
+    np.testing.assert_allclose(np.einsum("ij,ij->i", got - X, u), 0.0, atol=1e-14)
+
+
+def test_face_geometry_with_the_unit_helper_equals_numpy_bit_for_bit():
+    from meshdenoise import kernels
+
+    V, F = icosphere(2)
+    X = V + 0.01 * np.random.default_rng(1).standard_normal(V.shape)
+    X[F[0, 1]] = X[F[0, 0]]  # a zero-area face: zero normal
+    X[F[0, 2]] = X[F[0, 0]]
+    m = len(F)
+    N, A, C = np.empty((m, 3)), np.empty(m), np.empty((m, 3))
+    kernels.face_geometry(X, np.asarray(F, dtype=np.int64), N, A, C)
+    np.testing.assert_array_equal(N, face_normals(X, F))
+    assert not N[0].any()
+
+
+# --- the filter with keep_tangential -----------------------------------------------------------
+def test_outer_iterates_yield_the_runs_of_every_iteration_count():
+    V, Vn, F, _ = noisy_box()
+    ops = get_operators(F, len(V))
+    for kt in (False, True):
+        params = dict(normal_iterations=3, vertex_iterations=4, sigma_r=0.3, sigma_s=1.0, guidance="guided", keep_tangential=kt)
+        got = list(ts.outer_iterates(Vn, ops, None, iterations=3, **params))
+        assert len(got) == 3
+        for k, X in enumerate(got, start=1):
+            np.testing.assert_array_equal(X, apply_filter("two_stage", (Vn, F), iterations=k, **params)[0])
+
+
+def test_keep_tangential_keeps_planes_pinned_vertices_and_the_input_tangential_positions():
+    V, F = grid(10, 8)
+    np.testing.assert_allclose(apply_filter("two_stage", (V, F), keep_tangential=True)[0], V, atol=1e-12)
+    ops = get_operators(F, len(V))
+    inner = ~ops.boundary_vertices
+    Vn = V.copy()
+    Vn[inner, 2] += 0.02 * np.random.default_rng(1).standard_normal(inner.sum())
+    Y = apply_filter("two_stage", (Vn, F), pinned="boundary", keep_tangential=True)[0]
+    np.testing.assert_array_equal(Y[~inner], V[~inner])
+    assert Y[inner, 2].std() < 0.5 * Vn[inner, 2].std()
+    Y_free = apply_filter("two_stage", (Vn, F), pinned="boundary")[0]
+
+    def tangential_move(X):  # the part of the move from the input across the output's vertex normals
+        u, M = vertex_normals(X, F), (X - Vn)[inner]
+        return np.linalg.norm(M - np.einsum("ij,ij->i", M, u[inner])[:, None] * u[inner]) / np.linalg.norm(M)
+
+    # without it the vertex update drifts sideways (first order); with it only the change of the
+    # normals during the last restore remains (second order)
+    assert tangential_move(Y_free) > 1e-3
+    assert tangential_move(Y) < 1e-2 * tangential_move(Y_free)
+
+
+def test_keep_tangential_raises_the_snr_on_a_noisy_box():
+    V, Vn, F, _ = noisy_box()
+    free = apply_filter("two_stage", (Vn, F))[0]
+    kept = apply_filter("two_stage", (Vn, F), keep_tangential=True)[0]
+    assert snr(V, kept) > snr(V, free) + 0.5
+
+
+# --- the pieces of the rule --------------------------------------------------------------------
+def test_sampled_region_is_balls_of_rings_and_scores_faces_away_from_the_cut():
+    V, F = grid(60, 50)
+    ops = get_operators(F, len(V))
+    region = ts.SampledRegion(F, ops, size=600, patches=3, margin=2, seed=0)
+    k = region.vertices.size
+    assert 600 <= k < 1200
+    # faces: exactly the mesh's faces with three corners inside, renumbered
+    inside = np.zeros(len(V), dtype=bool)
+    inside[region.vertices] = True
+    expected = F[inside[F].all(axis=1)]
+    np.testing.assert_array_equal(region.vertices[region.F], expected)
+    # scored faces: every corner more than 2 rings from the cut (graph distances by scipy)
+    W = ops.W
+    cut = inside & (W @ (~inside).astype(float) > 0)
+    dist = csgraph.shortest_path(W, unweighted=True, indices=np.flatnonzero(cut)).min(axis=0)
+    far = dist[region.vertices][region.F].min(axis=1) > 2
+    np.testing.assert_array_equal(region.scored, far)
+    assert region.scored.any()
+    # a small mesh is its own region, all scored
+    small = ts.SampledRegion(F, ops, size=len(V), patches=3, margin=2)
+    assert small.vertices.size == len(V) and small.scored.all() and small.inner.all()
+
+
+def test_median_angle_against_arccos():
+    V, F = icosphere(2)
+    X = V + 0.02 * np.random.default_rng(2).standard_normal(V.shape)
+    faces = np.arange(len(F)) % 3 > 0
+    a, b = face_normals(V, F)[faces], face_normals(X, F)[faces]
+    expected = np.median(np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1, 1)))
+    assert ts.median_angle(V, X, F, faces) == pytest.approx(expected, rel=1e-9)
+
+
+def test_synthetic_noise_and_probe_follow_the_noise_model():
+    N = vertex_normals(*icosphere(4))
+    e = ts.synthetic_noise(N, 0.3, seed=5)
+    along = np.einsum("ij,ij->i", e, N)
+    np.testing.assert_allclose(e, along[:, None] * N, atol=1e-15)  # along the normals only
+    assert along.std() == pytest.approx(0.3, rel=0.05)
+    b = ts.sure_probe(N, seed=5)
+    np.testing.assert_allclose(np.abs(np.einsum("ij,ij->i", b, N)), 1.0)
+
+
+# --- the rule ---------------------------------------------------------------------------------
+def test_rule_on_a_noisy_box_chooses_registered_values_and_beats_the_defaults():
+    V, Vn, F, rho = noisy_box()
+    params = choose_parameters((Vn, F), "two_stage", noise=rho)
+    spec = get_filter("two_stage")
+    assert set(params) == set(ts.TUNED)
+    spec.resolve(params)  # names, types and ranges
+    assert params["sigma_r"] in ts.TWO_STAGE_SIGMA_R
+    assert params["normal_iterations"] in ts.TWO_STAGE_NORMAL_ITERATIONS
+    assert params["vertex_iterations"] in ts.TWO_STAGE_VERTEX_ITERATIONS
+    assert 1 <= params["iterations"] <= ts.TWO_STAGE_MAX_ITERATIONS
+    from meshdenoise.quality_metrics import normal_error_deg
+
+    got = apply_filter("two_stage", (Vn, F), **params)[0]
+    default = apply_filter("two_stage", (Vn, F))[0]
+    assert normal_error_deg((V, F), got) < 0.3 * normal_error_deg((V, F), Vn)
+    assert normal_error_deg((V, F), got) <= 1.1 * normal_error_deg((V, F), default)
+    assert snr(V, got) >= snr(V, default) - 0.5
+
+
+def test_rule_does_not_smooth_without_noise_and_holds_given_parameters():
+    V, Vn, F, rho = noisy_box()
+    assert choose_parameters((V, F), "two_stage", noise=0.0) == {"iterations": 0}
+    held = choose_parameters((Vn, F), "two_stage", noise=rho, sigma_r=0.3, normal_iterations=5, vertex_iterations=10,
+                             keep_tangential=False)
+    assert set(held) == set(ts.TUNED)
+    assert (held["sigma_r"], held["normal_iterations"], held["vertex_iterations"], held["keep_tangential"]) == (0.3, 5, 10, False)
+    assert choose_parameters((Vn, F), "two_stage", noise=rho, iterations=0)["iterations"] == 0
+    with pytest.raises(ValueError, match="not a linear smoother"):
+        choose_parameters((Vn, F), "two_stage", criterion="gcv")
+
+
+def test_oracle_searches_the_same_space_and_minimises_the_position_error():
+    V, Vn, F, rho = noisy_box()
+    oracle = choose_parameters((Vn, F), "two_stage", noise=rho, criterion="oracle", reference=V)
+    assert set(oracle) == set(ts.TUNED)
+    err = lambda p: float(np.sum((apply_filter("two_stage", (Vn, F), **p)[0] - V) ** 2))  # noqa: E731
+    start = {"sigma_r": 0.2, "normal_iterations": 10, "vertex_iterations": 20, "keep_tangential": True, "iterations": 1}
+    assert err(oracle) <= err(start) + 1e-12  # the search's first candidate
+    # brute force along the oracle's own run: its iteration count is the best up to two past it
+    k = oracle["iterations"]
+    runs = [err({**oracle, "iterations": j}) for j in range(1, min(k + 2, ts.TWO_STAGE_MAX_ITERATIONS) + 1)]
+    assert err(oracle) == pytest.approx(min(runs), rel=1e-12)
+
+
+def test_staged_search_visits_the_coordinates_in_order_and_keeps_ties_early():
+    seen = []
+
+    def path(params):
+        seen.append(dict(params))
+        # a separable bowl with its minimum at sigma_r=0.3, normal_iterations=20, vertex_iterations=10
+        score = abs(params["sigma_r"] - 0.3) + abs(params["normal_iterations"] - 20) / 100 + abs(params["vertex_iterations"] - 10) / 100
+        return ts.Point(3, 0.0, 0.0, np.zeros((1, 3)), score)
+
+    chosen, best = ts._staged_search(path, ts._search_grid({}))
+    assert (chosen["sigma_r"], chosen["normal_iterations"], chosen["vertex_iterations"]) == (0.3, 20, 10)
+    assert best.score == pytest.approx(0.0)
+    keys = [tuple(sorted(p.items())) for p in seen]
+    assert len(keys) == len(set(keys))  # no run twice
+    assert len(seen) < len(ts.TWO_STAGE_SIGMA_R) * len(ts.TWO_STAGE_NORMAL_ITERATIONS) * len(ts.TWO_STAGE_VERTEX_ITERATIONS)
+
+
+def test_rule_context_directly_returns_a_scored_point():
+    V, Vn, F, rho = noisy_box()
+    ctx = TuningContext(Vn, F, get_operators(F, len(V)), rho, "sure", None, {})
+    chosen, point = ts.choose_two_stage(ctx)
+    assert np.isfinite(point.score) and point.value == chosen["iterations"]
