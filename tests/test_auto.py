@@ -16,7 +16,7 @@ from meshdenoise.tuning.search import averaging_step, iterative_path, solve_poin
 from meshdenoise.geometry import vertex_normals
 from meshdenoise.operators import get_operators
 from meshdenoise.registry import apply_filter
-from meshdenoise.shapes import box, grid, icosphere, torus
+from meshdenoise.shapes import grid, icosphere, torus
 
 from .conftest import make_mesh
 
@@ -272,7 +272,7 @@ def dense_case(request):
     return _Dense(V, F, Vn)
 
 
-@pytest.mark.parametrize("method", sorted(set(auto_filters()) - {"two_stage"}))  # two_stage: on a box, below
+@pytest.mark.parametrize("method", sorted(set(auto_filters()) - {"two_stage"}))  # two_stage: on a box, tests/test_two_stage_auto.py
 def test_auto_parameters_within_half_a_db_of_the_oracle(method, dense_case):
     d = dense_case
     # Hutchinson traces, as on large meshes (sobolev_gls: 8 probes; with its normals' Jacobian in the
