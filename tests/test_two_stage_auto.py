@@ -229,3 +229,16 @@ def test_sure_guard_cuts_the_iterations_of_a_detailed_smooth_mesh_to_a_lower_tru
     out = {name: apply_filter("two_stage", (Vn, F), **p)[0] for name, p in (("guarded", guarded), ("free", free))}
     assert np.sum((out["guarded"] - V) ** 2) < np.sum((out["free"] - V) ** 2)
     assert normal_error_deg((V, F), out["guarded"]) < normal_error_deg((V, F), out["free"])
+
+
+def test_returned_score_estimates_the_whole_mesh_squared_error():
+    """The point's score is the region's Monte-Carlo SURE scaled to the mesh (what
+    choose_parameters(return_risk=True) reports): on a box larger than the region it matches the
+    true squared error to a tenth of the noise energy n rho^2 (the identity's error)."""
+    V, F = box(30)  # 5048 vertices: a sampled region of about 3000
+    rho = 0.3 / 29
+    Vn = add_normal_noise((V, F), rho, seed=1)[0]
+    chosen, point = ts.choose_two_stage(TuningContext(Vn, F, get_operators(F, len(V)), rho, "sure", None, {}))
+    true = float(np.sum((apply_filter("two_stage", (Vn, F), **chosen)[0] - V) ** 2))
+    assert abs(point.score - true) < 0.1 * len(V) * rho**2
+    assert point.value == chosen["iterations"]

@@ -468,7 +468,9 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
 
     ``criterion="oracle"`` runs the same staged search on the whole noisy mesh, scored by the
     squared position error against the reference (the generic oracle). The returned point's
-    ``X`` is the best candidate on the sampled region (oracle: on the mesh).
+    score estimates the whole mesh's squared error :math:`\\|f(X) - X^0\\|_F^2` (the region's
+    Monte-Carlo SURE on its inner vertices, scaled by ``n`` over their count: comparable with the
+    other filters' SURE); its ``X`` is the result on the sampled region (oracle: on the mesh).
     """
     spec = get_filter("two_stage")
     full = spec.resolve(ctx.given, where="choose_parameters(method='two_stage')")
@@ -552,17 +554,23 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     mad = float(np.median(np.abs(r))) / MAD
     heavy = bool(mad > 0 and np.sqrt(np.mean(r**2)) > TWO_STAGE_HEAVY_TAIL * mad)
     log.debug("two_stage rule: consistency chose %s; noise rms/MAD %.2f", chosen, np.sqrt(np.mean(r**2)) / mad if mad else 0)
+    path_sure = sure_per_probe(chosen)  # SURE along the chosen run (its last point: the chosen count)
+    final = path_sure[-1][0]
     if not fixed_k and not heavy and chosen["iterations"] > 1:
         # the guard: fewer outer iterations when every probe's SURE says so by more than
         # TWO_STAGE_GUARD_MARGIN of the noise energy (a smooth mesh, where the synthetic copy of a
         # smooth pilot asks for too much smoothing)
-        path_sure = sure_per_probe(chosen)
         last = path_sure[-1][1]
         margin = TWO_STAGE_GUARD_MARGIN * int(inner.sum()) * ctx.rho**2
         agreed = [p for p, per_probe in path_sure[:-1] if np.all(per_probe < last - margin)]
         if agreed:
-            best = min(agreed, key=lambda p: p.score)
-            chosen["iterations"] = int(best.value)
+            final = min(agreed, key=lambda p: p.score)
+            chosen["iterations"] = int(final.value)
+    # the returned score estimates the whole mesh's squared error ||f(X) - X0||^2 (comparable with
+    # other filters' SURE, as choose_parameters(return_risk=True) reports it): the region's SURE on its
+    # inner vertices, scaled to the mesh's vertex count
+    scale = n / max(int(inner.sum()), 1)
+    best = Point(final.value, final.residual_sq * scale, final.trace * scale, final.X, final.score * scale)
     return {k: v for k, v in chosen.items() if k not in ctx.given}, best
 
 
