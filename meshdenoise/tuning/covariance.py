@@ -55,7 +55,10 @@ __all__ = ["NoiseModel", "estimate_noise_model", "band_residuals", "BANDS", "ELL
 
 BANDS = (0, 1, 2, 4)  # s of the band-pass operators (I - P)^2 P^s
 ELL_GRID = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0)  # correlation lengths the fit evaluates
-ELL_MIN = 0.5  # fitted correlation lengths below this (mean edge lengths) are read as independent noise
+ELL_MIN = 0.75  # fitted correlation lengths below this (mean edge lengths) are read as independent noise
+SPREAD_GAIN = 0.0015  # ... and so are fits that lower the spread (variance of log rho_s) by less than this
+SPREAD_RATIO = 2.0  # ... or by less than this factor
+MIN_PATCHES = 200  # ... or that leave fewer than this many correlation areas pi ell^2 on the mesh
 FIT_PROBES = 4  # probes per model of the fit: a median over n * 4 values
 
 
@@ -212,19 +215,32 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
     ok = ~ops.isolated & (np.linalg.norm(N, axis=1) > 0)
     R = band_residuals(ops, V)
     observed = np.array([np.median(_normal_component(R[s], N)[ok] ** 2) for s in BANDS])
+    if not np.all(observed > 0):  # a band without residual (a plane, a tiny mesh): nothing to fit
+        model = NoiseModel(rho0)
+        return (model, info) if details else model
     xi = np.random.default_rng(seed).standard_normal((V.shape[0], FIT_PROBES))
     geometry = heat_geometry(smooth, F)
-    grid = np.array(ELL_GRID)
-    logr = np.empty((grid.size, len(BANDS)))
-    for j, ell in enumerate(grid):
+    full = np.array(ELL_GRID)
+    logr = np.empty((full.size, len(BANDS)))
+    used = 0
+    for j, ell in enumerate(full):  # up the grid until the spread has risen well past its minimum
         Z = xi if ell == 0 else HeatFilter(smooth, F, diffusion_length(ell), geometry)(xi)
         Z = Z * math.sqrt(Z.size / float(np.sum(Z * Z)))  # mean square 1: tr(Sigma) = n
         logr[j] = 0.5 * (np.log(observed) - np.log(_probe_medians(ops, N, Z, ok)))
-    ell, j = _fit(logr, grid)
-    info.update(grid=grid, log_rho=logr, ell_fit=ell, observed=observed)
-    if ell < ELL_MIN:
-        model = NoiseModel(rho0)
-    else:
-        curves = np.array([np.interp(ell, grid, logr[:, b]) for b in range(len(BANDS))])
+        used = j + 1
+        spread = np.var(logr[:used], axis=1)
+        best = int(np.argmin(spread))
+        if j >= best + 2 and spread[j] > 4.0 * spread[best] + SPREAD_GAIN:
+            break
+    grid, logr = full[:used], logr[:used]
+    ell, _ = _fit(logr, grid)
+    curves = np.array([np.interp(ell, grid, logr[:, b]) for b in range(len(BANDS))])
+    spread0, spread_fit = float(np.var(logr[0])), float(np.var(curves))
+    info.update(grid=grid, log_rho=logr, ell_fit=ell, observed=observed, spread_white=spread0, spread_fit=spread_fit)
+    significant = (ell >= ELL_MIN and spread0 - spread_fit >= SPREAD_GAIN and spread0 >= SPREAD_RATIO * spread_fit
+                   and int(ok.sum()) >= MIN_PATCHES * math.pi * ell**2)
+    if significant:
         model = NoiseModel(float(np.exp(curves.mean())), ell, smooth, F)
+    else:
+        model = NoiseModel(rho0)
     return (model, info) if details else model
