@@ -162,8 +162,8 @@ def heat_geometry(V: np.ndarray, F: np.ndarray) -> tuple[float, np.ndarray, sp.c
 class HeatFilter:
     """The linear map of :func:`heat_filtered_noise`: white noise in, heat-filtered noise out.
 
-    :math:`C = K\, \mathrm{diag}(\sqrt{\bar m / m})` with :math:`K = (M + \tfrac{\tau}{k} L)^{-k} M^k`
-    (:data:`HEAT_STEPS` implicit steps, :math:`\tau = (\ell h)^2 / 8`), so that
+    :math:`C = K\\, \\mathrm{diag}(\\sqrt{\\bar m / m})` with :math:`K = (M + \\tfrac{\\tau}{k} L)^{-k} M^k`
+    (:data:`HEAT_STEPS` implicit steps, :math:`\\tau = (\\ell h)^2 / 8`), so that
     ``heat_filtered_noise(V, F, length, rng)`` is ``HeatFilter(V, F, length)(rng.standard_normal((n, 1)))``.
     Its covariance :math:`C C^T` is the noise model's (before rescaling); applied to probes
     it colours them (:class:`meshdenoise.tuning.covariance.NoiseModel`).

@@ -73,7 +73,7 @@ def choose_parameters(
     correlation_length : float, optional
         The noise's correlation length in mean edge lengths, if known (with ``noise``:
         0 when not given, the independent noise of the paper; without it: estimated
-        when not given). SURE then counts the noise that passes the smoother, :math:`\mathrm{tr}(H\Sigma)`.
+        when not given). SURE then counts the noise that passes the smoother, :math:`\\mathrm{tr}(H\\Sigma)`.
     criterion : {"sure", "gcv", "oracle"}
         ``"oracle"`` needs ``reference`` (the clean mesh) and minimises the true error
         over the same search space: the best parameters in hindsight, for benchmarks.

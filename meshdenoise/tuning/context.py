@@ -73,7 +73,7 @@ class TuningContext:
         """Probes ``Z`` (n, m) of scale ``s`` coloured by the noise model (``Z`` itself for independent noise).
 
         For a rule's own Monte-Carlo SURE probes: with ``b = colour(z) * N`` the divergence
-        term estimates :math:`\mathrm{tr}(\Sigma J_f)` of the correlated noise.
+        term estimates :math:`\\mathrm{tr}(\\Sigma J_f)` of the correlated noise.
         """
         return colour_probes(Z, s, self.noise)
 

@@ -58,7 +58,7 @@ ELL_GRID = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0)  # correlatio
 ELL_MIN = 0.75  # fitted correlation lengths below this (mean edge lengths) are read as independent noise
 SPREAD_GAIN = 0.0015  # ... and so are fits that lower the spread (variance of log rho_s) by less than this
 SPREAD_RATIO = 2.0  # ... or by less than this factor
-MIN_PATCHES = 200  # ... or that leave fewer than this many correlation areas pi ell^2 on the mesh
+MIN_PATCHES = 100  # ... or that leave fewer than this many correlation areas pi ell^2 on the mesh
 FIT_PROBES = 4  # probes per model of the fit: a median over n * 4 values
 
 

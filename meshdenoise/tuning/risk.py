@@ -158,7 +158,7 @@ def noise_colouring(model: Any) -> Iterator[None]:
 
     :func:`~meshdenoise.tuning.choose.choose_parameters` runs a filter's rule inside it, so
     that every rule built on the shared probes (the iterative paths, the shifted solves,
-    their traces) scores SURE with :math:`\mathrm{tr}(H\Sigma)` without code of its own.
+    their traces) scores SURE with :math:`\\mathrm{tr}(H\\Sigma)` without code of its own.
     """
     token = _COLOURING.set(model if model is not None and getattr(model, "correlated", False) else None)
     try:
@@ -191,11 +191,11 @@ def probe_block(n: int, exact: bool | None = None, n_probes: int = N_PROBES, see
 
     Exact (``Z = I``, ``s = 1``) when ``exact`` is True, or when it is None and
     ``n <= EXACT_TRACE_MAX``; otherwise ``n_probes`` Rademacher columns, ``s = 1/m``
-    (Hutchinson: :math:`\mathbb E z^T H z = \mathrm{tr} H` for :math:`z_i = \pm 1`).
-    :math:`\Sigma = I` (independent noise) unless a correlated noise model is given
+    (Hutchinson: :math:`\\mathbb E z^T H z = \\mathrm{tr} H` for :math:`z_i = \\pm 1`).
+    :math:`\\Sigma = I` (independent noise) unless a correlated noise model is given
     (``colour``) or active (:func:`noise_colouring`): then the probes are
-    :math:`\Sigma^{1/2} Z` (:meth:`~meshdenoise.tuning.covariance.NoiseModel.colour`), and
-    :math:`\mathbb E\, z^T H z = \mathrm{tr}(\Sigma^{1/2} H \Sigma^{1/2}) = \mathrm{tr}(H\Sigma)`.
+    :math:`\\Sigma^{1/2} Z` (:meth:`~meshdenoise.tuning.covariance.NoiseModel.colour`), and
+    :math:`\\mathbb E\\, z^T H z = \\mathrm{tr}(\\Sigma^{1/2} H \\Sigma^{1/2}) = \\mathrm{tr}(H\\Sigma)`.
 
     Examples
     --------
