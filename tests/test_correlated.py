@@ -189,3 +189,19 @@ def test_bad_noise_models_are_refused():
         colour_probes(np.ones((10, 2)), 0.5, NoiseModel(0.1, 2.0, V, F))
     with pytest.raises(ValueError, match="refine"):
         estimate_noise_model((V, F), refine=0)
+
+
+@pytest.mark.parametrize("method", ["two_stage", "sobolev_normal", "sobolev_gls"])
+def test_monte_carlo_sure_rules_draw_coloured_probes(method, monkeypatch):
+    """The nonlinear rules' own probes (b = z N) go through the model's colouring when it is correlated."""
+    calls = []
+    original = NoiseModel.colour
+
+    def spy(self, Z, s):
+        calls.append(Z.shape)
+        return original(self, Z, s)
+
+    monkeypatch.setattr(NoiseModel, "colour", spy)
+    mesh = (SPHERE2_NOISY, SPHERE2[1])
+    choose_parameters(mesh, method, noise=0.03, correlation_length=1.5, exact_trace=False)
+    assert calls

@@ -341,6 +341,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
         smooth = sure_smoothed(ctx.V, ctx.ops, ctx.rho).X
         N = vertex_normals(smooth, ctx.F)
         z = np.random.default_rng(0).choice([-1.0, 1.0], size=n)
+        z = ctx.colour(z[:, None], 1.0)[:, 0]  # correlated noise: z = Sigma^{1/2} xi (unchanged when independent)
         b = z[:, None] * N
         delta = MC_SURE_STEP * ctx.rho
         Xp = ctx.V + delta * b
