@@ -22,9 +22,14 @@ robustly by their median square :math:`o_s`; the same statistic of probes of the
 :math:`\\hat\\rho_s(\\ell) = \\sqrt{o_s / p_s(\\ell)}` is the same for every band at the true
 :math:`\\ell`; :math:`\\hat\\ell` minimises the spread (variance of
 :math:`\\log \\hat\\rho_s(\\ell)` over the bands), and :math:`\\hat\\rho` is the geometric mean of
-:math:`\\hat\\rho_s(\\hat\\ell)`. Below :data:`ELL_MIN` the noise is taken as independent:
-:math:`\\hat\\ell = 0` and :math:`\\hat\\rho` is :func:`~meshdenoise.tuning.noise_level.estimate_noise`'s,
-unchanged. Why these bands and numbers: docs/automatic-parameters.md.
+:math:`\\hat\\rho_s(\\hat\\ell)`. The noise is taken as independent (:math:`\\hat\\ell = 0`, and
+:math:`\\hat\\rho` is :func:`~meshdenoise.tuning.noise_level.estimate_noise`'s, unchanged) unless the
+fit is significant: :data:`ELL_MIN` :math:`\\le \\hat\\ell \\le` :data:`ELL_MAX`, the spread falls from
+its white-noise value by at least :data:`SPREAD_GAIN` and by a factor :data:`SPREAD_RATIO`, and the
+mesh holds at least :data:`MIN_PATCHES` correlation areas :math:`\\pi \\hat\\ell^2`. The surface's
+own detail in the coarser bands reads as a little correlation (0.5 to 1.1 edge lengths on
+the benchmark's CAD meshes with independent noise), which these thresholds reject. Why
+these bands and numbers: docs/automatic-parameters.md.
 
 **Risk.** For a linear smoother :math:`H` (on the three coordinate columns),
 :math:`\\mathbb E \\|HX - X^0\\|^2 = \\mathbb E \\|HX - X\\|^2 - \\rho^2 n + 2\\rho^2\\, \\mathrm{tr}(H \\Sigma_\\ell)`
@@ -51,11 +56,12 @@ from ..noise import HeatFilter, diffusion_length, heat_geometry
 from ..operators import Operators, get_operators, spmm
 from .noise_level import estimate_noise_and_smooth
 
-__all__ = ["NoiseModel", "estimate_noise_model", "band_residuals", "BANDS", "ELL_MIN", "ELL_GRID", "FIT_PROBES"]
+__all__ = ["NoiseModel", "estimate_noise_model", "band_residuals", "BANDS", "ELL_MIN", "ELL_MAX", "ELL_GRID", "FIT_PROBES"]
 
 BANDS = (0, 1, 2, 4)  # s of the band-pass operators (I - P)^2 P^s
-ELL_GRID = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0, 8.0)  # correlation lengths the fit evaluates
+ELL_GRID = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0)  # correlation lengths the fit evaluates
 ELL_MIN = 0.75  # fitted correlation lengths below this (mean edge lengths) are read as independent noise
+ELL_MAX = 5.0  # ... and above this: so smooth a "noise" is not told from the shape (pymeshlab's raw bunny reads 6.8)
 SPREAD_GAIN = 0.0015  # ... and so are fits that lower the spread (variance of log rho_s) by less than this
 SPREAD_RATIO = 2.0  # ... or by less than this factor
 MIN_PATCHES = 100  # ... or that leave fewer than this many correlation areas pi ell^2 on the mesh
@@ -237,7 +243,7 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
     curves = np.array([np.interp(ell, grid, logr[:, b]) for b in range(len(BANDS))])
     spread0, spread_fit = float(np.var(logr[0])), float(np.var(curves))
     info.update(grid=grid, log_rho=logr, ell_fit=ell, observed=observed, spread_white=spread0, spread_fit=spread_fit)
-    significant = (ell >= ELL_MIN and spread0 - spread_fit >= SPREAD_GAIN and spread0 >= SPREAD_RATIO * spread_fit
+    significant = (ELL_MIN <= ell <= ELL_MAX and spread0 - spread_fit >= SPREAD_GAIN and spread0 >= SPREAD_RATIO * spread_fit
                    and int(ok.sum()) >= MIN_PATCHES * math.pi * ell**2)
     if significant:
         model = NoiseModel(float(np.exp(curves.mean())), ell, smooth, F)
