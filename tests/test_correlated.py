@@ -205,3 +205,14 @@ def test_monte_carlo_sure_rules_draw_coloured_probes(method, monkeypatch):
     mesh = (SPHERE2_NOISY, SPHERE2[1])
     choose_parameters(mesh, method, noise=0.03, correlation_length=1.5, exact_trace=False)
     assert calls
+
+
+def test_details_say_why():
+    V, F = TORUS
+    h = mean_edge_length(V, F)
+    Vn, _ = add_scanner_noise((V, F), 0.3 * h, correlation_length=2, seed=0)
+    model, info = estimate_noise_model((Vn, F), details=True)
+    assert info["reason"].startswith("correlated") and info["ell_fit"] == model.correlation_length
+    assert info["rho_white"] == estimate_noise((Vn, F))
+    model, info = estimate_noise_model(grid(20, 20), details=True)  # a plane: no noise at all
+    assert model.rho == 0 and info["reason"].startswith("independent")

@@ -188,8 +188,10 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
     seed : int
         Seed of the model's probes (the same seed, the same estimate).
     details : bool
-        Also return a dict: the grid, :math:`\\log\\hat\\rho_s(\\ell)` on it, the white-noise
-        estimate and the fitted length before the :data:`ELL_MIN` cut.
+        Also return a dict: ``rho_white`` (:func:`estimate_noise`), ``ell_fit`` (before the
+        significance test), ``grid`` and ``log_rho`` (:math:`\\log\\hat\\rho_s(\\ell)` on it),
+        ``spread_white``, ``spread_fit``, and ``reason``: one line saying why the noise was read
+        as correlated or independent.
 
     Returns
     -------
@@ -215,6 +217,7 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
     info: dict[str, Any] = {"rho_white": rho0}
     if rho0 == 0:
         model = NoiseModel(0.0)
+        info["reason"] = "independent: no noise found (estimate_noise reads 0)"
         return (model, info) if details else model
     ops = get_operators(F, V.shape[0])
     N = vertex_normals(smooth, F)
@@ -223,6 +226,7 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
     observed = np.array([np.median(_normal_component(R[s], N)[ok] ** 2) for s in BANDS])
     if not np.all(observed > 0):  # a band without residual (a plane, a tiny mesh): nothing to fit
         model = NoiseModel(rho0)
+        info["reason"] = "independent: a band-pass residual is zero"
         return (model, info) if details else model
     xi = np.random.default_rng(seed).standard_normal((V.shape[0], FIT_PROBES))
     geometry = heat_geometry(smooth, F)
@@ -247,6 +251,16 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
                    and int(ok.sum()) >= MIN_PATCHES * math.pi * ell**2)
     if significant:
         model = NoiseModel(float(np.exp(curves.mean())), ell, smooth, F)
+        info["reason"] = (f"correlated: the bands agree at {ell:.2f} edge lengths (spread of log rho "
+                          f"{spread0:.2g} for independent noise, {spread_fit:.2g} at the fit)")
     else:
         model = NoiseModel(rho0)
+        why = []
+        if not ELL_MIN <= ell <= ELL_MAX:
+            why.append(f"the fitted length {ell:.2f} is outside [{ELL_MIN:g}, {ELL_MAX:g}] edge lengths")
+        if spread0 - spread_fit < SPREAD_GAIN or spread0 < SPREAD_RATIO * spread_fit:
+            why.append(f"the fit hardly improves on independent noise (spread {spread0:.2g} -> {spread_fit:.2g})")
+        if int(ok.sum()) < MIN_PATCHES * math.pi * ell**2:
+            why.append(f"too few vertices for a correlation length of {ell:.2f}")
+        info["reason"] = "independent: " + "; ".join(why)
     return (model, info) if details else model
