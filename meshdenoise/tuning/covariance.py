@@ -196,8 +196,9 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
     Returns
     -------
     NoiseModel
-        ``correlation_length`` 0 (and ``rho`` exactly :func:`estimate_noise`'s) when the fit
-        reads less than :data:`ELL_MIN`.
+        ``correlation_length`` 0 (and ``rho`` exactly :func:`estimate_noise`'s) unless the fit
+        is significant (module docstring); a correlated model carries the smoothed mesh its
+        heat filter is built on.
 
     Examples
     --------
