@@ -216,3 +216,14 @@ def test_details_say_why():
     assert info["rho_white"] == estimate_noise((Vn, F))
     model, info = estimate_noise_model(grid(20, 20), details=True)  # a plane: no noise at all
     assert model.rho == estimate_noise(grid(20, 20)) < 1e-12 and info["reason"].startswith("independent")
+
+
+def test_a_noise_model_can_be_given_once_for_several_choices():
+    V, F = TORUS
+    h = mean_edge_length(V, F)
+    Vn, _ = add_scanner_noise((V, F), 0.3 * h, correlation_length=2, seed=3)
+    model = estimate_noise_model((Vn, F))
+    assert model.correlation_length > 0
+    assert choose_parameters((Vn, F), "sobolev", noise=model) == choose_parameters((Vn, F), "sobolev")
+    with pytest.raises(ValueError, match="holds its correlation length"):
+        choose_parameters((Vn, F), "sobolev", noise=model, correlation_length=1.0)

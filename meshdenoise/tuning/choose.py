@@ -43,7 +43,7 @@ def choose_parameters(
     mesh: Any,
     method: str = "sobolev",
     *,
-    noise: float | None = None,
+    noise: float | NoiseModel | None = None,
     correlation_length: float | None = None,
     criterion: str = "sure",
     exact_trace: bool | None = None,
@@ -67,9 +67,11 @@ def choose_parameters(
     mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
     method : str
         A registered filter with an automatic rule (:func:`auto_filters`).
-    noise : float, optional
-        The noise level rho if known; estimated otherwise, with its correlation length
-        (:func:`~meshdenoise.tuning.covariance.estimate_noise_model`).
+    noise : float or NoiseModel, optional
+        The noise level rho if known, or a :class:`~meshdenoise.tuning.covariance.NoiseModel`
+        (level and correlation length, e.g. from one
+        :func:`~meshdenoise.tuning.covariance.estimate_noise_model` call for several filters);
+        estimated otherwise, with its correlation length.
     correlation_length : float, optional
         The noise's correlation length in mean edge lengths, if known (with ``noise``:
         0 when not given, the independent noise of the paper; without it: estimated
@@ -128,7 +130,12 @@ def choose_parameters(
             raise ValueError(f"choose_parameters: parameter 'correlation_length' = {correlation_length!r} "
                              "is out of range: correlation_length >= 0")
     model = None
-    if noise is None:
+    if isinstance(noise, NoiseModel):  # an estimate made once (estimate_noise_model) for several choices
+        if correlation_length is not None:
+            raise ValueError("choose_parameters: noise= is a NoiseModel, which holds its correlation length; "
+                             "do not give correlation_length= too")
+        model, rho = noise, noise.rho
+    elif noise is None:
         if criterion != "gcv":
             model = estimate_noise_model((V, F))
             if correlation_length is not None:
