@@ -17,7 +17,7 @@ from .operators import get_operators
 
 __all__ = [
     "add_normal_noise", "add_scanner_noise", "autocorrelation", "correlation_length", "diffusion_length",
-    "heat_filtered_noise", "mean_edge_length",
+    "heat_filtered_noise", "mean_edge_length", "HeatFilter",
 ]
 
 
@@ -146,22 +146,57 @@ def heat_filtered_noise(
     w = rng.standard_normal((n, columns))
     if length == 0.0:
         return w
-    from .solvers import CGSolver
+    return HeatFilter(V, F, length)(w)
 
+
+def heat_geometry(V: np.ndarray, F: np.ndarray) -> tuple[float, np.ndarray, sp.csr_matrix]:
+    """What every :class:`HeatFilter` of one mesh shares: mean edge length, lumped mass (floored), cotangent Laplacian."""
     h = mean_edge_length(V, F)
     mass = lumped_mass(V, F)
     positive = mass > 0
     floor = 1e-9 * (mass[positive].mean() if positive.any() else 1.0)
     mass = np.maximum(mass, floor)  # vertices on no face of positive area: kept apart, not singular
-    w *= np.sqrt(mass.mean() / mass)[:, None]
-    tau = (length * h) ** 2 / 8.0
-    # M + (tau / k) L is well conditioned (tau / k is about (l h)^2 / 64): Jacobi-preconditioned CG takes
-    # tens of iterations, where a Cholesky factorisation of an unordered 655k-vertex mesh took 90 s
-    solver = CGSolver(sp.csr_matrix(sp.diags(mass) + (tau / HEAT_STEPS) * cotangent_laplacian(V, F)))
-    u = w
-    for _ in range(HEAT_STEPS):
-        u = solver.solve(mass[:, None] * u, tol=1e-8, x0=u)
-    return u
+    return h, mass, cotangent_laplacian(V, F)
+
+
+class HeatFilter:
+    """The linear map of :func:`heat_filtered_noise`: white noise in, heat-filtered noise out.
+
+    :math:`C = K\\, \\mathrm{diag}(\\sqrt{\\bar m / m})` with :math:`K = (M + \\tfrac{\\tau}{k} L)^{-k} M^k`
+    (:data:`HEAT_STEPS` implicit steps, :math:`\\tau = (\\ell h)^2 / 8`), so that
+    ``heat_filtered_noise(V, F, length, rng)`` is ``HeatFilter(V, F, length)(rng.standard_normal((n, 1)))``.
+    Its covariance :math:`C C^T` is the noise model's (before rescaling); applied to probes
+    it colours them (:class:`meshdenoise.tuning.covariance.NoiseModel`).
+
+    Parameters
+    ----------
+    V : ndarray, shape (n, 3)
+    F : ndarray, shape (m, 3)
+    length : float, > 0
+        The diffusion length in mean edge lengths (:func:`diffusion_length` of a correlation length).
+    geometry : tuple, optional
+        :func:`heat_geometry` of ``(V, F)``, when several filters of one mesh are built.
+    """
+
+    def __init__(self, V: np.ndarray, F: np.ndarray, length: float,
+                 geometry: tuple[float, np.ndarray, sp.csr_matrix] | None = None):
+        from .solvers import CGSolver
+
+        h, mass, L = heat_geometry(V, F) if geometry is None else geometry
+        self.length = float(length)
+        self.mass = mass
+        self.scale = np.sqrt(mass.mean() / mass)
+        tau = (length * h) ** 2 / 8.0
+        # M + (tau / k) L is well conditioned (tau / k is about (l h)^2 / 64): Jacobi-preconditioned CG takes
+        # tens of iterations, where a Cholesky factorisation of an unordered 655k-vertex mesh took 90 s
+        self.solver = CGSolver(sp.csr_matrix(sp.diags(mass) + (tau / HEAT_STEPS) * L))
+
+    def __call__(self, Z: np.ndarray, tol: float = 1e-8) -> np.ndarray:
+        """:math:`C Z` for ``Z`` (n, k) (``Z`` is not changed)."""
+        u = Z * self.scale[:, None]
+        for _ in range(HEAT_STEPS):
+            u = self.solver.solve(self.mass[:, None] * u, tol=tol, x0=u)
+        return u
 
 
 def add_scanner_noise(

@@ -203,6 +203,7 @@ def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
         else:
             z = np.random.default_rng(0).choice([-1.0, 1.0], size=(n, 3, SOBOLEV_GLS_PROBES))
             s = 1.0 / SOBOLEV_GLS_PROBES
+        z = ctx.colour(z.reshape(n, -1), s / 3.0).reshape(z.shape)  # correlated noise: each coordinate Sigma^{1/2} xi
         zn = np.sum(Nn[:, :, None] * z, axis=1, keepdims=True) * Nn[:, :, None]
         B = math.sqrt(1.0 - tau) * zn + math.sqrt(tau / 2.0) * (z - zn)  # probes b = Sigma^{1/2} z / rho
         noise_sq = ctx.rho**2 * float(np.sum(B * B)) * s

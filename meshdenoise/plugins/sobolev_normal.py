@@ -105,7 +105,7 @@ def choose_sobolev_normal(ctx: TuningContext) -> tuple[dict, Point]:
     use_gcv = ctx.reference is None and t == 0.0  # normal-only update: n coordinates; rho not needed
     K = SOBOLEV_NORMAL_PROBES
     Nh = vertex_normals(smooth, ctx.F)
-    z = np.random.default_rng(0).choice([-1.0, 1.0], size=(n, K))
+    z = ctx.colour(np.random.default_rng(0).choice([-1.0, 1.0], size=(n, K)), 1.0 / K)  # Sigma^{1/2} xi if correlated
     Bp = np.hstack([z[:, [k]] * Nh for k in range(K)])  # (n, 3K): probe k in columns 3k..3k+2
     delta = MC_SURE_STEP * ctx.rho
     rhs = np.hstack([ctx.V, Bp])

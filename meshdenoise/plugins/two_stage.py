@@ -518,7 +518,17 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     ops = get_operators(F, region.vertices.size)
     Y = np.ascontiguousarray(ctx.V[region.vertices], dtype=np.float64)
     pilot = spec.core(Y, F, ops=ops, pinned=None, **{**full, "iterations": TWO_STAGE_PILOT_ITERATIONS, "keep_tangential": True})
-    synthetic = pilot + synthetic_noise(vertex_normals(pilot, F), ctx.rho)
+    Np = vertex_normals(pilot, F)
+
+    def region_field(draw) -> np.ndarray:
+        """A noise field on the region: correlated noise is drawn on the whole mesh, coloured, then restricted."""
+        return ctx.colour(draw(ctx.n)[:, None], 1.0)[region.vertices, 0]
+
+    if ctx.correlation_length:
+        eps = region_field(lambda m: np.random.default_rng(0).standard_normal(m))
+        synthetic = pilot + ctx.rho * eps[:, None] * Np
+    else:
+        synthetic = pilot + synthetic_noise(Np, ctx.rho)
 
     def path(params: dict) -> Point:
         def scored():
@@ -531,9 +541,12 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     chosen, best = _staged_search(path, _search_grid(ctx.given))
     chosen["iterations"] = int(best.value)
 
-    # the guard: Monte-Carlo SURE on positions along the chosen run
-    Np = vertex_normals(pilot, F)
-    probes = [sure_probe(Np, seed) for seed in range(TWO_STAGE_GUARD_PROBES)]
+    # the guard: Monte-Carlo SURE on positions along the chosen run (probes coloured like the noise)
+    if ctx.correlation_length:
+        probes = [region_field(lambda m, seed=seed: np.random.default_rng(seed).choice([-1.0, 1.0], size=m))[:, None] * Np
+                  for seed in range(TWO_STAGE_GUARD_PROBES)]
+    else:
+        probes = [sure_probe(Np, seed) for seed in range(TWO_STAGE_GUARD_PROBES)]
     delta = MC_SURE_STEP * ctx.rho
     inner = region.inner
 

@@ -6,6 +6,7 @@ and is registered with it, ``register(..., auto=AutoRule(...))``):
 - :mod:`~meshdenoise.tuning.risk`: SURE, GCV, trace probes, the :class:`Point` and :class:`Criterion` of a search;
 - :mod:`~meshdenoise.tuning.search`: the searches (along an iterative run, over a log weight) and shifted solves;
 - :mod:`~meshdenoise.tuning.noise_level`: :func:`estimate_noise` and the normals' spread;
+- :mod:`~meshdenoise.tuning.covariance`: :func:`estimate_noise_model` (level and correlation length) and :class:`NoiseModel`;
 - :mod:`~meshdenoise.tuning.context`: the :class:`TuningContext` a rule is given;
 - :mod:`~meshdenoise.tuning.choose`: :func:`choose_parameters` (``meshdenoise.denoise``, which also chooses
   the filter, is the policy above this floor: :mod:`meshdenoise.default`);
@@ -14,6 +15,7 @@ and is registered with it, ``register(..., auto=AutoRule(...))``):
 
 from .choose import auto_filters, choose_parameters
 from .context import TuningContext
+from .covariance import NoiseModel, estimate_noise_model
 from .noise_level import estimate_noise
 from .risk import EXACT_TRACE_MAX, Criterion, Point, gcv, probe_block, sure
 
@@ -21,6 +23,8 @@ __all__ = [
     "choose_parameters",
     "auto_filters",
     "estimate_noise",
+    "estimate_noise_model",
+    "NoiseModel",
     "TuningContext",
     "Criterion",
     "Point",

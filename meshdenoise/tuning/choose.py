@@ -1,8 +1,8 @@
 """Choosing a filter's parameters from the noisy mesh alone (``meshdenoise.denoise`` uses it: :mod:`meshdenoise.default`).
 
 :func:`choose_parameters` finds the filter in the registry, builds a
-:class:`~meshdenoise.tuning.context.TuningContext` (noise level from
-:func:`~meshdenoise.tuning.noise_level.estimate_noise` unless given) and calls the rule the
+:class:`~meshdenoise.tuning.context.TuningContext` (noise level and correlation length from
+:func:`~meshdenoise.tuning.covariance.estimate_noise_model` unless given) and calls the rule the
 filter registered (``register(..., auto=AutoRule(...))``); nothing here knows a filter.
 """
 
@@ -19,8 +19,9 @@ from ..operators import get_operators
 from ..progress import stage
 from ..registry import get_filter, list_filters
 from .context import TuningContext
-from .noise_level import estimate_noise
-from .risk import Criterion
+from .covariance import NoiseModel, estimate_noise_model
+from .risk import Criterion, noise_colouring
+from .search import sure_smoothed
 
 __all__ = ["choose_parameters", "auto_filters"]
 
@@ -42,7 +43,8 @@ def choose_parameters(
     mesh: Any,
     method: str = "sobolev",
     *,
-    noise: float | None = None,
+    noise: float | NoiseModel | None = None,
+    correlation_length: float | None = None,
     criterion: str = "sure",
     exact_trace: bool | None = None,
     reference: Any = None,
@@ -65,8 +67,15 @@ def choose_parameters(
     mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
     method : str
         A registered filter with an automatic rule (:func:`auto_filters`).
-    noise : float, optional
-        The noise level rho if known; estimated otherwise.
+    noise : float or NoiseModel, optional
+        The noise level rho if known, or a :class:`~meshdenoise.tuning.covariance.NoiseModel`
+        (level and correlation length, e.g. from one
+        :func:`~meshdenoise.tuning.covariance.estimate_noise_model` call for several filters);
+        estimated otherwise, with its correlation length.
+    correlation_length : float, optional
+        The noise's correlation length in mean edge lengths, if known (with ``noise``:
+        0 when not given, the independent noise of the paper; without it: estimated
+        when not given). SURE then counts the noise that passes the smoother, :math:`\\mathrm{tr}(H\\Sigma)`.
     criterion : {"sure", "gcv", "oracle"}
         ``"oracle"`` needs ``reference`` (the clean mesh) and minimises the true error
         over the same search space: the best parameters in hindsight, for benchmarks.
@@ -113,14 +122,32 @@ def choose_parameters(
     data = read_mesh(mesh)
     V, F = data.V, data.F
     ops = get_operators(F, V.shape[0])
-    if noise is None:
-        rho = estimate_noise((V, F)) if criterion != "gcv" else None
+    if correlation_length is not None:
+        if isinstance(correlation_length, (bool, np.bool_)) or not isinstance(
+                correlation_length, (int, float, np.integer, np.floating)):
+            raise TypeError(f"choose_parameters: correlation_length must be a number, got {correlation_length!r}")
+        if not (math.isfinite(correlation_length) and correlation_length >= 0):
+            raise ValueError(f"choose_parameters: parameter 'correlation_length' = {correlation_length!r} "
+                             "is out of range: correlation_length >= 0")
+    model = None
+    if isinstance(noise, NoiseModel):  # an estimate made once (estimate_noise_model) for several choices
+        if correlation_length is not None:
+            raise ValueError("choose_parameters: noise= is a NoiseModel, which holds its correlation length; "
+                             "do not give correlation_length= too")
+        model, rho = noise, noise.rho
+    elif noise is None:
+        if criterion != "gcv":
+            model = estimate_noise_model((V, F))
+            if correlation_length is not None:
+                model = _with_length(model.rho, float(correlation_length), V, ops)
+        rho = model.rho if model is not None else None
     else:
         if isinstance(noise, (bool, np.bool_)) or not isinstance(noise, (int, float, np.integer, np.floating)):
             raise TypeError(f"choose_parameters: noise must be a number, got {noise!r}")
         if not (math.isfinite(noise) and noise >= 0):
             raise ValueError(f"choose_parameters: parameter 'noise' = {noise!r} is out of range: noise >= 0")
         rho = float(noise)
+        model = _with_length(rho, float(correlation_length or 0.0), V, ops)
     Y = None
     if criterion == "oracle":
         from ..metrics import coordinates
@@ -128,9 +155,18 @@ def choose_parameters(
         Y = coordinates(reference)
         if Y.shape != V.shape:
             raise ValueError(f"choose_parameters: reference has {Y.shape[0]} vertices, the mesh {V.shape[0]}")
-    ctx = TuningContext(V, F, ops, rho, Criterion(criterion, Y), exact_trace, dict(given))
-    with stage(f"choosing {method}'s parameters"):
+    ctx = TuningContext(V, F, ops, rho, Criterion(criterion, Y), exact_trace, dict(given), model)
+    with stage(f"choosing {method}'s parameters"), noise_colouring(model):
         chosen, point = spec.auto.choose(ctx)
     params = {**chosen, **given}
-    log.info("choose_parameters(%s): %s (rho=%s, %s score %.6g)", method, params, rho, criterion, point.score)
+    log.info("choose_parameters(%s): %s (rho=%s, correlation length %s, %s score %.6g)", method, params, rho,
+             ctx.correlation_length, criterion, point.score)
     return (params, float(point.score)) if return_risk else params
+
+
+def _with_length(rho: float, ell: float, V: np.ndarray, ops: Any) -> NoiseModel:
+    """A noise model of a given level and correlation length; a correlated one's heat filter is built on
+    the mesh smoothed by SURE-chosen averaging (as :func:`estimate_noise_model` does)."""
+    if ell == 0 or rho == 0:
+        return NoiseModel(rho)
+    return NoiseModel(rho, ell, sure_smoothed(V, ops, rho).X, ops.F)

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 
 from ..operators import Operators
-from .risk import Criterion, Point, as_criterion
+from .risk import Criterion, Point, as_criterion, colour_probes
 from .search import mu_guess, sure_smoothed
 
 __all__ = ["TuningContext"]
@@ -33,6 +33,10 @@ class TuningContext:
         Exact traces (identity probes), Hutchinson ones, or by size (``None``).
     given : dict
         The filter's parameters the caller holds fixed.
+    noise : NoiseModel or None
+        The noise covariance (:class:`~meshdenoise.tuning.covariance.NoiseModel`): its
+        ``rho`` is ``rho``; a correlated one colours the trace probes while the rule runs
+        (:func:`~meshdenoise.tuning.risk.noise_colouring`). ``None``: independent noise.
     """
 
     V: np.ndarray
@@ -42,6 +46,7 @@ class TuningContext:
     criterion: Criterion
     exact: bool | None
     given: dict[str, Any] = field(default_factory=dict)
+    noise: Any = None
 
     def __post_init__(self) -> None:
         self.criterion = as_criterion(self.criterion)
@@ -58,6 +63,19 @@ class TuningContext:
     @property
     def oracle(self) -> bool:
         return self.criterion.oracle
+
+    @property
+    def correlation_length(self) -> float:
+        """The noise's correlation length in mean edge lengths (0: independent)."""
+        return float(self.noise.correlation_length) if self.noise is not None else 0.0
+
+    def colour(self, Z: np.ndarray, s: float) -> np.ndarray:
+        """Probes ``Z`` (n, m) of scale ``s`` coloured by the noise model (``Z`` itself for independent noise).
+
+        For a rule's own Monte-Carlo SURE probes: with ``b = colour(z) * N`` the divergence
+        term estimates :math:`\\mathrm{tr}(\\Sigma J_f)` of the correlated noise.
+        """
+        return colour_probes(Z, s, self.noise)
 
     def score(self, p: Point) -> float:
         """``p``'s score under this context's criterion."""

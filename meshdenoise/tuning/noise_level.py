@@ -15,9 +15,10 @@ import scipy.sparse as sp
 from ..adapters import read_mesh
 from ..geometry import vertex_normals
 from ..operators import Operators, get_operators
+from .risk import colour_probes
 from .search import sure_smoothed
 
-__all__ = ["estimate_noise", "fourth_difference", "mean_edge_length", "normal_trust", "normal_spread", "WINSOR_K", "MAD"]
+__all__ = ["estimate_noise", "estimate_noise_and_smooth", "fourth_difference", "mean_edge_length", "normal_trust", "normal_spread", "WINSOR_K", "MAD"]
 
 MAD = 0.6744897501960817  # median |N(0, 1)|
 
@@ -168,13 +169,19 @@ def estimate_noise(mesh: Any, *, refine: int = 2) -> float:
     if isinstance(refine, (bool, np.bool_)) or not isinstance(refine, (int, np.integer)) or refine < 1:
         raise ValueError(f"estimate_noise: parameter 'refine' must be an int >= 1, got {refine!r}")
     data = read_mesh(mesh)
-    V, F = data.V, data.F
+    return estimate_noise_and_smooth(data.V, data.F, refine)[0]
+
+
+def estimate_noise_and_smooth(V: np.ndarray, F: np.ndarray, refine: int = 2) -> tuple[float, np.ndarray]:
+    """:func:`estimate_noise` on arrays, and the smoothed coordinates (n, 3) its last normals came from
+    (``V`` itself when the estimate is 0)."""
     ops = get_operators(F, V.shape[0])
     rho_e = _residual_energy_scale(V, ops)
     rho = rho_e
+    smooth = V
     for _ in range(int(refine)):
         if rho == 0:
-            return 0.0
+            return 0.0, V
         smooth = sure_smoothed(V, ops, rho).X
         rho_n, rho_w, excess = _normal_residual_scale(V, ops, vertex_normals(smooth, F))
         h = mean_edge_length(smooth, ops)
@@ -182,7 +189,7 @@ def estimate_noise(mesh: Any, *, refine: int = 2) -> float:
             rho_n = rho_w  # heavy-tailed noise: its second moment, not its Gaussian core
         w = normal_trust(rho_e, h)
         rho = float(np.exp((1 - w) * np.log(max(rho_n, 1e-300)) + w * np.log(rho_e)))
-    return rho
+    return rho, smooth
 
 
 def normal_trust(rho: float, h: float) -> float:
@@ -208,7 +215,8 @@ def normal_spread(
     ``Xs`` (n, 3) is a smoothed estimate of the clean mesh and ``smooth`` the linear
     smoother that made it (``smooth(Y)`` for ``Y`` (n, k), columns independent). ``Xs``
     stands in for the clean mesh: noise of the model is drawn on it,
-    :math:`X^{(k)} = X_s + \\rho\\, \\varepsilon^{(k)} \\odot N(X_s)`, :math:`\\varepsilon^{(k)}_i \\sim N(0, 1)`,
+    :math:`X^{(k)} = X_s + \\rho\\, \\varepsilon^{(k)} \\odot N(X_s)`, :math:`\\varepsilon^{(k)}_i \\sim N(0, 1)`
+    (coloured by the active correlated noise model, :func:`~meshdenoise.tuning.risk.noise_colouring`),
     smoothed again, and the spread is the mean squared sine of the angle between the
     normals of the result and those of ``Xs``:
 
@@ -231,7 +239,7 @@ def normal_spread(
     ok = np.linalg.norm(N, axis=1) > 0
     if not ok.any():
         return 1.0
-    eps = np.random.default_rng(seed).standard_normal((Xs.shape[0], samples))
+    eps = colour_probes(np.random.default_rng(seed).standard_normal((Xs.shape[0], samples)), 1.0 / samples)
     rhs = np.hstack([Xs] + [rho * eps[:, [k]] * N for k in range(samples)])
     out = smooth(rhs)
     total = 0.0

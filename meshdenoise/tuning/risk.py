@@ -46,11 +46,15 @@ D. L. Donoho, I. M. Johnstone, "Ideal spatial adaptation by wavelet shrinkage", 
 from __future__ import annotations
 
 import math
+from contextlib import contextmanager
+from contextvars import ContextVar
 from dataclasses import dataclass, field
+from typing import Any, Iterator
 
 import numpy as np
 
-__all__ = ["sure", "gcv", "probe_block", "Point", "Criterion", "EXACT_TRACE_MAX", "N_PROBES", "MC_SURE_STEP"]
+__all__ = ["sure", "gcv", "probe_block", "noise_colouring", "active_colouring", "colour_probes", "Point", "Criterion",
+           "EXACT_TRACE_MAX", "N_PROBES", "MC_SURE_STEP"]
 
 EXACT_TRACE_MAX = 800  # up to this many vertices the trace is exact (identity probes)
 N_PROBES = 24  # Rademacher probes otherwise: trace error ~ sqrt(2 ||H||_F^2 / 24), negligible next to n rho^2
@@ -144,12 +148,54 @@ def gcv(residual_sq: float, trace: float, n: int) -> float:
     return float("inf") if denom <= 0 else float(n * residual_sq / denom)
 
 
-def probe_block(n: int, exact: bool | None = None, n_probes: int = N_PROBES, seed: int = 0) -> tuple[np.ndarray, float]:
-    """Trace probes ``Z`` (n, m) and the scale ``s`` such that ``tr(H) ~ s * sum(Z * (H Z))``.
+_COLOURING: ContextVar[Any] = ContextVar("meshdenoise_noise_colouring", default=None)
+
+
+@contextmanager
+def noise_colouring(model: Any) -> Iterator[None]:
+    """Within this block, :func:`probe_block` colours its probes by ``model`` (a
+    :class:`~meshdenoise.tuning.covariance.NoiseModel`, or ``None`` / an independent model: no colouring).
+
+    :func:`~meshdenoise.tuning.choose.choose_parameters` runs a filter's rule inside it, so
+    that every rule built on the shared probes (the iterative paths, the shifted solves,
+    their traces) scores SURE with :math:`\\mathrm{tr}(H\\Sigma)` without code of its own.
+    """
+    token = _COLOURING.set(model if model is not None and getattr(model, "correlated", False) else None)
+    try:
+        yield
+    finally:
+        _COLOURING.reset(token)
+
+
+def active_colouring() -> Any:
+    """The correlated noise model :func:`noise_colouring` made active, or ``None``."""
+    return _COLOURING.get()
+
+
+def colour_probes(Z: np.ndarray, s: float, model: Any = None) -> np.ndarray:
+    """``Z`` (n, m) coloured by ``model`` (default: the active one); ``Z`` itself when there is none.
+
+    For Monte-Carlo SURE probes drawn by a rule itself (``b = z N``: colour ``z``).
+    """
+    model = model if model is not None else _COLOURING.get()
+    if model is None or not getattr(model, "correlated", False):
+        return Z
+    if model.V is not None and model.V.shape[0] != Z.shape[0]:
+        raise ValueError(f"colour_probes: the noise model has {model.V.shape[0]} vertices, the probes {Z.shape[0]} rows")
+    return model.colour(Z, s)
+
+
+def probe_block(n: int, exact: bool | None = None, n_probes: int = N_PROBES, seed: int = 0,
+                colour: Any = None) -> tuple[np.ndarray, float]:
+    """Trace probes ``Z`` (n, m) and the scale ``s`` such that ``tr(H Sigma) ~ s * sum(Z * (H Z))``.
 
     Exact (``Z = I``, ``s = 1``) when ``exact`` is True, or when it is None and
     ``n <= EXACT_TRACE_MAX``; otherwise ``n_probes`` Rademacher columns, ``s = 1/m``
     (Hutchinson: :math:`\\mathbb E z^T H z = \\mathrm{tr} H` for :math:`z_i = \\pm 1`).
+    :math:`\\Sigma = I` (independent noise) unless a correlated noise model is given
+    (``colour``) or active (:func:`noise_colouring`): then the probes are
+    :math:`\\Sigma^{1/2} Z` (:meth:`~meshdenoise.tuning.covariance.NoiseModel.colour`), and
+    :math:`\\mathbb E\\, z^T H z = \\mathrm{tr}(\\Sigma^{1/2} H \\Sigma^{1/2}) = \\mathrm{tr}(H\\Sigma)`.
 
     Examples
     --------
@@ -162,6 +208,8 @@ def probe_block(n: int, exact: bool | None = None, n_probes: int = N_PROBES, see
     if exact is None:
         exact = n <= EXACT_TRACE_MAX
     if exact:
-        return np.eye(n), 1.0
-    rng = np.random.default_rng(seed)
-    return rng.choice([-1.0, 1.0], size=(n, n_probes)), 1.0 / n_probes
+        Z, s = np.eye(n), 1.0
+    else:
+        rng = np.random.default_rng(seed)
+        Z, s = rng.choice([-1.0, 1.0], size=(n, n_probes)), 1.0 / n_probes
+    return colour_probes(Z, s, colour), s

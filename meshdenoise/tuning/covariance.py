@@ -1,0 +1,267 @@
+"""The noise covariance of a mesh, estimated from the noisy mesh alone: a level and a correlation length.
+
+Generic machinery: nothing here knows a filter.
+
+**Model** (:func:`meshdenoise.noise.add_scanner_noise` without outliers or depth): vertex *i*
+moves along its unit normal :math:`N_i` by :math:`\\rho z_i`, with :math:`z = c\\, C_\\ell \\xi`,
+:math:`\\xi` white, :math:`C_\\ell` the mesh heat filter of correlation length :math:`\\ell`
+mean edge lengths (:class:`meshdenoise.noise.HeatFilter` over
+:func:`meshdenoise.noise.diffusion_length` of :math:`\\ell`) and :math:`c` such that
+:math:`\\mathrm{tr}\\, \\Sigma_\\ell = n`, :math:`\\Sigma_\\ell = c^2 C_\\ell C_\\ell^T`.
+:math:`\\ell = 0` is the paper's independent noise (:math:`\\Sigma = I`).
+
+**Estimate** (:func:`estimate_noise_model`). Band-pass operators
+:math:`B_s = (I - P)^2 P^s`, :math:`P = D^{-1} W`, :math:`s \\in` :data:`BANDS`, see the
+surface little (a fourth difference kills its smooth part) and the noise a lot, each a
+different share of it depending on :math:`\\ell`: the finest band sees almost nothing of a
+smooth (long-correlated) noise, the coarser ones more. The normal components
+:math:`r_{s,i} = \\langle (B_s X)_i, N_i\\rangle` (normals of a smoothed mesh) are read
+robustly by their median square :math:`o_s`; the same statistic of probes of the model,
+:math:`b = (C_\\ell \\xi) \\odot N` through the same operators, gives :math:`p_s(\\ell)`
+(per unit :math:`\\rho^2`). When the surface is negligible in these bands,
+:math:`\\hat\\rho_s(\\ell) = \\sqrt{o_s / p_s(\\ell)}` is the same for every band at the true
+:math:`\\ell`; :math:`\\hat\\ell` minimises the spread (variance of
+:math:`\\log \\hat\\rho_s(\\ell)` over the bands), and :math:`\\hat\\rho` is the geometric mean of
+:math:`\\hat\\rho_s(\\hat\\ell)`. The noise is taken as independent (:math:`\\hat\\ell = 0`, and
+:math:`\\hat\\rho` is :func:`~meshdenoise.tuning.noise_level.estimate_noise`'s, unchanged) unless the
+fit is significant: :data:`ELL_MIN` :math:`\\le \\hat\\ell \\le` :data:`ELL_MAX`, the spread falls from
+its white-noise value by at least :data:`SPREAD_GAIN` and by a factor :data:`SPREAD_RATIO`, and the
+mesh holds at least :data:`MIN_PATCHES` correlation areas :math:`\\pi \\hat\\ell^2`. The surface's
+own detail in the coarser bands reads as a little correlation (0.5 to 1.1 edge lengths on
+the benchmark's CAD meshes with independent noise), which these thresholds reject. Why
+these bands and numbers: docs/automatic-parameters.md.
+
+**Risk.** For a linear smoother :math:`H` (on the three coordinate columns),
+:math:`\\mathbb E \\|HX - X^0\\|^2 = \\mathbb E \\|HX - X\\|^2 - \\rho^2 n + 2\\rho^2\\, \\mathrm{tr}(H \\Sigma_\\ell)`
+(normals taken as locally parallel over a correlation length: :math:`\\langle N_i, N_j\\rangle \\approx 1`
+where :math:`\\Sigma_{ij} \\neq 0`). :math:`\\mathrm{tr}(H\\Sigma)` is Hutchinson's estimate
+with coloured probes :math:`z = \\Sigma^{1/2} \\xi` (:meth:`NoiseModel.colour`), which
+:func:`~meshdenoise.tuning.risk.probe_block` returns while a model is active
+(:func:`~meshdenoise.tuning.risk.noise_colouring`), so every rule using the shared probes
+gets it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..adapters import read_mesh
+from ..geometry import vertex_normals
+from ..noise import HeatFilter, diffusion_length, heat_geometry
+from ..operators import Operators, get_operators, spmm
+from .noise_level import estimate_noise_and_smooth
+
+__all__ = ["NoiseModel", "estimate_noise_model", "band_residuals", "BANDS", "ELL_MIN", "ELL_MAX", "ELL_GRID", "FIT_PROBES"]
+
+BANDS = (0, 1, 2, 4)  # s of the band-pass operators (I - P)^2 P^s
+ELL_GRID = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0)  # correlation lengths the fit evaluates
+ELL_MIN = 0.75  # fitted correlation lengths below this (mean edge lengths) are read as independent noise
+ELL_MAX = 5.0  # ... and above this: so smooth a "noise" is not told from the shape (pymeshlab's raw bunny reads 6.8)
+SPREAD_GAIN = 0.0015  # ... and so are fits that lower the spread (variance of log rho_s) by less than this
+SPREAD_RATIO = 2.0  # ... or by less than this factor
+MIN_PATCHES = 100  # ... or that leave fewer than this many correlation areas pi ell^2 on the mesh
+FIT_PROBES = 4  # probes per model of the fit: a median over n * 4 values
+
+
+@dataclass
+class NoiseModel:
+    """Noise of level ``rho`` along the normals, correlated over ``correlation_length`` mean edge lengths.
+
+    Attributes
+    ----------
+    rho : float
+        Standard deviation of the displacement along the normal (mesh units), root mean
+        square over the vertices.
+    correlation_length : float
+        :math:`\\ell` in mean edge lengths (:func:`meshdenoise.noise.correlation_length`'s
+        definition); 0 for independent noise.
+    V : ndarray, shape (n, 3), optional
+        The geometry the heat filter is built on (a smoothed mesh); needed when ``correlation_length > 0``.
+    F : ndarray, shape (m, 3), optional
+    """
+
+    rho: float
+    correlation_length: float = 0.0
+    V: np.ndarray | None = field(default=None, repr=False, compare=False)
+    F: np.ndarray | None = field(default=None, repr=False, compare=False)
+    _filter: Any = field(default=None, init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        for name in ("rho", "correlation_length"):
+            value = getattr(self, name)
+            if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+                raise TypeError(f"NoiseModel: {name} must be a number, got {value!r}")
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"NoiseModel: parameter {name!r} = {value!r} is out of range: {name} >= 0")
+        self.rho = float(self.rho)
+        self.correlation_length = float(self.correlation_length)
+        if self.correlated and (self.V is None or self.F is None):
+            raise ValueError("NoiseModel: a correlated model (correlation_length > 0) needs the mesh V, F "
+                             "its heat filter is built on")
+
+    @property
+    def correlated(self) -> bool:
+        return self.correlation_length > 0
+
+    def filter(self) -> HeatFilter:
+        """The heat filter :math:`C_\\ell` (built once)."""
+        if self._filter is None:
+            self._filter = HeatFilter(self.V, self.F, diffusion_length(self.correlation_length))
+        return self._filter
+
+    def colour(self, Z: np.ndarray, s: float) -> np.ndarray:
+        """Probes ``Z`` (n, m) coloured by :math:`\\Sigma^{1/2}`: ``Z`` itself (same object) when independent.
+
+        ``s`` is the probes' scale (``tr(A) ~ s * sum(Z * (A Z))``, :func:`~meshdenoise.tuning.risk.probe_block`).
+        The result :math:`Y = c\\, C_\\ell Z` has ``s * sum(Y * Y) = n`` (the model's
+        :math:`\\mathrm{tr}\\,\\Sigma = n`, taken by the probes themselves, so that
+        :math:`\\mathrm{tr}(H\\Sigma)` is exact for :math:`H = I` and its error is a ratio's).
+        With ``Z = I`` (exact traces) :math:`\\mathrm{tr}(Y^T H Y) = \\mathrm{tr}(H\\Sigma)` exactly.
+        """
+        if not self.correlated:
+            return Z
+        Y = self.filter()(np.asarray(Z, dtype=np.float64))
+        energy = s * float(np.sum(Y * Y))
+        n = Y.shape[0]
+        return Y * math.sqrt(n / energy) if energy > 0 else Y
+
+
+def band_residuals(ops: Operators, X: np.ndarray, bands: tuple[int, ...] = BANDS) -> dict[int, np.ndarray]:
+    """:math:`B_s X = (I - P)^2 P^s X` for every ``s`` in ``bands``, ``X`` (n, k) -> dict of (n, k)."""
+    out = {}
+    Y = np.array(X, dtype=np.float64)
+    done = 0
+    for s in sorted(bands):
+        while done < s:
+            Y = spmm(ops.P, Y)
+            done += 1
+        A = Y - spmm(ops.P, Y)
+        out[s] = A - spmm(ops.P, A)
+    return out
+
+
+def _normal_component(R: np.ndarray, N: np.ndarray) -> np.ndarray:
+    """Row-wise :math:`\\langle R_i, N_i\\rangle` of (n, 3k) blocks -> (n, k)."""
+    k = R.shape[1] // 3
+    return np.einsum("ikj,ij->ik", R.reshape(R.shape[0], k, 3), N)
+
+
+def _probe_medians(ops: Operators, N: np.ndarray, Z: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Median square of the normal component of :math:`B_s (z \\odot N)` over usable vertices and probes, per band."""
+    m = Z.shape[1]
+    B = (Z[:, :, None] * N[:, None, :]).reshape(Z.shape[0], 3 * m)
+    R = band_residuals(ops, B)
+    return np.array([np.median(_normal_component(R[s], N)[ok] ** 2) for s in BANDS])
+
+
+def _fit(logr: np.ndarray, grid: np.ndarray) -> tuple[float, int]:
+    """The correlation length minimising the spread of :math:`\\log\\hat\\rho_s` over the bands.
+
+    ``logr`` (g, b): :math:`\\log \\hat\\rho_s(\\ell_j)` on the grid. The spread is evaluated on
+    the grid, then on a fine grid between the best point's neighbours with
+    :math:`\\log \\hat\\rho_s` interpolated linearly in :math:`\\ell`.
+    """
+    spread = np.var(logr, axis=1)
+    j = int(np.argmin(spread))
+    lo, hi = max(j - 1, 0), min(j + 1, len(grid) - 1)
+    fine = np.linspace(grid[lo], grid[hi], 81)
+    curves = np.stack([np.interp(fine, grid[lo:hi + 1], logr[lo:hi + 1, b]) for b in range(logr.shape[1])], axis=1)
+    k = int(np.argmin(np.var(curves, axis=1)))
+    return float(fine[k]), j
+
+
+def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: bool = False) -> NoiseModel:
+    """Estimate the noise level and correlation length of a noisy mesh, without the clean mesh.
+
+    See the module docstring for the model and the estimate.
+
+    Parameters
+    ----------
+    mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
+    refine : int, >= 1
+        Passed to :func:`~meshdenoise.tuning.noise_level.estimate_noise`.
+    seed : int
+        Seed of the model's probes (the same seed, the same estimate).
+    details : bool
+        Also return a dict: ``rho_white`` (:func:`estimate_noise`), ``ell_fit`` (before the
+        significance test), ``grid`` and ``log_rho`` (:math:`\\log\\hat\\rho_s(\\ell)` on it),
+        ``spread_white``, ``spread_fit``, and ``reason``: one line saying why the noise was read
+        as correlated or independent.
+
+    Returns
+    -------
+    NoiseModel
+        ``correlation_length`` 0 (and ``rho`` exactly :func:`estimate_noise`'s) unless the fit
+        is significant (module docstring); a correlated model carries the smoothed mesh its
+        heat filter is built on.
+
+    Examples
+    --------
+    >>> from meshdenoise.shapes import icosphere
+    >>> from meshdenoise import add_normal_noise
+    >>> V, F = icosphere(4)
+    >>> Vn, _ = add_normal_noise((V, F), rho=0.01, seed=0)
+    >>> model = estimate_noise_model((Vn, F))
+    >>> model.correlation_length, round(model.rho / 0.01, 1)
+    (0.0, 1.0)
+    """
+    if isinstance(refine, (bool, np.bool_)) or not isinstance(refine, (int, np.integer)) or refine < 1:
+        raise ValueError(f"estimate_noise_model: parameter 'refine' must be an int >= 1, got {refine!r}")
+    data = read_mesh(mesh)
+    V, F = data.V, data.F
+    rho0, smooth = estimate_noise_and_smooth(V, F, int(refine))
+    info: dict[str, Any] = {"rho_white": rho0}
+    if rho0 == 0:
+        model = NoiseModel(0.0)
+        info["reason"] = "independent: no noise found (estimate_noise reads 0)"
+        return (model, info) if details else model
+    ops = get_operators(F, V.shape[0])
+    N = vertex_normals(smooth, F)
+    ok = ~ops.isolated & (np.linalg.norm(N, axis=1) > 0)
+    R = band_residuals(ops, V)
+    observed = np.array([np.median(_normal_component(R[s], N)[ok] ** 2) for s in BANDS])
+    if not np.all(observed > 0):  # a band without residual (a plane, a tiny mesh): nothing to fit
+        model = NoiseModel(rho0)
+        info["reason"] = "independent: a band-pass residual is zero"
+        return (model, info) if details else model
+    xi = np.random.default_rng(seed).standard_normal((V.shape[0], FIT_PROBES))
+    geometry = heat_geometry(smooth, F)
+    full = np.array(ELL_GRID)
+    logr = np.empty((full.size, len(BANDS)))
+    used = 0
+    for j, ell in enumerate(full):  # up the grid until the spread has risen well past its minimum
+        Z = xi if ell == 0 else HeatFilter(smooth, F, diffusion_length(ell), geometry)(xi)
+        Z = Z * math.sqrt(Z.size / float(np.sum(Z * Z)))  # mean square 1: tr(Sigma) = n
+        logr[j] = 0.5 * (np.log(observed) - np.log(_probe_medians(ops, N, Z, ok)))
+        used = j + 1
+        spread = np.var(logr[:used], axis=1)
+        best = int(np.argmin(spread))
+        if j >= best + 2 and spread[j] > 4.0 * spread[best] + SPREAD_GAIN:
+            break
+    grid, logr = full[:used], logr[:used]
+    ell, _ = _fit(logr, grid)
+    curves = np.array([np.interp(ell, grid, logr[:, b]) for b in range(len(BANDS))])
+    spread0, spread_fit = float(np.var(logr[0])), float(np.var(curves))
+    info.update(grid=grid, log_rho=logr, ell_fit=ell, observed=observed, spread_white=spread0, spread_fit=spread_fit)
+    significant = (ELL_MIN <= ell <= ELL_MAX and spread0 - spread_fit >= SPREAD_GAIN and spread0 >= SPREAD_RATIO * spread_fit
+                   and int(ok.sum()) >= MIN_PATCHES * math.pi * ell**2)
+    if significant:
+        model = NoiseModel(float(np.exp(curves.mean())), ell, smooth, F)
+        info["reason"] = (f"correlated: the bands agree at {ell:.2f} edge lengths (spread of log rho "
+                          f"{spread0:.2g} for independent noise, {spread_fit:.2g} at the fit)")
+    else:
+        model = NoiseModel(rho0)
+        why = []
+        if not ELL_MIN <= ell <= ELL_MAX:
+            why.append(f"the fitted length {ell:.2f} is outside [{ELL_MIN:g}, {ELL_MAX:g}] edge lengths")
+        if spread0 - spread_fit < SPREAD_GAIN or spread0 < SPREAD_RATIO * spread_fit:
+            why.append(f"the fit hardly improves on independent noise (spread {spread0:.2g} -> {spread_fit:.2g})")
+        if int(ok.sum()) < MIN_PATCHES * math.pi * ell**2:
+            why.append(f"too few vertices for a correlation length of {ell:.2f}")
+        info["reason"] = "independent: " + "; ".join(why)
+    return (model, info) if details else model

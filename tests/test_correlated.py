@@ -1,0 +1,229 @@
+"""Correlated noise: the coloured trace probes, SURE with a covariance, and the (rho, ell) estimate,
+against dense computations written here."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from meshdenoise.geometry import cotangent_laplacian, lumped_mass, vertex_normals
+from meshdenoise.noise import HEAT_STEPS, add_normal_noise, add_scanner_noise, diffusion_length, mean_edge_length
+from meshdenoise.operators import get_operators
+from meshdenoise.shapes import grid, icosphere, torus
+from meshdenoise.tuning import auto_filters, choose_parameters, estimate_noise
+from meshdenoise.tuning.covariance import NoiseModel, estimate_noise_model
+from meshdenoise.tuning.risk import N_PROBES, colour_probes, noise_colouring, probe_block, sure
+from meshdenoise.metrics import snr
+from meshdenoise.registry import apply_filter
+
+
+def dense_covariance(V, F, ell):
+    """Sigma of the model by dense linear algebra: C = [(M + tau/k L)^-1 M]^k diag(sqrt(mean m / m)),
+    Sigma = C C^T scaled to trace n (add_scanner_noise's rescaling)."""
+    n = V.shape[0]
+    h = mean_edge_length(V, F)
+    m = lumped_mass(V, F)
+    L = cotangent_laplacian(V, F).toarray()
+    tau = (diffusion_length(ell) * h) ** 2 / 8.0
+    step = np.linalg.solve(np.diag(m) + tau / HEAT_STEPS * L, np.diag(m))
+    C = np.linalg.matrix_power(step, HEAT_STEPS) @ np.diag(np.sqrt(m.mean() / m))
+    S = C @ C.T
+    return S * n / np.trace(S)
+
+
+def dense_sobolev(F, n, mu):
+    L = get_operators(F, n).L.toarray()
+    return np.linalg.inv(np.eye(n) + mu * L)
+
+
+SMALL = icosphere(2)  # 162 vertices
+
+
+def test_exact_coloured_probes_give_the_dense_trace_of_h_sigma():
+    V, F = SMALL
+    n = V.shape[0]
+    Sigma = dense_covariance(V, F, 2.0)
+    H = dense_sobolev(F, n, 3.0)
+    Z, s = probe_block(n, exact=True, colour=NoiseModel(0.1, 2.0, V, F))
+    assert s * np.sum(Z * (H @ Z)) == pytest.approx(np.trace(H @ Sigma), rel=1e-6)
+    assert s * np.sum(Z * Z) == pytest.approx(n, rel=1e-12)  # tr(Sigma) = n
+    # and not tr(H): the test can fail (the correlated noise passes the smoother far more)
+    assert np.trace(H @ Sigma) > 1.5 * np.trace(H)
+
+
+def test_hutchinson_with_coloured_probes_is_unbiased_for_the_trace():
+    V, F = SMALL
+    n = V.shape[0]
+    exact = np.trace(dense_sobolev(F, n, 3.0) @ dense_covariance(V, F, 2.0))
+    H = dense_sobolev(F, n, 3.0)
+    model = NoiseModel(0.1, 2.0, V, F)
+    est = []
+    for seed in range(40):
+        Z, s = probe_block(n, exact=False, seed=seed, colour=model)
+        est.append(s * np.sum(Z * (H @ Z)))
+    est = np.array(est)
+    assert abs(est.mean() - exact) < 3 * est.std() / np.sqrt(est.size) + 1e-3 * exact
+    assert np.all(np.abs(est / exact - 1) < 0.25)  # one block of N_PROBES: within 25 %
+    assert Z.shape == (n, N_PROBES)
+
+
+@pytest.mark.parametrize("ell", [1.0, 3.0])
+def test_sure_with_the_covariance_is_unbiased_and_the_independent_one_is_not(ell):
+    """On a flat grid with noise along z (all normals equal, so tr(H Sigma) is the exact noise term):
+    the mean of SURE over many draws equals the mean true error; SURE with tr(H) misses it."""
+    V, F = grid(12, 12)
+    n = V.shape[0]
+    rho, mu = 0.02, 2.0
+    Sigma = dense_covariance(V, F, ell)
+    H = dense_sobolev(F, n, mu)
+    Z, s = probe_block(n, exact=True, colour=NoiseModel(rho, ell, V, F))
+    trace = s * float(np.sum(Z * (H @ Z)))
+    rng = np.random.default_rng(0)
+    draws = 4000
+    E = np.linalg.cholesky(Sigma + 1e-12 * np.eye(n)) @ rng.standard_normal((n, draws)) * rho  # (n, draws) along z
+    X0 = V
+    true_err, sure_c, sure_w = [], [], []
+    HX0 = H @ X0
+    HE = H @ E
+    for k in range(draws):
+        X = X0.copy()
+        X[:, 2] += E[:, k]
+        HX = HX0.copy()
+        HX[:, 2] += HE[:, k]
+        res = float(np.sum((HX - X) ** 2))
+        true_err.append(float(np.sum((HX - X0) ** 2)))
+        sure_c.append(sure(res, trace, n, rho))
+        sure_w.append(sure(res, float(np.trace(H)), n, rho))
+    true_err, sure_c, sure_w = map(np.array, (true_err, sure_c, sure_w))
+    se = np.std(sure_c - true_err) / np.sqrt(draws)
+    assert abs(sure_c.mean() - true_err.mean()) < 3 * se
+    assert abs(sure_w.mean() - true_err.mean()) > 20 * se
+
+
+TORUS = torus(160, 64)  # 10,240 vertices, closed, smooth
+
+
+@pytest.mark.parametrize("ell", [0.0, 1.0, 2.0, 4.0])
+def test_estimate_recovers_level_and_length_of_scanner_noise(ell):
+    V, F = TORUS
+    h = mean_edge_length(V, F)
+    sigma = 0.3 * h
+    Vn, _ = add_scanner_noise((V, F), sigma, correlation_length=ell, seed=0)
+    model = estimate_noise_model((Vn, F))
+    if ell == 0:
+        assert model.correlation_length == 0.0
+        assert model.rho == estimate_noise((Vn, F))  # bit for bit: the independent estimate unchanged
+        assert model.rho == pytest.approx(sigma, rel=0.05)
+    else:
+        assert model.correlation_length == pytest.approx(ell, rel=0.1)
+        assert model.rho == pytest.approx(sigma, rel=0.15)
+        # the independent estimate reads only the high-frequency share of it
+        assert estimate_noise((Vn, F)) < 0.75 * sigma
+
+
+def test_estimate_reads_independent_noise_on_a_coarse_curved_mesh_as_independent():
+    V, F = icosphere(3)
+    Vn, _ = add_normal_noise((V, F), rho=0.01, seed=0)
+    model = estimate_noise_model((Vn, F))
+    assert model.correlation_length == 0.0 and model.rho == estimate_noise((Vn, F))
+
+
+SPHERE2 = icosphere(2)
+SPHERE2_NOISY = add_normal_noise(SPHERE2, rho=0.03, seed=1)[0]
+
+
+@pytest.mark.parametrize("method", auto_filters())
+def test_independent_noise_gives_bit_identical_choices(method):
+    """With ell read as 0 every rule chooses exactly what it chose with the independent estimate."""
+    mesh = (SPHERE2_NOISY, SPHERE2[1])
+    rho = estimate_noise(mesh)
+    today = choose_parameters(mesh, method, noise=rho, exact_trace=False)  # Hutchinson probes: the coloured path
+    assert choose_parameters(mesh, method, exact_trace=False) == today
+    assert choose_parameters(mesh, method, noise=rho, correlation_length=0, exact_trace=False) == today
+
+
+def test_independent_model_leaves_the_probes_alone():
+    Z, s = probe_block(1000, exact=False)
+    with noise_colouring(NoiseModel(0.5)):
+        Z2, s2 = probe_block(1000, exact=False)
+    assert s2 == s and np.array_equal(Z2, Z)
+    assert colour_probes(Z, s, NoiseModel(0.5)) is Z
+
+
+def test_coloured_sure_chooses_better_under_correlated_noise():
+    V, F = TORUS
+    h = mean_edge_length(V, F)
+    Vn, _ = add_scanner_noise((V, F), 0.3 * h, correlation_length=2, seed=3)
+    mesh = (Vn, F)
+    auto = choose_parameters(mesh, "sobolev")
+    white = choose_parameters(mesh, "sobolev", noise=estimate_noise(mesh))
+    oracle = choose_parameters(mesh, "sobolev", criterion="oracle", reference=V)
+    got = {k: snr(V, apply_filter("sobolev", mesh, **p)[0]) for k, p in (("auto", auto), ("white", white), ("oracle", oracle))}
+    assert got["auto"] > got["white"] + 1.0
+    assert got["oracle"] - got["auto"] < 1.0
+
+
+def test_given_length_colours_the_probes_of_the_rule():
+    V, F = TORUS
+    h = mean_edge_length(V, F)
+    Vn, _ = add_scanner_noise((V, F), 0.3 * h, correlation_length=2, seed=3)
+    white = choose_parameters((Vn, F), "sobolev", noise=0.3 * h)
+    coloured = choose_parameters((Vn, F), "sobolev", noise=0.3 * h, correlation_length=2.0)
+    assert coloured["mu"] != white["mu"]  # the rule's SURE got tr(H Sigma), not tr(H)
+    oracle = choose_parameters((Vn, F), "sobolev", criterion="oracle", reference=V)
+    got = {k: snr(V, apply_filter("sobolev", (Vn, F), **p)[0]) for k, p in (("c", coloured), ("o", oracle))}
+    assert got["o"] - got["c"] < 0.2
+
+
+def test_bad_noise_models_are_refused():
+    V, F = SMALL
+    with pytest.raises(ValueError, match="correlation_length"):
+        NoiseModel(0.1, -1.0)
+    with pytest.raises(ValueError, match="needs the mesh"):
+        NoiseModel(0.1, 2.0)
+    with pytest.raises(TypeError, match="rho"):
+        NoiseModel("0.1")
+    with pytest.raises(ValueError, match="correlation_length"):
+        choose_parameters((V, F), "sobolev", noise=0.01, correlation_length=-2)
+    with pytest.raises(ValueError, match="162 vertices"):
+        colour_probes(np.ones((10, 2)), 0.5, NoiseModel(0.1, 2.0, V, F))
+    with pytest.raises(ValueError, match="refine"):
+        estimate_noise_model((V, F), refine=0)
+
+
+@pytest.mark.parametrize("method", ["two_stage", "sobolev_normal", "sobolev_gls"])
+def test_monte_carlo_sure_rules_draw_coloured_probes(method, monkeypatch):
+    """The nonlinear rules' own probes (b = z N) go through the model's colouring when it is correlated."""
+    calls = []
+    original = NoiseModel.colour
+
+    def spy(self, Z, s):
+        calls.append(Z.shape)
+        return original(self, Z, s)
+
+    monkeypatch.setattr(NoiseModel, "colour", spy)
+    mesh = (SPHERE2_NOISY, SPHERE2[1])
+    choose_parameters(mesh, method, noise=0.03, correlation_length=1.5, exact_trace=False)
+    assert calls
+
+
+def test_details_say_why():
+    V, F = TORUS
+    h = mean_edge_length(V, F)
+    Vn, _ = add_scanner_noise((V, F), 0.3 * h, correlation_length=2, seed=0)
+    model, info = estimate_noise_model((Vn, F), details=True)
+    assert info["reason"].startswith("correlated") and info["ell_fit"] == model.correlation_length
+    assert info["rho_white"] == estimate_noise((Vn, F))
+    model, info = estimate_noise_model(grid(20, 20), details=True)  # a plane: no noise at all
+    assert model.rho == estimate_noise(grid(20, 20)) < 1e-12 and info["reason"].startswith("independent")
+
+
+def test_a_noise_model_can_be_given_once_for_several_choices():
+    V, F = TORUS
+    h = mean_edge_length(V, F)
+    Vn, _ = add_scanner_noise((V, F), 0.3 * h, correlation_length=2, seed=3)
+    model = estimate_noise_model((Vn, F))
+    assert model.correlation_length > 0
+    assert choose_parameters((Vn, F), "sobolev", noise=model) == choose_parameters((Vn, F), "sobolev")
+    with pytest.raises(ValueError, match="holds its correlation length"):
+        choose_parameters((Vn, F), "sobolev", noise=model, correlation_length=1.0)
