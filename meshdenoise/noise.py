@@ -149,14 +149,21 @@ def heat_filtered_noise(
     return HeatFilter(V, F, length)(w)
 
 
+HEAT_MASS_FLOOR = 1e-9  # mass of a vertex on no face of positive area, relative to the mean positive mass
+
+
 def heat_geometry(V: np.ndarray, F: np.ndarray) -> tuple[float, np.ndarray, sp.csr_matrix]:
     """What every :class:`HeatFilter` of one mesh shares: mean edge length, lumped mass (floored), cotangent Laplacian."""
     h = mean_edge_length(V, F)
     mass = lumped_mass(V, F)
-    positive = mass > 0
-    floor = 1e-9 * (mass[positive].mean() if positive.any() else 1.0)
+    floor = HEAT_MASS_FLOOR * _positive_mean(mass)
     mass = np.maximum(mass, floor)  # vertices on no face of positive area: kept apart, not singular
     return h, mass, cotangent_laplacian(V, F)
+
+
+def _positive_mean(mass: np.ndarray) -> float:
+    positive = mass > 0
+    return float(mass[positive].mean()) if positive.any() else 1.0
 
 
 class HeatFilter:
@@ -185,7 +192,11 @@ class HeatFilter:
         h, mass, L = heat_geometry(V, F) if geometry is None else geometry
         self.length = float(length)
         self.mass = mass
-        self.scale = np.sqrt(mass.mean() / mass)
+        # a vertex on no face of positive area (unreferenced, as range scans have) gets no noise: its floored mass
+        # would otherwise amplify it 30,000 times and, once rescaled, leave the surface almost noiseless
+        self.surface = mass > 2.0 * HEAT_MASS_FLOOR * _positive_mean(mass)  # floored masses sit at the floor
+        self.scale = np.where(self.surface, np.sqrt(mass[self.surface].mean() / mass) if self.surface.any() else 0.0,
+                              0.0)
         tau = (length * h) ** 2 / 8.0
         # M + (tau / k) L is well conditioned (tau / k is about (l h)^2 / 64): Jacobi-preconditioned CG takes
         # tens of iterations, where a Cholesky factorisation of an unordered 655k-vertex mesh took 90 s
