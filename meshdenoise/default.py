@@ -2,8 +2,10 @@
 
 The policy, from measurements of the noisy mesh alone:
 
-1. the noise level (:func:`~meshdenoise.tuning.noise_level.estimate_noise`), absolute and in
-   mean edge lengths;
+1. the noise: its level and correlation length
+   (:func:`~meshdenoise.tuning.covariance.estimate_noise_model`; a scanner's noise is
+   correlated over a few samples), printed absolute and in mean edge lengths; every risk
+   estimate below accounts for it;
 2. a short feature-preserving pre-smoothing (:func:`detect_features`), after which CAD parts
    have almost all their creased edges sharp, scans and organic shapes have gradual creases,
    and a mesh whose noise is too strong for normals to be filtered still has a large share of
@@ -41,7 +43,8 @@ from .operators import Operators, get_operators
 from .progress import stage
 from .registry import COMMON_OPTIONS, apply_filter, get_filter
 from .tuning.choose import choose_parameters
-from .tuning.noise_level import estimate_noise, mean_edge_length
+from .tuning.covariance import NoiseModel, estimate_noise_model
+from .tuning.noise_level import mean_edge_length
 
 __all__ = ["DefaultChoice", "FeatureTest", "choose_default", "denoise", "detect_features",
            "SMOOTH_METHOD", "FEATURE_METHOD"]
@@ -172,6 +175,8 @@ class DefaultChoice:
         The estimated noise level rho (mesh units).
     edge_length : float
         The mean edge length (mesh units).
+    correlation_length : float
+        The noise's estimated correlation length in mean edge lengths (0: independent).
     features : FeatureTest
     boundary_vertices : int
         Vertices on open borders (they move along their normals only).
@@ -185,6 +190,7 @@ class DefaultChoice:
     params: dict
     noise: float
     edge_length: float
+    correlation_length: float
     features: FeatureTest
     boundary_vertices: int
     reasons: list[str] = field(default_factory=list)
@@ -198,8 +204,11 @@ class DefaultChoice:
     def lines(self) -> list[str]:
         """The decision as short lines for a terminal or a log."""
         settings = ", ".join(f"{k}={_short(v)}" for k, v in self.params.items()) or "its defaults"
+        spread = (f"correlated over {self.correlation_length:.3g} edge lengths" if self.correlation_length > 0
+                  else "independent")
         return [
-            f"noise: {self.noise:.4g} ({self.noise_in_edges:.3g} mean edge lengths; mean edge {self.edge_length:.4g})",
+            f"noise: {self.noise:.4g} ({self.noise_in_edges:.3g} mean edge lengths; mean edge {self.edge_length:.4g}; "
+            f"{spread})",
             f"method: {self.method} ({settings})",
             *(f"  because {r}" for r in self.reasons),
         ]
@@ -208,25 +217,35 @@ class DefaultChoice:
         """Plain values (JSON-ready)."""
         return {
             "method": self.method, "params": dict(self.params), "noise": self.noise, "edge_length": self.edge_length,
-            "noise_in_edges": self.noise_in_edges, "sharp_features": self.features.sharp,
+            "noise_in_edges": self.noise_in_edges, "correlation_length": self.correlation_length,
+            "sharp_features": self.features.sharp,
             "too_noisy": self.features.too_noisy,
             "sharp_share": self.features.share, "boundary_vertices": self.boundary_vertices,
             "reasons": list(self.reasons), "seconds": self.seconds,
         }
 
 
+def _checked_noise(noise: Any) -> float:
+    if isinstance(noise, (bool, np.bool_)) or not isinstance(noise, (int, float, np.integer, np.floating)):
+        raise TypeError(f"denoise: noise must be a number or a NoiseModel, got {noise!r}")
+    if not (math.isfinite(noise) and noise >= 0):
+        raise ValueError(f"denoise: parameter 'noise' = {noise!r} is out of range: noise >= 0")
+    return float(noise)
+
+
 def _short(v: Any) -> str:
     return f"{v:.4g}" if isinstance(v, float) else repr(v) if isinstance(v, str) else str(v)
 
 
-def choose_default(mesh: Any, *, noise: float | None = None) -> DefaultChoice:
+def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None) -> DefaultChoice:
     """Choose the filter and its parameters for a noisy mesh, and say why.
 
     Parameters
     ----------
     mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
-    noise : float, optional
-        The noise level rho if known (mesh units); estimated otherwise.
+    noise : float or NoiseModel, optional
+        The noise level rho if known (mesh units; independent noise), or a noise model
+        (level and correlation length); estimated otherwise.
 
     Returns
     -------
@@ -247,7 +266,13 @@ def choose_default(mesh: Any, *, noise: float | None = None) -> DefaultChoice:
     ops = get_operators(F, V.shape[0])
     h = mean_edge_length(V, ops)
     with stage("estimating the noise"):
-        rho = estimate_noise((V, F)) if noise is None else noise
+        if noise is None:
+            model, info = estimate_noise_model((V, F), details=True)
+            noise_reason = "the noise is " + info["reason"]
+        else:
+            model = noise if isinstance(noise, NoiseModel) else NoiseModel(_checked_noise(noise))
+            noise_reason = "the noise level was given"
+    rho = model.rho
     with stage("looking for sharp features"):
         features = detect_features((V, F), ops=ops)
     n = V.shape[0]
@@ -257,11 +282,11 @@ def choose_default(mesh: Any, *, noise: float | None = None) -> DefaultChoice:
 
     if features.too_noisy:
         method = SMOOTH_METHOD
-        params = choose_parameters((V, F), method, noise=rho)
+        params = choose_parameters((V, F), method, noise=model)
         reasons = [f"{features.reason} -> {method}, a smooth prior",
                    f"its parameters minimise {method}'s risk estimate (SURE) for that noise level"]
     else:  # the filter with the smaller estimated error (SURE picks two_stage on the CAD pairs by 2.5x)
-        scored = {m: choose_parameters((V, F), m, noise=rho, return_risk=True) for m in (FEATURE_METHOD, SMOOTH_METHOD)}
+        scored = {m: choose_parameters((V, F), m, noise=model, return_risk=True) for m in (FEATURE_METHOD, SMOOTH_METHOD)}
         method = min(scored, key=lambda m: scored[m][1])
         params = scored[method][0]
         other = SMOOTH_METHOD if method == FEATURE_METHOD else FEATURE_METHOD
@@ -271,7 +296,9 @@ def choose_default(mesh: Any, *, noise: float | None = None) -> DefaultChoice:
     nb = int(np.count_nonzero(ops.boundary_vertices))
     if nb:
         reasons.append(f"{nb:,} vertices are on open borders: they move along their normals only (no inward shrinking)")
-    choice = DefaultChoice(method, params, float(rho), float(h), features, nb, reasons, time.perf_counter() - start)
+    reasons.insert(0, noise_reason)
+    choice = DefaultChoice(method, params, float(rho), float(h), model.correlation_length, features, nb, reasons,
+                           time.perf_counter() - start)
     for line in choice.lines():
         log.info("default: %s", line)
     return choice
@@ -294,8 +321,9 @@ def denoise(
     method : str, optional
         A registered filter. ``None`` (default): :func:`choose_default` chooses the filter
         (``two_stage`` or ``sobolev_bilaplacian``, by their estimated errors) and its parameters.
-    noise : float, optional
-        The noise level if known (else estimated), used only when choosing.
+    noise : float or NoiseModel, optional
+        The noise level (or level and correlation length) if known, else estimated; used only
+        when choosing.
     return_params : bool
         Also return the parameters used: with a method, the dict of parameters; with none,
         the :class:`DefaultChoice` (method, parameters, noise estimate, reasons).

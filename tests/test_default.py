@@ -114,7 +114,8 @@ def test_noise_too_strong_for_normal_filtering_chooses_the_smooth_prior_alone():
     Vn = md.add_normal_noise((V, F), 2.0 * h, seed=0)[0]
     choice = choose_default((Vn, F))
     assert choice.features.too_noisy and choice.method == "sobolev_bilaplacian"
-    assert "too strong for normals to be filtered" in choice.reasons[0]
+    assert choice.reasons[0].startswith("the noise is independent")
+    assert "too strong for normals to be filtered" in choice.reasons[1]
 
 
 def test_risk_is_sure_of_the_chosen_point_and_tracks_the_true_error():
@@ -324,3 +325,22 @@ def test_the_default_on_every_mesh_type_gives_the_array_result(mesh_kind):
         assert out is mesh  # in place, like MeshLab's own filters
     elif mesh_kind == "open3d":
         np.testing.assert_array_equal(np.asarray(mesh.vertices), Vn)  # the input is unchanged
+
+
+def test_correlated_noise_is_estimated_reported_and_used_by_the_choice():
+    from meshdenoise.shapes import torus
+    from meshdenoise.tuning import estimate_noise_model
+
+    V, F = torus(80, 40)
+    h = mean_edge_length(V, get_operators(F, V.shape[0]))
+    Vn = md.add_scanner_noise((V, F), 0.3 * h, correlation_length=2.0, seed=0)[0]
+    model = estimate_noise_model((Vn, F))
+    assert model.correlation_length > 1.0  # read as correlated
+    choice = choose_default((Vn, F))
+    assert choice.correlation_length == model.correlation_length and choice.noise == model.rho
+    assert "correlated over" in choice.lines()[0] and choice.reasons[0].startswith("the noise is correlated")
+    risks = {m: md.choose_parameters((Vn, F), m, noise=model, return_risk=True) for m in ("two_stage", "sobolev_bilaplacian")}
+    best = min(risks, key=lambda m: risks[m][1])
+    assert (choice.method, choice.params) == (best, risks[best][0])
+    Y = md.denoise((Vn, F))[0]
+    assert md.snr(V, Y) > md.snr(V, Vn) + 1.0

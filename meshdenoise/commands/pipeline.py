@@ -289,18 +289,21 @@ def _dry_run(src: Path, method: str | None, given: dict) -> None:
         else:
             from ..operators import get_operators
             from ..registry import get_filter
-            from ..tuning import choose_parameters, estimate_noise
+            from ..tuning import choose_parameters, estimate_noise_model
             from ..tuning.noise_level import mean_edge_length
 
             spec = get_filter(method)
             h = mean_edge_length(mesh.V, get_operators(mesh.F, mesh.V.shape[0]))
-            rho = estimate_noise(arrays)
+            model = estimate_noise_model(arrays)
+            rho = model.rho
             own = {k: v for k, v in given.items() if k not in ("pinned", "region", "preserve_volume", "parameters",
                                                                "boundary_motion")}
             if given.get("parameters") == "auto" and spec.auto is not None:
-                own = choose_parameters(arrays, method, noise=rho, **own)
+                own = choose_parameters(arrays, method, noise=model, **own)
             settings = spec.resolve(own, f"--method '{method}'")
-            lines = [f"noise: {rho:.4g} ({rho / h:.3g} mean edge lengths; mean edge {h:.4g})",
+            spread = (f"correlated over {model.correlation_length:.3g} edge lengths" if model.correlated
+                      else "independent")
+            lines = [f"noise: {rho:.4g} ({rho / h:.3g} mean edge lengths; mean edge {h:.4g}; {spread})",
                      f"method: {method} ({', '.join(f'{k}={v!r}' for k, v in settings.items())})"]
     except KeyError as exc:
         _fail(f"--method: {exc.args[0]}", 2)
