@@ -1,11 +1,11 @@
-"""Which filter the default should use on meshes without sharp features: each candidate's automatic choice, side by side.
+"""The default's candidates side by side: each filter's automatic choice, and what ``denoise(mesh)`` picks.
 
 Usage::
 
     python benchmarks/default_candidates.py [--methods two_stage sobolev_bilaplacian ...] [--meshes NAME ...]
                                             [--out benchmarks/results/default-candidates.md]
 
-Meshes: the scanned ``Bunny0.2`` pair of the shared benchmark, pymeshlab's bunny and range scan
+Meshes: the shared benchmark's pairs (CAD parts Fandisk0.3, Block0.4, Twelve0.5Impulsive; the scanned Bunny0.2), pymeshlab's bunny and range scan
 ``face000.ply`` with ``add_scanner_noise`` (0.5 mean edge lengths; correlation length 0 and 2),
 the paper's Nefertiti (rho = 0.2) and elephant (rho = 0.015) with normal noise. For each, every
 candidate runs as ``meshdenoise.denoise(mesh, method=M)`` (parameters chosen from the noisy mesh
@@ -54,6 +54,9 @@ def _meshes():
         return build
 
     return {
+        "Fandisk0.3": pair("Fandisk0.3"),
+        "Block0.4": pair("Block0.4"),
+        "Twelve0.5Impulsive": pair("Twelve0.5Impulsive"),
         "Bunny0.2": pair("Bunny0.2"),
         "bunny scanner l=0": scanner("bunny.obj", 0),
         "bunny scanner l=2": scanner("bunny.obj", 2),
@@ -66,7 +69,7 @@ def _meshes():
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--methods", nargs="+", default=list(CANDIDATES))
+    ap.add_argument("--methods", nargs="+", default=list(CANDIDATES), help="filters, or 'default' (denoise(mesh))")
     ap.add_argument("--meshes", nargs="+", default=None)
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args(argv)
@@ -84,9 +87,14 @@ def main(argv: list[str] | None = None) -> int:
             t = time.perf_counter()
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
-                (Y, _), params = md.denoise((Vn, F), method=method, return_params=True)
+                if method == "default":  # what denoise(mesh) picks: its method and parameters
+                    (Y, _), choice = md.denoise((Vn, F), return_params=True)
+                    params = {"method": choice.method, **choice.params}
+                else:
+                    (Y, _), params = md.denoise((Vn, F), method=method, return_params=True)
             dt = time.perf_counter() - t
-            cells.append(f"{md.normal_error_deg((V0, F), (Y, F)):.2f} / {md.snr(V0, Y):.2f} ({dt:.1f} s)")
+            picked = f", {params['method']}" if method == "default" else ""
+            cells.append(f"{md.normal_error_deg((V0, F), (Y, F)):.2f} / {md.snr(V0, Y):.2f} ({dt:.1f} s{picked})")
             print(name, method, params, cells[-1], flush=True)
         rows.append(f"| {name} | {V0.shape[0]:,} | {md.normal_error_deg((V0, F), (Vn, F)):.2f} / {md.snr(V0, Vn):.2f} | "
                     + " | ".join(cells) + " |")

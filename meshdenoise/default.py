@@ -17,11 +17,11 @@ Where the noise is too strong for normals to be filtered, ``sobolev_bilaplacian`
 prior) is chosen; elsewhere both it and ``two_stage`` (feature-preserving normal filtering) get
 their automatic parameters and the one with the smaller estimated error (SURE, the same
 criterion their rules minimise) is kept. Measured (``benchmarks/results/default-candidates.md``):
-the normal filter wins on the CAD parts (SURE 2.5 times smaller on Fandisk0.3) and on smooth
-scans at moderate noise (pymeshlab's bunny and range scan with scanner noise, the benchmark's
-Bunny0.2: 6.1-6.2 against 6.6-11.1 degrees of normal error), the smooth prior on coarse curved
-meshes and at noise near one edge length. The sharp-feature verdict is reported; the choice
-rests on the estimated error. Parameters are those of the filter's own automatic rule.
+the normal filter on the CAD parts (2.5-3.1 against 10.5-12.0 degrees of normal error), on the
+benchmark's scanned Bunny0.2 and on the range scan with scanner noise (5.6-8.0 against 9.4-11.7),
+the smooth prior at noise near one edge length (the paper's elephant: 11.5 against 28.6); 2 wrong
+picks in 11 rows. The sharp-feature verdict is reported; the choice rests on the estimated error.
+Parameters are those of the filter's own automatic rule.
 This module names filters: it is policy, above the
 generic tuning machinery.
 """
