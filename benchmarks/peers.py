@@ -610,12 +610,9 @@ def run_ours(method: str | None, V0: np.ndarray, F: np.ndarray, Vn: np.ndarray) 
     import meshdenoise as md
 
     t0 = time.perf_counter()
-    if method is None:
-        try:
-            (X, _), used = md.denoise((Vn.copy(), F), return_params=True)
-        except TypeError:  # a default that does not take return_params
-            X, _ = md.denoise((Vn.copy(), F))
-            used = {}
+    if method is None:  # the default returns its decision: the method it picked and that method's parameters
+        (X, _), choice = md.denoise((Vn.copy(), F), return_params=True)
+        used = {"method": choice.method, **choice.params}
     else:
         (X, _), used = md.denoise((Vn.copy(), F), method=method, return_params=True)
     elapsed = time.perf_counter() - t0
