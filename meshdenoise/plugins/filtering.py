@@ -12,7 +12,7 @@ from ..operators import Operators, gather_rows
 from ..registry import MAX_ITERATIONS, AutoRule, Param, register
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
-from ..tuning.search import averaging_step, best_on_path, iterative_path
+from ..tuning.search import averaging_step, best_on_curve, best_on_path, iterative_path, path_curve
 
 __all__ = ["filtering", "averaging_operator", "smoothing_steps", "step_matrix", "run_linear_steps", "WEIGHTS"]
 
@@ -208,8 +208,15 @@ def choose_filtering(ctx: TuningContext) -> tuple[dict, Point]:
     """``iterations`` of ``X <- X + lam (A X - X)``: SURE along one run (``H_k = (I + lam(A - I))^k``)."""
     _check_linear_weights(ctx, "filtering")
     lam = float(ctx.given.get("lam", 1.0))
-    A = averaging_operator(ctx.ops, ctx.given.get("weights", "uniform"), None, ctx.given.get("boundary", True))
-    p = best_on_path(iterative_path(ctx.V, ctx.ops, averaging_step(A, lam), ctx.exact), ctx.ops.n, ctx.rho, ctx.criterion)
+    weights = ctx.given.get("weights", "uniform")
+    boundary = ctx.given.get("boundary", True)
+    A = averaging_operator(ctx.ops, weights, None, boundary)
+    if ctx.oracle:
+        p = best_on_path(iterative_path(ctx.V, ctx.ops, averaging_step(A, lam), ctx.exact), ctx.ops.n, ctx.rho, ctx.criterion)
+    else:  # the memoised curve: uniform weights share the run of estimate_noise and mu_guess
+        name = ("P", lam) if weights == "uniform" else (weights, boundary, lam)
+        curve = path_curve(ctx.V, ctx.ops, averaging_step(A, lam), name, ctx.exact)
+        p = best_on_curve(curve, ctx.ops.n, ctx.rho, ctx.criterion, coordinates=False)
     return {"iterations": int(p.value)}, p
 
 

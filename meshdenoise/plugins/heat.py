@@ -13,7 +13,7 @@ from ..operators import Operators, mask_key
 from ..registry import MAX_ITERATIONS, AutoRule, Param, register
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
-from ..tuning.search import averaging_step, best_on_path, iterative_path
+from ..tuning.search import averaging_step, best_on_curve, best_on_path, iterative_path, path_curve
 from .filtering import run_linear_steps, step_matrix, use_locality_order
 
 __all__ = ["heat", "heat_steps", "stable_tau", "chebyshev_coefficients", "chebyshev_heat", "ChebyshevHeat"]
@@ -198,7 +198,11 @@ def choose_heat(ctx: TuningContext) -> tuple[dict, Point]:
     taus = [float(ctx.given["tau"])] if "tau" in ctx.given else [0.25, 0.5, 1.0]
     best, best_tau = None, None
     for tau in taus:
-        p = best_on_path(iterative_path(ctx.V, ctx.ops, averaging_step(ctx.ops.P, tau), ctx.exact), ctx.ops.n, ctx.rho, ctx.criterion)
+        if ctx.oracle:
+            p = best_on_path(iterative_path(ctx.V, ctx.ops, averaging_step(ctx.ops.P, tau), ctx.exact), ctx.ops.n, ctx.rho, ctx.criterion)
+        else:  # memoised: tau = 1 is the averaging run estimate_noise already made
+            curve = path_curve(ctx.V, ctx.ops, averaging_step(ctx.ops.P, tau), ("P", tau), ctx.exact)
+            p = best_on_curve(curve, ctx.ops.n, ctx.rho, ctx.criterion, coordinates=False)
         if best is None or p.score < best.score:
             best, best_tau = p, tau
     return {"tau": best_tau, "time": float(best.value * best_tau)}, best

@@ -93,7 +93,7 @@ def choose_sobolev(ctx: TuningContext) -> tuple[dict, Point]:
     averaging steps: both filters damp the eigenmode of :math:`I - D^{-1}W` with
     eigenvalue :math:`\\lambda` by about half when :math:`k\\lambda \\approx \\mu \\bar d \\lambda \\approx 1`.
     """
-    p = best_shifted(ctx.V, ctx.ops, 1, ctx.rho, ctx.criterion, ctx.exact, center=ctx.mu_guess(1))
+    p = best_shifted(ctx.V, ctx.ops, 1, ctx.rho, ctx.criterion, ctx.exact, center=ctx.mu_guess(1), coordinates=False)
     return {"mu": float(p.value)}, p
 
 

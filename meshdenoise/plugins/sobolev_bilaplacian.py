@@ -16,7 +16,7 @@ __all__ = ["sobolev_bilaplacian", "choose_sobolev_bilaplacian"]
 # ----------------------------------------------------------------------------- automatic rule
 def choose_sobolev_bilaplacian(ctx: TuningContext) -> tuple[dict, Point]:
     """``mu`` of :math:`(I + \\mu L^2) Y = X`: SURE over log mu, starting at :math:`(k/\\bar d)^2`."""
-    p = best_shifted(ctx.V, ctx.ops, 2, ctx.rho, ctx.criterion, ctx.exact, center=ctx.mu_guess(2))
+    p = best_shifted(ctx.V, ctx.ops, 2, ctx.rho, ctx.criterion, ctx.exact, center=ctx.mu_guess(2), coordinates=False)
     return {"mu": float(p.value)}, p
 
 

@@ -9,7 +9,7 @@ from ..operators import Operators
 from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
-from ..tuning.search import averaging_step, best_on_path, iterative_path
+from ..tuning.search import averaging_step, best_on_curve, best_on_path, iterative_path, path_curve
 
 __all__ = ["taubin", "meshlab_taubin_operator", "TAUBIN_WEIGHTS"]
 
@@ -104,7 +104,12 @@ def choose_taubin(ctx: TuningContext) -> tuple[dict, Point]:
     best, best_pair = None, None
     for lam, mu in pairs:
         shrink, inflate = averaging_step(A, lam), averaging_step(A, mu)
-        p = best_on_path(iterative_path(ctx.V, ctx.ops, lambda Y, s=shrink, f=inflate: f(s(Y)), ctx.exact), ctx.ops.n, ctx.rho, ctx.criterion)
+        step = lambda Y, s=shrink, f=inflate: f(s(Y))  # noqa: E731
+        if ctx.oracle:
+            p = best_on_path(iterative_path(ctx.V, ctx.ops, step, ctx.exact), ctx.ops.n, ctx.rho, ctx.criterion)
+        else:
+            curve = path_curve(ctx.V, ctx.ops, step, ("taubin", weights, lam, mu), ctx.exact)
+            p = best_on_curve(curve, ctx.ops.n, ctx.rho, ctx.criterion, coordinates=False)
         if best is None or p.score < best.score:
             best, best_pair = p, (lam, mu)
     out = {"iterations": int(best.value)}

@@ -15,9 +15,9 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..operators import Operators, spmm
-from ..solvers import shifted_solver
+from ..solvers import LanczosQuadrature, shifted_solver
 from .memo import MEMO, digest
-from .risk import Criterion, Point, as_criterion, probe_block
+from .risk import N_PROBES, Criterion, Point, as_criterion, probe_block
 
 __all__ = [
     "averaging_step",
@@ -30,7 +30,40 @@ __all__ = [
     "best_shifted",
     "sure_smoothed",
     "mu_guess",
+    "probe_count",
+    "PathCurve",
+    "path_curve",
+    "best_on_curve",
+    "shifted_quadrature",
+    "SHIFTED_SEARCHES",
+    "QUADRATURE_MIN_VERTICES",
 ]
+
+PROBE_REFERENCE_VERTICES = 50_000  # up to this size every search keeps N_PROBES probes (all quality-table meshes)
+MIN_PROBES = 4
+QUADRATURE_MIN_VERTICES = 50_000  # best_shifted(search="auto"): Lanczos quadrature from this size, one factor per mu below
+SHIFTED_SEARCHES = ("auto", "quadrature", "factor")
+
+
+def probe_count(n: int) -> int:
+    """Hutchinson probes for a smoother of ``n`` vertices: ``N_PROBES`` up to 50,000 vertices, then fewer.
+
+    ``m = max(MIN_PROBES, ceil(N_PROBES * 50,000 / n))``, at most ``N_PROBES``: 24 up to 50k
+    vertices, 12 at 100k, 4 from 300k. Why fewer probes are enough on a large mesh: with
+    Rademacher probes the trace estimate has standard deviation
+    :math:`\\sqrt{2(\\|H\\|_F^2 - \\sum_i H_{ii}^2)/m} \\le \\sqrt{2\\,\\mathrm{tr} H / m}` (``H``
+    symmetric with eigenvalues in [0, 1], so :math:`\\|H\\|_F^2 \\le \\mathrm{tr} H \\le n`),
+    and SURE carries it times :math:`2\\rho^2`: relative to the noise energy
+    :math:`n\\rho^2` (the scale of SURE) at most :math:`2\\sqrt{2/(m n)}`, which falls with
+    ``n``. Keeping ``m n >= 24 x 50,000`` keeps that bound at or below its value for 24 probes
+    on a 50k-vertex mesh, 0.26 %; measured at 400k vertices with 4 probes, docs/scale.md.
+
+    Examples
+    --------
+    >>> probe_count(25_000), probe_count(100_000), probe_count(400_000), probe_count(1_600_000)
+    (24, 12, 4, 4)
+    """
+    return int(min(N_PROBES, max(MIN_PROBES, math.ceil(N_PROBES * PROBE_REFERENCE_VERTICES / max(n, 1)))))
 
 
 def averaging_step(A: sp.csr_matrix, lam: float) -> Callable[[np.ndarray], np.ndarray]:
@@ -52,7 +85,7 @@ def iterative_path(
     steps as the coordinates, so the whole curve costs one run.
     """
     n = V.shape[0]
-    Z, s = probe_block(n, exact, seed=seed)
+    Z, s = probe_block(n, exact, n_probes=probe_count(n), seed=seed)
     Y = np.hstack([np.array(V, dtype=np.float64), Z])
     k = 0
     while True:
@@ -60,6 +93,68 @@ def iterative_path(
         yield Point(k, float(np.sum((X - V) ** 2)), s * float(np.sum(Z * Y[:, 3:])), X.copy())
         Y = step(Y)
         k += 1
+
+
+class PathCurve:
+    """The residuals and traces of an iterative linear run, kept and extended on demand (no noise level in them).
+
+    The terms of :func:`iterative_path` (``||H_k X - X||^2`` and the Hutchinson trace of
+    ``H_k = step^k``, same probes, same arithmetic) do not depend on rho or on the
+    criterion, so one run serves every walk along it: :func:`estimate_noise` (two rhos),
+    the start guess of the Sobolev searches and the ``filtering`` / ``heat`` rules read the
+    same averaging curve (:func:`path_curve` memoises it). The coordinates of a step are not
+    stored: :meth:`coordinates` runs ``step`` again on the three columns alone (the same
+    row sums, so the same numbers).
+    """
+
+    def __init__(self, V: np.ndarray, ops: Operators, step: Callable, exact: bool | None = None, seed: int = 0):
+        n = V.shape[0]
+        self.V = np.array(V, dtype=np.float64)
+        self.step = step
+        self.Z, self.s = probe_block(n, exact, n_probes=probe_count(n), seed=seed)
+        self.Y = np.hstack([self.V, self.Z])
+        self.terms: list[tuple[float, float]] = []
+        self._record()
+
+    def _record(self) -> None:
+        X = self.Y[:, :3]
+        self.terms.append((float(np.sum((X - self.V) ** 2)), self.s * float(np.sum(self.Z * self.Y[:, 3:]))))
+
+    def points(self) -> Iterator[Point]:
+        """Points ``(k, ||H_k X - X||^2, tr H_k, X=None)`` for k = 0, 1, ..., extending the run as needed."""
+        k = 0
+        while True:
+            while len(self.terms) <= k:
+                self.Y = self.step(self.Y)
+                self._record()
+            r, t = self.terms[k]
+            yield Point(k, r, t, None)
+            k += 1
+
+    def coordinates(self, k: int) -> np.ndarray:
+        """``H_k X`` (n, 3): ``k`` steps on the coordinates."""
+        X = self.V.copy()
+        for _ in range(int(k)):
+            X = self.step(X)
+        return np.array(X, dtype=np.float64)
+
+
+def path_curve(V: np.ndarray, ops: Operators, step: Callable, name: tuple, exact: bool | None = None) -> PathCurve:
+    """The :class:`PathCurve` of ``step`` (described by the hashable ``name``) from ``V``, memoised in the tuning memo."""
+    n = V.shape[0]
+    key = ("path", digest(ops.F, V, n, exact, probe_count(n)), name)
+    return MEMO.get(key, lambda: PathCurve(V, ops, step, exact))
+
+
+def best_on_curve(curve: PathCurve, n: int, rho: float | None, criterion: Criterion | str,
+                  coordinates: bool = True) -> Point:
+    """:func:`best_on_path` along a memoised curve (not for the oracle, whose score needs every step's coordinates);
+    the best point's coordinates are recomputed unless ``coordinates=False`` (then ``X`` is None)."""
+    best = best_on_path(curve.points(), n, rho, criterion)
+    MEMO.trim()  # the curve grew in place
+    if coordinates:
+        best.X = curve.coordinates(best.value)
+    return best
 
 
 PAST_MINIMUM_FACTOR, PAST_MINIMUM_MARGIN = 2, 20
@@ -166,32 +261,118 @@ def solve_point(V: np.ndarray, ops: Operators, order: int, mu: float, Z: np.ndar
     return Point(mu, float(np.sum((X - V) ** 2)), s * float(np.sum(Z * out[:, 3:])), X)
 
 
+def shifted_quadrature(V: np.ndarray, ops: Operators, order: int, Z: np.ndarray, s: float,
+                       max_steps: int = 600) -> Callable[[float], Point | None]:
+    """Residual and trace of :math:`H_\\mu = (I + \\mu L^p)^{-1}` for every ``mu`` from one Lanczos run on ``L``.
+
+    ``H_mu`` is a function of ``L``, so both terms of SURE are quadratic forms of ``L``
+    (:class:`~meshdenoise.solvers.LanczosQuadrature`, nodes :math:`\\theta` of ``L``):
+
+    .. math:: \\|H_\\mu X - X\\|_F^2 = \\sum_{c} c^T \\frac{\\mu^2}{(1 + \\mu L^p)^2}\\, c, \\quad c = L^p X
+              \\text{ (columns)}, \\qquad
+              \\mathrm{tr} H_\\mu \\approx s \\sum_k z_k^T \\frac{1}{1 + \\mu L^p}\\, z_k
+
+    (:math:`H_\\mu X - X = -\\mu H_\\mu L^p X`; the high-pass ``c`` keeps the large, smooth part
+    of ``X`` out of the rule, which then needs no cancellation). Lanczos on ``L`` rather than
+    :math:`L^p`: the poles of :math:`1/(1 + \\mu\\lambda^p)` lie at distance
+    :math:`\\mu^{-1/p}` from the spectrum, so the rule converges in about
+    :math:`\\mu^{1/(2p)}` steps times a log, 30 to 150 steps for the weights SURE picks.
+
+    Returns ``evaluate(mu)``: a :class:`Point` with ``X = None`` (the coordinates are not
+    formed), or ``None`` when the rule has not converged in ``max_steps`` steps.
+    """
+    L = ops.L
+    c = np.array(V, dtype=np.float64)
+    for _ in range(order):
+        c = spmm(L, c)
+    quad = LanczosQuadrature(L, np.hstack([c, Z]), max_steps=max_steps)
+    res_cols, probe_cols = range(3), range(3, 3 + Z.shape[1])
+
+    def evaluate(mu: float) -> Point | None:
+        r = quad.evaluate(lambda t: mu**2 / (1.0 + mu * np.maximum(t, 0.0) ** order) ** 2, res_cols)
+        t = quad.evaluate(lambda t: 1.0 / (1.0 + mu * np.maximum(t, 0.0) ** order), probe_cols)
+        if r is None or t is None:
+            return None
+        return Point(mu, float(r.sum()), s * float(t.sum()), None)
+
+    return evaluate
+
+
+def shifted_coordinates(V: np.ndarray, ops: Operators, order: int, mu: float, tol: float = 1e-10) -> np.ndarray:
+    """:math:`(I + \\mu L^p)^{-1} V` by Jacobi-preconditioned CG started from ``V`` (relative residual ``tol``), no factor.
+
+    Iteration cap: four times the bound :math:`\\tfrac12\\sqrt\\kappa \\ln(2/\\mathrm{tol})` with
+    :math:`\\kappa \\le 1 + \\mu (2 d_{max})^p` (Gershgorin), plus 50.
+    """
+    d_max = float(ops.degree.max()) if ops.n else 0.0
+    kappa = 1.0 + mu * (2.0 * d_max) ** order
+    cap = int(4 * math.ceil(0.5 * math.sqrt(kappa) * math.log(2.0 / tol))) + 50
+    return shifted_solver(ops, mu, order, None, "cg").solve(V, tol=tol, x0=V, maxiter=cap)
+
+
 def best_shifted(
     V: np.ndarray, ops: Operators, order: int, rho: float | None, criterion: Criterion | str,
-    exact: bool | None = None, center: float = 1.0, golden_steps: int = 8,
+    exact: bool | None = None, center: float = 1.0, golden_steps: int = 8, search: str = "auto",
+    coordinates: bool = True,
 ) -> Point:
     """Minimise the criterion of :math:`(I + \\mu L^p)^{-1}` over log mu (:func:`search_log`).
 
-    ``center`` is a guess from the cheap averaging path (:func:`mu_guess`); each point is
-    one sparse Cholesky factorisation, with the same probes for every mu (a smooth curve).
+    ``center`` is a guess from the cheap averaging path (:func:`mu_guess`); the same probes
+    serve every mu (a smooth curve). Two ways to evaluate a candidate, same candidates:
+
+    - ``search="factor"``: one sparse Cholesky factorisation per mu, right-hand sides the
+      coordinates and the probes (:func:`solve_point`);
+    - ``search="quadrature"``: every candidate from one Lanczos run on ``L``
+      (:func:`shifted_quadrature`); only the best point's coordinates are solved, by CG
+      (:func:`shifted_coordinates`). A candidate whose rule has not converged (a very
+      large mu) falls back to its factorisation. Not with the oracle (its score is not a
+      quadratic form of ``L``).
+    - ``"auto"``: quadrature from :data:`QUADRATURE_MIN_VERTICES` vertices, factor below.
+
+    The two agree to the rounding of the rule (about 1e-12 relative on every term,
+    tests/test_scale_search.py), so they choose the same mu. With ``coordinates=False`` a
+    quadrature search returns the best point with ``X = None`` (a rule that needs only the
+    weight saves the solve; the filter solves it anyway).
     """
+    if search not in SHIFTED_SEARCHES:
+        raise ValueError(f"best_shifted: search must be one of {SHIFTED_SEARCHES}, got {search!r}")
     criterion = as_criterion(criterion)
     n = V.shape[0]
-    Z, s = probe_block(n, exact)
-    key = digest(ops.F, order, np.hstack([V, Z]))
+    Z, s = probe_block(n, exact, n_probes=probe_count(n))
+    keys: list[str] = []
+
+    def by_factor(mu: float) -> Point:
+        if not keys:
+            keys.append(digest(ops.F, order, np.hstack([V, Z])))
+        return solve_point(V, ops, order, mu, Z, s, keys[0])
+
+    use_quadrature = not criterion.oracle and (search == "quadrature" or (search == "auto" and n >= QUADRATURE_MIN_VERTICES))
+    at = shifted_quadrature(V, ops, order, Z, s) if use_quadrature else by_factor
 
     def evaluate(mu: float) -> Point:
-        p = solve_point(V, ops, order, mu, Z, s, key)
+        p = at(mu)
+        if p is None:
+            p = by_factor(mu)
         p.score = criterion.score(p, n, rho)
         return p
 
-    return search_log(evaluate, center, golden_steps)
+    best = search_log(evaluate, center, golden_steps)
+    if best.X is None and coordinates:
+        best.X = shifted_coordinates(V, ops, order, best.value)
+    return best
 
 
 def sure_smoothed(V: np.ndarray, ops: Operators, rho: float | None, criterion: Criterion | str = "sure",
                   exact: bool | None = None) -> Point:
-    """The best point of plain averaging ``X <- D^-1 W X`` (an estimate of the clean mesh, and its step count)."""
-    return best_on_path(iterative_path(V, ops, averaging_step(ops.P, 1.0), exact), ops.n, rho, criterion)
+    """The best point of plain averaging ``X <- D^-1 W X`` (an estimate of the clean mesh, and its step count).
+
+    Read along the memoised averaging curve (:func:`path_curve`): calls with other rhos or
+    criteria on the same mesh extend the same run instead of starting a new one.
+    """
+    criterion = as_criterion(criterion)
+    if criterion.oracle:
+        return best_on_path(iterative_path(V, ops, averaging_step(ops.P, 1.0), exact), ops.n, rho, criterion)
+    return best_on_curve(path_curve(V, ops, averaging_step(ops.P, 1.0), ("P", 1.0), exact), ops.n, rho, criterion)
 
 
 def mu_guess(V: np.ndarray, ops: Operators, rho: float | None, criterion: Criterion | str, exact: bool | None,
