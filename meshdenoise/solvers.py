@@ -545,7 +545,7 @@ class LanczosQuadrature:
 
     def nodes(self, j: int, k: int | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Nodes :math:`\\theta_i` and weights :math:`\\|b_j\\|^2 U_{1i}^2` of column ``j``'s ``k``-step rule (default: all)."""
-        k = int(self.lengths[j]) if k is None else min(int(k), int(self.lengths[j]))
+        k = int(self.lengths[j]) if k is None else max(0, min(int(k), int(self.lengths[j])))
         if (j, k) not in self._nodes:
             if k == 0:
                 self._nodes[(j, k)] = (np.zeros(0), np.zeros(0))

@@ -48,6 +48,8 @@ def meshlab_taubin_operator(ops: Operators) -> sp.csr_matrix:
 
 # ----------------------------------------------------------------------------- automatic rule
 TAUBIN_LAMBDAS = (0.5, 0.25, 0.125)  # candidate shrinking steps of the automatic taubin rule
+TAUBIN_FINE_MIN_VERTICES = 50_000  # from this size a finer lambda is tried only while ...
+TAUBIN_FINE_MAX_ITERATIONS = 8  # ... the coarser one's best count is below this
 
 
 def taubin_mu_for(lam: float, pass_band: float) -> float:
@@ -84,7 +86,12 @@ def choose_taubin(ctx: TuningContext) -> tuple[dict, Point]:
     :func:`taubin_mu_for` keeping the pass band :math:`k_{PB} = 1/\\lambda + 1/\\mu` of the
     defaults (0.5, -0.53): the same low-pass shape, finer steps (one default iteration
     can already be too much on weak noise: Nefertiti at rho = 0.015), and the smallest
-    SURE wins, as ``tau`` for ``heat``. Open3D's weights depend on the coordinates: not
+    SURE wins, as ``tau`` for ``heat``. From ``TAUBIN_FINE_MIN_VERTICES`` (50,000) vertices a
+    finer lambda is tried only while the best count so far is below ``TAUBIN_FINE_MAX_ITERATIONS``
+    (8): the finer steps are there for weak noise, where one default iteration is already too
+    much; with more iterations the count itself resolves the time, and each halving of lambda
+    doubles a walk that is already long (the 400k scale mesh: 80 iterations at lambda 0.5,
+    docs/scale.md). Open3D's weights depend on the coordinates: not
     linear, not supported here.
     """
     weights = ctx.given.get("weights", "uniform")
@@ -103,6 +110,8 @@ def choose_taubin(ctx: TuningContext) -> tuple[dict, Point]:
     A = ctx.ops.P if weights == "uniform" else meshlab_taubin_operator(ctx.ops)
     best, best_pair = None, None
     for lam, mu in pairs:
+        if best is not None and ctx.n >= TAUBIN_FINE_MIN_VERTICES and best.value >= TAUBIN_FINE_MAX_ITERATIONS:
+            break  # the run's own count already resolves the time; a finer step costs twice the walk
         shrink, inflate = averaging_step(A, lam), averaging_step(A, mu)
         step = lambda Y, s=shrink, f=inflate: f(s(Y))  # noqa: E731
         if ctx.oracle:

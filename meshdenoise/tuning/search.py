@@ -71,7 +71,11 @@ def averaging_step(A: sp.csr_matrix, lam: float) -> Callable[[np.ndarray], np.nd
 
     def step(Y: np.ndarray) -> np.ndarray:
         AY = spmm(A, Y)  # threaded on wide probe blocks; each row summed as A @ Y sums it (bit-identical)
-        return AY if lam == 1.0 else Y + lam * (AY - Y)
+        if lam != 1.0:  # Y + lam (AY - Y), the same operations in place (no temporaries)
+            AY -= Y
+            AY *= lam
+            AY += Y
+        return AY
 
     return step
 
@@ -117,8 +121,8 @@ class PathCurve:
         self._record()
 
     def _record(self) -> None:
-        X = self.Y[:, :3]
-        self.terms.append((float(np.sum((X - self.V) ** 2)), self.s * float(np.sum(self.Z * self.Y[:, 3:]))))
+        D = self.Y[:, :3] - self.V
+        self.terms.append((float(np.einsum("ij,ij->", D, D)), self.s * float(np.einsum("ij,ij->", self.Z, self.Y[:, 3:]))))
 
     def points(self) -> Iterator[Point]:
         """Points ``(k, ||H_k X - X||^2, tr H_k, X=None)`` for k = 0, 1, ..., extending the run as needed."""

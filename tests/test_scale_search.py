@@ -1,0 +1,212 @@
+"""The scan-size search paths (issue 17) against the direct computations they replace.
+
+- :class:`LanczosQuadrature` against dense ``b^T g(M) b`` (eigendecomposition / inverse);
+- ``best_shifted(search="quadrature")`` against ``search="factor"`` (one Cholesky factor per
+  candidate, the old search): same candidates, same chosen weight, same score;
+- :func:`shifted_coordinates` (CG) against a dense solve;
+- the memoised :class:`PathCurve` against :func:`iterative_path` (the old walk), and the rules
+  reading it against the old walk's choice;
+- the taubin rule's pruning of finer steps on large meshes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from meshdenoise import add_normal_noise, choose_parameters
+from meshdenoise.operators import Operators
+from meshdenoise.shapes import grid, icosphere, torus
+from meshdenoise.solvers import LanczosQuadrature
+from meshdenoise.tuning.memo import MEMO
+from meshdenoise.tuning.risk import Criterion, probe_block
+from meshdenoise.tuning.search import (
+    PathCurve,
+    averaging_step,
+    best_on_path,
+    best_shifted,
+    iterative_path,
+    path_curve,
+    probe_count,
+    shifted_coordinates,
+    shifted_quadrature,
+    solve_point,
+    sure_smoothed,
+)
+
+
+def _noisy(shape, rho, seed=0):
+    V, F = shape
+    Vn, _ = add_normal_noise((V, F), rho, seed=seed)
+    return V, Vn, F
+
+
+# --------------------------------------------------------------------------- Lanczos quadrature
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_lanczos_quadrature_matches_dense_quadratic_forms(order):
+    _, Vn, F = _noisy(icosphere(3), 0.02)
+    ops = Operators(F, len(Vn))
+    L = ops.L.toarray()
+    lam, U = np.linalg.eigh(L)
+    Z = np.random.default_rng(1).choice([-1.0, 1.0], size=(ops.n, 5))
+    c = Vn.copy()
+    for _ in range(order):
+        c = L @ c
+    q = LanczosQuadrature(ops.L, np.hstack([c, Z]))
+    for mu in (0.01, 0.5, 8.0, 60.0):
+        g_res = lambda t: mu**2 / (1.0 + mu * np.maximum(t, 0) ** order) ** 2  # noqa: E731
+        g_tr = lambda t: 1.0 / (1.0 + mu * np.maximum(t, 0) ** order)  # noqa: E731
+        H = (U * g_tr(lam)) @ U.T  # (I + mu L^p)^-1 from the eigendecomposition
+        res = q.evaluate(g_res, range(3))
+        tr = q.evaluate(g_tr, range(3, 8))
+        np.testing.assert_allclose(res.sum(), np.sum((H @ Vn - Vn) ** 2), rtol=1e-9)
+        np.testing.assert_allclose(tr, np.einsum("ij,ij->j", Z, H @ Z), rtol=1e-9)
+
+
+def test_lanczos_quadrature_exhausted_space_and_zero_column_are_exact():
+    M = sp.csr_matrix(np.diag([0.0, 1.0, 1.0, 3.0, 3.0, 3.0]))  # 3 distinct eigenvalues: exact after 3 steps
+    B = np.column_stack([np.ones(6), np.zeros(6)])
+    q = LanczosQuadrature(M, B)
+    out = q.evaluate(lambda t: np.exp(-t))
+    assert q.lengths[0] <= 4 and q.lengths[1] == 0
+    np.testing.assert_allclose(out, [1 + 2 * np.exp(-1) + 3 * np.exp(-3), 0.0], rtol=1e-12)
+
+
+def test_lanczos_quadrature_gives_up_after_max_steps():
+    _, Vn, F = _noisy(icosphere(3), 0.02)
+    ops = Operators(F, len(Vn))
+    q = LanczosQuadrature(ops.L, Vn, max_steps=10)
+    assert q.evaluate(lambda t: 1.0 / (1.0 + 1e6 * t**2)) is None
+    Z, s = probe_block(ops.n, False, n_probes=4)
+    assert shifted_quadrature(Vn, ops, 2, Z, s, max_steps=10)(1e6) is None
+
+
+def test_lanczos_quadrature_rejects_mismatched_shapes():
+    with pytest.raises(ValueError, match="do not match"):
+        LanczosQuadrature(sp.identity(3, format="csr"), np.ones((4, 1)))
+
+
+# --------------------------------------------------------------------------- the Sobolev searches
+@pytest.mark.parametrize(
+    "shape, rho, order, exact",
+    [
+        (icosphere(3), 0.02, 1, None),  # 642 vertices: exact traces (identity probes)
+        (icosphere(3), 0.02, 2, None),
+        (torus(40, 20), 0.01, 2, False),  # 800 vertices, Hutchinson probes
+        (grid(30, 30), 0.01, 1, False),  # open: boundary rows of L
+    ],
+)
+def test_quadrature_search_chooses_the_factor_search_weight(shape, rho, order, exact):
+    _, Vn, F = _noisy(shape, rho)
+    ops = Operators(F, len(Vn))
+    MEMO.clear()
+    old = best_shifted(Vn, ops, order, rho, "sure", exact, center=0.3, search="factor")
+    new = best_shifted(Vn, ops, order, rho, "sure", exact, center=0.3, search="quadrature")
+    assert new.value == pytest.approx(old.value, rel=1e-9)
+    np.testing.assert_allclose([new.residual_sq, new.trace, new.score], [old.residual_sq, old.trace, old.score], rtol=1e-8)
+    np.testing.assert_allclose(new.X, old.X, rtol=0, atol=1e-8 * np.abs(old.X).max())
+
+
+def test_quadrature_points_equal_factor_points_and_oracle_keeps_factor():
+    V, Vn, F = _noisy(icosphere(3), 0.02)
+    ops = Operators(F, len(Vn))
+    Z, s = probe_block(ops.n, False, n_probes=6)
+    at = shifted_quadrature(Vn, ops, 2, Z, s)
+    for mu in (0.003, 0.2, 5.0):
+        p, ref = at(mu), solve_point(Vn, ops, 2, mu, Z, s)
+        assert p.X is None
+        np.testing.assert_allclose([p.residual_sq, p.trace], [ref.residual_sq, ref.trace], rtol=1e-10)
+    oracle = best_shifted(Vn, ops, 1, None, Criterion("oracle", V), None, center=0.3, search="quadrature")
+    assert oracle.X is not None and oracle.score == pytest.approx(np.sum((oracle.X - V) ** 2), rel=1e-12)
+    with pytest.raises(ValueError, match="search must be one of"):
+        best_shifted(Vn, ops, 1, 0.02, "sure", search="lanczos")
+
+
+def test_best_shifted_without_coordinates_and_shifted_coordinates_against_dense():
+    _, Vn, F = _noisy(torus(30, 15), 0.01)
+    ops = Operators(F, len(Vn))
+    p = best_shifted(Vn, ops, 2, 0.01, "sure", False, center=0.3, search="quadrature", coordinates=False)
+    assert p.X is None
+    for order, mu in ((1, 0.7), (2, 2.5)):
+        A = np.eye(ops.n) + mu * np.linalg.matrix_power(ops.L.toarray(), order)
+        X = shifted_coordinates(Vn, ops, order, mu)
+        np.testing.assert_allclose(X, np.linalg.solve(A, Vn), rtol=0, atol=1e-9 * np.abs(Vn).max())
+
+
+# --------------------------------------------------------------------------- probes
+def test_probe_count_by_size():
+    assert [probe_count(n) for n in (10, 50_000, 60_000, 100_000, 300_000, 5_000_000)] == [24, 24, 20, 12, 4, 4]
+
+
+# --------------------------------------------------------------------------- memoised curves
+def test_path_curve_terms_and_coordinates_equal_the_walk():
+    _, Vn, F = _noisy(icosphere(3), 0.03)
+    ops = Operators(F, len(Vn))
+    step = averaging_step(ops.P, 0.5)
+    curve = PathCurve(Vn, ops, step, exact=False)
+    walk = iterative_path(Vn, ops, step, exact=False)
+    for p, q in zip(curve.points(), walk):
+        np.testing.assert_allclose([p.residual_sq, p.trace], [q.residual_sq, q.trace], rtol=1e-12)
+        if p.value in (0, 3, 11):
+            np.testing.assert_array_equal(curve.coordinates(p.value), q.X)
+        if p.value == 15:
+            break
+
+
+@pytest.mark.parametrize("rho", [0.005, 0.03, 0.1])
+def test_sure_smoothed_on_the_memo_equals_the_old_walk(rho):
+    _, Vn, F = _noisy(icosphere(3), rho)
+    ops = Operators(F, len(Vn))
+    MEMO.clear()
+    for r in (rho, 0.5 * rho, 2 * rho):  # several rhos on one memoised run
+        new = sure_smoothed(Vn, ops, r)
+        old = best_on_path(iterative_path(Vn, ops, averaging_step(ops.P, 1.0), None), ops.n, r, "sure")
+        assert new.value == old.value and new.score == pytest.approx(old.score, rel=1e-12)
+        np.testing.assert_array_equal(new.X, old.X)
+    assert any(k[0] == "path" for k in MEMO)
+
+
+@pytest.mark.parametrize("method, given", [("filtering", {}), ("filtering", {"weights": "meshlab", "lam": 0.5}),
+                                           ("heat", {}), ("taubin", {})])
+def test_rules_on_the_memo_choose_what_the_old_walk_chose(method, given, monkeypatch):
+    V, Vn, F = _noisy(torus(40, 20), 0.02)
+    MEMO.clear()
+    new = choose_parameters((Vn, F), method, noise=0.02, **given)
+    import meshdenoise.plugins.filtering as filtering_mod
+    import meshdenoise.plugins.heat as heat_mod
+    import meshdenoise.plugins.taubin as taubin_mod
+
+    def old_curve(V_, ops, step, name, exact=None):  # the old walk: a fresh run, every step's coordinates
+        return _OldWalk(V_, ops, step, exact)
+
+    for mod in (filtering_mod, heat_mod, taubin_mod):
+        monkeypatch.setattr(mod, "path_curve", old_curve)
+    old = choose_parameters((Vn, F), method, noise=0.02, **given)
+    assert new == old
+
+
+class _OldWalk:
+    """:func:`iterative_path` dressed as a curve (what the rules walked before the memo)."""
+
+    def __init__(self, V, ops, step, exact):
+        self.path = iterative_path(V, ops, step, exact)
+
+    def points(self):
+        return self.path
+
+    def coordinates(self, k):  # pragma: no cover - the rules ask for none
+        raise AssertionError
+
+
+def test_taubin_tries_finer_steps_only_while_the_count_is_small(monkeypatch):
+    import meshdenoise.plugins.taubin as taubin_mod
+
+    _, Vn, F = _noisy(torus(40, 20), 0.04)
+    full = choose_parameters((Vn, F), "taubin", noise=0.04)
+    monkeypatch.setattr(taubin_mod, "TAUBIN_FINE_MIN_VERTICES", 0)
+    pruned = choose_parameters((Vn, F), "taubin", noise=0.04)
+    at_half = choose_parameters((Vn, F), "taubin", noise=0.04, lam=0.5, mu=-0.53)
+    assert at_half["iterations"] >= taubin_mod.TAUBIN_FINE_MAX_ITERATIONS  # this mesh's count: pruning applies
+    assert pruned == {**at_half, "lam": 0.5, "mu": -0.53}
+    assert full["lam"] in taubin_mod.TAUBIN_LAMBDAS
