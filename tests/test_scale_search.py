@@ -210,3 +210,32 @@ def test_taubin_tries_finer_steps_only_while_the_count_is_small(monkeypatch):
     assert at_half["iterations"] >= taubin_mod.TAUBIN_FINE_MAX_ITERATIONS  # this mesh's count: pruning applies
     assert pruned == {**at_half, "lam": 0.5, "mu": -0.53}
     assert full["lam"] in taubin_mod.TAUBIN_LAMBDAS
+
+
+# --------------------------------------------------------------------------- sobolev_bilaplacian's CG solver
+def test_bilaplacian_cg_equals_dense_solve_and_auto_picks_cg_only_when_large(monkeypatch):
+    import meshdenoise.plugins.sobolev_bilaplacian as bl
+    from meshdenoise.operators import get_operators
+
+    _, Vn, F = _noisy(torus(30, 15), 0.01)
+    ops = Operators(F, len(Vn))
+    pinned = np.zeros(ops.n, dtype=bool)
+    pinned[::17] = True
+    for mu, pin in ((0.3, None), (4.0, pinned)):
+        L2 = np.linalg.matrix_power(ops.L.toarray(), 2)
+        A = np.eye(ops.n) + mu * L2
+        if pin is None:
+            expected = np.linalg.solve(A, Vn)
+        else:  # Dirichlet rows: free rows solved with the pinned values moved to the right-hand side
+            f, q = ~pin, pin
+            expected = Vn.copy()
+            expected[f] = np.linalg.solve(A[np.ix_(f, f)], Vn[f] - mu * L2[np.ix_(f, q)] @ Vn[q])
+        Y, _ = bl.sobolev_bilaplacian((Vn, F), mu=mu, solver="cg", tol=1e-12, pinned=pin)
+        np.testing.assert_allclose(Y, expected, rtol=0, atol=1e-9 * np.abs(Vn).max())
+    ops = get_operators(F, len(Vn))
+    assert bl._choose_solver(ops, 1.0, None, 1e-10) == "cholesky"  # small mesh: the factor is cheap and kept
+    monkeypatch.setattr(bl, "AUTO_CG_MIN_VERTICES", 0)
+    assert bl._choose_solver(ops, 1.0, None, 1e-10) == "cg"
+    assert bl._choose_solver(ops, 1e4, None, 1e-10) == "cholesky"  # CG's bound too large
+    bl.sobolev_bilaplacian((Vn, F), mu=1.0, solver="cholesky")  # the factor stored: reused
+    assert bl._choose_solver(ops, 1.0, None, 1e-10) == "cholesky"
