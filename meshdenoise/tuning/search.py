@@ -386,6 +386,11 @@ def mu_guess(V: np.ndarray, ops: Operators, rho: float | None, criterion: Criter
     Both filters damp the eigenmode of :math:`I - D^{-1}W` with eigenvalue :math:`\\lambda`
     by about half when :math:`k\\lambda \\approx \\mu \\bar d \\lambda \\approx 1`.
     """
-    k = sure_smoothed(V, ops, rho, criterion, exact).value
+    criterion = as_criterion(criterion)
+    if criterion.oracle:
+        k = sure_smoothed(V, ops, rho, criterion, exact).value
+    else:  # only the count: read off the memoised averaging curve, no coordinates formed
+        k = best_on_curve(path_curve(V, ops, averaging_step(ops.P, 1.0), ("P", 1.0), exact), ops.n, rho, criterion,
+                          coordinates=False).value
     dbar = float(np.mean(ops.degree[~ops.isolated])) if (~ops.isolated).any() else 1.0
     return max(k, 0.5) ** order / dbar**order
