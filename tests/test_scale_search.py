@@ -239,3 +239,18 @@ def test_bilaplacian_cg_equals_dense_solve_and_auto_picks_cg_only_when_large(mon
     assert bl._choose_solver(ops, 1e4, None, 1e-10) == "cholesky"  # CG's bound too large
     bl.sobolev_bilaplacian((Vn, F), mu=1.0, solver="cholesky")  # the factor stored: reused
     assert bl._choose_solver(ops, 1.0, None, 1e-10) == "cholesky"
+
+
+def test_path_curve_memo_is_keyed_by_the_probes(monkeypatch):
+    import meshdenoise.tuning.search as search
+
+    _, Vn, F = _noisy(icosphere(3), 0.02)
+    ops = Operators(F, len(Vn))
+    MEMO.clear()
+    step = averaging_step(ops.P, 1.0)
+    a = path_curve(Vn, ops, step, ("P", 1.0), exact=False)
+    assert path_curve(Vn, ops, step, ("P", 1.0), exact=False) is a
+    plain = search.probe_block
+    monkeypatch.setattr(search, "probe_block", lambda *args, **kw: (2.0 * plain(*args, **kw)[0], plain(*args, **kw)[1]))
+    b = path_curve(Vn, ops, step, ("P", 1.0), exact=False)  # other probes (a coloured noise model): another run
+    assert b is not a and np.array_equal(b.Z, 2.0 * a.Z)

@@ -111,11 +111,12 @@ class PathCurve:
     row sums, so the same numbers).
     """
 
-    def __init__(self, V: np.ndarray, ops: Operators, step: Callable, exact: bool | None = None, seed: int = 0):
+    def __init__(self, V: np.ndarray, ops: Operators, step: Callable, exact: bool | None = None, seed: int = 0,
+                 probes: tuple[np.ndarray, float] | None = None):
         n = V.shape[0]
         self.V = np.array(V, dtype=np.float64)
         self.step = step
-        self.Z, self.s = probe_block(n, exact, n_probes=probe_count(n), seed=seed)
+        self.Z, self.s = probes if probes is not None else probe_block(n, exact, n_probes=probe_count(n), seed=seed)
         self.Y = np.hstack([self.V, self.Z])
         self.terms: list[tuple[float, float]] = []
         self._record()
@@ -146,8 +147,9 @@ class PathCurve:
 def path_curve(V: np.ndarray, ops: Operators, step: Callable, name: tuple, exact: bool | None = None) -> PathCurve:
     """The :class:`PathCurve` of ``step`` (described by the hashable ``name``) from ``V``, memoised in the tuning memo."""
     n = V.shape[0]
-    key = ("path", digest(ops.F, V, n, exact, probe_count(n)), name)
-    return MEMO.get(key, lambda: PathCurve(V, ops, step, exact))
+    Z, s = probe_block(n, exact, n_probes=probe_count(n))
+    key = ("path", digest(ops.F, V, Z, s), name)  # the probes themselves: however they were drawn or coloured
+    return MEMO.get(key, lambda: PathCurve(V, ops, step, exact, probes=(Z, s)))
 
 
 def best_on_curve(curve: PathCurve, n: int, rho: float | None, criterion: Criterion | str,
