@@ -114,6 +114,17 @@ def load(npz: str):
         return z["V"], z["F"], z["Vn"]
 
 
+def code_version() -> str:
+    """The checkout's commit (short hash), with ``+dirty`` when tracked files differ from it; ``unknown`` without git."""
+    try:
+        head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True, check=True)
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=ROOT, capture_output=True,
+                               text=True, check=True)
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+
+
 # --- memory of this process (Linux) -------------------------------------------------------------
 def _status(field: str) -> int:
     for line in Path("/proc/self/status").read_text().splitlines():
@@ -379,7 +390,8 @@ def main(argv: list[str] | None = None) -> None:
     folder = cache_dir(args.cache_dir)
     started = time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())
     uptime_before = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
-    print(f"{started}; {uptime_before}", flush=True)
+    commit = code_version()
+    print(f"{started}; commit {commit}; {uptime_before}", flush=True)
     print(ROW_HEADER, flush=True)
     results = []
     with tempfile.TemporaryDirectory() as work:
@@ -401,11 +413,13 @@ def main(argv: list[str] | None = None) -> None:
         "uptime_after": uptime_after,
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
         "timeout": args.timeout,
+        "commit": commit,
         "command": "python benchmarks/scale.py " + " ".join(argv),
     }
     text = [
         f"# benchmarks/scale.py, {started}",
         f"command: {meta['command']}",
+        f"commit: {commit}",
         f"machine: {os.cpu_count()} cores, shared with other jobs; uptime before: {uptime_before}; after: {uptime_after}",
         f"noise: {NOISE_EDGES} mean edge length along the normals, seed 0; timeout per cell: {args.timeout:.0f} s",
         "",
@@ -414,7 +428,7 @@ def main(argv: list[str] | None = None) -> None:
         text += [ROW_HEADER] + [format_row(r["mesh"], m, row) for r in results for m, row in r["methods"].items()] + [""]
     if not args.no_pairs:
         text += [PAIR_HEADER] + [format_pair(r["mesh"], w, c) for r in results for w, c in r["pairs"].items()] + [""]
-    print("\n".join(text[5:]))
+    print("\n".join(text[6:]))
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)
         Path(args.out + ".txt").write_text("\n".join(text) + "\n")

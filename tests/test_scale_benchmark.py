@@ -52,3 +52,16 @@ def test_a_failing_cell_says_so(scale):
     assert cell["exit"] == 3 and not cell["timed_out"]
     mesh = {"label": "1k", "n": 1000}
     assert "| fail |" in scale.format_row(mesh, "heat", {"e2e": cell, "load_before": 0.5}, timeout=60)
+
+
+def test_code_version_names_the_checkout_commit():
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent
+    sys.path.insert(0, str(root / "benchmarks"))
+    import scale
+
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True).stdout.strip()
+    assert scale.code_version().split("+")[0] == head
