@@ -9,6 +9,7 @@ wins on very large, well-conditioned systems such as ``I + mu L`` with moderate 
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 from typing import Any, Callable
 
@@ -499,6 +500,7 @@ class LanczosQuadrature:
         if int(max_steps) < 1:
             raise ValueError(f"LanczosQuadrature: max_steps must be at least 1, got {max_steps!r}")
         self.M, self.max_steps = M, int(max_steps)
+        self._B = B
         k = B.shape[1]
         self.norms2 = np.einsum("ij,ij->j", B, B)
         self._scale = float(abs(M).sum(axis=1).max()) if M.nnz else 1.0  # ||M||_inf >= |eigenvalues|
@@ -586,3 +588,60 @@ class LanczosQuadrature:
             if k >= self.max_steps:
                 return None
             self.extend(min(check, self.max_steps - k))
+
+    def _coefficients(self, g: Callable[[np.ndarray], np.ndarray], j: int, k: int) -> np.ndarray:
+        """:math:`\\|b_j\\| U g(\\Theta) U^T e_1` of column ``j``'s ``k``-step rule (length ``k``)."""
+        from scipy.linalg import eigh_tridiagonal
+
+        k = max(0, min(int(k), int(self.lengths[j])))
+        if k == 0:
+            return np.zeros(0)
+        theta, U = eigh_tridiagonal(self._alpha[:k, j], self._beta[: k - 1, j])
+        return math.sqrt(self.norms2[j]) * (U @ (g(theta) * U[0]))
+
+    def apply(self, g: Callable[[np.ndarray], np.ndarray], *, rtol: float = 1e-10, check: int = 10) -> np.ndarray | None:
+        """:math:`g(M)\\, B` (n, k) by the Lanczos approximation :math:`\\|b\\| Q_k\\, g(T_k)\\, e_1`, per column.
+
+        The coefficients in the Lanczos basis are extended until they change by at most
+        ``rtol`` (relative, in norm) over the last ``check`` steps (``None`` if
+        :attr:`max_steps` is reached first); then a second pass regenerates the basis
+        vectors from the stored recurrence (nothing of size ``n x steps`` is kept) and sums
+        them. Two passes of sparse products, no factorisation.
+        """
+        kcols = self._q.shape[1]
+        if self.steps < check:
+            self.extend(check - self.steps)
+        while True:
+            k = self.steps
+            ok = True
+            coef = []
+            for j in range(kcols):
+                now = self._coefficients(g, j, k)
+                before = self._coefficients(g, j, k - check)
+                diff = now.copy()
+                diff[: before.size] -= before
+                if self._active[j] and np.linalg.norm(diff) > rtol * np.linalg.norm(now):
+                    ok = False
+                coef.append(now)
+            if ok:
+                break
+            if k >= self.max_steps:
+                return None
+            self.extend(min(check, self.max_steps - k))
+        inv = np.divide(1.0, np.sqrt(self.norms2), out=np.zeros(kcols), where=self.norms2 > 0)
+        q_prev, q = np.zeros_like(self._B), self._B * inv
+        beta_prev = np.zeros(kcols)
+        out = np.zeros_like(self._B)
+        W = np.empty_like(q)
+        for i in range(max(c.size for c in coef) if coef else 0):
+            y = np.array([c[i] if i < c.size else 0.0 for c in coef])
+            out += q * y
+            spmm(self.M, q, out=W)
+            W -= q * self._alpha[i]
+            W -= q_prev * beta_prev
+            b = self._beta[i]
+            inv = np.divide(1.0, b, out=np.zeros(kcols), where=b > 0)
+            q_prev, q = q, W * inv
+            W = np.empty_like(q)
+            beta_prev = b
+        return out

@@ -82,6 +82,17 @@ def test_lanczos_quadrature_gives_up_after_max_steps():
     assert shifted_quadrature(Vn, ops, 2, Z, s, max_steps=10)(1e6) is None
 
 
+def test_lanczos_apply_equals_the_dense_matrix_function():
+    _, Vn, F = _noisy(icosphere(3), 0.02)
+    ops = Operators(F, len(Vn))
+    lam, U = np.linalg.eigh(ops.L.toarray())
+    B = np.hstack([ops.L @ Vn, np.random.default_rng(2).standard_normal((ops.n, 2))])
+    for g in (lambda t: 1.0 / (1.0 + 3.0 * t**2), lambda t: np.exp(-0.5 * t)):
+        Y = LanczosQuadrature(ops.L, B).apply(g, rtol=1e-12)
+        np.testing.assert_allclose(Y, (U * g(lam)) @ (U.T @ B), rtol=0, atol=1e-10 * np.abs(B).max())
+    assert LanczosQuadrature(ops.L, B, max_steps=5).apply(lambda t: 1.0 / (1.0 + 1e8 * t**2)) is None
+
+
 def test_lanczos_quadrature_rejects_mismatched_shapes():
     with pytest.raises(ValueError, match="do not match"):
         LanczosQuadrature(sp.identity(3, format="csr"), np.ones((4, 1)))
@@ -230,12 +241,17 @@ def test_bilaplacian_cg_equals_dense_solve_and_auto_picks_cg_only_when_large(mon
             f, q = ~pin, pin
             expected = Vn.copy()
             expected[f] = np.linalg.solve(A[np.ix_(f, f)], Vn[f] - mu * L2[np.ix_(f, q)] @ Vn[q])
-        Y, _ = bl.sobolev_bilaplacian((Vn, F), mu=mu, solver="cg", tol=1e-12, pinned=pin)
-        np.testing.assert_allclose(Y, expected, rtol=0, atol=1e-9 * np.abs(Vn).max())
+        for solver in ("cg", "lanczos"):  # lanczos with pinned vertices: CG
+            Y, _ = bl.sobolev_bilaplacian((Vn, F), mu=mu, solver=solver, tol=1e-12, pinned=pin)
+            np.testing.assert_allclose(Y, expected, rtol=0, atol=1e-9 * np.abs(Vn).max())
+        if pin is None:
+            Y = bl.lanczos_bilaplacian(ops, Vn, mu, 1e-10)
+            np.testing.assert_allclose(Y, expected, rtol=0, atol=1e-10 * np.abs(Vn).max())
     ops = get_operators(F, len(Vn))
     assert bl._choose_solver(ops, 1.0, None, 1e-10) == "cholesky"  # small mesh: the factor is cheap and kept
     monkeypatch.setattr(bl, "AUTO_CG_MIN_VERTICES", 0)
-    assert bl._choose_solver(ops, 1.0, None, 1e-10) == "cg"
+    assert bl._choose_solver(ops, 1.0, None, 1e-10) == "lanczos"
+    assert bl._choose_solver(ops, 1.0, pinned, 1e-10) == "cg"
     assert bl._choose_solver(ops, 1e4, None, 1e-10) == "cholesky"  # CG's bound too large
     bl.sobolev_bilaplacian((Vn, F), mu=1.0, solver="cholesky")  # the factor stored: reused
     assert bl._choose_solver(ops, 1.0, None, 1e-10) == "cholesky"
