@@ -252,7 +252,8 @@ def test_bilaplacian_cg_equals_dense_solve_and_auto_picks_cg_only_when_large(mon
     monkeypatch.setattr(bl, "AUTO_CG_MIN_VERTICES", 0)
     assert bl._choose_solver(ops, 1.0, None, 1e-10) == "lanczos"
     assert bl._choose_solver(ops, 1.0, pinned, 1e-10) == "cg"
-    assert bl._choose_solver(ops, 1e4, None, 1e-10) == "cholesky"  # CG's bound too large
+    assert bl._choose_solver(ops, 1e4, None, 1e-10) == "lanczos"  # its steps grow like mu^(1/4)
+    assert bl._choose_solver(ops, 1e4, pinned, 1e-10) == "cholesky"  # CG's bound too large
     bl.sobolev_bilaplacian((Vn, F), mu=1.0, solver="cholesky")  # the factor stored: reused
     assert bl._choose_solver(ops, 1.0, None, 1e-10) == "cholesky"
 

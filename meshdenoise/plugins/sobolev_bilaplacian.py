@@ -30,18 +30,20 @@ def bilaplacian_cg_bound(ops: Operators, mu: float, tol: float) -> float:
 def _choose_solver(ops: Operators, mu: float, pinned: np.ndarray | None, tol: float) -> str:
     """``solver="auto"``: as :func:`~meshdenoise.plugins.sobolev.choose_solver` for :math:`I + \\mu L^2`.
 
-    Cholesky when its factor is stored or below :data:`AUTO_CG_MIN_VERTICES` vertices, else
-    CG while :func:`bilaplacian_cg_bound` is at most :data:`AUTO_CG_MAX_ITERATIONS` (the 400k
-    scale mesh at the chosen mu = 1.1: a 14 s factorisation, or about 2 s of CG).
+    Cholesky when its factor is stored or below :data:`AUTO_CG_MIN_VERTICES` vertices; else
+    two Lanczos passes (:func:`lanczos_bilaplacian`) without pinned vertices, and with them CG
+    while :func:`bilaplacian_cg_bound` is at most :data:`AUTO_CG_MAX_ITERATIONS`, Cholesky
+    otherwise (the 400k scale mesh at the chosen mu = 1.1: a 14 s factorisation, 4.4 s of CG,
+    2.1 s of Lanczos on a loaded machine).
     """
     stored = ops.cache.get("shifted-p2-cholesky", {})
     if (float(mu), mask_key(pinned if pinned is not None and pinned.any() else None)) in stored:
         return "cholesky"
     if ops.n < AUTO_CG_MIN_VERTICES:
         return "cholesky"
-    if bilaplacian_cg_bound(ops, mu, tol) > AUTO_CG_MAX_ITERATIONS:
-        return "cholesky"
-    return "cg" if pinned is not None and pinned.any() else "lanczos"
+    if pinned is None or not pinned.any():
+        return "lanczos"  # its steps grow like mu^(1/4): no bound needed (a factor at 1.6M took over 3 minutes and 6.7 GB)
+    return "cg" if bilaplacian_cg_bound(ops, mu, tol) <= AUTO_CG_MAX_ITERATIONS else "cholesky"
 
 
 def lanczos_bilaplacian(ops: Operators, V: np.ndarray, mu: float, tol: float) -> np.ndarray | None:
@@ -109,7 +111,7 @@ def sobolev_bilaplacian(V, F, *, ops, pinned, mu, solver="auto", tol=1e-10):
         Cached sparse Cholesky factor, block conjugate gradient, two Lanczos passes on ``L``
         (:func:`lanczos_bilaplacian`; with pinned vertices CG is used), or ``"auto"`` (default):
         Cholesky below 200,000 vertices or when the factor is already stored, else
-        ``"lanczos"`` (``"cg"`` with pinned vertices) while the CG iteration bound is at most 300.
+        ``"lanczos"``; with pinned vertices ``"cg"`` while its iteration bound is at most 300.
     tol : float, 1e-14 <= tol <= 1e-2
         Relative residual at which ``"cg"`` stops (ignored by ``"cholesky"``).
     pinned, region, preserve_volume, operators
