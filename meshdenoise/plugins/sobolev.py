@@ -145,6 +145,13 @@ def sobolev(V, F, *, ops, pinned, mu, solver="auto", tol=1e-10):
     ``"cholesky"`` for large ``mu`` (iterations grow like :math:`\\sqrt\\mu`) or for many
     solves on the same topology (the cached factor makes each re-solve cheap).
 
+    Choosing ``mu`` for a scan: ``mu`` has no unit (the graph Laplacian counts neighbours), and
+    the best value follows the noise measured in mean edge lengths ``h``. With Gaussian noise
+    along the normals the oracle chose 0.08-0.13 at 0.1 h, 0.28-0.33 at 0.3 h and 0.67-0.87 at
+    1 h on a sphere, a torus and the bunny (``benchmarks/results/parameter-scale.md``): start from
+    ``mu`` about the noise in edge lengths (``meshdenoise denoise --dry-run`` prints it), or let
+    ``choose_parameters`` / ``denoise(method="sobolev")`` choose it.
+
     Parameters
     ----------
     mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh

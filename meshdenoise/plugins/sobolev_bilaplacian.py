@@ -103,6 +103,13 @@ def sobolev_bilaplacian(V, F, *, ops, pinned, mu, solver="auto", tol=1e-10):
     (as ``sobolev``), stopped at relative residual ``tol``; its iterations grow like
     :math:`\\sqrt{\\mu}\\, d_{max}` (:func:`bilaplacian_cg_bound`), not with ``n``.
 
+    Choosing ``mu`` for a scan: with noise of 0.1, 0.3 and 1 mean edge lengths ``h`` along the
+    normals the oracle chose 0.02-0.58, 0.20-1.38 and 1.37-4.15 on a sphere, a torus and the
+    bunny (``benchmarks/results/parameter-scale.md``): it depends on the surface's curvature at the
+    edge-length scale more than first-order ``mu`` does, so prefer the automatic choice
+    (``denoise(method="sobolev_bilaplacian")``); by hand, start near ``mu = 2 s`` for noise of
+    ``s`` edge lengths and compare renders (``meshdenoise render BEFORE AFTER``).
+
     Parameters
     ----------
     mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh

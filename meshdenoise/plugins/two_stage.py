@@ -656,6 +656,12 @@ def two_stage(
     1e-80 gives the same result, scaled. Defaults reach 3.0 degrees of mean face-normal error on the
     Fandisk0.3 benchmark (noisy: 28.4) and 3.6 on Block0.4 (noisy: 33.7).
 
+    Choosing ``iterations`` for a scan: ``sigma_r`` and ``sigma_s`` have no length unit; the outer
+    count grows with the noise in mean edge lengths: with noise of 0.1, 0.3 and 1 edge lengths
+    along the normals (other parameters at their defaults) the oracle chose 1-2, 1-8 and 2-8 on a
+    sphere, a torus and the bunny (``benchmarks/results/parameter-scale.md``). The automatic rule
+    (``denoise(method="two_stage")``) chooses it with ``sigma_r`` and the inner counts.
+
     Parameters
     ----------
     mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
