@@ -15,15 +15,15 @@ interior vertices from the scan as shipped (the "clean" reference of this test).
 from __future__ import annotations
 
 import argparse
-import os
-import subprocess
 import sys
 import time
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from tables import provenance, write_table  # noqa: E402
+
 RUNS = (("sobolev", {"mu": 2.0}), ("sobolev_bilaplacian", {"mu": 3.0}), ("taubin", {"iterations": 20}),
         ("two_stage", {}), ("default", {}))
 
@@ -67,17 +67,11 @@ def main(argv: list[str] | None = None) -> int:
                 rows.append(f"| {label} | {name} ({setting}) | {motion} | {move[b].mean():.3f} | {move[inner].mean():.3f} "
                             f"| {ratio:.2f} | {errors} | {dt:.1f} |")
                 print(rows[-1], flush=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    head = [f"<!-- python benchmarks/borders.py --out {a.out} ({time.strftime('%Y-%m-%d')}, commit {commit}, "
-            f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.1f}: times under that load) -->", "",
+    head = [provenance("borders.py", argv), "",
             "# Open borders of a range scan (face000.ply, 85,849 vertices, 4,111 border vertices)", "",
             "Moves and errors in mean edge lengths (mean over border / interior vertices); ratio = border move / "
             "interior move (target: at most 2). Errors are distances from the scan as shipped.", ""]
-    if a.out:
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = a.out.with_suffix(".tmp")
-        tmp.write_text("\n".join(head + rows) + "\n")
-        tmp.replace(a.out)
+    write_table(a.out, head + rows)
     return 0
 
 

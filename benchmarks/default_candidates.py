@@ -16,14 +16,14 @@ error (deg), SNR (dB), time (s, one call including the automatic choice).
 from __future__ import annotations
 
 import argparse
-import os
-import subprocess
 import sys
 import time
 import warnings
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from tables import provenance, write_table  # noqa: E402
+
 CANDIDATES = ("two_stage", "sobolev_bilaplacian", "sobolev_normal", "taubin")
 
 
@@ -98,19 +98,10 @@ def main(argv: list[str] | None = None) -> int:
             print(name, method, params, cells[-1], flush=True)
         rows.append(f"| {name} | {V0.shape[0]:,} | {md.normal_error_deg((V0, F), (Vn, F)):.2f} / {md.snr(V0, Vn):.2f} | "
                     + " | ".join(cells) + " |")
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    head = [f"<!-- python benchmarks/default_candidates.py {' '.join(argv if argv is not None else sys.argv[1:])} "
-            f"({time.strftime('%Y-%m-%d')}, commit {commit}, {os.cpu_count()} cores, load average "
-            f"{os.getloadavg()[0]:.1f} at the end: times under that load) -->", "",
-            "# The default's smooth-mesh candidates, each with its automatic parameters", "",
+    head = [provenance("default_candidates.py", argv), "",
+            "# The default's candidates, each with its automatic parameters, and what `denoise(mesh)` picks", "",
             "Each cell: mean face-normal error (deg) / SNR (dB) (time of one `denoise(mesh, method=M)` call).", ""]
-    text = "\n".join(head + rows) + "\n"
-    print(text)
-    if a.out:
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = a.out.with_suffix(".tmp")
-        tmp.write_text(text)
-        tmp.replace(a.out)
+    print(write_table(a.out, head + rows))
     return 0
 
 

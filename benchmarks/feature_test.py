@@ -16,15 +16,13 @@ Meshes whose files are missing are listed as such.
 from __future__ import annotations
 
 import argparse
-import os
-import subprocess
 import sys
 import time
 from pathlib import Path
 
-import numpy as np
 
-ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from tables import provenance, write_table  # noqa: E402
 
 
 def _cases():
@@ -97,20 +95,12 @@ def main(argv: list[str] | None = None) -> int:
                     f"{'sharp' if test.sharp else 'smooth'} | {'sharp' if expected else 'smooth'}{'' if ok else ' (WRONG)'} "
                     f"| {dt:.2f} |")
         print(rows[-1], flush=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    load = os.getloadavg()[0]
-    head = [f"<!-- python benchmarks/feature_test.py --out {a.out} ({time.strftime('%Y-%m-%d')}, commit {commit}, "
-            f"{os.cpu_count()} cores, load average {load:.1f}) -->", "",
+    head = [provenance("feature_test.py", argv), "",
             "# The default's feature test", "",
             f"Sharp features when at least {SHARP_SHARE:.0%} of the creased edges (> 20 deg) are sharp (> 45 deg) after "
             f"two `two_stage` iterations, unless more than {TOO_NOISY:.0%} of all edges are sharp (noise not removed). "
             f"{wrong} wrong verdict(s).", ""]
-    text = "\n".join(head + rows) + "\n"
-    if a.out:
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = a.out.with_suffix(".tmp")
-        tmp.write_text(text)
-        tmp.replace(a.out)
+    write_table(a.out, head + rows)
     print(f"{wrong} wrong verdict(s)", file=sys.stderr)
     return 0
 

@@ -16,13 +16,12 @@ choose ... for a scan").
 from __future__ import annotations
 
 import argparse
-import os
-import subprocess
 import sys
-import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from tables import provenance, write_table  # noqa: E402
+
 MAIN = {"sobolev": "mu", "sobolev_bilaplacian": "mu", "taubin": "iterations", "filtering": "iterations",
         "heat": "time", "two_stage": "iterations"}
 
@@ -54,18 +53,11 @@ def main(argv: list[str] | None = None) -> int:
                 cells.append(f"{value:.3g}" if isinstance(value, float) else str(value))
             rows.append(f"| {method} | {MAIN[method]} | {name} | " + " | ".join(cells) + " |")
             print(rows[-1], flush=True)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True).stdout.strip()
-    head = [f"<!-- python benchmarks/parameter_scale.py {' '.join(argv if argv is not None else sys.argv[1:])} "
-            f"({time.strftime('%Y-%m-%d')}, commit {commit}) -->", "",
+    head = [provenance("parameter_scale.py", argv), "",
             "# Each filter's best main parameter (oracle) against the noise, in mean edge lengths h", "",
             "Gaussian noise along the normals, seed 0; the parameter minimising the true squared error over the "
             "filter's own search space.", ""]
-    text = "\n".join(head + rows) + "\n"
-    if a.out:
-        a.out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = a.out.with_suffix(".tmp")
-        tmp.write_text(text)
-        tmp.replace(a.out)
+    write_table(a.out, head + rows)
     return 0
 
 
