@@ -23,12 +23,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from tables import provenance, write_table  # noqa: E402
 
 MAIN = {"sobolev": "mu", "sobolev_bilaplacian": "mu", "taubin": "iterations", "filtering": "iterations",
-        "heat": "time", "two_stage": "iterations"}
+        "heat": "time", "two_stage": "iterations", "sobolev_normal": "mu", "sobolev_axes": "mu1", "sobolev_gls": "mu",
+        "sinkhorn": "t"}
+DEFAULT_METHODS = ("sobolev", "sobolev_bilaplacian", "taubin", "filtering", "heat", "two_stage")
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--methods", nargs="+", default=list(MAIN))
+    ap.add_argument("--methods", nargs="+", default=list(DEFAULT_METHODS), choices=list(MAIN))
+    ap.add_argument("--meshes", nargs="+", default=None, help="of: icosphere(4), 'torus(80, 40)', bunny (default: all)")
     ap.add_argument("--noise", nargs="+", type=float, default=[0.1, 0.3, 1.0])
     ap.add_argument("--out", type=Path, default=None)
     a = ap.parse_args(argv)
@@ -40,6 +43,7 @@ def main(argv: list[str] | None = None) -> int:
     from meshdenoise.tuning.noise_level import mean_edge_length
 
     meshes = {"icosphere(4)": icosphere(4), "torus(80, 40)": torus(80, 40), "bunny": load_arrays(sample_mesh("bunny.obj"))}
+    meshes = {k: v for k, v in meshes.items() if a.meshes is None or k in a.meshes}
     rows = ["| filter | parameter | mesh | " + " | ".join(f"noise {s:g} h" for s in a.noise) + " |",
             "|---|---|---|" + "---|" * len(a.noise)]
     for method in a.methods:

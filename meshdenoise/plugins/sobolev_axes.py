@@ -213,6 +213,10 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps):
     (topology, p, mu, pinned mask) with cholespy and cached; pinned vertices are
     solved as in ``sobolev_bilaplacian``.
 
+    Choosing ``mu1`` (``mu2``, ``mu3``) for a scan: no rule of thumb holds across shapes (the oracle's
+    ``mu1`` for noise of 0.1, 0.3 and 1 mean edge lengths: 0.035, 0.50 and 17 on a sphere, 2.6, 6.6
+    and 17 on a torus, ``benchmarks/results/parameter-scale.md``); use the automatic choice.
+
     Parameters
     ----------
     mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh

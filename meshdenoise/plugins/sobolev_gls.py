@@ -292,6 +292,10 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order):
     the map is linear; the filter is translation and rotation equivariant.
     ``meshdenoise.auto.choose_parameters`` picks ``mu`` and ``beta`` by SURE.
 
+    Choosing ``mu`` for a scan: the oracle's ``mu`` for noise of 0.1, 0.3 and 1 mean edge lengths
+    was 0.10, 1.2 and 16 on a sphere and 4.3, 11 and 28 on a torus (``benchmarks/results/parameter-scale.md``), and
+    the default 1000 is far above all of these: use the automatic choice, which also picks ``beta``.
+
     Parameters
     ----------
     mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh

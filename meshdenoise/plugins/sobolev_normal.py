@@ -160,6 +160,11 @@ def sobolev_normal(V, F, *, ops, pinned, mu, order, tangential):
     :math:`I + \\mu L^p` are cached per (topology, p, mu, pinned mask) as for
     ``sobolev_axes``; pinned vertices do not move (their update is zero).
 
+    Choosing ``mu`` for a scan: no rule of thumb holds across shapes (with noise of 0.1, 0.3 and 1
+    mean edge lengths along the normals the oracle chose 21, 31 and 12 on a sphere, 4.5, 11 and 24
+    on a torus: a sphere's normals are its own fixed point, ``benchmarks/results/parameter-scale.md``); use the automatic
+    choice (``denoise(method="sobolev_normal")``).
+
     Parameters
     ----------
     mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
