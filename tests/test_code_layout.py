@@ -127,3 +127,13 @@ def test_every_registered_filter_is_exported_at_the_top_level():
     for spec in meshdenoise.list_filters():
         assert getattr(meshdenoise, spec.name) is spec.public, spec.name
         assert spec.name in meshdenoise.__all__
+
+
+def test_every_filter_docstring_says_how_to_choose_its_main_parameter_for_a_scan():
+    # issue 20: the advice is in mean edge lengths and points at the measured table it comes from
+    from meshdenoise.registry import list_filters
+
+    missing = [spec.name for spec in list_filters()
+               if not ("for a scan" in (spec.public.__doc__ or "") and "mean edge lengths" in spec.public.__doc__
+                       and "parameter-scale.md" in spec.public.__doc__)]
+    assert missing == []
