@@ -94,13 +94,23 @@ def filters_json() -> dict:
     """Every filter and built-in pipeline step with its parameters (:meth:`Param.describe`), for ``filters --json``.
 
     ``{"filters": [{"name", "summary", "params": [...]}], "steps": [{"name", "kind", "params": [...]}]}``;
-    the pipeline-only options of our filters (``pinned``, ``region``, ``preserve_volume``, ``parameters``)
+    the pipeline-only options of our filters (``pinned``, ``region``, ``preserve_volume``, ``parameters``,
+    ``boundary_motion``)
     are listed once under ``"filter_options"``. pymeshlab's own filters are not listed (``pymeshlab.filter_list()``).
     """
     from .pipeline.steps import BUILTIN_STEPS, OPEN3D_OPS, RENDER_PARAMS
 
     steps = [{"name": name, "kind": "builtin", "params": [p.describe() for p in params]}
              for name, params in BUILTIN_STEPS.items() if params]
+    steps.append({"name": "denoise", "kind": "builtin", "params": [  # the default: filter and parameters chosen
+        {"name": "boundary_motion", "type": "str", "default": "normal", "range": "normal or free",
+         "help": "normal: vertices on open borders move along their normals only (no inward shrinking)"},
+        {"name": "pinned", "type": "str|list", "default": None, "range": "boundary, selection or vertex indices",
+         "help": "vertices kept exactly fixed"},
+        {"name": "region", "type": "str|list", "default": None, "range": "selection or vertex indices",
+         "help": "only these vertices move"},
+        {"name": "preserve_volume", "type": "bool", "default": False, "range": "True or False",
+         "help": "rescale so the enclosed volume equals the input's"}]})
     steps.append({"name": "metrics", "kind": "builtin", "params": [
         {"name": "reference", "type": "str", "default": "input", "range": "input, a mesh file or {before: LABEL}",
          "help": "the mesh the metrics compare with"},
@@ -122,6 +132,8 @@ def filters_json() -> dict:
              "help": "rescale so the enclosed volume equals the input's"},
             {"name": "parameters", "type": "str", "default": None, "range": "auto",
              "help": "choose the filter's parameters from the mesh"},
+            {"name": "boundary_motion", "type": "str", "default": "free", "range": "free or normal",
+             "help": "normal: vertices on open borders move along their normals only (no inward shrinking)"},
         ],
         "steps": steps,
     }

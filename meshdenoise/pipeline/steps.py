@@ -59,6 +59,7 @@ BUILTIN_STEPS: dict[str, list[Param]] = {
         Param("binary", bool, True, help="binary PLY/STL"),
         Param("colors", bool, True, help="write vertex colours when the mesh has them"),
     ],
+    "denoise": [],  # the default: its options are our filters' (_filter_options), described in describe_steps
     "metrics": [],  # checked by _check_metrics, described by METRICS_DOC
     "render": [],  # checked by _check_render, described by RENDER_DOC
 }
