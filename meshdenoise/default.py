@@ -237,7 +237,7 @@ def _short(v: Any) -> str:
     return f"{v:.4g}" if isinstance(v, float) else repr(v) if isinstance(v, str) else str(v)
 
 
-def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None) -> DefaultChoice:
+def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, boundary_motion: str = "normal") -> DefaultChoice:
     """Choose the filter and its parameters for a noisy mesh, and say why.
 
     Parameters
@@ -246,6 +246,8 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None) -> Def
     noise : float or NoiseModel, optional
         The noise level rho if known (mesh units; independent noise), or a noise model
         (level and correlation length); estimated otherwise.
+    boundary_motion : {"normal", "free"}
+        How the run will move open borders (only said in the reasons).
 
     Returns
     -------
@@ -295,7 +297,9 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None) -> Def
                    f"mean edge lengths against {rms(scored[other][1]):.3g} for {other}; its parameters minimise it"]
     nb = int(np.count_nonzero(ops.boundary_vertices))
     if nb:
-        reasons.append(f"{nb:,} vertices are on open borders: they move along their normals only (no inward shrinking)")
+        reasons.append(f"{nb:,} vertices are on open borders: they move along their normals only (no inward shrinking)"
+                       if boundary_motion == "normal" else
+                       f"{nb:,} vertices are on open borders: they move freely (boundary_motion='free')")
     reasons.insert(0, noise_reason)
     choice = DefaultChoice(method, params, float(rho), float(h), model.correlation_length, features, nb, reasons,
                            time.perf_counter() - start)
@@ -363,7 +367,7 @@ def denoise(
         if params:
             raise TypeError(f"denoise: filter parameters {sorted(params)} need method=; "
                             "with no method the default chooses the filter and its parameters")
-        choice = choose_default(mesh, noise=noise)
+        choice = choose_default(mesh, noise=noise, boundary_motion=boundary_motion)
         method, chosen = choice.method, dict(choice.params)
     else:
         if not isinstance(method, str):

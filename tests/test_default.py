@@ -344,3 +344,11 @@ def test_correlated_noise_is_estimated_reported_and_used_by_the_choice():
     assert (choice.method, choice.params) == (best, risks[best][0])
     Y = md.denoise((Vn, F))[0]
     assert md.snr(V, Y) > md.snr(V, Vn) + 1.0
+
+
+def test_the_reasons_say_how_open_borders_move(noisy_cap_file):
+    _, Vn, F = noisy_cap_file
+    assert "along their normals only" in choose_default((Vn, F)).reasons[-1]
+    assert "move freely" in choose_default((Vn, F), boundary_motion="free").reasons[-1]
+    (_, _), choice = md.denoise((Vn, F), boundary_motion="free", return_params=True)
+    assert "move freely" in choice.reasons[-1]

@@ -284,7 +284,7 @@ def _dry_run(src: Path, method: str | None, given: dict) -> None:
         if method is None:
             from ..default import choose_default
 
-            choice = choose_default(arrays)
+            choice = choose_default(arrays, boundary_motion=given.get("boundary_motion", "normal"))
             lines = choice.lines()
         else:
             from ..operators import get_operators

@@ -615,7 +615,7 @@ def _run_default(step: Step, ctx: RunContext) -> None:
     for key in ("pinned", "region"):
         if key in options:
             options[key] = _vertex_option(options[key], state, key)
-    choice = choose_default(state.arrays())
+    choice = choose_default(state.arrays(), boundary_motion=options.get("boundary_motion", "normal"))
     if ctx.echo:  # the choice is said before the filter runs
         for line in choice.lines():
             ctx.echo(f"{ctx.input_path.name}: {line}")
