@@ -102,15 +102,22 @@ def filters_json() -> dict:
 
     steps = [{"name": name, "kind": "builtin", "params": [p.describe() for p in params]}
              for name, params in BUILTIN_STEPS.items() if params]
-    steps.append({"name": "denoise", "kind": "builtin", "params": [  # the default: filter and parameters chosen
-        {"name": "boundary_motion", "type": "str", "default": "normal", "range": "normal or free",
-         "help": "normal: vertices on open borders move along their normals only (no inward shrinking)"},
+    options = [
         {"name": "pinned", "type": "str|list", "default": None, "range": "boundary, selection or vertex indices",
          "help": "vertices kept exactly fixed"},
         {"name": "region", "type": "str|list", "default": None, "range": "selection or vertex indices",
          "help": "only these vertices move"},
         {"name": "preserve_volume", "type": "bool", "default": False, "range": "True or False",
-         "help": "rescale so the enclosed volume equals the input's"}]})
+         "help": "rescale so the enclosed volume equals the input's"},
+        {"name": "parameters", "type": "str", "default": None, "range": "auto",
+         "help": "choose the filter's parameters from the mesh"},
+        {"name": "boundary_motion", "type": "str", "default": "free", "range": "free or normal",
+         "help": "normal: vertices on open borders move along their normals only (no inward shrinking)"},
+    ]
+    # the denoise step (the default) takes our filters' options except `parameters`, with borders along normals
+    denoise_options = [{**o, "default": "normal"} if o["name"] == "boundary_motion" else o
+                       for o in options if o["name"] != "parameters"]
+    steps.append({"name": "denoise", "kind": "builtin", "params": denoise_options})
     steps.append({"name": "metrics", "kind": "builtin", "params": [
         {"name": "reference", "type": "str", "default": "input", "range": "input, a mesh file or {before: LABEL}",
          "help": "the mesh the metrics compare with"},
@@ -123,18 +130,7 @@ def filters_json() -> dict:
     return {
         "filters": [{"name": f.name, "summary": f.summary, "params": [p.describe() for p in f.params]}
                     for f in list_filters()],
-        "filter_options": [
-            {"name": "pinned", "type": "str|list", "default": None, "range": "boundary, selection or vertex indices",
-             "help": "vertices kept exactly fixed"},
-            {"name": "region", "type": "str|list", "default": None, "range": "selection or vertex indices",
-             "help": "only these vertices move"},
-            {"name": "preserve_volume", "type": "bool", "default": False, "range": "True or False",
-             "help": "rescale so the enclosed volume equals the input's"},
-            {"name": "parameters", "type": "str", "default": None, "range": "auto",
-             "help": "choose the filter's parameters from the mesh"},
-            {"name": "boundary_motion", "type": "str", "default": "free", "range": "free or normal",
-             "help": "normal: vertices on open borders move along their normals only (no inward shrinking)"},
-        ],
+        "filter_options": options,
         "steps": steps,
     }
 
