@@ -30,7 +30,7 @@ from .quality_metrics import max_distance, mean_distance, normal_error_deg, volu
 from .tuning import auto_filters, choose_parameters, estimate_noise
 from .default import DefaultChoice, choose_default, denoise, detect_features
 from .cache import clear_caches
-from .io import MeshFile, MeshFileError, load_mesh, save_mesh
+from .io import MeshFile, MeshFileError, PlyExtras, load_mesh, save_mesh
 from .meshinfo import mesh_info
 from .metrics import compute_metrics
 from .registry import Param, apply_filter, get_filter, list_filters, register
@@ -82,6 +82,7 @@ __all__ = [
     "load_mesh",
     "save_mesh",
     "MeshFile",
+    "PlyExtras",
     "MeshFileError",
     "filtering",
     "heat",

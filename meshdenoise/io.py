@@ -64,6 +64,88 @@ def _check_extension(path: Path) -> None:
         )
 
 
+_COLOUR_NAMES = frozenset(f"{p}{c}" for p in ("", "diffuse_") for c in ("red", "green", "blue", "alpha"))
+_RECOMPUTED = frozenset(("x", "y", "z", "nx", "ny", "nz")) | _COLOUR_NAMES
+
+
+@dataclass
+class PlyExtras:
+    """What a PLY file holds beside coordinates, triangles and colours, kept to be written again.
+
+    A scanner's PLY often carries per-vertex ``quality``/``confidence``/``intensity``, MeshLab's
+    ``flags``, vertex normals and a ``camera`` element (the scan's view point). A filter that
+    keeps the vertices and faces (every denoiser) keeps them valid, so :func:`save_mesh` writes
+    them to a PLY: the properties as they were (same names and types), normals recomputed from
+    the new coordinates, other elements verbatim. :meth:`for_mesh` drops what a change of the
+    vertices or faces makes meaningless.
+
+    Attributes
+    ----------
+    vertex, face : dict of str -> (str, ndarray (n,) or (m,))
+        Scalar properties by name: (numpy type code such as ``"f4"``, values), in file order.
+        Coordinates, normals and colours are not in ``vertex`` (written from the arrays).
+        ``face`` is empty when the file's polygons were split into triangles.
+    elements : list of (str, int, list, dict)
+        Every element of the file in order, as ``(name, count, properties, values)``;
+        ``vertex`` and ``face`` appear with ``properties`` and ``values`` empty (placeholders
+        for their position).
+    normals : bool
+        The vertices had ``nx ny nz``.
+    """
+
+    vertex: dict = field(default_factory=dict)
+    face: dict = field(default_factory=dict)
+    elements: list = field(default_factory=list)
+    normals: bool = False
+
+    def other_elements(self) -> list:
+        return [e for e in self.elements if e[0] not in ("vertex", "face")]
+
+    def describe(self) -> list[str]:
+        """Short names of what is carried, for messages: ``['vertex quality', 'camera', ...]``."""
+        out = [f"vertex {k}" for k in self.vertex] + [f"face {k}" for k in self.face]
+        out += ["vertex normals"] if self.normals else []
+        return out + [name for name, *_ in self.other_elements()]
+
+    def with_selection(self, selected: np.ndarray | None) -> "PlyExtras":
+        """MeshLab's "selected" bit (0x20) of integer vertex ``flags`` set from ``selected`` (n,) bool (None: none)."""
+        if "flags" not in self.vertex or self.vertex["flags"][0][0] not in "iu":
+            return self
+        t, flags = self.vertex["flags"]
+        bit = np.asarray(0x20).astype(t)
+        new = flags & ~bit if selected is None else np.where(np.asarray(selected, bool), flags | bit, flags & ~bit)
+        return PlyExtras({**self.vertex, "flags": (t, new.astype(t))}, self.face, self.elements, self.normals)
+
+    def with_quality(self, vertex: np.ndarray | None, face: np.ndarray | None) -> "PlyExtras":
+        """Per-vertex and per-face ``quality`` (MeshLab's scalar) set to the arrays given (kept as read when None)."""
+        out = {"vertex": dict(self.vertex), "face": dict(self.face)}
+        for where, values in (("vertex", vertex), ("face", face)):
+            if values is not None:
+                t = out[where].get("quality", ("f4", None))[0]
+                out[where]["quality"] = (t, np.asarray(values).astype(t))
+        return PlyExtras(out["vertex"], out["face"], self.elements, self.normals)
+
+    def for_mesh(self, n: int, m: int) -> "PlyExtras":
+        """What stays valid for a mesh of ``n`` vertices and ``m`` faces (the same ones, if counts match).
+
+        Vertex properties need ``n`` equal to theirs, face properties ``m``; with other
+        vertices, other elements are kept only when they refer to no vertex (no list
+        property, no property named ``vertex*``: a camera yes, a range grid or edges no).
+        """
+        nv = next((len(a) for _, a in self.vertex.values()), None)
+        nf = next((len(a) for _, a in self.face.values()), None)
+        same_vertices = nv is None or nv == n
+        vertex = self.vertex if same_vertices else {}
+        face = self.face if nf is None or nf == m else {}
+
+        def refers_to_vertices(props) -> bool:
+            return any(not isinstance(t, str) or name.startswith("vertex") for name, t in props)
+
+        elements = [e for e in self.elements
+                    if e[0] in ("vertex", "face") or same_vertices or not refers_to_vertices(e[2])]
+        return PlyExtras(vertex, face, elements, self.normals)
+
+
 @dataclass
 class MeshFile:
     """A mesh read from a file.
@@ -84,6 +166,9 @@ class MeshFile:
         The MeshLab vertex selection, when the file stores it: a PLY whose vertices have the
         integer property ``flags`` (MeshLab's "Flags" save option; bit 0x20 is "selected").
         None for every other file.
+    extras : PlyExtras or None
+        A PLY file's other properties and elements (quality, flags, camera...), written again by
+        :func:`save_mesh` to a PLY. None for every other format.
     """
 
     V: np.ndarray
@@ -92,6 +177,7 @@ class MeshFile:
     notes: list[str] = field(default_factory=list)
     path: Path | None = None
     selection: np.ndarray | None = None
+    extras: PlyExtras | None = None
 
 
 # ---------------------------------------------------------------------------------- reading
@@ -226,6 +312,7 @@ def load_mesh(path: str | os.PathLike) -> MeshFile:
     del data
     V, F, colors = out[:3]
     selection = out[3] if len(out) > 3 else None
+    extras = out[4] if len(out) > 4 else None
     bad = np.flatnonzero(~np.isfinite(np.asarray(V, dtype=np.float64)).all(axis=1)) if len(V) else []
     if len(bad):
         raise MeshFileError(
@@ -237,7 +324,7 @@ def load_mesh(path: str | os.PathLike) -> MeshFile:
     except (MeshValidationError, TypeError) as exc:
         raise MeshFileError(f"{path}: {exc}") from None
     notes += topology_notes(V, F)
-    return MeshFile(V, F, colors, notes, path, selection)
+    return MeshFile(V, F, colors, notes, path, selection, extras)
 
 
 def load_arrays(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
@@ -1007,7 +1094,32 @@ def _ply_colours(vx: dict, types: dict, n: int) -> np.ndarray | None:
     return np.stack(cols, axis=1)
 
 
+def _ply_extras(elements, values, triangles: bool) -> PlyExtras:
+    """The file's properties and elements beside coordinates, triangles and colours (:class:`PlyExtras`)."""
+    extras = PlyExtras()
+    for name, count, props in elements:
+        if name == "vertex":
+            extras.normals = all(c in values[name] for c in ("nx", "ny", "nz"))
+            extras.vertex = {p: (t, np.asarray(values[name][p]).astype(t)) for p, t in props
+                             if isinstance(t, str) and p not in _RECOMPUTED}
+            extras.elements.append((name, count, [], {}))
+        elif name == "face":
+            if triangles:
+                extras.face = {p: (t, np.asarray(values[name][p]).astype(t)) for p, t in props if isinstance(t, str)}
+            extras.elements.append((name, count, [], {}))
+        else:
+            extras.elements.append((name, count, props, values[name]))
+    return extras
+
+
 def _ply_mesh(elements, values, notes):
+    V, F, colors, selection = _ply_arrays(elements, values, notes)
+    idx = next((values["face"][k] for k in ("vertex_indices", "vertex_index") if k in values.get("face", {})), None)
+    triangles = isinstance(idx, np.ndarray) and idx.ndim == 2 and idx.shape[1] == 3  # face i is triangle i
+    return V, F, colors, selection, _ply_extras(elements, values, triangles)
+
+
+def _ply_arrays(elements, values, notes):
     if "vertex" not in values:
         raise _Malformed("the PLY file has no 'vertex' element")
     vx = values["vertex"]
@@ -1255,6 +1367,7 @@ def save_mesh(
     vertex_colors: np.ndarray | None = None,
     *,
     binary: bool = True,
+    extras: PlyExtras | None = None,
 ) -> Path:
     """Write a mesh atomically (temporary file, then rename); the format comes from the extension.
 
@@ -1273,6 +1386,10 @@ def save_mesh(
     vertex_colors : array_like, shape (n, 3) or (n, 4), in [0, 1], optional
     binary : bool
         PLY and STL only.
+    extras : PlyExtras, optional
+        A PLY file's other properties and elements (:attr:`MeshFile.extras`), written to a PLY
+        (other formats cannot hold them): what stays valid for ``V`` and ``F``
+        (:meth:`PlyExtras.for_mesh`), normals recomputed from ``V``.
 
     Returns
     -------
@@ -1311,7 +1428,7 @@ def save_mesh(
     if ext == ".stl" and F.shape[0] == 0:
         raise MeshFileError(f"{path}: STL stores triangles only and this mesh has no faces; use .ply for a point cloud")
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        _WRITERS[ext](fh, V, F, C, binary)
+        _WRITERS[ext](fh, V, F, C, binary, extras)
     return path
 
 
@@ -1331,39 +1448,147 @@ def _colour_bytes(C: np.ndarray) -> np.ndarray:
     return np.clip(np.rint(C * 255.0), 0, 255).astype(np.uint8)
 
 
-def _write_ply(fh, V, F, C, binary):
-    head = ["ply", f"format {'binary_little_endian' if binary else 'ascii'} 1.0", "comment written by meshdenoise",
-            f"element vertex {len(V)}", "property double x", "property double y", "property double z"]
-    if C is not None:
-        head += [f"property uchar {c}" for c in ("red", "green", "blue", "alpha")]
-    head += [f"element face {len(F)}", "property list uchar int vertex_indices", "end_header"]
-    fh.write(("\n".join(head) + "\n").encode())
+_PLY_TYPE_NAMES = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int", "u4": "uint",
+                   "f4": "float", "f8": "double"}
+_ASCII_FORMAT = {"f4": "%.9g", "f8": "%.17g"}  # enough digits to read the same float back; integers: %d
+
+
+def _ply_columns(columns) -> tuple[list[str], np.dtype]:
+    """Header lines and little-endian record dtype of scalar and fixed-length columns ``(name, type, width)``."""
+    head, fields = [], []
+    for name, t, width in columns:
+        if width is None:
+            head.append(f"property {_PLY_TYPE_NAMES[t]} {name}")
+            fields.append((name, "<" + t))
+        else:  # a list of fixed length: its count, then the items
+            head.append(f"property list uchar {_PLY_TYPE_NAMES[t]} {name}")
+            fields += [(name + "#count", "u1"), (name, "<" + t, (width,))]
+    return head, np.dtype(fields)
+
+
+def _ply_table_bytes(columns, data: dict, count: int, binary: bool) -> bytes:
+    """Records of scalar and fixed-length list columns, binary little-endian or ASCII."""
     if binary:
-        vfields = [("p", "<f8", 3)] + ([("c", "u1", 4)] if C is not None else [])
-        vrec = np.empty(len(V), np.dtype(vfields))
-        vrec["p"] = V
-        if C is not None:
-            vrec["c"] = _colour_bytes(C)
-        fh.write(vrec.tobytes())
-        frec = np.empty(len(F), np.dtype([("k", "u1"), ("i", "<i4", 3)]))
-        frec["k"], frec["i"] = 3, F
-        fh.write(frec.tobytes())
-    else:
-        fh.write(_ply_ascii_vertices(V, C))
-        fh.write(_rows_text(np.hstack([np.full((len(F), 1), 3), F]), "%d"))
+        _, dt = _ply_columns(columns)
+        rec = np.zeros(count, dt)
+        for name, _, width in columns:
+            rec[name] = data[name]
+            if width is not None:
+                rec[name + "#count"] = width
+        return rec.tobytes()
+    parts, fmts = [], []
+    for name, t, width in columns:
+        fmt = _ASCII_FORMAT.get(t, "%d")
+        if width is not None:
+            parts.append(np.full((count, 1), width, dtype=object))
+            fmts.append("%d")
+        A = np.asarray(data[name]).reshape(count, -1)
+        parts.append(A.astype(object) if fmt != "%d" else A.astype(np.int64).astype(object))
+        fmts += [fmt] * A.shape[1]
+    if count == 0:
+        return b""
+    table = np.hstack(parts)
+    return (((" ".join(fmts) + "\n") * count) % tuple(table.ravel().tolist())).encode()
 
 
-def _ply_ascii_vertices(V, C):
-    if C is None:
-        return _rows_text(V, "%.17g")
-    cb = _colour_bytes(C)
-    line = "%.17g %.17g %.17g %d %d %d %d\n"
-    vals = np.empty((len(V), 7), dtype=object)
-    vals[:, :3], vals[:, 3:] = V, cb
-    return ((line * len(V)) % tuple(vals.ravel().tolist())).encode()
+def _ply_element_bytes(count: int, props, values: dict, binary: bool) -> tuple[list[str], bytes]:
+    """An element read from a file (a camera, a range grid...) written back: header lines and data."""
+    head = []
+    for name, t in props:
+        if isinstance(t, str):
+            head.append(f"property {_PLY_TYPE_NAMES[t]} {name}")
+        else:
+            head.append(f"property list {_PLY_TYPE_NAMES[t[0]]} {_PLY_TYPE_NAMES[t[1]]} {name}")
+    if all(isinstance(t, str) or (isinstance(values[p], np.ndarray) and values[p].ndim == 2) for p, t in props):
+        fields = []  # every list of one length: one structured record per row
+        for p, t in props:
+            if isinstance(t, str):
+                fields.append((p, "<" + t))
+            else:
+                fields += [(p + "#count", "<" + t[0]), (p, "<" + t[1], (values[p].shape[1],))]
+        rec = np.zeros(count, np.dtype(fields))
+        for p, t in props:
+            rec[p] = values[p]
+            if not isinstance(t, str):
+                rec[p + "#count"] = values[p].shape[1]
+        if binary:
+            return head, rec.tobytes()
+        cols = [(f, rec.dtype[f].base.str[1:], rec[f].reshape(count, -1)) for f in rec.dtype.names]
+    else:  # lists of varying length (a range grid: 0 or 1 vertex per cell): record by record
+        pieces = []
+        for i in range(count):
+            for p, t in props:
+                if isinstance(t, str):
+                    pieces.append((t, np.asarray([values[p][i]])))
+                else:
+                    items = np.asarray(values[p][i]).ravel()
+                    pieces += [(t[0], np.asarray([items.size])), (t[1], items)]
+            pieces.append(None)
+        if binary:
+            return head, b"".join(a.astype("<" + t).tobytes() for t, a in filter(None, pieces))
+        lines, words = [], []
+        for piece in pieces:
+            if piece is None:
+                lines.append(" ".join(words))
+                words = []
+            else:
+                t, a = piece
+                words += [_ASCII_FORMAT.get(t, "%d") % v for v in a.astype(t).tolist()]
+        return head, "".join(line + "\n" for line in lines).encode()
+    out = []
+    for i in range(count):
+        words = []
+        for _, t, A in cols:
+            words += [_ASCII_FORMAT.get(t, "%d") % v for v in A[i].tolist()]
+        out.append(" ".join(words) + "\n")
+    return head, "".join(out).encode()
 
 
-def _write_off(fh, V, F, C, binary):
+def _write_ply(fh, V, F, C, binary, extras: PlyExtras | None = None):
+    extras = extras.for_mesh(len(V), len(F)) if extras is not None else PlyExtras()
+    vcols = [("x", "f8", None), ("y", "f8", None), ("z", "f8", None)]
+    vdata = {"x": V[:, 0], "y": V[:, 1], "z": V[:, 2]}
+    if extras.normals:  # the file had normals: the new coordinates' (MeshLab writes them as float)
+        from .geometry import vertex_normals
+
+        N = vertex_normals(V, F) if len(F) else np.zeros_like(V)
+        vcols += [("nx", "f4", None), ("ny", "f4", None), ("nz", "f4", None)]
+        vdata.update(nx=N[:, 0], ny=N[:, 1], nz=N[:, 2])
+    if C is not None:
+        cb = _colour_bytes(C)
+        for j, c in enumerate(("red", "green", "blue", "alpha")):
+            vcols.append((c, "u1", None))
+            vdata[c] = cb[:, j]
+    for name, (t, A) in extras.vertex.items():
+        vcols.append((name, t, None))
+        vdata[name] = A
+    fcols = [("vertex_indices", "i4", 3)] + [(name, t, None) for name, (t, _) in extras.face.items()]
+    fdata = {"vertex_indices": F, **{name: A for name, (_, A) in extras.face.items()}}
+    layout = extras.elements or [("vertex", 0, [], {}), ("face", 0, [], {})]
+    if not any(name == "face" for name, *_ in layout):
+        layout = layout + [("face", 0, [], {})]
+    head = ["ply", f"format {'binary_little_endian' if binary else 'ascii'} 1.0", "comment written by meshdenoise"]
+    blocks = []
+    for name, count, props, values in layout:
+        if name == "vertex":
+            head += [f"element vertex {len(V)}"] + _ply_columns(vcols)[0]
+            blocks.append(_ply_table_bytes(vcols, vdata, len(V), binary))
+        elif name == "face":
+            lines = _ply_columns(fcols)[0]
+            lines[0] = "property list uchar int vertex_indices"
+            head += [f"element face {len(F)}"] + lines
+            blocks.append(_ply_table_bytes(fcols, fdata, len(F), binary))
+        else:
+            lines, data = _ply_element_bytes(count, props, values, binary)
+            head += [f"element {name} {count}"] + lines
+            blocks.append(data)
+    head.append("end_header")
+    fh.write(("\n".join(head) + "\n").encode())
+    for block in blocks:
+        fh.write(block)
+
+
+def _write_off(fh, V, F, C, binary, extras=None):  # extras: PLY only
     fh.write(f"{'COFF' if C is not None else 'OFF'}\n{len(V)} {len(F)} 0\n".encode())
     if C is None:
         fh.write(_rows_text(V, "%.17g"))
@@ -1374,13 +1599,13 @@ def _write_off(fh, V, F, C, binary):
     fh.write(_rows_text(np.hstack([np.full((len(F), 1), 3), F]), "%d"))
 
 
-def _write_obj(fh, V, F, C, binary):
+def _write_obj(fh, V, F, C, binary, extras=None):  # extras: PLY only
     fh.write(b"# written by meshdenoise\n")
     fh.write(_rows_text(V if C is None else np.hstack([V, C[:, :3]]), "%.17g", "v "))
     fh.write(_rows_text(F + 1, "%d", "f "))
 
 
-def _write_stl(fh, V, F, C, binary):
+def _write_stl(fh, V, F, C, binary, extras=None):  # extras: PLY only
     from .geometry import face_normals
 
     N = np.nan_to_num(face_normals(V, F)) if len(F) else np.zeros((0, 3))

@@ -250,7 +250,7 @@ import numpy as np
 import meshdenoise.io as mio
 from meshdenoise.shapes import icosphere
 
-def slow(fh, V, F, C, binary):
+def slow(fh, V, F, C, binary, extras=None):
     fh.write(b"# half of an OBJ\n" * 1000)
     fh.flush()
     print("writing", flush=True)

@@ -35,8 +35,11 @@ def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
     except MeshFileError as exc:  # its message already names the file
         raise InputError(str(exc)) from None
     selection = getattr(mesh, "selection", None)  # MeshLab's selection flags of a PLY
-    state = MeshState(mesh.V, mesh.F, mesh.vertex_colors,
-                      vertex_selection=selection if selection is not None and selection.any() else None)
+    extras = getattr(mesh, "extras", None)
+    quality = {where: np.asarray(part["quality"][1], dtype=np.float64) if "quality" in part else None
+               for where, part in (("vertex", extras.vertex if extras else {}), ("face", extras.face if extras else {}))}
+    state = MeshState(mesh.V, mesh.F, mesh.vertex_colors, vertex_quality=quality["vertex"], face_quality=quality["face"],
+                      vertex_selection=selection if selection is not None and selection.any() else None, extras=extras)
     ctx = RunContext(state, task.input, (mesh.V, mesh.F), output_paths=task.output_paths,
                      reference_paths=task.reference_paths, row=row, echo=echo)
     try:
@@ -52,10 +55,10 @@ def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
                 raise StepFailure(f"{task.input}: {step.where} failed: {type(exc).__name__}: {detail}") from exc
             _check_finite(step, ctx)
         try:
-            for path, V, F, colors, binary in ctx.staged:
+            for path, V, F, colors, binary, extras in ctx.staged:
                 if mesh.vertex_colors is None and colors is not None and (colors == 1.0).all():
                     colors = None  # pymeshlab's default white, not the input's: no colours in, no colours out
-                save_mesh(path, V, F, colors, binary=binary)
+                save_mesh(path, V, F, colors, binary=binary, extras=extras)
             for tmp, path in ctx.staged_files:
                 os.replace(tmp, path)
         except (MeshFileError, OSError) as exc:  # read-only folder, full disk, /proc/x.ply: its message names the file

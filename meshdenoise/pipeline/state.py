@@ -34,6 +34,10 @@ class MeshState:
         MeshLab's per-element scalar ("quality"), set by some pymeshlab filters.
     vertex_selection, face_selection : ndarray, shape (n,) / (m,), bool, or None
         MeshLab's selection (``None``: nothing selected).
+    extras : meshdenoise.io.PlyExtras or None
+        The input PLY's other data (a scanner's confidence, MeshLab flags, a camera), written
+        again by ``save`` to a PLY while the vertices and faces are the same
+        (:meth:`~meshdenoise.io.PlyExtras.for_mesh`).
     """
 
     V: np.ndarray
@@ -44,6 +48,7 @@ class MeshState:
     face_quality: np.ndarray | None = None
     vertex_selection: np.ndarray | None = None
     face_selection: np.ndarray | None = None
+    extras: Any = None
     _meshset: Any = field(default=None, repr=False, compare=False)  # in step with the arrays when not None
 
     @property
@@ -72,8 +77,18 @@ class MeshState:
         return replace(self, V=V, _meshset=None)
 
     def with_mesh(self, V: np.ndarray, F: np.ndarray, vertex_colors: np.ndarray | None = None) -> "MeshState":
-        """A new mesh (new vertices and faces): only the vertex colours given are kept."""
-        return MeshState(np.asarray(V, dtype=np.float64), np.asarray(F, dtype=np.int64).reshape(-1, 3), vertex_colors)
+        """A new mesh (new vertices and faces): the vertex colours given are kept, and the extras still valid."""
+        V = np.asarray(V, dtype=np.float64)
+        F = np.asarray(F, dtype=np.int64).reshape(-1, 3)
+        extras = self.extras.for_mesh(V.shape[0], F.shape[0]) if self.extras is not None else None
+        return MeshState(V, F, vertex_colors, extras=extras)
+
+    def extras_to_write(self):
+        """:attr:`extras` for a file of this mesh: what is still valid, the current selection and quality in it."""
+        if self.extras is None:
+            return None
+        extras = self.extras.for_mesh(self.n_vertices, self.n_faces).with_selection(self.vertex_selection)
+        return extras.with_quality(self.vertex_quality, self.face_quality)
 
     # --- pymeshlab --------------------------------------------------------------------------
     def meshset(self):
@@ -83,8 +98,11 @@ class MeshState:
         return self._meshset
 
     @classmethod
-    def from_meshset(cls, ms) -> "MeshState":
-        """The current mesh of ``ms`` (compacted first) as a state that keeps ``ms`` for the next pymeshlab step."""
+    def from_meshset(cls, ms, extras: Any = None) -> "MeshState":
+        """The current mesh of ``ms`` (compacted first) as a state that keeps ``ms`` for the next pymeshlab step.
+
+        ``extras`` (the state's before the step) are kept while still valid.
+        """
         m = ms.current_mesh()
         if not m.is_compact():
             m.compact()
@@ -100,6 +118,8 @@ class MeshState:
             vsel if vsel.any() else None,
             fsel if fsel.any() else None,
         )
+        if extras is not None:
+            state.extras = extras.for_mesh(state.n_vertices, state.n_faces)
         state._meshset = ms
         return state
 

@@ -529,7 +529,7 @@ def run_step(step: Step, ctx: RunContext) -> None:
         params = {k: pymeshlab_steps.to_pymeshlab_value(step.name, k, v) for k, v in step.params.items()}
         ms = state.meshset()
         ms.apply_filter(step.name, **params)
-        ctx.state = MeshState.from_meshset(ms)
+        ctx.state = MeshState.from_meshset(ms, state.extras)
     elif step.kind == "open3d":
         _run_open3d(step, ctx)
     elif step.kind == "add_noise":
@@ -545,7 +545,7 @@ def run_step(step: Step, ctx: RunContext) -> None:
     elif step.kind == "save":
         path = ctx.resolve_path(step.params["path"])
         colors = state.vertex_colors if step.params["colors"] else None
-        ctx.staged.append((path, state.V, state.F, colors, step.params["binary"]))
+        ctx.staged.append((path, state.V, state.F, colors, step.params["binary"], state.extras_to_write()))
         ctx.row.setdefault("outputs", []).append(str(path))
     elif step.kind == "render":
         from ..render import new_file_mode, render_comparison  # written separately; imported only when used
