@@ -4,7 +4,9 @@ Prints, for Fandisk0.3 and Block0.4: the noisy input; ``two_stage`` with its def
 the best of a small (sigma_r, iterations) grid (oracle); the bilateral variant; and MeshLab's
 Laplacian, HC Laplacian, Taubin and two-step smoothing and Open3D's simple, Laplacian and
 Taubin filters, each with its number of iterations chosen against the clean mesh (oracle),
-run through pymeshlab and Open3D themselves.
+run through pymeshlab and Open3D themselves: the quality benchmark's filters and oracle
+search (``quality.LIBRARY``, ``quality.library_oracle``, the tuning floor's walk scored by
+the normal error); MeshLab's Laplacian with its default cotangent weights.
 
 Run:  PYTHONPATH=. python benchmarks/features.py
 """
@@ -13,46 +15,22 @@ from __future__ import annotations
 
 import sys
 import time
+from pathlib import Path
 
 import numpy as np
 
-from meshdenoise.data import data_dir
-from meshdenoise.io import load_arrays
-from meshdenoise.plugins.two_stage import two_stage
-from meshdenoise.quality_metrics import normal_error_deg
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from quality import LIBRARY, library_oracle, meshlab_steps  # noqa: E402
+
+from meshdenoise.data import data_dir  # noqa: E402
+from meshdenoise.io import load_arrays  # noqa: E402
+from meshdenoise.metrics import normal_error_deg  # noqa: E402
+from meshdenoise.plugins.two_stage import two_stage  # noqa: E402
 
 MESHES = ("Fandisk0.3", "Block0.4")
-
-
-def oracle_chain(step, X0, max_steps, error):
-    """Best error over 1..max_steps applications of a one-iteration filter ``step`` (filters compose)."""
-    best, state = (np.inf, 0), X0
-    for k in range(1, max_steps + 1):
-        state = step(state)
-        best = min(best, (error(state), k))
-    return best
-
-
-def meshlab_step(name, F, **kw):
-    import pymeshlab
-
-    def step(X):
-        ms = pymeshlab.MeshSet()
-        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=X, face_matrix=F.astype(np.int32)))
-        getattr(ms, name)(**kw)
-        return ms.current_mesh().vertex_matrix().copy()
-
-    return step
-
-
-def open3d_step(name, F, **kw):
-    import open3d as o3d
-
-    def step(X):
-        m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(X), o3d.utility.Vector3iVector(F.astype(np.int32)))
-        return np.asarray(getattr(m, name)(1, **kw).vertices).copy()
-
-    return step
+# the quality benchmark's library filters, MeshLab's Laplacian with its default cotangent weights (as measured here before)
+FILTERS = {**LIBRARY, "MeshLab Laplacian": meshlab_steps({"stepsmoothnum": 1}, "apply_coord_laplacian_smoothing")}
 
 
 def main() -> None:
@@ -69,20 +47,11 @@ def main() -> None:
         grid = [(sr, it) for sr in (0.25, 0.3, 0.35, 0.45) for it in (2, 3, 5)]
         e, (sr, it) = min((err(two_stage((Vn, F), sigma_r=sr, iterations=it)[0]), (sr, it)) for sr, it in grid)
         rows.append(("two_stage oracle", e, f"sigma_r={sr}, iterations={it}"))
-        others = {
-            "MeshLab Laplacian": (meshlab_step("apply_coord_laplacian_smoothing", F, stepsmoothnum=1), 10),
-            "MeshLab HC Laplacian": (meshlab_step("apply_coord_hc_laplacian_smoothing", F), 10),
-            "MeshLab Taubin": (meshlab_step("apply_coord_taubin_smoothing", F, stepsmoothnum=1), 60),
-            "MeshLab two-step": (meshlab_step("apply_coord_two_steps_smoothing", F, stepsmoothnum=1), 20),
-            "Open3D simple": (open3d_step("filter_smooth_simple", F), 10),
-            "Open3D Laplacian": (open3d_step("filter_smooth_laplacian", F), 15),
-            "Open3D Taubin": (open3d_step("filter_smooth_taubin", F), 60),
-        }
         best_other = np.inf
-        for label, (step, max_steps) in others.items():
-            e, k = oracle_chain(step, Vn, max_steps, err)
-            best_other = min(best_other, e)
-            rows.append((label + " (oracle)", e, f"{k} iterations"))
+        for label, run in FILTERS.items():
+            k, X = library_oracle(run, V0, Vn, F, ("normal",))["normal"]
+            best_other = min(best_other, err(X))
+            rows.append((label + " (oracle)", err(X), f"{k} iterations"))
         print(f"\n{name}: mean face-normal angular error (degrees)")
         for label, value, note in rows:
             print(f"  {label:34s} {value:7.2f}   {note}")

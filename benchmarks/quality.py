@@ -18,7 +18,8 @@ MeshLab's Laplacian, HC Laplacian (repeated k times), Taubin and two-step smooth
 and Open3D's simple, Laplacian and Taubin filters, each with its number of iterations
 tuned on the clean mesh (oracle), the libraries themselves being called one
 iteration at a time on one MeshSet / TriangleMesh (all are memoryless from one
-iteration to the next), stopping ``PATIENCE`` iterations after the best. On the
+iteration to the next), by the tuning floor's oracle search
+(:func:`meshdenoise.tuning.walk.walk`: it stops at twice the best count plus 20). On the
 benchmark pairs each library filter also gets its normal-error oracle (the iteration
 count with the least mean face-normal error, read along the same run), the reference
 for the feature targets. ``two_stage`` (built for sharp features; two Monte-Carlo
@@ -44,8 +45,8 @@ from __future__ import annotations
 
 import argparse
 import csv
+import itertools
 import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -59,7 +60,8 @@ from meshdenoise.data import data_file, sample_mesh  # noqa: E402
 from meshdenoise.io import atomic_path, load_arrays  # noqa: E402
 from meshdenoise.metrics import METRICS, snr  # noqa: E402
 from meshdenoise.noise import add_normal_noise  # noqa: E402
-from meshdenoise.registry import apply_filter, get_filter  # noqa: E402
+from meshdenoise.registry import apply_filter  # noqa: E402
+from meshdenoise.tuning.walk import walk  # noqa: E402
 
 PAPER_BEST = {  # Table 1 of the paper: best SNR (dB) over its three methods, and the noisy input's SNR
     ("elephant", 0.015): 39.82,
@@ -71,7 +73,6 @@ PAPER_BEST = {  # Table 1 of the paper: best SNR (dB) over its three methods, an
 EXTRA_METRICS = [("normal_error_deg", "normal err (deg)"), ("volume_change", "vol change (%)")]
 FEATURE_ONLY = {"two_stage"}  # methods measured on the benchmark pairs only
 MAX_LIB_ITERS = 300  # cap of the oracle search for MeshLab / Open3D iterations
-PATIENCE = 8  # stop a library's oracle search this many iterations after the best SNR
 
 
 # ----------------------------------------------------------------------------- rows
@@ -113,7 +114,7 @@ def _cached_rows(quick: bool, seeds: int) -> list[dict]:
 
 
 # ----------------------------------------------------------------------------- library filters
-def _meshlab_steps(step_kwargs: dict, filter_name: str):
+def meshlab_steps(step_kwargs: dict, filter_name: str):
     import pymeshlab
 
     def run(V, F):
@@ -126,7 +127,7 @@ def _meshlab_steps(step_kwargs: dict, filter_name: str):
     return run
 
 
-def _open3d_steps(method: str):
+def open3d_steps(method: str):
     import open3d as o3d
 
     def run(V, F):
@@ -139,40 +140,34 @@ def _open3d_steps(method: str):
 
 
 LIBRARY = {
-    "MeshLab Laplacian": _meshlab_steps({"stepsmoothnum": 1, "cotangentweight": False}, "apply_coord_laplacian_smoothing"),
-    "MeshLab HC Laplacian": _meshlab_steps({}, "apply_coord_hc_laplacian_smoothing"),
-    "MeshLab Taubin": _meshlab_steps({"stepsmoothnum": 1}, "apply_coord_taubin_smoothing"),
-    "MeshLab two-step": _meshlab_steps({"stepsmoothnum": 1}, "apply_coord_two_steps_smoothing"),
-    "Open3D simple": _open3d_steps("filter_smooth_simple"),
-    "Open3D Laplacian": _open3d_steps("filter_smooth_laplacian"),
-    "Open3D Taubin": _open3d_steps("filter_smooth_taubin"),
+    "MeshLab Laplacian": meshlab_steps({"stepsmoothnum": 1, "cotangentweight": False}, "apply_coord_laplacian_smoothing"),
+    "MeshLab HC Laplacian": meshlab_steps({}, "apply_coord_hc_laplacian_smoothing"),
+    "MeshLab Taubin": meshlab_steps({"stepsmoothnum": 1}, "apply_coord_taubin_smoothing"),
+    "MeshLab two-step": meshlab_steps({"stepsmoothnum": 1}, "apply_coord_two_steps_smoothing"),
+    "Open3D simple": open3d_steps("filter_smooth_simple"),
+    "Open3D Laplacian": open3d_steps("filter_smooth_laplacian"),
+    "Open3D Taubin": open3d_steps("filter_smooth_taubin"),
 }
 
 
-def _library_oracle(run, V0, Vn, F, track_normals: bool) -> dict:
-    """Best iteration counts by SNR (and, if asked, by normal error) against the clean mesh.
+def library_oracle(run, V0, Vn, F, scores: tuple[str, ...] = ("snr",)) -> dict:
+    """Best iteration counts of a library filter against the clean mesh: ``{score: (iterations, coordinates)}``.
 
-    One library call per iteration on the same mesh object; stops ``PATIENCE`` iterations
-    after the last improvement of every tracked criterion, or at ``MAX_LIB_ITERS``.
+    ``scores``: ``"snr"`` (the highest SNR) and/or ``"normal"`` (the least mean face-normal
+    error). The tuning floor's oracle search (:func:`meshdenoise.tuning.walk.walk`) along one
+    run of the filter, one library call per iteration on the same mesh object, every score
+    read at every iteration; it stops when each score is past its minimum (the one rule:
+    twice the best count and 20 more), or at ``MAX_LIB_ITERS``.
     """
-    from meshdenoise.quality_metrics import normal_error_deg
+    from meshdenoise.metrics import normal_error_deg
 
-    nerr = (lambda X: normal_error_deg((V0, F), X)) if track_normals else None  # noqa: E731
-    best = {"snr": (snr(V0, Vn), 0, Vn)}
-    if nerr:
-        best["normal"] = (-nerr(Vn), 0, Vn)  # maximise the negated error
-    for k, X in enumerate(run(Vn, F), start=1):
-        last = 0
-        for key, fn in (("snr", lambda Y: snr(V0, Y)), ("normal", (lambda Y: -nerr(Y)) if nerr else None)):
-            if fn is None:
-                continue
-            v = fn(X)
-            if v > best[key][0]:
-                best[key] = (v, k, X)
-            last = max(last, best[key][1])
-        if k - last >= PATIENCE or k >= MAX_LIB_ITERS:
-            break
-    return {key: (b[1], b[2]) for key, b in best.items()}
+    measures = {"snr": lambda X: -snr(V0, X), "normal": lambda X: normal_error_deg((V0, F), X)}
+    unknown = set(scores) - set(measures)
+    if unknown or not scores:
+        raise ValueError(f"library_oracle: scores must be among {sorted(measures)}, got {scores!r}")
+    chosen = [measures[name] for name in scores]
+    found = walk(itertools.chain([Vn], run(Vn, F)), lambda X: [m(X) for m in chosen], max_steps=MAX_LIB_ITERS)
+    return {name: (b.step, b.item) for name, b in zip(scores, found.best)}
 
 
 # ----------------------------------------------------------------------------- measuring
@@ -243,7 +238,7 @@ def _measure(task: tuple) -> tuple:
     for name, steps in LIBRARY.items():
         if f"{name} oracle" in per:
             continue
-        found = _library_oracle(steps, V0, Vn, F, track_normals=row["features"])
+        found = library_oracle(steps, V0, Vn, F, ("snr", "normal") if row["features"] else ("snr",))
         k, X = found["snr"]
         put(f"{name} oracle", X, {"iterations": k})
         if "normal" in found:
@@ -382,7 +377,6 @@ def _row_markdown(entry: dict) -> str:
 
 
 def _summary_table(res: dict) -> str:
-    ours = res["methods"]
     lines = ["| row | noisy SNR | best auto (dB) | vs paper | vs best MeshLab/Open3D oracle | worst auto loss |", "|---|---|---|---|---|---|"]
     for e in res["rows"]:
         paper = "n/a" if e["margin_vs_paper"] is None else f"{e['margin_vs_paper']:+.2f}"

@@ -53,8 +53,8 @@ def test_tasks_are_stored_and_resume_measures_only_what_is_asked(quality, tmp_pa
 
     monkeypatch.setattr(q.auto, "choose_parameters", counting)
     library_runs = []
-    real_oracle = q._library_oracle
-    monkeypatch.setattr(q, "_library_oracle", lambda *a, **k: library_runs.append(1) or real_oracle(*a, **k))
+    real_oracle = q.library_oracle
+    monkeypatch.setattr(q, "library_oracle", lambda *a, **k: library_runs.append(1) or real_oracle(*a, **k))
 
     again = q.run(False, 2, ["filtering", "sobolev"], store=store, resume=True)
     assert calls == [] and library_runs == []  # everything came from the store
@@ -92,3 +92,39 @@ def test_rows_name_the_code_they_were_measured_on(quality, tmp_path):
     assert len(commits) == 1 and commits[0] == q._commit()
     assert commits[0] in q._row_markdown(res["rows"][0])
     assert np.isfinite(res["peak_rss_mb"]) and res["peak_rss_mb"] > 0
+
+
+@pytest.mark.parametrize("name", ["Open3D simple", "MeshLab Laplacian"])
+def test_library_oracle_is_the_best_count_of_a_brute_force_run(name):
+    """The library oracle (the tuning floor's walk along one run, one library call per step) against each
+    count k computed from scratch with the library's own iteration count, and its stopping rule."""
+    import open3d as o3d
+    import pymeshlab
+
+    q = _quality_module()
+    V, F = icosphere(2)
+    Vn = add_normal_noise((V, F), 0.03, seed=1)[0]
+
+    def from_scratch(k: int) -> np.ndarray:
+        if k == 0:
+            return Vn
+        if name == "Open3D simple":
+            m = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(Vn), o3d.utility.Vector3iVector(F.astype(np.int32)))
+            return np.asarray(m.filter_smooth_simple(k).vertices)
+        ms = pymeshlab.MeshSet()
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=Vn, face_matrix=F.astype(np.int32)))
+        ms.apply_coord_laplacian_smoothing(stepsmoothnum=k, cotangentweight=False)
+        return ms.current_mesh().vertex_matrix()
+
+    found = q.library_oracle(q.LIBRARY[name], V, Vn, F, ("snr", "normal"))
+    snrs = [snr(V, from_scratch(k)) for k in range(60)]
+    k_snr = int(np.argmax(snrs))
+    assert k_snr < 20  # so that the walk (twice the best count plus 20) stopped inside the 60 counts computed here
+    assert found["snr"][0] == k_snr
+    np.testing.assert_allclose(found["snr"][1], from_scratch(k_snr), atol=1e-12)
+    from meshdenoise.metrics import normal_error_deg
+
+    errors = [normal_error_deg((V, F), from_scratch(k)) for k in range(60)]
+    assert found["normal"][0] == int(np.argmin(errors))
+    with pytest.raises(ValueError, match="scores must be among"):
+        q.library_oracle(q.LIBRARY[name], V, Vn, F, ("volume",))

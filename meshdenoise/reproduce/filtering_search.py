@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Iterator
 
 import numpy as np
 
 from ..plugins.filtering import smoothing_steps
-from ..tuning.search import past_minimum
+from ..tuning.walk import walk
 from .batch import NoisyBatch
 from .result import SearchResult
 
@@ -24,29 +25,28 @@ def snr_along_run(batch: NoisyBatch, steps: Iterator[np.ndarray], n_steps: int) 
 
 
 def run_until_past_peak(batch: NoisyBatch, steps: Iterator[np.ndarray], max_steps: int) -> tuple[np.ndarray, bool]:
-    """SNR per seed along ``steps`` until past the best mean SNR (the tuning walks' rule,
-    :func:`~meshdenoise.tuning.search.past_minimum`: twice the best step count and 20 more).
+    """SNR per seed along ``steps`` until past the best mean SNR, shape (k + 1, S), and whether ``max_steps`` came first.
 
-    Returns the (k + 1, S) SNR array and whether ``max_steps`` stopped the run first.
+    The oracle search of the tuning floor (:func:`~meshdenoise.tuning.walk.walk`, its one
+    stopping rule: twice the best step count and 20 more), scored by the mean SNR over the
+    seeds against the clean mesh; every state's SNRs are kept for the table and the figures.
     """
-    rows = [batch.noisy_snr()]
-    best_k, best = 0, rows[0].mean()
-    k = 0
-    while k < max_steps:
-        k += 1
-        rows.append(batch.snr_stack(next(steps)))
-        if rows[-1].mean() > best:
-            best_k, best = k, rows[-1].mean()
-        if past_minimum(k, best_k):
-            return np.array(rows), False
-    return np.array(rows), True
+    rows: list[np.ndarray] = []
+
+    def score(Y: np.ndarray) -> float:
+        rows.append(batch.snr_stack(Y))
+        return -float(rows[-1].mean())
+
+    found = walk(itertools.chain([batch.X], steps), score, max_steps=max_steps)
+    return np.array(rows), not found.complete
 
 
 def search_filtering(batch: NoisyBatch, max_iterations: int = 5000) -> SearchResult:
     """Best number of averaging steps ``X <- D^-1 W X``, reading the SNR after each step of a single run.
 
     All seeds are smoothed together (one sparse product per step on the stacked (n, 3 S)
-    coordinates). The run stops at twice the best step count so far plus 20 (:func:`~meshdenoise.tuning.search.past_minimum`).
+    coordinates). The run stops at twice the best step count so far plus 20 (the one walk of the
+    tuning floor, :func:`~meshdenoise.tuning.walk.walk`, scored by the mean SNR over the seeds).
 
     Examples
     --------
