@@ -17,25 +17,28 @@ input                                     result
                                           recomputed when the input had them
 ========================================  ==================================================
 
-pymeshlab offers no setter for vertex positions. To change them in place we pass the
-new coordinates as three per-vertex custom scalar attributes and apply MeshLab's own
-``compute_coord_by_function`` (exact: doubles in, doubles out). MeshLab cannot delete
-a custom attribute, so each in-place change leaves three attributes named
-``__meshdenoise_<k>_x|y|z`` on the mesh (8 bytes per vertex each; MeshLab does not
-save them unless asked).
+pymeshlab offers no setter for vertex positions (``Mesh`` has getters only, and
+``vertex_matrix()`` returns a copy). To change them in place, keeping the mesh's id, name,
+textures, colours, selection and custom attributes, we use two MeshLab filters and no
+attribute: ``compute_coord_by_function(x="0", y="0", z="0")`` sets every position to
+exactly 0, then ``compute_coord_linear_morphing(targetmesh=t, percentmorph=100)`` moves each
+vertex to the same-index vertex of a temporary mesh ``t`` holding the new coordinates
+(MeshLab computes ``p + (q - p) * 1.0``, which is ``q`` exactly when ``p = 0``), and the
+temporary mesh is deleted. The result is bit-exact (``tests/test_adapters.py``), and six
+in-place calls leave the mesh as it was apart from its coordinates and normals.
 
-They cannot be reused either: pymeshlab 2025.7 refuses to add an attribute under a name
-that exists, returns attribute arrays as copies (writing into them changes nothing), and
-reads a per-vertex *point* attribute wrongly in ``compute_coord_by_function``
-(``tests/test_adapters.py`` checks these three facts, so it fails the day pymeshlab
-allows reuse). Pipelines are not affected: they carry arrays
-(:class:`meshdenoise.pipeline.state.MeshState`) and build a throw-away MeshSet only
-around pymeshlab steps, so a pipeline leaves no attribute anywhere.
+Earlier versions passed the coordinates as three per-vertex custom attributes read by
+``compute_coord_by_function``, which left three attributes per call: pymeshlab 2025.7
+cannot delete a custom attribute, refuses to add one under an existing name, returns
+attribute arrays as copies (writing into them changes nothing) and reads a per-vertex
+*point* attribute wrongly in ``compute_coord_by_function``; ``tests/test_adapters.py`` keeps
+these facts checked. Pipelines are not concerned either way: they carry arrays
+(:class:`meshdenoise.pipeline.state.MeshState`) and build a throw-away MeshSet only around
+pymeshlab steps.
 """
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass
 from typing import Any, Callable
 
@@ -126,28 +129,26 @@ def _read_arrays(mesh, allow_no_faces):
 
 
 # --- pymeshlab ------------------------------------------------------------------------------
-_attribute_counter = itertools.count()
-
-
-def _has_vertex_attribute(m, name: str) -> bool:
-    try:
-        m.vertex_custom_scalar_attribute_array(name)
-        return True
-    except Exception:
-        return False
-
-
 def _set_coordinates_in_place(ms, V_new: np.ndarray) -> None:
-    """Write new coordinates into the MeshSet's current mesh, exactly, keeping everything else."""
-    m = ms.current_mesh()
-    while True:
-        base = f"__meshdenoise_{next(_attribute_counter)}"
-        names = [f"{base}_{c}" for c in "xyz"]
-        if not any(_has_vertex_attribute(m, n) for n in names):
-            break
-    for col, name in enumerate(names):
-        m.add_vertex_custom_scalar_attribute(np.ascontiguousarray(V_new[:, col]), name)
-    ms.compute_coord_by_function(x=names[0], y=names[1], z=names[2], onselected=False)
+    """Write new coordinates into the MeshSet's current mesh, exactly, keeping everything else (module docstring).
+
+    ``V_new`` (n, 3) float64, ``n`` the current mesh's vertex count (compact). The MeshSet's
+    current mesh, its id and its other meshes are as before; vertex and face normals are
+    recomputed.
+    """
+    import pymeshlab
+
+    current = ms.current_mesh_id()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.ascontiguousarray(V_new, dtype=np.float64)), set_as_current=True)
+    target = ms.current_mesh_id()
+    try:
+        ms.set_current_mesh(current)
+        ms.compute_coord_by_function(x="0", y="0", z="0", onselected=False)
+        ms.compute_coord_linear_morphing(targetmesh=target, percentmorph=100.0)
+    finally:
+        ms.set_current_mesh(target)
+        ms.delete_current_mesh()
+        ms.set_current_mesh(current)
     ms.compute_normal_per_vertex()
     ms.compute_normal_per_face()
 

@@ -98,9 +98,51 @@ def test_empty_meshset_is_refused():
         md.filtering(pymeshlab.MeshSet())
 
 
+def test_meshset_in_place_adds_no_attribute_and_keeps_the_set():
+    """Six in-place calls: exact coordinates, and the set, its current mesh, the other meshes, the vertex
+    selection and the user's own attribute as they were; no coordinate attribute left (earlier writers
+    left three per call, named ``__meshdenoise_<k>_x|y|z``)."""
+    V, Vn, F = noisy_sphere(subdivisions=2)
+    other = pymeshlab.Mesh(vertex_matrix=V + 5.0, face_matrix=F.astype(np.int32))
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(other, "other")
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=Vn, face_matrix=F.astype(np.int32)), "noisy")
+    mine = ms.current_mesh_id()
+    ms.current_mesh().add_vertex_custom_scalar_attribute(np.arange(len(V), dtype=np.float64), "mine")
+    ms.compute_selection_by_condition_per_vertex(condselect="x > 0")
+    selected = ms.current_mesh().vertex_selection_array().copy()
+    expected = Vn
+    for _ in range(6):
+        md.filtering(ms, iterations=1)
+        expected = md.filtering((expected, F), iterations=1)[0]
+    assert ms.mesh_number() == 2 and ms.current_mesh_id() == mine and ms.current_mesh().label() == "noisy"
+    m = ms.current_mesh()
+    np.testing.assert_array_equal(m.vertex_matrix(), expected)  # bit-exact
+    np.testing.assert_array_equal(m.vertex_selection_array(), selected)
+    np.testing.assert_array_equal(m.vertex_custom_scalar_attribute_array("mine"), np.arange(len(V)))
+    for k in range(18):
+        with pytest.raises(Exception):
+            m.vertex_custom_scalar_attribute_array(f"__meshdenoise_{k}_x")
+    np.testing.assert_array_equal(ms.mesh(0).vertex_matrix(), V + 5.0)
+
+
+def test_meshset_in_place_is_exact_for_any_magnitude():
+    """Coordinates over 16 decades, negative, and -0.0 come back bit for bit (the writer zeroes, then morphs by 100 %)."""
+    from meshdenoise.adapters import _set_coordinates_in_place
+
+    V, F = icosphere(2)
+    rng = np.random.default_rng(0)
+    W = V * rng.uniform(-2, 2, V.shape) * 10.0 ** rng.integers(-8, 8, V.shape)
+    W[0] = [-0.0, 0.0, 1e300]
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=F.astype(np.int32)))
+    _set_coordinates_in_place(ms, W)
+    np.testing.assert_array_equal(ms.current_mesh().vertex_matrix(), W)
+
+
 def test_pymeshlab_still_cannot_reuse_a_custom_attribute():
-    """Why the in-place MeshSet writer adds three attributes per call (see meshdenoise.adapters):
-    each fact below, once pymeshlab changes it, makes this test fail, and the writer can then reuse one set."""
+    """Why the in-place MeshSet writer does not pass coordinates through custom attributes (see
+    meshdenoise.adapters): each fact below, once pymeshlab changes it, makes this test fail."""
     V, F = icosphere(1)
     ms = pymeshlab.MeshSet()
     ms.add_mesh(pymeshlab.Mesh(V, F.astype(np.int32)))
