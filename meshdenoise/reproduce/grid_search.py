@@ -23,15 +23,16 @@ class GridSpec:
         A parameter the filter declares (checked when the search runs).
     values : tuple
         Values to try, in order.
-    fixed : dict
-        Other parameters (defaults otherwise).
+    given : dict
+        Other parameters, held at these values (defaults otherwise); ``**given`` of
+        :func:`~meshdenoise.tuning.choose.choose_parameters` is the same concept.
     log_scale : bool
         Plot the parameter on a log axis.
     """
 
     param: str
     values: tuple
-    fixed: dict = field(default_factory=dict)
+    given: dict = field(default_factory=dict)
     log_scale: bool = True
 
 
@@ -66,7 +67,7 @@ def search_grid(batch: NoisyBatch, name: str, grid: GridSpec, advance=None) -> S
     snr = np.empty((len(grid.values), batch.n_seeds))
     params = []
     for i, value in enumerate(grid.values):
-        kwargs = {**grid.fixed, grid.param: value}
+        kwargs = {**grid.given, grid.param: value}
         params.append(kwargs)
         for s in range(batch.n_seeds):
             Y, _ = spec.public((batch.noisy(s).copy(), batch.F), operators=batch.ops, **kwargs)

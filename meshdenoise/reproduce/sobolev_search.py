@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..plugins.sobolev import SobolevSolver
+from ..solvers import shifted_solver
 from .batch import NoisyBatch, snr_from_squared_error
 from .paper import MU_GRID
 from .result import SearchResult
@@ -38,7 +38,7 @@ def _factor_snr(batches: list[NoisyBatch], mus: np.ndarray, advance=None) -> lis
     widths = np.cumsum([0] + [b.X.shape[1] for b in batches])
     out = [np.empty((mus.size, b.n_seeds)) for b in batches]
     for i, mu in enumerate(mus):
-        Y = X if mu == 0 else SobolevSolver(batches[0].ops, mu).solve(X)
+        Y = X if mu == 0 else shifted_solver(batches[0].ops, mu).solve(X)
         for j, b in enumerate(batches):
             out[j][i] = b.snr_stack(Y[:, widths[j] : widths[j + 1]])
         if advance is not None:
@@ -59,7 +59,9 @@ def _cholmod_snr(batches: list[NoisyBatch], mus: np.ndarray, advance=None) -> li
     """SNR for every mu with CHOLMOD: one symbolic analysis of ``I + mu L``, then a numeric factorisation per mu.
 
     The sparsity pattern of ``I + mu L`` does not depend on ``mu > 0``, so the fill-reducing
-    ordering and the elimination tree are computed once and reused.
+    ordering and the elimination tree are computed once and reused. (A sweep over many mu:
+    :func:`~meshdenoise.solvers.shifted_solver` builds one cholespy factor per mu, with no
+    symbolic reuse; tests/test_reproduce.py checks the two agree to 1e-9 dB.)
     """
     import scipy.sparse as sp
     from sksparse.cholmod import analyze
@@ -97,7 +99,8 @@ def search_sobolev(
     with scikit-sparse installed (``cholmod``, default when available) CHOLMOD analyses the
     pattern of ``I + mu L`` once and only refactorises numerically for each mu; without it,
     cholespy redoes its symbolic analysis for each matrix, so each mu costs one analysis
-    and factorisation (the filter's own :class:`~meshdenoise.plugins.sobolev.SobolevSolver`).
+    and factorisation (the package's one solver of :math:`I + \mu L`,
+    :func:`~meshdenoise.solvers.shifted_solver`).
     Either way one factorisation serves every seed and noise level (one multi-column solve).
 
     Examples
