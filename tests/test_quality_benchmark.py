@@ -2,6 +2,7 @@
 
 import importlib.util
 import json
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -128,3 +129,15 @@ def test_library_oracle_is_the_best_count_of_a_brute_force_run(name):
     assert found["normal"][0] == int(np.argmin(errors))
     with pytest.raises(ValueError, match="scores must be among"):
         q.library_oracle(q.LIBRARY[name], V, Vn, F, ("volume",))
+
+
+def test_feature_benchmark_uses_the_quality_benchmarks_filters_and_oracle():
+    """benchmarks/features.py has no search of its own: the library filters and their oracle are quality.py's."""
+    path = Path(__file__).resolve().parent.parent / "benchmarks" / "features.py"
+    spec = importlib.util.spec_from_file_location("features_benchmark", path)
+    features = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(features)
+    q = sys.modules["quality"]  # the module features.py imported
+    assert features.library_oracle is q.library_oracle
+    assert set(features.FILTERS) == set(q.LIBRARY)
+    assert all(features.FILTERS[k] is q.LIBRARY[k] for k in q.LIBRARY if k != "MeshLab Laplacian")
