@@ -1,12 +1,13 @@
 """The walk along an iterative run until its score is past the minimum, with any score.
 
 Generic machinery: a walk knows a sequence of states (the state after 0, 1, 2, ... steps of
-any iterative filter) and one or more scores of a state, never a filter. The same walk serves
-the automatic choice (a risk estimate scores each step, :func:`~meshdenoise.tuning.search.best_on_path`)
-and the oracle searches that know the clean mesh (the error against it scores each step): the
-paper's tables (:mod:`meshdenoise.reproduce`: the SNR averaged over noise seeds), the quality
-benchmark's MeshLab and Open3D filters (SNR and face-normal error, one library call per step)
-and the feature benchmark.
+any iterative filter) and one or more scores of a state, never a filter. It serves the oracle
+searches that know the clean mesh (the error against it scores each step): the paper's tables
+(:mod:`meshdenoise.reproduce`: the SNR averaged over noise seeds), the quality benchmark's
+MeshLab and Open3D filters (SNR and face-normal error, one library call per step) and the
+feature benchmark. The automatic rules walk their risk estimate by the same rule
+(:func:`~meshdenoise.tuning.search.best_on_path`; ``tests/test_tuning_walk.py`` checks that
+both choose the same step, with SURE and with the oracle score).
 
 The stopping rule is :func:`~meshdenoise.tuning.search.past_minimum` (``k >= 2 k_best + 20``),
 or, for a caller whose steps are costly, ``patience``: stop ``patience`` steps after the best.
