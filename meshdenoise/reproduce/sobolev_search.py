@@ -99,7 +99,7 @@ def search_sobolev(
     with scikit-sparse installed (``cholmod``, default when available) CHOLMOD analyses the
     pattern of ``I + mu L`` once and only refactorises numerically for each mu; without it,
     cholespy redoes its symbolic analysis for each matrix, so each mu costs one analysis
-    and factorisation (the package's one solver of :math:`I + \mu L`,
+    and factorisation (the package's one solver of ``I + mu L``,
     :func:`~meshdenoise.solvers.shifted_solver`).
     Either way one factorisation serves every seed and noise level (one multi-column solve).
 
