@@ -3,7 +3,7 @@
 Each module registers its filters with :func:`meshdenoise.registry.register`: the array
 core, its :class:`~meshdenoise.registry.Param` list and its automatic rule
 (:class:`~meshdenoise.registry.AutoRule`). A new filter is one new module, named after
-the filter it registers, added to ``MODULES`` below (tests/test_registry_layout.py
+the filter it registers, added to ``MODULES`` below (tests/test_code_layout.py
 checks that every module of this folder is listed).
 """
 
