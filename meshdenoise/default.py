@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 
 from .adapters import read_mesh
-from .geometry import face_normals
+from .geometry import face_normals, vertex_normals
 from .operators import Operators, get_operators
 from .progress import stage
 from .registry import COMMON_OPTIONS, apply_filter, get_filter
@@ -46,7 +46,7 @@ from .tuning.choose import choose_parameters
 from .tuning.covariance import NoiseModel, estimate_noise_model
 from .tuning.noise_level import mean_edge_length
 
-__all__ = ["DefaultChoice", "FeatureTest", "choose_default", "denoise", "detect_features",
+__all__ = ["DefaultChoice", "FeatureTest", "choose_default", "denoise", "detect_features", "feature_risk",
            "SMOOTH_METHOD", "FEATURE_METHOD"]
 
 log = logging.getLogger("meshdenoise.auto")
@@ -62,6 +62,8 @@ SHARP_SHARE = 0.70  # sharp features when at least this share of the creased edg
 TOO_NOISY = 0.10  # above this fraction of sharp edges the pre-smoothing has not removed the noise: no decision on features
 MIN_SHARP_EDGES = 12  # fewer sharp edges than this are no feature lines
 NOT_SMOOTHING = 0.01  # a run that moves vertices by less than this many mean edge lengths (rms) is said not to smooth
+RISK_PROBE_RUNS = 30_000  # the feature filter's risk: Monte-Carlo SURE probes x vertices, about (see feature_risk) ...
+RISK_PROBES = (2, 16)  # ... within these bounds on the probe count
 
 
 @dataclass(frozen=True)
@@ -225,6 +227,70 @@ class DefaultChoice:
         }
 
 
+def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, normals: np.ndarray, *,
+                 ops: Operators | None = None, probes: int | None = None, seed: int = 0) -> tuple[float, np.ndarray]:
+    """Monte-Carlo SURE of ``two_stage`` with ``params`` on the whole mesh, probes along ``normals``.
+
+    .. math:: \\widehat R = \\|f(X) - X\\|_F^2 - n\\rho^2 + \\frac{2\\rho^2}{P}\\sum_{k=1}^P
+              \\frac{b_k^T (f(X + \\delta b_k) - f(X))}{\\delta}, \\quad b_{k,i} = z_{k,i} N_i,\\ \\delta = 0.1\\rho
+
+    with :math:`z_k` Rademacher (coloured by the noise model when it is correlated, as every
+    rule's probes are). An unbiased estimate of :math:`\\|f(X) - X^0\\|_F^2` when ``N`` is the
+    direction of the noise (Stein's lemma). Why not the estimate ``two_stage``'s rule returns: it
+    is on a sampled region of 3000 vertices, scaled to the mesh (0.4 to 1.6 times the true error
+    on the default's rows), and its probes follow the normals of a ``two_stage`` pilot. With
+    ``keep_tangential`` each vertex keeps the part of the noise tangential to the *result's*
+    normal, an error of :math:`\\rho^2 \\sum_i \\sin^2\\theta_i` (:math:`\\theta_i` the angle between
+    the result's and the clean normal); probes along normals that share the result's own errors
+    (the pilot's) do not see it: Nefertiti rho 0.2, 30 probes: 2.7 against a true 4.55, 4.8 along
+    the clean normals. The caller passes the normals of an independent estimate (the smooth prior's
+    result), which see it.
+
+    Parameters
+    ----------
+    V : ndarray, shape (n, 3)
+        The noisy vertices.
+    F : ndarray, shape (m, 3)
+    params : dict
+        ``two_stage``'s parameters (the rest at its defaults).
+    model : NoiseModel
+        The noise level and correlation.
+    normals : ndarray, shape (n, 3)
+        Unit noise directions.
+    ops : Operators, optional
+    probes : int, optional
+        Probe count; by default ``RISK_PROBE_RUNS / n`` within ``RISK_PROBES`` (16 on a
+        300-vertex mesh, 2 from 15,000 vertices).
+    seed : int
+
+    Returns
+    -------
+    (float, ndarray of shape (n, 3))
+        The estimate and ``f(X)``.
+    """
+    n = V.shape[0]
+    ops = ops if ops is not None else get_operators(F, n)
+    if probes is None:
+        probes = int(np.clip(math.ceil(RISK_PROBE_RUNS / max(n, 1)), *RISK_PROBES))
+    spec = get_filter(FEATURE_METHOD)
+    run = lambda X: np.asarray(spec.public((X, F), operators=ops, **params)[0])  # noqa: E731
+    rho = float(model.rho)
+    out = run(V)
+    residual = float(np.sum((out - V) ** 2))
+    if rho == 0:
+        return residual, out
+    delta = 0.1 * rho
+    rng = np.random.default_rng(seed)
+    divergence = 0.0
+    for _ in range(probes):
+        z = rng.choice([-1.0, 1.0], size=n)
+        if model.correlated:
+            z = model.colour(z[:, None], 1.0)[:, 0]
+        b = z[:, None] * normals
+        divergence += float(np.sum(b * (run(V + delta * b) - out))) / delta
+    return residual - n * rho**2 + 2 * rho**2 * divergence / probes, out
+
+
 def _checked_noise(noise: Any) -> float:
     if isinstance(noise, (bool, np.bool_)) or not isinstance(noise, (int, float, np.integer, np.floating)):
         raise TypeError(f"denoise: noise must be a number or a NoiseModel, got {noise!r}")
@@ -288,7 +354,11 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
         reasons = [f"{features.reason} -> {method}, a smooth prior",
                    f"its parameters minimise {method}'s risk estimate (SURE) for that noise level"]
     else:  # the filter with the smaller estimated error (SURE picks two_stage on the CAD pairs by 2.5x)
-        scored = {m: choose_parameters((V, F), m, noise=model, return_risk=True) for m in (FEATURE_METHOD, SMOOTH_METHOD)}
+        scored = {m: list(choose_parameters((V, F), m, noise=model, return_risk=True)) for m in (FEATURE_METHOD, SMOOTH_METHOD)}
+        with stage("estimating the feature filter's error"):  # on the whole mesh, along the smooth prior's normals
+            smooth = np.asarray(get_filter(SMOOTH_METHOD).public((V, F), operators=ops, **scored[SMOOTH_METHOD][0])[0])
+            scored[FEATURE_METHOD][1] = feature_risk(V, F, scored[FEATURE_METHOD][0], model, vertex_normals(smooth, F),
+                                                     ops=ops)[0]
         method = min(scored, key=lambda m: scored[m][1])
         params = scored[method][0]
         other = SMOOTH_METHOD if method == FEATURE_METHOD else FEATURE_METHOD
