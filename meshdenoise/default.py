@@ -15,12 +15,14 @@ The policy, from measurements of the noisy mesh alone:
 
 Where the noise is too strong for normals to be filtered, ``sobolev_bilaplacian`` (a smooth
 prior) is chosen; elsewhere both it and ``two_stage`` (feature-preserving normal filtering) get
-their automatic parameters and the one with the smaller estimated error (SURE, the same
-criterion their rules minimise) is kept. Measured (``benchmarks/results/default-candidates.md``):
-the normal filter on the CAD parts (2.5-3.1 against 10.5-12.0 degrees of normal error), on the
-benchmark's scanned Bunny0.2 and on the range scan with scanner noise (5.6-8.0 against 9.4-11.7),
-the smooth prior at noise near one edge length (the paper's elephant: 11.5 against 28.6); 2 wrong
-picks in 11 rows. The sharp-feature verdict is reported; the choice rests on the estimated error.
+their automatic parameters and the one with the smaller estimated error is kept (SURE of
+``sobolev_bilaplacian``'s choice, and :func:`feature_risk` for ``two_stage``'s: Monte-Carlo SURE on
+the whole mesh with probes along the smooth prior's result's normals). Measured
+(``benchmarks/results/default-candidates.md``): the normal filter on the CAD parts (2.5-3.1 against
+10.5-12.0 degrees of normal error), on the benchmark's scanned Bunny0.2 and on the range scan with
+scanner noise (5.6-8.0 against 9.4-11.7), the smooth prior on the bunny with independent scanner
+noise, on the 299-vertex Nefertiti and at noise near one edge length (the paper's elephant: 11.5
+against 28.6); no wrong pick in 10 rows (docs/scans.md). The sharp-feature verdict is reported.
 Parameters are those of the filter's own automatic rule.
 This module names filters: it is policy, above the
 generic tuning machinery.
@@ -353,7 +355,7 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
         params = choose_parameters((V, F), method, noise=model)
         reasons = [f"{features.reason} -> {method}, a smooth prior",
                    f"its parameters minimise {method}'s risk estimate (SURE) for that noise level"]
-    else:  # the filter with the smaller estimated error (SURE picks two_stage on the CAD pairs by 2.5x)
+    else:  # the filter with the smaller estimated error (it picks two_stage on the CAD pairs by 2.5x)
         scored = {m: list(choose_parameters((V, F), m, noise=model, return_risk=True)) for m in (FEATURE_METHOD, SMOOTH_METHOD)}
         with stage("estimating the feature filter's error"):  # on the whole mesh, along the smooth prior's normals
             smooth = np.asarray(get_filter(SMOOTH_METHOD).public((V, F), operators=ops, **scored[SMOOTH_METHOD][0])[0])
