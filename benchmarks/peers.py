@@ -179,8 +179,15 @@ def _sample(file: str) -> Callable[[], dict]:
         from meshdenoise.io import load_arrays
 
         V0, F = load_arrays(sample_mesh(file))
+        used = np.unique(F)
+        dropped = V0.shape[0] - used.size
+        if dropped:  # a range map ships unreferenced vertices; libraries that drop them (PyGEL) could not be compared
+            number = np.full(V0.shape[0], -1, dtype=np.int64)
+            number[used] = np.arange(used.size)
+            V0, F = V0[used], number[F]
         Vn, label = _scanner_noise(V0, F)
-        return {"V0": V0, "F": F, "Vn": Vn, "noise": label}
+        return {"V0": V0, "F": F, "Vn": Vn,
+                "noise": label + (f"; {dropped} unreferenced vertices of the file dropped" if dropped else "")}
 
     return build
 

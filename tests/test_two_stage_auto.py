@@ -195,12 +195,36 @@ def test_staged_search_visits_the_coordinates_in_order_and_keeps_ties_early():
         score = abs(params["sigma_r"] - 0.3) + abs(params["normal_iterations"] - 20) / 100 + abs(params["vertex_iterations"] - 10) / 100
         return ts.Point(3, 0.0, 0.0, np.zeros((1, 3)), score)
 
-    chosen, best = ts._staged_search(path, ts._search_grid({}))
+    grid = ts._search_grid({}, oracle=True)  # both vertex step counts
+    assert grid["vertex_iterations"] == (20, 10)
+    chosen, best = ts._staged_search(path, grid)
     assert (chosen["sigma_r"], chosen["normal_iterations"], chosen["vertex_iterations"]) == (0.3, 20, 10)
     assert best.score == pytest.approx(0.0)
     keys = [tuple(sorted(p.items())) for p in seen]
     assert len(keys) == len(set(keys))  # no run twice
-    assert len(seen) < len(ts.TWO_STAGE_SIGMA_R) * len(ts.TWO_STAGE_NORMAL_ITERATIONS) * len(ts.TWO_STAGE_VERTEX_ITERATIONS)
+    assert len(seen) < len(ts.TWO_STAGE_SIGMA_R) * len(ts.TWO_STAGE_NORMAL_ITERATIONS) * 2
+
+
+def test_the_rule_searches_20_vertex_steps_and_the_oracle_10_and_20():
+    assert ts._search_grid({})["vertex_iterations"] == (20,)
+    assert ts._search_grid({"vertex_iterations": 7})["vertex_iterations"] == (7,)
+    assert ts._search_grid({}, oracle=True)["vertex_iterations"] == (20, 10)
+
+
+@pytest.mark.parametrize("d, margin, cut", [
+    ([-1.0, -1.2, -0.8, -1.0], 0.5, True),    # mean -1, se 0.0816: -1 + 0.163 < -0.5
+    ([-1.0, -1.2, -0.8, -1.0], 0.9, False),   # -0.837 > -0.9
+    ([-3.0, 1.0, -3.0, 1.0], 0.1, False),     # mean -1 but se 1.155: the probes disagree
+    ([-0.2], 0.1, True),                      # one probe: no spread, the margin alone
+])
+def test_guard_drops_is_the_paired_mean_less_two_standard_errors(d, margin, cut):
+    last = np.array([5.0, 6.0, 7.0, 8.0][: len(d)])
+    shorter = last + np.array(d)
+    assert ts.guard_drops(shorter, last, margin) is cut
+    # the same written out: mean + 2 sd / sqrt(P) with the sample standard deviation
+    d = np.array(d)
+    se = np.sqrt(np.sum((d - d.mean()) ** 2) / (d.size - 1) / d.size) if d.size > 1 else 0.0
+    assert bool(d.mean() + 2 * se < -margin) is cut
 
 
 def test_rule_context_directly_returns_a_scored_point():
