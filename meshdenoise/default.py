@@ -64,6 +64,8 @@ SHARP_SHARE = 0.70  # sharp features when at least this share of the creased edg
 TOO_NOISY = 0.10  # above this fraction of sharp edges the pre-smoothing has not removed the noise: no decision on features
 MIN_SHARP_EDGES = 12  # fewer sharp edges than this are no feature lines
 NOT_SMOOTHING = 0.01  # a run that moves vertices by less than this many mean edge lengths (rms) is said not to smooth
+SMALL_MESH = 2000  # up to this many vertices the default also tries ...
+SMALL_MESH_METHOD = "sobolev_normal"  # ... this smooth prior with a normal-aware update (its search costs under a second there)
 RISK_PROBE_RUNS = 30_000  # the feature filter's risk: Monte-Carlo SURE probes x vertices, about (see feature_risk) ...
 RISK_PROBES = (2, 16)  # ... within these bounds on the probe count
 
@@ -230,8 +232,9 @@ class DefaultChoice:
 
 
 def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, normals: np.ndarray, *,
-                 ops: Operators | None = None, probes: int | None = None, seed: int = 0) -> tuple[float, np.ndarray]:
-    """Monte-Carlo SURE of ``two_stage`` with ``params`` on the whole mesh, probes along ``normals``.
+                 ops: Operators | None = None, probes: int | None = None, seed: int = 0,
+                 method: str = FEATURE_METHOD) -> tuple[float, np.ndarray]:
+    """Monte-Carlo SURE of ``two_stage`` (or ``method``) with ``params`` on the whole mesh, probes along ``normals``.
 
     .. math:: \\widehat R = \\|f(X) - X\\|_F^2 - n\\rho^2 + \\frac{2\\rho^2}{P}\\sum_{k=1}^P
               \\frac{b_k^T (f(X + \\delta b_k) - f(X))}{\\delta}, \\quad b_{k,i} = z_{k,i} N_i,\\ \\delta = 0.1\\rho
@@ -264,6 +267,8 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
         Probe count; by default ``RISK_PROBE_RUNS / n`` within ``RISK_PROBES`` (16 on a
         300-vertex mesh, 2 from 15,000 vertices).
     seed : int
+    method : str
+        The filter (``two_stage`` by default; the default also scores ``sobolev_normal`` with it).
 
     Returns
     -------
@@ -274,7 +279,7 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     ops = ops if ops is not None else get_operators(F, n)
     if probes is None:
         probes = int(np.clip(math.ceil(RISK_PROBE_RUNS / max(n, 1)), *RISK_PROBES))
-    spec = get_filter(FEATURE_METHOD)
+    spec = get_filter(method)
     run = lambda X: np.asarray(spec.public((X, F), operators=ops, **params)[0])  # noqa: E731
     rho = float(model.rho)
     out = run(V)
@@ -350,23 +355,29 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
     def rms(risk: float) -> float:  # SURE's estimated squared error as an rms distance in mean edge lengths
         return math.sqrt(max(risk, 0.0) / max(n, 1)) / h if h > 0 else float("nan")
 
-    if features.too_noisy:
+    candidates = [SMOOTH_METHOD] if features.too_noisy else [FEATURE_METHOD, SMOOTH_METHOD]
+    if n <= SMALL_MESH:
+        candidates.append(SMALL_MESH_METHOD)
+    if len(candidates) == 1:
         method = SMOOTH_METHOD
         params = choose_parameters((V, F), method, noise=model)
         reasons = [f"{features.reason} -> {method}, a smooth prior",
                    f"its parameters minimise {method}'s risk estimate (SURE) for that noise level"]
     else:  # the filter with the smaller estimated error (it picks two_stage on the CAD pairs by 2.5x)
-        scored = {m: list(choose_parameters((V, F), m, noise=model, return_risk=True)) for m in (FEATURE_METHOD, SMOOTH_METHOD)}
-        with stage("estimating the feature filter's error"):  # on the whole mesh, along the smooth prior's normals
+        scored = {m: list(choose_parameters((V, F), m, noise=model, return_risk=True)) for m in candidates}
+        with stage("estimating the candidates' errors"):  # on the whole mesh, along the smooth prior's normals
             smooth = np.asarray(get_filter(SMOOTH_METHOD).public((V, F), operators=ops, **scored[SMOOTH_METHOD][0])[0])
-            scored[FEATURE_METHOD][1] = feature_risk(V, F, scored[FEATURE_METHOD][0], model, vertex_normals(smooth, F),
-                                                     ops=ops)[0]
+            normals = vertex_normals(smooth, F)
+            for m in candidates:
+                if m != SMOOTH_METHOD:  # the smooth prior is linear: its own SURE is exact in expectation
+                    scored[m][1] = feature_risk(V, F, scored[m][0], model, normals, ops=ops, method=m)[0]
         method = min(scored, key=lambda m: scored[m][1])
         params = scored[method][0]
-        other = SMOOTH_METHOD if method == FEATURE_METHOD else FEATURE_METHOD
-        reasons = [features.reason,
+        others = ", ".join(f"{rms(scored[m][1]):.3g} for {m}" for m in candidates if m != method)
+        reasons = [features.reason] + ([f"too noisy for normal filtering: the smooth priors only ({n:,} vertices: "
+                                        f"{SMALL_MESH_METHOD} is tried as well)"] if features.too_noisy else []) + [
                    f"{method} has the smaller estimated error (SURE, rms over vertices): {rms(scored[method][1]):.3g} "
-                   f"mean edge lengths against {rms(scored[other][1]):.3g} for {other}; its parameters minimise it"]
+                   f"mean edge lengths against {others}; its parameters minimise it"]
     nb = int(np.count_nonzero(ops.boundary_vertices))
     if nb:
         reasons.append(f"{nb:,} vertices are on open borders: they move along their normals only (no inward shrinking)"

@@ -82,12 +82,16 @@ def test_feature_test_on_the_benchmark_pairs(name, sharp):
     assert detect_features(load_arrays(data_mesh_path(f"benchmark/{name}/Noisy.obj"))).sharp is sharp
 
 
-def smaller_risk(Vn, F, model):
+def smaller_risk(Vn, F, model, methods=None):
     """(method, params) of the candidate with the smaller estimated error, the default's rule written again."""
-    risks = {m: list(md.choose_parameters((Vn, F), m, noise=model, return_risk=True)) for m in ("two_stage", "sobolev_bilaplacian")}
-    # two_stage's risk: Monte-Carlo SURE on the whole mesh along the smooth prior's result's normals
+    if methods is None:
+        methods = ["two_stage", "sobolev_bilaplacian"] + (["sobolev_normal"] if len(Vn) <= 2000 else [])
+    risks = {m: list(md.choose_parameters((Vn, F), m, noise=model, return_risk=True)) for m in methods}
+    # the others' risk: Monte-Carlo SURE on the whole mesh along the smooth prior's result's normals
     smooth = md.apply_filter("sobolev_bilaplacian", (Vn, F), **risks["sobolev_bilaplacian"][0])[0]
-    risks["two_stage"][1] = default.feature_risk(Vn, F, risks["two_stage"][0], model, vertex_normals(smooth, F))[0]
+    for m in methods:
+        if m != "sobolev_bilaplacian":
+            risks[m][1] = default.feature_risk(Vn, F, risks[m][0], model, vertex_normals(smooth, F), method=m)[0]
     best = min(risks, key=lambda m: risks[m][1])
     return best, risks[best][0]
 
@@ -160,13 +164,25 @@ def test_feature_risk_along_the_noise_direction_is_unbiased_for_the_true_error(m
 
 
 def test_noise_too_strong_for_normal_filtering_chooses_the_smooth_prior_alone():
-    V, F = icosphere(3)
+    V, F = icosphere(4)  # 2562 vertices: above SMALL_MESH, so sobolev_bilaplacian is the one candidate
+    assert len(V) > default.SMALL_MESH
     h = mean_edge_length(V, get_operators(F, V.shape[0]))
     Vn = md.add_normal_noise((V, F), 2.0 * h, seed=0)[0]
     choice = choose_default((Vn, F))
     assert choice.features.too_noisy and choice.method == "sobolev_bilaplacian"
     assert choice.reasons[0].startswith("the noise is independent")
     assert "too strong for normals to be filtered" in choice.reasons[1]
+
+
+def test_on_a_small_mesh_too_noisy_for_normal_filtering_the_smooth_priors_compete():
+    V, F = icosphere(3)  # 642 vertices
+    h = mean_edge_length(V, get_operators(F, V.shape[0]))
+    Vn = md.add_normal_noise((V, F), 2.0 * h, seed=0)[0]
+    choice = choose_default((Vn, F))
+    assert choice.features.too_noisy and choice.method in ("sobolev_bilaplacian", "sobolev_normal")
+    assert (choice.method, choice.params) == smaller_risk(Vn, F, default.NoiseModel(choice.noise), ("sobolev_bilaplacian", "sobolev_normal"))
+    err = {m: float(np.sum((md.denoise((Vn, F), method=m)[0] - V) ** 2)) for m in ("sobolev_bilaplacian", "sobolev_normal")}
+    assert err[choice.method] == min(err.values())  # sobolev_normal, 2.1 dB better here
 
 
 def test_risk_is_sure_of_the_chosen_point_and_tracks_the_true_error():
@@ -407,7 +423,7 @@ def test_the_reasons_say_how_open_borders_move(noisy_cap_file):
 def test_the_default_picks_the_better_candidate_on_the_tiny_nefertiti_and_the_normal_filter_on_fandisk():
     # benchmarks/results/default-candidates.md: on Nefertiti (299 vertices, rho 0.2) two_stage's region estimate
     # along its pilot's normals read 0.55 of its true error and picked it where sobolev_bilaplacian was better by
-    # 30 % (squared error). The pick's true squared error is now within 5 % of the better candidate's.
+    # 30 % (squared error). The pick's true squared error is now within 5 % of the best candidate's.
     from meshdenoise.io import load_arrays
 
     from .conftest import data_mesh_path
@@ -415,7 +431,8 @@ def test_the_default_picks_the_better_candidate_on_the_tiny_nefertiti_and_the_no
     V, F = load_arrays(data_mesh_path("nefertiti.off"))
     Vn = md.add_normal_noise((V, F), 0.2, seed=0)[0]
     choice = choose_default((Vn, F))
-    err = {m: float(np.sum((md.denoise((Vn, F), method=m)[0] - V) ** 2)) for m in ("two_stage", "sobolev_bilaplacian")}
+    err = {m: float(np.sum((md.denoise((Vn, F), method=m)[0] - V) ** 2))
+           for m in ("two_stage", "sobolev_bilaplacian", "sobolev_normal")}  # 299 vertices: sobolev_normal competes
     assert err[choice.method] <= 1.05 * min(err.values())
     Vf, Ff = load_arrays(data_mesh_path("benchmark/Fandisk0.3/Noisy.obj"))
     assert choose_default((Vf, Ff)).method == "two_stage"
