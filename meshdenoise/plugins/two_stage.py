@@ -321,7 +321,7 @@ TWO_STAGE_PATIENCE = 2  # consistency runs stop this many iterations after their
 TWO_STAGE_PILOT_ITERATIONS = 3  # outer iterations of the pilot (defaults, keep_tangential on)
 TWO_STAGE_GUARD_PROBES = 6  # Rademacher probes of the guard's Monte-Carlo SURE (coloured like the noise)
 TWO_STAGE_GUARD_MARGIN = 0.02  # ... which cuts iterations when SURE drops by this times n rho^2 and 2 standard errors
-TWO_STAGE_GUARD_LIGHTER = True  # the guard also tries the chosen run with the fewest normal-filtering passes ...
+TWO_STAGE_GUARD_LIGHTER = {"normal_iterations": 5, "vertex_iterations": 10}  # the guard also tries the chosen run this light ...
 TWO_STAGE_GUARD_LIGHTER_GAIN = 0.1  # ... taken when its SURE is lower again by this share of the chosen one's (0.46 dB)
 TWO_STAGE_HEAVY_TAIL = 1.5  # rms / (MAD / 0.6745) of the noise above which SURE's guard is skipped (impulsive noise)
 TWO_STAGE_SYNTHETIC_SCALE = 1.3  # the synthetic copy's noise, in units of the estimated rho
@@ -473,9 +473,9 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     along the normals of the SURE-smoothed mesh) may cut the outer iterations: to the count of
     least SURE among those whose SURE is below the chosen count's by ``TWO_STAGE_GUARD_MARGIN``
     :math:`n\\rho^2` and two standard errors of the paired differences (:func:`guard_drops`).
-    Then, with ``TWO_STAGE_GUARD_LIGHTER``, the same run with the fewest normal-filtering passes
-    (5) replaces it where its SURE is lower again by ``TWO_STAGE_GUARD_LIGHTER_GAIN`` of the
-    chosen point's (the bunny with independent noise of 0.3 edge lengths: 56.57 -> 58.27 dB and
+    Then the same run made lighter (``TWO_STAGE_GUARD_LIGHTER``: 5 normal-filtering passes and 10
+    vertex steps, counts not given) replaces it where its SURE is lower again by
+    ``TWO_STAGE_GUARD_LIGHTER_GAIN`` of the chosen point's (the bunny with independent noise of 0.3 edge lengths: 56.57 -> 58.27 dB and
     5.40 -> 4.93 degrees). Skipped for heavy-tailed (impulsive) noise, which SURE's Gaussian
     model does not fit.
 
@@ -609,9 +609,8 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     log.debug("two_stage rule: consistency chose %s; noise rms/MAD %.2f", chosen, np.sqrt(np.mean(r**2)) / mad if mad else 0)
     path_sure = sure_per_probe(chosen)  # SURE along the chosen run (its last point: the chosen count)
     final = path_sure[-1][0]
-    lightest = min(TWO_STAGE_NORMAL_ITERATIONS)
-    lighter = (TWO_STAGE_GUARD_LIGHTER and "normal_iterations" not in ctx.given
-               and chosen["normal_iterations"] > lightest)
+    light = {**chosen, **{k: v for k, v in TWO_STAGE_GUARD_LIGHTER.items() if k not in ctx.given}}
+    lighter = light != chosen
     if not fixed_k and not heavy:
         # the guard: fewer outer iterations when SURE says so by more than TWO_STAGE_GUARD_MARGIN of the
         # noise energy and two standard errors of the paired probes (a smooth mesh, where the synthetic copy
@@ -624,7 +623,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
             final, last = min(agreed, key=lambda c: c[0].score)
             chosen["iterations"] = int(final.value)
         if lighter:
-            light = {**chosen, "normal_iterations": lightest}
+            light["iterations"] = chosen["iterations"]
             gain = max(margin, TWO_STAGE_GUARD_LIGHTER_GAIN * max(float(np.mean(last)), 0.0))
             agreed = [p for p, per_probe in sure_per_probe(light) if guard_drops(per_probe, last, gain)]
             if agreed:
