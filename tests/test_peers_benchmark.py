@@ -241,3 +241,22 @@ def test_grid_edges_marks_a_best_at_the_end_of_its_axis():
     p = peers.Peer("numpy", "fake", peers.Session, peers._product(a=[1.0, 2.0, 3.0], b=[0.1, 0.2]), [{}], path=True)
     assert peers.grid_edges(p, {"params": {"a": 2.0, "b": 0.2}, "iterations": 5}) == ["b"]
     assert peers.grid_edges(p, {"params": {"a": 1.0, "b": 0.2}, "iterations": peers.MAX_ITERS}) == ["a", "b", "iterations"]
+
+
+def test_sample_meshes_drop_unreferenced_vertices_and_keep_the_triangles(tmp_path, monkeypatch):
+    # pymeshlab's face000.ply ships 667 unreferenced vertices; PyGEL drops them, so the benchmark does it first
+    import meshdenoise.data
+    from meshdenoise.io import save_mesh
+    from meshdenoise.shapes import icosphere
+
+    V, F = icosphere(2)
+    extra = np.array([[5.0, 5.0, 5.0], [6.0, 6.0, 6.0]])
+    V2 = np.vstack([extra[:1], V, extra[1:]])  # unreferenced vertices first and last
+    F2 = F + 1
+    path = tmp_path / "with_loose.ply"
+    save_mesh(path, V2, F2)
+    monkeypatch.setattr(meshdenoise.data, "sample_mesh", lambda name: path)
+    mesh = peers._sample("whatever.ply")()
+    assert mesh["V0"].shape == V.shape and "2 unreferenced vertices of the file dropped" in mesh["noise"]
+    np.testing.assert_allclose(mesh["V0"][mesh["F"]], V2[F2], atol=1e-6)  # the same triangles, renumbered
+    assert mesh["Vn"].shape == V.shape
