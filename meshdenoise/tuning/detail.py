@@ -296,8 +296,15 @@ def fit_spectrum(o: np.ndarray, p: np.ndarray, ells: tuple[float, ...] = ELL_GRI
     allowed = prof <= prof[j] * (1.0 + TOLERANCE) + TOLERANCE_ABS
     idx = np.flatnonzero(allowed)
     lo, hi = int(idx[0]), int(idx[-1])
-    return {"rho2": float(levels[j]), "ell": float(ells[g_idx[j]]), "beta": float(betas[k_idx[j]]),
-            "misfit": float(prof[j]), "rho2_low": float(levels[lo]), "rho2_high": float(levels[hi]),
+    # the best level refined between its neighbours on the grid
+    near = np.linspace(levels[max(j - 1, 0)], levels[min(j + 1, levels.size - 1)], 41)
+    fine, fg, fk = misfit_profile(o, p, near, bands, betas)
+    b = int(np.argmin(fine))
+    rho2, ell, beta, misfit = ((float(near[b]), float(ells[fg[b]]), float(betas[fk[b]]), float(fine[b]))
+                               if fine[b] < prof[j] else
+                               (float(levels[j]), float(ells[g_idx[j]]), float(betas[k_idx[j]]), float(prof[j])))
+    return {"rho2": rho2, "ell": ell, "beta": beta,
+            "misfit": misfit, "rho2_low": min(float(levels[lo]), rho2), "rho2_high": max(float(levels[hi]), rho2),
             "ell_low": float(ells[g_idx[lo]]) if levels[lo] > 0 else 0.0, "levels": levels, "profile": prof}
 
 
@@ -369,7 +376,7 @@ def separate_detail(mesh: Any, *, refine: int = 2, seed: int = 0, conservative: 
                      "independent noise assumed", "ambiguous")
     o = band_spectrum(V, F, N, BANDS, ok)
     if not np.all(o > 0):
-        return plain("a band-pass residual is zero: no band fit, independent noise assumed", "ambiguous")
+        return plain("a band-pass residual is zero (no energy to call noise): no band fit, independent noise assumed")
     p = probe_spectra(smooth, F, N, ELL_GRID, BANDS, ok, PROBES, seed)
     if not np.all(p > 0):
         return plain("a probe's band-pass residual is zero: no band fit, independent noise assumed", "ambiguous")

@@ -1,0 +1,233 @@
+"""The noise-model estimate against the truth, and what the default does to clean meshes, before and after the detail fit.
+
+Usage::
+
+    python benchmarks/noise_model_grid.py [--part grid default] [--meshes icosphere elephant bunny Bunny0.2 Fandisk0.3 face]
+                                          [--sigmas 0.1 0.25 0.5 1] [--lengths 0 1 2 3 4] [--seed 1]
+                                          [--out benchmarks/results/noise-model-grid.md]
+
+**grid**: every mesh clean (sigma 0) and with :func:`meshdenoise.add_scanner_noise` along the
+normals, ``sigma`` mean edge lengths (h), correlation length ``l`` (h), one seed; also, as they
+are, the clean meshes Block0.4/Original and pymeshlab's bunny10k_textured, and the real range
+scan face000. Meshes: icosphere(5) (no detail), the paper's elephant, pymeshlab's bunny.obj, the
+benchmark's Bunny0.2/Original and Fandisk0.3/Original, and face000 smoothed
+(``sobolev_bilaplacian`` mu = 30, boundary pinned; ``benchmarks/correlated.py``). Columns: the
+band-only estimate (:func:`estimate_noise_model`, what the default uses today) and the detail fit
+(:func:`meshdenoise.tuning.detail.separate_detail`: its verdict and the model it gives), each as
+rho/h at l, and rho / sigma.
+
+**default**: ``meshdenoise.denoise(mesh)`` (the default) on the clean meshes, on face000 and on
+three noisy rows, once as it is and once with the noise model replaced by
+``separate_detail(...).model`` (a monkeypatch of ``meshdenoise.default.estimate_noise_model``,
+the wiring proposed in docs/noise-vs-detail.md). Columns: mean face-normal change from the
+input (deg), rms move (h), whether the not-smoothing warning was raised, and on noisy rows the
+mean normal error against the clean mesh (deg) of the input and of both outputs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import sys
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+from correlated import face_clean  # noqa: E402
+
+import meshdenoise.default as default  # noqa: E402
+from meshdenoise.data import data_file, sample_mesh  # noqa: E402
+from meshdenoise.io import load_arrays  # noqa: E402
+from meshdenoise.metrics import normal_error_deg  # noqa: E402
+from meshdenoise.noise import add_scanner_noise, mean_edge_length  # noqa: E402
+from meshdenoise.shapes import icosphere  # noqa: E402
+from meshdenoise.tuning.covariance import estimate_noise_model  # noqa: E402
+from meshdenoise.tuning.detail import separate_detail  # noqa: E402
+
+GRID_MESHES = ["icosphere", "elephant", "bunny", "Bunny0.2", "Fandisk0.3", "face"]
+AS_IS = ["Block0.4", "bunny10k", "face000"]  # taken as they are (no added noise)
+NOISY_DEFAULT_ROWS = [("elephant", 0.25, 3.0), ("face", 0.25, 3.0), ("bunny", 0.25, 3.0), ("elephant", 0.5, 2.0)]
+
+
+def face_raw() -> tuple[np.ndarray, np.ndarray]:
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.load_new_mesh(str(sample_mesh("rangemaps/face000.ply")))
+    ms.meshing_remove_unreferenced_vertices()
+    m = ms.current_mesh()
+    return m.vertex_matrix().astype(np.float64), m.face_matrix().astype(np.int64)
+
+
+def load(name: str) -> tuple[np.ndarray, np.ndarray]:
+    if name == "icosphere":
+        return icosphere(5)
+    if name == "elephant":
+        return load_arrays(data_file("elephant-50kv.off"))
+    if name == "bunny":
+        return load_arrays(sample_mesh("bunny.obj"))
+    if name == "bunny10k":
+        return load_arrays(sample_mesh("bunny10k_textured.obj"))
+    if name == "face":
+        return face_clean()
+    if name == "face000":
+        return face_raw()
+    if name in ("Bunny0.2", "Fandisk0.3", "Block0.4"):
+        return load_arrays(data_file(f"benchmark/{name}/Original.obj"))
+    raise SystemExit(f"--meshes: unknown mesh {name!r}")
+
+
+def noisy(V0: np.ndarray, F: np.ndarray, sigma: float, ell: float, seed: int) -> np.ndarray:
+    if sigma == 0:
+        return V0
+    h = mean_edge_length(V0, F)
+    return add_scanner_noise((V0, F), sigma * h, correlation_length=ell, seed=seed)[0]
+
+
+def estimate_row(name: str, V: np.ndarray, F: np.ndarray, sigma: float | None, ell: float | None) -> dict:
+    h = mean_edge_length(V, F)
+    t = time.perf_counter()
+    band = estimate_noise_model((V, F))
+    t_band = time.perf_counter() - t
+    t = time.perf_counter()
+    v = separate_detail((V, F))
+    t_detail = time.perf_counter() - t
+    return {"mesh": name, "n": V.shape[0], "sigma": sigma, "ell": ell,
+            "band_rho": band.rho / h, "band_ell": band.correlation_length,
+            "verdict": v.verdict, "rho": v.model.rho / h, "rho_ell": v.model.correlation_length,
+            "low": v.rho_range[0] / h, "high": v.rho_range[1] / h, "joint": v.rho_joint / h, "joint_ell": v.ell_joint,
+            "t_band": t_band, "t_detail": t_detail}
+
+
+def ratio(rho: float, sigma: float | None) -> str:
+    return "" if not sigma else f"{rho / sigma:.2f}"
+
+
+def grid_table(rows: list[dict]) -> list[str]:
+    out = ["| mesh | sigma/h | l | today: rho/h @ l | ratio | detail fit: verdict | rho/h @ l | ratio | allowed rho/h | "
+           "best joint rho/h @ l | s (today, detail) |",
+           "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        sig = "as is" if r["sigma"] is None else f"{r['sigma']:g}"
+        ell = "" if r["ell"] is None else f"{r['ell']:g}"
+        out.append(f"| {r['mesh']} | {sig} | {ell} | {r['band_rho']:.3f} @ {r['band_ell']:.2f} | "
+                   f"{ratio(r['band_rho'], r['sigma'])} | {r['verdict']} | {r['rho']:.3f} @ {r['rho_ell']:.2f} | "
+                   f"{ratio(r['rho'], r['sigma'])} | {r['low']:.3f} to {r['high']:.3f} | "
+                   f"{r['joint']:.3f} @ {r['joint_ell']:.1f} | {r['t_band']:.1f}, {r['t_detail']:.1f} |")
+    return out
+
+
+def run_default(V: np.ndarray, F: np.ndarray, patched: bool) -> tuple[np.ndarray, object, bool]:
+    original = default.estimate_noise_model
+
+    def with_detail(mesh, details=False, **kw):  # the proposed wiring: the detail fit's model and reason
+        v = separate_detail(mesh)
+        return (v.model, {"reason": v.reason, "rho_white": v.rho_white}) if details else v.model
+
+    if patched:
+        default.estimate_noise_model = with_detail
+    try:
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            (Vd, _), choice = default.denoise((V.copy(), F), return_params=True)
+        warned = any("not smoothing" in str(w.message) for w in caught)
+    finally:
+        default.estimate_noise_model = original
+    return Vd, choice, warned
+
+
+def default_rows(meshes: dict, seed: int) -> list[dict]:
+    cases = [(name, 0.0, 0.0) for name in ("icosphere", "elephant", "bunny", "Bunny0.2", "Fandisk0.3", "Block0.4",
+                                            "bunny10k")]
+    cases += [("face000", None, None)] + NOISY_DEFAULT_ROWS
+    rows = []
+    for name, sigma, ell in cases:
+        if name not in meshes:
+            meshes[name] = load(name)
+        V0, F = meshes[name]
+        V = noisy(V0, F, sigma or 0.0, ell or 0.0, seed)
+        h = mean_edge_length(V, F)
+        row = {"mesh": name, "sigma": sigma, "ell": ell}
+        if sigma:
+            row["input_err"] = normal_error_deg((V0, F), (V, F))
+        for tag, patched in (("today", False), ("detail", True)):
+            t = time.perf_counter()
+            Vd, choice, warned = run_default(V, F, patched)
+            row[tag] = {"change": normal_error_deg((V, F), (Vd, F)),
+                        "move": float(np.sqrt(np.mean(np.sum((Vd - V) ** 2, axis=1)))) / h,
+                        "warned": warned, "method": choice.method, "noise": choice.noise_in_edges,
+                        "ell": choice.correlation_length, "seconds": time.perf_counter() - t,
+                        "err": normal_error_deg((V0, F), (Vd, F)) if sigma else None}
+        rows.append(row)
+        print(default_table([row])[-1], flush=True)
+    return rows
+
+
+def default_table(rows: list[dict]) -> list[str]:
+    out = ["| mesh | sigma/h @ l | input error (deg) | today: noise/h @ l, method | change (deg) | move (h) | warned | "
+           "error (deg) | detail: noise/h @ l, method | change (deg) | move (h) | warned | error (deg) |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        what = "as is" if not r["sigma"] else f"{r['sigma']:g} @ {r['ell']:g}"
+        cells = [r["mesh"], what, f"{r['input_err']:.2f}" if r.get("input_err") is not None else ""]
+        for tag in ("today", "detail"):
+            d = r[tag]
+            cells += [f"{d['noise']:.3f} @ {d['ell']:.2f}, {d['method']}", f"{d['change']:.2f}", f"{d['move']:.3f}",
+                      "yes" if d["warned"] else "no", f"{d['err']:.2f}" if d["err"] is not None else ""]
+        out.append("| " + " | ".join(cells) + " |")
+    return out
+
+
+def main(argv: list[str] | None = None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--part", nargs="+", default=["grid", "default"], choices=["grid", "default"])
+    ap.add_argument("--meshes", nargs="+", default=GRID_MESHES)
+    ap.add_argument("--sigmas", nargs="+", type=float, default=[0.1, 0.25, 0.5, 1.0])
+    ap.add_argument("--lengths", nargs="+", type=float, default=[0.0, 1.0, 2.0, 3.0, 4.0])
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--out", default=None)
+    args = ap.parse_args(argv)
+    start = time.perf_counter()
+    load_before = os.getloadavg()[0]
+    meshes: dict = {}
+    lines = [f"# Noise model: today's band-only estimate and the detail fit ({datetime.date.today().isoformat()})", "",
+             f"Command: `python benchmarks/noise_model_grid.py {' '.join(argv if argv is not None else sys.argv[1:])}`",
+             "", "rho and sigma in mean edge lengths h, correlation lengths l in h; ratio = estimated rho / true sigma.",
+             "s: seconds of each estimate (under load; see the load average below).", ""]
+    if "grid" in args.part:
+        rows = []
+        for name in args.meshes:
+            meshes[name] = load(name)
+            V0, F = meshes[name]
+            for sigma, ell in [(0.0, 0.0)] + [(s, l) for s in args.sigmas for l in args.lengths]:
+                r = estimate_row(name, noisy(V0, F, sigma, ell, args.seed), F, sigma, ell)
+                rows.append(r)
+                print(grid_table([r])[-1], flush=True)
+        for name in AS_IS:
+            meshes[name] = load(name)
+            r = estimate_row(name, *meshes[name], None, None)
+            rows.append(r)
+            print(grid_table([r])[-1], flush=True)
+        lines += ["## Estimates", ""] + grid_table(rows) + [""]
+    if "default" in args.part:
+        rows = default_rows(meshes, args.seed)
+        lines += ["## The default (`meshdenoise.denoise(mesh)`), today and with the detail fit's model", "",
+                  "change: mean face-normal angle between input and output; move: rms vertex move; warned: the "
+                  "not-smoothing warning; error: mean face-normal error against the clean mesh (noisy rows).", ""]
+        lines += default_table(rows) + [""]
+    lines.append(f"Total {time.perf_counter() - start:.0f} s; load average {load_before:.1f} at the start, "
+                 f"{os.getloadavg()[0]:.1f} at the end (2 cores shared).")
+    text = "\n".join(lines) + "\n"
+    print(text)
+    if args.out:
+        Path(args.out).write_text(text)
+
+
+if __name__ == "__main__":
+    main()
