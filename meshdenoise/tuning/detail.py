@@ -18,8 +18,9 @@ surface's own band energy is taken as a power law in :math:`s + 1`,
 .. math:: o_s \\approx A\\, (s + 1)^{-\\beta} + \\rho^2 p_s(\\ell), \\qquad A, \\rho^2 \\ge 0,
 
 fitted in relative error, :math:`\\min \\sum_s \\big((A (s+1)^{-\\beta} + \\rho^2 p_s(\\ell)) / o_s - 1\\big)^2`
-(:math:`A, \\rho^2` by non-negative least squares for every :math:`\\beta` in :data:`BETA_GRID`
-and :math:`\\ell` in :data:`ELL_GRID`). Why a power law: the band energy of a smooth surface
+(:math:`A \\ge 0` in closed form for every :math:`\\rho^2`, :math:`\\beta` in :data:`BETA_GRID`, 1 to 3,
+and :math:`\\ell` in :data:`ELL_FINE`, probe spectra computed on :data:`ELL_GRID` and log-interpolated;
+the best level is refined between its grid neighbours). Why a power law: the band energy of a smooth surface
 sampled finely falls slowly and steadily with the scale (measured: 0.5 to 0.9 decades per octave
 of :math:`s` on every clean mesh we have, over all eight bands), while heat-filtered noise of
 correlation length :math:`\\ell \\le 5` falls about as :math:`(\\tau + s)^{-5}`, over a decade
@@ -37,6 +38,9 @@ best. The verdict (:class:`DetailVerdict`) is
 - ``"detail"``: the upper end :math:`\\rho_{hi}` is below :data:`NOISE_SHARE` of it: the surface
   explains them, whatever the noise;
 - ``"ambiguous"``: both are allowed.
+
+The verdict is about the fine bands' *correlated* reading: a "detail" mesh may still carry
+independent noise, which the model then holds (its level is :func:`estimate_noise`'s).
 
 The model returned (:attr:`DetailVerdict.model`) is the best joint fit's level and correlation
 length, except that a correlation length below :data:`ELL_MIN` is read as independent noise
