@@ -193,6 +193,8 @@ class DefaultChoice:
         Sentences saying why.
     seconds : float
         Time taken to decide.
+    caveats : list of str
+        What the estimate cannot tell (printed as ``note:`` lines).
     """
 
     method: str
@@ -204,6 +206,7 @@ class DefaultChoice:
     boundary_vertices: int
     reasons: list[str] = field(default_factory=list)
     seconds: float = 0.0
+    caveats: list[str] = field(default_factory=list)
 
     @property
     def noise_in_edges(self) -> float:
@@ -220,6 +223,7 @@ class DefaultChoice:
             f"{spread})",
             f"method: {self.method} ({settings})",
             *(f"  because {r}" for r in self.reasons),
+            *(f"  note: {c}" for c in self.caveats),
         ]
 
     def as_dict(self) -> dict:
@@ -230,7 +234,7 @@ class DefaultChoice:
             "sharp_features": self.features.sharp,
             "too_noisy": self.features.too_noisy,
             "sharp_share": self.features.share, "boundary_vertices": self.boundary_vertices,
-            "reasons": list(self.reasons), "seconds": self.seconds,
+            "reasons": list(self.reasons), "caveats": list(self.caveats), "seconds": self.seconds,
         }
 
 
@@ -355,8 +359,10 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
         features = detect_features((V, F), ops=ops)
     n = V.shape[0]
 
-    def rms(risk: float) -> float:  # SURE's estimated squared error as an rms distance in mean edge lengths
-        return math.sqrt(max(risk, 0.0) / max(n, 1)) / h if h > 0 else float("nan")
+    def rms(risk: float) -> str:  # SURE's estimated squared error as an rms distance in mean edge lengths
+        value = math.sqrt(max(risk, 0.0) / max(n, 1)) / h if h > 0 else float("nan")
+        # SURE is unbiased, not positive: at or below 0 it says "smaller than its own scatter"
+        return "below 0.001" if value < 1e-3 else f"{value:.3g}"
 
     candidates = [SMOOTH_METHOD] if features.too_noisy else [FEATURE_METHOD, SMOOTH_METHOD]
     if n <= SMALL_MESH:
@@ -376,10 +382,10 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
                     scored[m][1] = feature_risk(V, F, scored[m][0], model, normals, ops=ops, method=m)[0]
         method = min(scored, key=lambda m: scored[m][1])
         params = scored[method][0]
-        others = ", ".join(f"{rms(scored[m][1]):.3g} for {m}" for m in candidates if m != method)
+        others = ", ".join(f"{rms(scored[m][1])} for {m}" for m in candidates if m != method)
         reasons = [features.reason] + ([f"too noisy for normal filtering: the smooth priors only ({n:,} vertices: "
                                         f"{SMALL_MESH_METHOD} is tried as well)"] if features.too_noisy else []) + [
-                   f"{method} has the smaller estimated error (SURE, rms over vertices): {rms(scored[method][1]):.3g} "
+                   f"{method} has the smaller estimated error (SURE, rms over vertices): {rms(scored[method][1])} "
                    f"mean edge lengths against {others}; its parameters minimise it"]
     nb = int(np.count_nonzero(ops.boundary_vertices))
     if nb:
@@ -387,8 +393,13 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
                        if boundary_motion == "normal" else
                        f"{nb:,} vertices are on open borders: they move freely (boundary_motion='free')")
     reasons.insert(0, noise_reason)
+    caveats = []
+    if noise is None and model.correlated:  # measured in benchmarks/results/noise-model-grid.md
+        caveats.append("surface detail a few edges wide reads like correlated noise (clean meshes read 0.1 to 0.4 "
+                       "mean edge lengths over about 3 edges; docs/noise-vs-detail.md): if the mesh may already be "
+                       "clean, look at the change (meshdenoise render IN OUT)")
     choice = DefaultChoice(method, params, float(rho), float(h), model.correlation_length, features, nb, reasons,
-                           time.perf_counter() - start)
+                           time.perf_counter() - start, caveats)
     for line in choice.lines():
         log.info("default: %s", line)
     return choice

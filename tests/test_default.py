@@ -107,6 +107,7 @@ def test_choice_names_the_method_the_noise_and_why():
     text = "\n".join(choice.lines())
     assert f"{choice.noise:.4g}" in text and "mean edge lengths" in text and f"method: {choice.method}" in text
     assert "smaller estimated error" in text
+    assert choice.caveats == [] and "note:" not in text  # independent noise: nothing the estimate cannot tell
     json.dumps(choice.as_dict())  # plain values
 
 
@@ -406,6 +407,10 @@ def test_correlated_noise_is_estimated_reported_and_used_by_the_choice():
     choice = choose_default((Vn, F))
     assert choice.correlation_length == model.correlation_length and choice.noise == model.rho
     assert "correlated over" in choice.lines()[0] and choice.reasons[0].startswith("the noise is correlated")
+    # a correlated estimate may be surface detail: said, with how to check (a note line, not a reason)
+    assert len(choice.caveats) == 1 and "surface detail" in choice.caveats[0] and "render" in choice.caveats[0]
+    assert choice.lines()[-1] == "  note: " + choice.caveats[0] and choice.as_dict()["caveats"] == choice.caveats
+    assert choose_default((Vn, F), noise=model).caveats == []  # a noise model given: the user's call
     assert (choice.method, choice.params) == smaller_risk(Vn, F, model)
     Y = md.denoise((Vn, F))[0]
     assert md.snr(V, Y) > md.snr(V, Vn) + 1.0
