@@ -55,8 +55,10 @@ from ..geometry import vertex_normals
 from ..noise import HeatFilter, diffusion_length, heat_geometry
 from ..operators import Operators, get_operators, spmm
 from .noise_level import estimate_noise_and_smooth
+from .region import SampledRegion
 
-__all__ = ["NoiseModel", "estimate_noise_model", "band_residuals", "BANDS", "ELL_MIN", "ELL_MAX", "ELL_GRID", "FIT_PROBES"]
+__all__ = ["NoiseModel", "estimate_noise_model", "band_residuals", "BANDS", "ELL_MIN", "ELL_MAX", "ELL_GRID", "FIT_PROBES",
+           "FIT_SAMPLE"]
 
 BANDS = (0, 1, 2, 4)  # s of the band-pass operators (I - P)^2 P^s
 ELL_GRID = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 4.0, 5.0, 6.0)  # correlation lengths the fit evaluates
@@ -66,6 +68,10 @@ SPREAD_GAIN = 0.0015  # ... and so are fits that lower the spread (variance of l
 SPREAD_RATIO = 2.0  # ... or by less than this factor
 MIN_PATCHES = 100  # ... or that leave fewer than this many correlation areas pi ell^2 on the mesh
 FIT_PROBES = 4  # probes per model of the fit: a median over n * 4 values
+FIT_SAMPLE = 16_000  # above this many vertices the probes' statistic is read on a sampled region of about this size
+FIT_PATCHES = 4  # ... made of this many balls of vertices
+FIT_MARGIN = 8  # ... counting only vertices more than this many rings from a cut
+FIT_SAMPLE_PROBES = 8  # ... with this many probes (the whole mesh: FIT_PROBES)
 
 
 @dataclass
@@ -175,7 +181,8 @@ def _fit(logr: np.ndarray, grid: np.ndarray) -> tuple[float, int]:
     return float(fine[k]), j
 
 
-def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: bool = False) -> NoiseModel:
+def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: bool = False,
+                         sample: int | None = None) -> NoiseModel:
     """Estimate the noise level and correlation length of a noisy mesh, without the clean mesh.
 
     See the module docstring for the model and the estimate.
@@ -190,8 +197,17 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
     details : bool
         Also return a dict: ``rho_white`` (:func:`estimate_noise`), ``ell_fit`` (before the
         significance test), ``grid`` and ``log_rho`` (:math:`\\log\\hat\\rho_s(\\ell)` on it),
-        ``spread_white``, ``spread_fit``, and ``reason``: one line saying why the noise was read
-        as correlated or independent.
+        ``spread_white``, ``spread_fit``, ``fit_vertices`` (vertices the probes' medians were read
+        on), and ``reason``: one line saying why the noise was read as correlated or independent.
+    sample : int, optional
+        Above this many vertices (default :data:`FIT_SAMPLE`) the probes' statistic
+        :math:`p_s(\\ell)` is read on a :class:`~meshdenoise.tuning.region.SampledRegion`
+        (:data:`FIT_PATCHES` balls, vertices within :data:`FIT_MARGIN` rings of a cut left out,
+        :data:`FIT_SAMPLE_PROBES` probes): the model's statistic is local and the same all
+        over a mesh of even sampling, so the fit costs the same at any size. The observed
+        :math:`o_s` and the white-noise level are always read on the whole mesh. A mesh of at
+        most ``sample`` vertices is fitted whole (the estimate of earlier versions, to the
+        last digit).
 
     Returns
     -------
@@ -212,6 +228,10 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
     """
     if isinstance(refine, (bool, np.bool_)) or not isinstance(refine, (int, np.integer)) or refine < 1:
         raise ValueError(f"estimate_noise_model: parameter 'refine' must be an int >= 1, got {refine!r}")
+    if sample is None:
+        sample = FIT_SAMPLE
+    if isinstance(sample, (bool, np.bool_)) or not isinstance(sample, (int, np.integer)) or sample < 1:
+        raise ValueError(f"estimate_noise_model: parameter 'sample' must be an int >= 1, got {sample!r}")
     data = read_mesh(mesh)
     V, F = data.V, data.F
     rho0, smooth = estimate_noise_and_smooth(V, F, int(refine))
@@ -225,19 +245,33 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
     ok = ~ops.isolated & (np.linalg.norm(N, axis=1) > 0)
     R = band_residuals(ops, V)
     observed = np.array([np.median(_normal_component(R[s], N)[ok] ** 2) for s in BANDS])
+    del R
     if not np.all(observed > 0):  # a band without residual (a plane, a tiny mesh): nothing to fit
         model = NoiseModel(rho0)
         info["reason"] = "independent: a band-pass residual is zero"
         return (model, info) if details else model
-    xi = np.random.default_rng(seed).standard_normal((V.shape[0], FIT_PROBES))
-    geometry = heat_geometry(smooth, F)
+    region = SampledRegion(F, ops, int(sample), FIT_PATCHES, FIT_MARGIN, seed)
+    if region.whole:  # the whole mesh, as before
+        Vr, Fr, Nr, okr, opsr, probes = smooth, F, N, ok, ops, FIT_PROBES
+        inner = None
+    else:
+        Vr, Fr = smooth[region.vertices], region.F
+        opsr = Operators(Fr, region.vertices.size)
+        Nr = N[region.vertices]
+        inner = region.inner & ~opsr.isolated
+        okr = ok[region.vertices] & inner
+        probes = FIT_SAMPLE_PROBES
+    info["fit_vertices"] = int(okr.sum())
+    xi = np.random.default_rng(seed).standard_normal((Vr.shape[0], probes))
+    geometry = heat_geometry(Vr, Fr)
     full = np.array(ELL_GRID)
     logr = np.empty((full.size, len(BANDS)))
     used = 0
     for j, ell in enumerate(full):  # up the grid until the spread has risen well past its minimum
-        Z = xi if ell == 0 else HeatFilter(smooth, F, diffusion_length(ell), geometry)(xi)
-        Z = Z * math.sqrt(Z.size / float(np.sum(Z * Z)))  # mean square 1: tr(Sigma) = n
-        logr[j] = 0.5 * (np.log(observed) - np.log(_probe_medians(ops, N, Z, ok)))
+        Z = xi if ell == 0 else HeatFilter(Vr, Fr, diffusion_length(ell), geometry)(xi)
+        Zc = Z if inner is None else Z[inner]  # tr(Sigma) = n where the model is the whole mesh's: away from cuts
+        Z = Z * math.sqrt(Zc.size / float(np.sum(Zc * Zc)))  # mean square 1
+        logr[j] = 0.5 * (np.log(observed) - np.log(_probe_medians(opsr, Nr, Z, okr)))
         used = j + 1
         spread = np.var(logr[:used], axis=1)
         best = int(np.argmin(spread))

@@ -1,0 +1,166 @@
+"""The cheaper noise estimates (issue 17, issue 22) against the computations they replace.
+
+- ``_normal_residual_scale`` / ``_residual_energy_scale`` without per-entry gathers: equal to the
+  old COO-and-gather computation (kept here as the reference) to rounding;
+- ``estimate_noise_model`` on a sampled region: the whole mesh when it is small (bit-identical
+  to ``sample`` >= n), and close to the whole-mesh fit when a region is used;
+- :class:`~meshdenoise.tuning.region.SampledRegion`: its balls, faces and inner vertices
+  against a breadth-first search written out here.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from meshdenoise import add_normal_noise
+from meshdenoise.geometry import vertex_normals
+from meshdenoise.noise import add_scanner_noise, mean_edge_length
+from meshdenoise.operators import Operators, get_operators
+from meshdenoise.shapes import grid, icosphere, torus
+from meshdenoise.tuning import noise_level as nl
+from meshdenoise.tuning.covariance import estimate_noise_model
+from meshdenoise.tuning.region import SampledRegion, ring_distance
+
+
+def _old_normal_residual_scale(V, ops, N):
+    """The computation before: B as COO, normals gathered per entry, row sums by bincount."""
+    n = ops.n
+    B = nl.fourth_difference(ops).tocoo()
+    g = np.einsum("ij,ij->i", N[B.row], N[B.col])
+    c = np.sqrt(np.bincount(B.row, weights=(B.data * g) ** 2, minlength=n))
+    r = np.einsum("ij,ij->i", np.asarray(B.tocsr() @ V), N)
+    ok = (c > 1e-12) & ~ops.isolated & (np.linalg.norm(N, axis=1) > 0)
+    t = r[ok] / c[ok]
+    mad = float(np.median(np.abs(t)) / nl.MAD)
+    m2, m4 = nl._gauss_winsor_moments(nl.WINSOR_K)
+    w = np.minimum(t**2, (nl.WINSOR_K * mad) ** 2)
+    winsor = float(np.sqrt(np.mean(w) / m2))
+    excess = (float(np.mean(w**2) / np.mean(w) ** 2) - m4 / m2**2) / math.sqrt(24.0 / t.size)
+    return c, (mad, winsor, excess)
+
+
+def _meshes():
+    V, F = icosphere(4)
+    yield "sphere", add_normal_noise((V, F), 0.01, seed=1)[0], F
+    V, F = grid(30, 20)  # open borders
+    V = V + 0.002 * np.random.default_rng(2).standard_normal(V.shape)
+    yield "grid", V, F
+    V, F = torus(40, 16)
+    V = np.vstack([V, [[9.0, 9.0, 9.0]]])  # an isolated vertex
+    yield "torus+isolated", add_normal_noise((V, F), 0.02, seed=3)[0], F
+
+
+@pytest.mark.parametrize("case", list(_meshes()), ids=lambda c: c[0])
+def test_normal_residual_scale_equals_the_gathered_computation(case):
+    _, V, F = case
+    ops = Operators(F, V.shape[0])
+    N = vertex_normals(V, F)
+    c_old, old = _old_normal_residual_scale(V, ops, N)
+    c_new = np.sqrt(nl._normal_weight_sums(nl.fourth_difference(ops), N))
+    np.testing.assert_allclose(c_new, c_old, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(nl._normal_residual_scale(V, ops, N), old, rtol=1e-10)
+    B = nl.fourth_difference(ops)
+    c2 = np.asarray(B.multiply(B).sum(axis=1)).ravel()
+    ok = (c2 > 1e-24) & ~ops.isolated
+    R = np.asarray(B @ V)
+    old_energy = float(np.sqrt(np.mean(np.sum(R[ok] ** 2, axis=1) / c2[ok])))
+    assert nl._residual_energy_scale(V, ops) == pytest.approx(old_energy, rel=1e-12)
+
+
+def _bfs(W, sources, n):
+    """Ring distances by a plain breadth-first search over adjacency lists."""
+    W = sp.csr_matrix(W)
+    dist = np.full(n, np.inf)
+    frontier = list(sources)
+    for s in frontier:
+        dist[s] = 0
+    d = 0
+    while frontier:
+        d += 1
+        nxt = []
+        for v in frontier:
+            for u in W.indices[W.indptr[v]:W.indptr[v + 1]]:
+                if dist[u] == np.inf:
+                    dist[u] = d
+                    nxt.append(u)
+        frontier = nxt
+    return dist
+
+
+def test_sampled_region_against_breadth_first_search():
+    V, F = icosphere(4)
+    ops = get_operators(F, V.shape[0])
+    region = SampledRegion(F, ops, 700, 3, 2, seed=5)
+    assert not region.whole and region.vertices.size >= 700
+    inside = np.zeros(ops.n, dtype=bool)
+    inside[region.vertices] = True
+    # balls: the vertices within the common radius of a seed, the smallest radius holding 700
+    dist = _bfs(ops.W, region.seeds, ops.n)
+    assert region.seeds.size == 3 and region.radius > 0
+    ball = dist <= region.radius
+    np.testing.assert_array_equal(inside, np.isin(np.arange(ops.n), F[ball[F].all(axis=1)]))
+    assert np.count_nonzero(dist <= region.radius - 1) < 700
+    faces = F[inside[F].all(axis=1)]
+    np.testing.assert_array_equal(region.vertices[region.F], faces)
+    # inner: more than `margin` rings (inside the region) from a vertex with a neighbour outside
+    cut = np.flatnonzero(inside & (ops.W @ (~inside).astype(float) > 0))
+    sub = sp.csr_matrix(ops.W)[region.vertices][:, region.vertices]
+    number = np.full(ops.n, -1)
+    number[region.vertices] = np.arange(region.vertices.size)
+    d = _bfs(sub, number[cut], region.vertices.size)
+    np.testing.assert_array_equal(region.inner, d > 2)
+    np.testing.assert_array_equal(region.scored, region.inner[region.F].all(axis=1))
+    small = SampledRegion(F, ops, ops.n, 3, 2)
+    assert small.whole and small.inner.all() and small.vertices.size == ops.n
+
+
+def test_ring_distance_equals_breadth_first_search():
+    V, F = grid(12, 9)
+    ops = get_operators(F, V.shape[0])
+    np.testing.assert_array_equal(ring_distance(ops.W, [0, 50]), _bfs(ops.W, [0, 50], ops.n))
+    limited = ring_distance(ops.W, [0], 3)
+    full = _bfs(ops.W, [0], ops.n)
+    np.testing.assert_array_equal(limited[full <= 3], full[full <= 3])
+    assert np.all(np.isinf(limited[full > 3]))
+
+
+def _scanner(ell, seed=0):
+    V, F = icosphere(5)  # 10,242 vertices
+    h = mean_edge_length(V, F)
+    return add_scanner_noise((V, F), 0.3 * h, correlation_length=ell, seed=seed)[0], F
+
+
+def test_noise_model_whole_mesh_when_small_is_the_full_fit():
+    Vn, F = _scanner(2.0)
+    a, ia = estimate_noise_model((Vn, F), details=True, sample=Vn.shape[0])
+    b, ib = estimate_noise_model((Vn, F), details=True, sample=10**9)
+    assert (a.rho, a.correlation_length) == (b.rho, b.correlation_length)
+    np.testing.assert_array_equal(ia["log_rho"], ib["log_rho"])
+    assert ia["fit_vertices"] == Vn.shape[0]
+
+
+@pytest.mark.parametrize("ell", [0.0, 2.0])
+def test_noise_model_on_a_sampled_region_keeps_the_full_fit(ell):
+    """A region of 6,000 of the 10,242 vertices (about 4,000 counted): the same reading (independent or
+    correlated), the correlation length and the level within 5 % of the whole-mesh fit (whose own spread
+    over probe seeds is 1.7 % on this mesh)."""
+    Vn, F = _scanner(ell)
+    full, info_full = estimate_noise_model((Vn, F), details=True, sample=10**9)
+    part, info_part = estimate_noise_model((Vn, F), details=True, sample=6000)
+    assert info_part["fit_vertices"] < 6000 < info_full["fit_vertices"]
+    assert (full.correlation_length > 0) == (part.correlation_length > 0) == (ell > 0)
+    assert part.rho == pytest.approx(full.rho, rel=0.05)
+    if ell > 0:
+        assert part.correlation_length == pytest.approx(full.correlation_length, rel=0.05)
+    else:
+        assert part.rho == full.rho  # independent: the white-noise level, read on the whole mesh
+
+
+def test_noise_model_rejects_a_bad_sample():
+    V, F = icosphere(2)
+    with pytest.raises(ValueError, match="sample"):
+        estimate_noise_model((V, F), sample=0)
