@@ -164,3 +164,21 @@ def test_noise_model_rejects_a_bad_sample():
     V, F = icosphere(2)
     with pytest.raises(ValueError, match="sample"):
         estimate_noise_model((V, F), sample=0)
+
+
+def test_noise_model_keeps_coloured_probes_equal_to_a_fresh_colouring():
+    from meshdenoise.tuning.covariance import NoiseModel
+
+    V, F = icosphere(3)
+    model = NoiseModel(0.01, 2.0, V, F)
+    Z = np.random.default_rng(0).choice([-1.0, 1.0], size=(V.shape[0], 5))
+    first = model.colour(Z, 0.2)
+    first[0, 0] = 1e9  # the caller's copy: changing it does not change what is kept
+    again = model.colour(Z, 0.2)
+    fresh = NoiseModel(0.01, 2.0, V, F).colour(Z, 0.2)
+    np.testing.assert_array_equal(again, fresh)
+    assert len(model._coloured) == 1
+    np.testing.assert_array_equal(model.colour(Z, 0.1), NoiseModel(0.01, 2.0, V, F).colour(Z, 0.1))  # s is in the key
+    assert len(model._coloured) == 2
+    model.clear()
+    assert not model._coloured

@@ -54,6 +54,7 @@ from ..adapters import read_mesh
 from ..geometry import vertex_normals
 from ..noise import HeatFilter, diffusion_length, heat_geometry
 from ..operators import Operators, get_operators, spmm
+from .memo import digest
 from .noise_level import estimate_noise_and_smooth
 from .region import SampledRegion
 
@@ -67,6 +68,7 @@ ELL_MAX = 5.0  # ... and above this: so smooth a "noise" is not told from the sh
 SPREAD_GAIN = 0.0015  # ... and so are fits that lower the spread (variance of log rho_s) by less than this
 SPREAD_RATIO = 2.0  # ... or by less than this factor
 MIN_PATCHES = 100  # ... or that leave fewer than this many correlation areas pi ell^2 on the mesh
+COLOUR_CACHE_BYTES = 128 << 20  # coloured probes a NoiseModel keeps (by content of the white ones)
 FIT_PROBES = 4  # probes per model of the fit: a median over n * 4 values
 FIT_SAMPLE = 16_000  # above this many vertices the probes' statistic is read on a sampled region of about this size
 FIT_PATCHES = 4  # ... made of this many balls of vertices
@@ -96,6 +98,7 @@ class NoiseModel:
     V: np.ndarray | None = field(default=None, repr=False, compare=False)
     F: np.ndarray | None = field(default=None, repr=False, compare=False)
     _filter: Any = field(default=None, init=False, repr=False, compare=False)
+    _coloured: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         for name in ("rho", "correlation_length"):
@@ -128,13 +131,29 @@ class NoiseModel:
         :math:`\\mathrm{tr}\\,\\Sigma = n`, taken by the probes themselves, so that
         :math:`\\mathrm{tr}(H\\Sigma)` is exact for :math:`H = I` and its error is a ratio's).
         With ``Z = I`` (exact traces) :math:`\\mathrm{tr}(Y^T H Y) = \\mathrm{tr}(H\\Sigma)` exactly.
+        The result is kept (by the content of ``Z`` and ``s``, at most :data:`COLOUR_CACHE_BYTES`,
+        :meth:`clear`): the rules of one choice colour the same probes several times, each
+        colouring :data:`~meshdenoise.noise.HEAT_STEPS` CG solves on the whole mesh.
         """
         if not self.correlated:
             return Z
-        Y = self.filter()(np.asarray(Z, dtype=np.float64))
+        Z = np.asarray(Z, dtype=np.float64)
+        key = (digest(Z), float(s))
+        if key in self._coloured:  # the rules of one choice colour the same probes several times
+            return self._coloured[key].copy()
+        Y = self.filter()(Z)
         energy = s * float(np.sum(Y * Y))
         n = Y.shape[0]
-        return Y * math.sqrt(n / energy) if energy > 0 else Y
+        Y = Y * math.sqrt(n / energy) if energy > 0 else Y
+        if Y.nbytes <= COLOUR_CACHE_BYTES:
+            while self._coloured and sum(v.nbytes for v in self._coloured.values()) + Y.nbytes > COLOUR_CACHE_BYTES:
+                self._coloured.pop(next(iter(self._coloured)))  # oldest first
+            self._coloured[key] = Y.copy()
+        return Y
+
+    def clear(self) -> None:
+        """Forget the coloured probes kept by :meth:`colour` (at most :data:`COLOUR_CACHE_BYTES`)."""
+        self._coloured.clear()
 
 
 def band_residuals(ops: Operators, X: np.ndarray, bands: tuple[int, ...] = BANDS) -> dict[int, np.ndarray]:

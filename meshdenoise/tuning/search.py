@@ -41,7 +41,8 @@ __all__ = [
 
 PROBE_REFERENCE_VERTICES = 50_000  # up to this size every search keeps N_PROBES probes (all quality-table meshes)
 MIN_PROBES = 4
-QUADRATURE_MIN_VERTICES = 50_000  # best_shifted(search="auto"): Lanczos quadrature from this size, one factor per mu below
+QUADRATURE_MIN_VERTICES = 1_000  # best_shifted(search="auto"): Lanczos quadrature from this size (above the exact-trace
+# meshes), one factor per mu below; the two choose the same mu (scores equal to 1e-12 relative, docs/scale.md)
 SHIFTED_SEARCHES = ("auto", "quadrature", "factor")
 
 
