@@ -128,8 +128,12 @@ def test_ring_distance_equals_breadth_first_search():
     assert np.all(np.isinf(limited[full > 3]))
 
 
-def _scanner(ell, seed=0):
-    V, F = icosphere(5)  # 10,242 vertices
+def _scanner(ell, seed=0, shape="sphere"):
+    if shape == "sphere":
+        V, F = icosphere(5)  # 10,242 vertices
+    else:  # an open, curved sheet of 10,000 vertices: a border, where the model's noise is stronger
+        V, F = grid(100, 100)
+        V[:, 2] = 0.3 * np.sin(3.0 * V[:, 0]) * np.cos(2.0 * V[:, 1])
     h = mean_edge_length(V, F)
     return add_scanner_noise((V, F), 0.3 * h, correlation_length=ell, seed=seed)[0], F
 
@@ -143,12 +147,12 @@ def test_noise_model_whole_mesh_when_small_is_the_full_fit():
     assert ia["fit_vertices"] == Vn.shape[0]
 
 
-@pytest.mark.parametrize("ell", [0.0, 2.0])
-def test_noise_model_on_a_sampled_region_keeps_the_full_fit(ell):
+@pytest.mark.parametrize("ell, shape", [(0.0, "sphere"), (2.0, "sphere"), (2.0, "sheet")])
+def test_noise_model_on_a_sampled_region_keeps_the_full_fit(ell, shape):
     """A region of 6,000 of the 10,242 vertices (about 4,000 counted): the same reading (independent or
     correlated), the correlation length and the level within 5 % of the whole-mesh fit (whose own spread
     over probe seeds is 1.7 % on this mesh)."""
-    Vn, F = _scanner(ell)
+    Vn, F = _scanner(ell, shape=shape)
     full, info_full = estimate_noise_model((Vn, F), details=True, sample=10**9)
     part, info_part = estimate_noise_model((Vn, F), details=True, sample=6000)
     assert info_part["fit_vertices"] < 6000 < info_full["fit_vertices"]
@@ -182,3 +186,16 @@ def test_noise_model_keeps_coloured_probes_equal_to_a_fresh_colouring():
     assert len(model._coloured) == 2
     model.clear()
     assert not model._coloured
+
+
+def test_weighted_median_and_nearest_stratum():
+    from meshdenoise.tuning.covariance import _nearest_present, _weighted_median
+
+    x = np.random.default_rng(0).standard_normal(101)
+    assert _weighted_median(x, np.ones(101)) == np.median(x)
+    w = np.random.default_rng(1).integers(1, 5, size=101)
+    w[0] += 1 - w.sum() % 2  # an odd total weight: np.median's middle value, no average of two
+    assert _weighted_median(x, w.astype(float)) == np.median(np.repeat(x, w))  # odd total weight: the middle value
+    present = np.array([False, True, False, False, True, False, False])
+    np.testing.assert_array_equal(_nearest_present(present), [1, 1, 1, 4, 4, 4, 4])  # ties to the lower
+    np.testing.assert_array_equal(_nearest_present(np.array([False, True, False])), [1, 1, 1])

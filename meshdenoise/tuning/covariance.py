@@ -53,10 +53,11 @@ import scipy.sparse as sp
 from ..adapters import read_mesh
 from ..geometry import vertex_normals
 from ..noise import HeatFilter, diffusion_length, heat_geometry
+from ..noise import mean_edge_length as noise_mean_edge_length
 from ..operators import Operators, get_operators, spmm
 from .memo import digest
 from .noise_level import estimate_noise_and_smooth
-from .region import SampledRegion
+from .region import SampledRegion, ring_distance
 
 __all__ = ["NoiseModel", "estimate_noise_model", "band_residuals", "BANDS", "ELL_MIN", "ELL_MAX", "ELL_GRID", "FIT_PROBES",
            "FIT_SAMPLE"]
@@ -70,10 +71,11 @@ SPREAD_RATIO = 2.0  # ... or by less than this factor
 MIN_PATCHES = 100  # ... or that leave fewer than this many correlation areas pi ell^2 on the mesh
 COLOUR_CACHE_BYTES = 128 << 20  # coloured probes a NoiseModel keeps (by content of the white ones)
 FIT_PROBES = 4  # probes per model of the fit: a median over n * 4 values
-FIT_SAMPLE = 16_000  # above this many vertices the probes' statistic is read on a sampled region of about this size
+FIT_SAMPLE = 30_000  # above this many vertices the probes' statistic is read on a sampled region of about this size
 FIT_PATCHES = 4  # ... made of this many balls of vertices
-FIT_MARGIN = 8  # ... counting only vertices more than this many rings from a cut
-FIT_SAMPLE_PROBES = 8  # ... with this many probes (the whole mesh: FIT_PROBES)
+FIT_MARGIN = 10  # ... counting only vertices more than this many rings from a cut
+FIT_SAMPLE_PROBES = 4  # ... with this many probes (the whole mesh: FIT_PROBES)
+FIT_BORDER_RINGS = 12  # ... weighting its vertices by their ring distance to the mesh's own border (0 .. this, farther)
 
 
 @dataclass
@@ -176,12 +178,44 @@ def _normal_component(R: np.ndarray, N: np.ndarray) -> np.ndarray:
     return np.einsum("ikj,ij->ik", R.reshape(R.shape[0], k, 3), N)
 
 
-def _probe_medians(ops: Operators, N: np.ndarray, Z: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """Median square of the normal component of :math:`B_s (z \\odot N)` over usable vertices and probes, per band."""
+def _probe_medians(ops: Operators, N: np.ndarray, Z: np.ndarray, ok: np.ndarray,
+                   weights: np.ndarray | None = None) -> np.ndarray:
+    """Median square of the normal component of :math:`B_s (z \\odot N)` over usable vertices and probes, per band
+    (weighted by ``weights`` (n,) per vertex when given)."""
     m = Z.shape[1]
     B = (Z[:, :, None] * N[:, None, :]).reshape(Z.shape[0], 3 * m)
     R = band_residuals(ops, B)
-    return np.array([np.median(_normal_component(R[s], N)[ok] ** 2) for s in BANDS])
+    if weights is None:
+        return np.array([np.median(_normal_component(R[s], N)[ok] ** 2) for s in BANDS])
+    w = np.repeat(weights[ok], m)
+    return np.array([_weighted_median(_normal_component(R[s], N)[ok].ravel() ** 2, w) for s in BANDS])
+
+
+def _weighted_median(x: np.ndarray, w: np.ndarray) -> float:
+    """The smallest ``x`` at which the cumulative weight of the sorted values reaches half the total; ``x``, ``w`` (k,)."""
+    order = np.argsort(x, kind="stable")
+    c = np.cumsum(w[order])
+    return float(x[order][np.searchsorted(c, 0.5 * c[-1])])
+
+
+def _border_strata(ops: Operators) -> np.ndarray:
+    """Ring distance of every vertex to the mesh's own border, capped: 0 .. FIT_BORDER_RINGS, FIT_BORDER_RINGS + 1 farther (n,)."""
+    border = np.flatnonzero(ops.boundary_vertices)
+    d = ring_distance(ops.W, border, float(FIT_BORDER_RINGS))
+    return np.where(np.isfinite(d), d, FIT_BORDER_RINGS + 1).astype(np.int64)
+
+
+def _nearest_present(present: np.ndarray) -> np.ndarray:
+    """For each stratum, the nearest one (the lower on ties) where ``present`` (k,) bool is True; itself if present."""
+    idx = np.flatnonzero(present)
+    k = np.arange(present.size)
+    if idx.size == 0:
+        return k
+    pos = np.clip(np.searchsorted(idx, k), 1, max(idx.size - 1, 1)) if idx.size > 1 else np.zeros(k.size, dtype=np.int64)
+    if idx.size == 1:
+        return np.full(k.size, idx[0])
+    lo, hi = idx[pos - 1], idx[pos]
+    return np.where(np.abs(k - lo) <= np.abs(hi - k), lo, hi)
 
 
 def _fit(logr: np.ndarray, grid: np.ndarray) -> tuple[float, int]:
@@ -263,8 +297,9 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
     N = vertex_normals(smooth, F)
     ok = ~ops.isolated & (np.linalg.norm(N, axis=1) > 0)
     R = band_residuals(ops, V)
-    observed = np.array([np.median(_normal_component(R[s], N)[ok] ** 2) for s in BANDS])
+    residual = {s: _normal_component(R[s], N) for s in BANDS}
     del R
+    observed = np.array([np.median(residual[s][ok] ** 2) for s in BANDS])
     if not np.all(observed > 0):  # a band without residual (a plane, a tiny mesh): nothing to fit
         model = NoiseModel(rho0)
         info["reason"] = "independent: a band-pass residual is zero"
@@ -280,17 +315,38 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
         inner = region.inner & ~opsr.isolated
         okr = ok[region.vertices] & inner
         probes = FIT_SAMPLE_PROBES
+        strata = _border_strata(ops)
+        # the whole mesh's share of each stratum: of its vertices on a face (the mean square of the model's noise,
+        # zero elsewhere) and of its usable vertices (the medians)
+        share_all = np.bincount(strata[~ops.isolated], minlength=FIT_BORDER_RINGS + 2) / ops.n
+        share_ok = np.bincount(strata[ok], minlength=FIT_BORDER_RINGS + 2) / max(int(ok.sum()), 1)
+        sr = strata[region.vertices]
+        present = np.bincount(sr[okr], minlength=share_ok.size) > 0
+        nearest = _nearest_present(present)
+        share_all = np.bincount(nearest, weights=share_all, minlength=share_all.size)  # empty strata: into the nearest
+        share_ok = np.bincount(nearest, weights=share_ok, minlength=share_ok.size)
+        count_ok = np.bincount(sr[okr], minlength=share_ok.size)
+        weights = (share_ok / np.maximum(count_ok, 1))[sr]  # per region vertex: a weighted median is the whole mesh's
     info["fit_vertices"] = int(okr.sum())
     xi = np.random.default_rng(seed).standard_normal((Vr.shape[0], probes))
+    scale = None
     geometry = heat_geometry(Vr, Fr)
+    if not region.whole:  # lengths in the whole mesh's mean edge length (a scan's sampling varies over it)
+        geometry = (noise_mean_edge_length(smooth, F),) + tuple(geometry[1:])
     full = np.array(ELL_GRID)
     logr = np.empty((full.size, len(BANDS)))
     used = 0
     for j, ell in enumerate(full):  # up the grid until the spread has risen well past its minimum
         Z = xi if ell == 0 else HeatFilter(Vr, Fr, diffusion_length(ell), geometry)(xi)
-        Zc = Z if inner is None else Z[inner]  # tr(Sigma) = n where the model is the whole mesh's: away from cuts
-        Z = Z * math.sqrt(Zc.size / float(np.sum(Zc * Zc)))  # mean square 1
-        logr[j] = 0.5 * (np.log(observed) - np.log(_probe_medians(opsr, Nr, Z, okr)))
+        if region.whole:
+            Z = Z * math.sqrt(Z.size / float(np.sum(Z * Z)))  # mean square 1: tr(Sigma) = n
+            medians = _probe_medians(opsr, Nr, Z, okr)
+        else:  # the whole mesh's mean square, from the inner vertices' by stratum (the noise is stronger near a border)
+            msq = np.bincount(sr[inner], weights=np.mean(Z[inner] ** 2, axis=1), minlength=share_all.size)
+            msq = msq / np.maximum(np.bincount(sr[inner], minlength=share_all.size), 1)
+            Z = Z / math.sqrt(float(np.sum(share_all * msq)))
+            medians = _probe_medians(opsr, Nr, Z, okr, weights)
+        logr[j] = 0.5 * (np.log(observed) - np.log(medians))
         used = j + 1
         spread = np.var(logr[:used], axis=1)
         best = int(np.argmin(spread))
