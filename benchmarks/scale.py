@@ -58,7 +58,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 SIZES = {"100k": 1, "400k": 2, "1.6M": 3}  # label -> Loop subdivision levels
-METHODS = ("filtering", "heat", "taubin", "sobolev", "sobolev_bilaplacian", "sobolev_normal", "sobolev_gls", "two_stage")
+DEFAULT = "default"  # the row of `meshdenoise denoise IN OUT` with no method: choose_default, then its filter
+METHODS = ("filtering", "heat", "taubin", "sobolev", "sobolev_bilaplacian", "sobolev_normal", "sobolev_gls", "two_stage",
+           DEFAULT)
 NOISE_EDGES = 0.5  # noise standard deviation in mean edge lengths
 TWO_STAGE_COUNTS = (1, 20, 20)  # outer, normal, vertex iterations (MeshLab's defaults per outer iteration)
 TAUBIN_ARGS = (10, 0.5, -0.53)
@@ -164,9 +166,15 @@ def child_inproc(npz: str, method: str) -> None:
 
     V, F, Vn = load(npz)
     emit(stage="noisy", snr=md.snr(V, Vn))
-    params, wall, cpu = timed(lambda: md.choose_parameters((Vn, F), method))
+    if method == DEFAULT:  # denoise(mesh) with no method: the filter and its parameters chosen
+        from meshdenoise.default import choose_default
+
+        choice, wall, cpu = timed(lambda: choose_default((Vn, F)))
+        method, params = choice.method, dict(choice.params)
+    else:
+        params, wall, cpu = timed(lambda: md.choose_parameters((Vn, F), method))
     params = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in params.items()}
-    emit(stage="choose", seconds=wall, cpu=cpu, params=params)
+    emit(stage="choose", seconds=wall, cpu=cpu, params=params, method=method)
     clear_cache()
     (X, _), wall, cpu = timed(lambda: md.apply_filter(method, (Vn, F), **params))
     auto_snr = md.snr(V, X)
@@ -281,7 +289,8 @@ def run_size(mesh: dict, methods: list[str], timeout: float, pairs: bool, e2e: b
         if e2e:
             out = workdir / f"out-{mesh['label']}-{method}.ply"
             cli = "import sys; from meshdenoise.cli import main; sys.argv[0] = 'meshdenoise'; main()"
-            cmd = [sys.executable, "-c", cli, "denoise", "--method", method, "--auto", mesh["ply"], str(out)]
+            how = [] if method == DEFAULT else ["--method", method, "--auto"]
+            cmd = [sys.executable, "-c", cli, "denoise", *how, mesh["ply"], str(out)]
             row["e2e"] = run_limited(cmd, timeout)
             if out.exists():
                 out.unlink()
@@ -322,6 +331,8 @@ def format_row(mesh: dict, method: str, row: dict, timeout: float | None = None)
         peak_s = f"{e2e['maxrss'] / 2**20:.0f}"
         bpv = f"{e2e['maxrss'] / mesh['n']:.0f}"
     params = rec.get("choose", {}).get("params")
+    if method == DEFAULT and params is not None and rec.get("choose", {}).get("method"):
+        params = {"method": rec["choose"]["method"], **params}
     ptext = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in (params or {}).items())
     return (
         f"| {mesh['label']} | {method} | {_s(rec.get('choose'), 'seconds', inproc, timeout)} "
