@@ -75,6 +75,7 @@ FIT_SAMPLE = 30_000  # above this many vertices the probes' statistic is read on
 FIT_PATCHES = 4  # ... made of this many balls of vertices
 FIT_MARGIN = 10  # ... counting only vertices more than this many rings from a cut
 FIT_SAMPLE_PROBES = 4  # ... with this many probes (the whole mesh: FIT_PROBES)
+FIT_TOL = 1e-5  # ... colouring its probes to this relative residual (the whole mesh: HeatFilter's 1e-8)
 FIT_BORDER_RINGS = 12  # ... weighting its vertices by their ring distance to the mesh's own border (0 .. this, farther)
 
 
@@ -337,7 +338,12 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
     logr = np.empty((full.size, len(BANDS)))
     used = 0
     for j, ell in enumerate(full):  # up the grid until the spread has risen well past its minimum
-        Z = xi if ell == 0 else HeatFilter(Vr, Fr, diffusion_length(ell), geometry)(xi)
+        if ell == 0:
+            Z = xi
+        elif region.whole:
+            Z = HeatFilter(Vr, Fr, diffusion_length(ell), geometry)(xi)
+        else:  # a median of squares needs no 8 digits of the colouring
+            Z = HeatFilter(Vr, Fr, diffusion_length(ell), geometry)(xi, tol=FIT_TOL)
         if region.whole:
             Z = Z * math.sqrt(Z.size / float(np.sum(Z * Z)))  # mean square 1: tr(Sigma) = n
             medians = _probe_medians(opsr, Nr, Z, okr)
