@@ -249,8 +249,10 @@ def test_bilaplacian_cg_equals_dense_solve_and_auto_picks_cg_only_when_large(mon
             np.testing.assert_allclose(Y, expected, rtol=0, atol=1e-10 * np.abs(Vn).max())
     ops = get_operators(F, len(Vn))
     assert bl._choose_solver(ops, 1.0, None, 1e-10) == "cholesky"  # small mesh: the factor is cheap and kept
-    monkeypatch.setattr(bl, "AUTO_CG_MIN_VERTICES", 0)
+    monkeypatch.setattr(bl, "LANCZOS_MIN_VERTICES", 0)
     assert bl._choose_solver(ops, 1.0, None, 1e-10) == "lanczos"
+    assert bl._choose_solver(ops, 1.0, pinned, 1e-10) == "cholesky"  # pinned: CG only from AUTO_CG_MIN_VERTICES
+    monkeypatch.setattr(bl, "AUTO_CG_MIN_VERTICES", 0)
     assert bl._choose_solver(ops, 1.0, pinned, 1e-10) == "cg"
     assert bl._choose_solver(ops, 1e4, None, 1e-10) == "lanczos"  # its steps grow like mu^(1/4)
     assert bl._choose_solver(ops, 1e4, pinned, 1e-10) == "cholesky"  # CG's bound too large

@@ -16,6 +16,9 @@ from .sobolev import AUTO_CG_MAX_ITERATIONS, AUTO_CG_MIN_VERTICES
 
 SOLVERS = ("auto", "cholesky", "cg", "lanczos")
 LANCZOS_MAX_STEPS = 1000
+LANCZOS_MIN_VERTICES = 50_000  # "auto" without pinned vertices: two Lanczos passes from this size (100k, load 15: 2.9 s against
+^# a 15 s factorisation of I + mu L^2, same SNR to 13 digits; "auto" kept the factor below AUTO_CG_MIN_VERTICES before; with pinned vertices CG's
+# bound decides from AUTO_CG_MIN_VERTICES as for sobolev)
 
 __all__ = ["sobolev_bilaplacian", "choose_sobolev_bilaplacian", "bilaplacian_cg_bound", "lanczos_bilaplacian"]
 
@@ -30,8 +33,9 @@ def bilaplacian_cg_bound(ops: Operators, mu: float, tol: float) -> float:
 def _choose_solver(ops: Operators, mu: float, pinned: np.ndarray | None, tol: float) -> str:
     """``solver="auto"``: as :func:`~meshdenoise.plugins.sobolev.choose_solver` for :math:`I + \\mu L^2`.
 
-    Cholesky when its factor is stored or below :data:`AUTO_CG_MIN_VERTICES` vertices; else
-    two Lanczos passes (:func:`lanczos_bilaplacian`) without pinned vertices, and with them CG
+    Cholesky when its factor is stored; without pinned vertices two Lanczos passes
+    (:func:`lanczos_bilaplacian`) from :data:`LANCZOS_MIN_VERTICES` vertices, Cholesky below; with
+    them Cholesky below :data:`AUTO_CG_MIN_VERTICES` vertices, else CG
     while :func:`bilaplacian_cg_bound` is at most :data:`AUTO_CG_MAX_ITERATIONS`, Cholesky
     otherwise (the 400k scale mesh at the chosen mu = 1.1: a 14 s factorisation, 4.4 s of CG,
     2.1 s of Lanczos on a loaded machine).
@@ -39,10 +43,10 @@ def _choose_solver(ops: Operators, mu: float, pinned: np.ndarray | None, tol: fl
     stored = ops.cache.get("shifted-p2-cholesky", {})
     if (float(mu), mask_key(pinned if pinned is not None and pinned.any() else None)) in stored:
         return "cholesky"
+    if pinned is None or not pinned.any():  # its steps grow like mu^(1/4): no bound needed (a factor at 1.6M took
+        return "lanczos" if ops.n >= LANCZOS_MIN_VERTICES else "cholesky"  # over 3 minutes and 6.7 GB)
     if ops.n < AUTO_CG_MIN_VERTICES:
         return "cholesky"
-    if pinned is None or not pinned.any():
-        return "lanczos"  # its steps grow like mu^(1/4): no bound needed (a factor at 1.6M took over 3 minutes and 6.7 GB)
     return "cg" if bilaplacian_cg_bound(ops, mu, tol) <= AUTO_CG_MAX_ITERATIONS else "cholesky"
 
 
@@ -117,8 +121,9 @@ def sobolev_bilaplacian(V, F, *, ops, pinned, mu, solver="auto", tol=1e-10):
     solver : {"auto", "cholesky", "cg", "lanczos"}
         Cached sparse Cholesky factor, block conjugate gradient, two Lanczos passes on ``L``
         (:func:`lanczos_bilaplacian`; with pinned vertices CG is used), or ``"auto"`` (default):
-        Cholesky below 200,000 vertices or when the factor is already stored, else
-        ``"lanczos"``; with pinned vertices ``"cg"`` while its iteration bound is at most 300.
+        ``"lanczos"`` from 50,000 vertices, Cholesky below or when the factor is already stored;
+        with pinned vertices Cholesky below 200,000 vertices, else ``"cg"`` while its iteration
+        bound is at most 300.
     tol : float, 1e-14 <= tol <= 1e-2
         Relative residual at which ``"cg"`` stops (ignored by ``"cholesky"``).
     pinned, region, preserve_volume, operators
