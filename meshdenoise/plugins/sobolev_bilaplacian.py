@@ -16,9 +16,9 @@ from .sobolev import AUTO_CG_MAX_ITERATIONS, AUTO_CG_MIN_VERTICES
 
 SOLVERS = ("auto", "cholesky", "cg", "lanczos")
 LANCZOS_MAX_STEPS = 1000
-LANCZOS_MIN_VERTICES = 50_000  # "auto" without pinned vertices: two Lanczos passes from this size (100k, load 15: 2.9 s against
-^# a 15 s factorisation of I + mu L^2, same SNR to 13 digits; "auto" kept the factor below AUTO_CG_MIN_VERTICES before; with pinned vertices CG's
-# bound decides from AUTO_CG_MIN_VERTICES as for sobolev)
+LANCZOS_MIN_VERTICES = 50_000  # "auto" without pinned vertices: two Lanczos passes from this size (100k, load 15:
+# 2.9 s against a 15 s factorisation of I + mu L^2, same SNR to 13 digits); with pinned vertices CG's bound decides
+# from AUTO_CG_MIN_VERTICES, as for sobolev
 
 __all__ = ["sobolev_bilaplacian", "choose_sobolev_bilaplacian", "bilaplacian_cg_bound", "lanczos_bilaplacian"]
 
