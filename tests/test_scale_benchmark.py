@@ -65,3 +65,23 @@ def test_code_version_names_the_checkout_commit():
 
     head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=root, capture_output=True, text=True).stdout.strip()
     assert scale.code_version().split("+")[0] == head
+
+
+def test_the_default_row_runs_choose_default_and_names_its_filter(scale, tmp_path):
+    """The `default` row: choose_default in the child, the filter it picked, its name in the table."""
+    import numpy as np
+
+    from meshdenoise import add_normal_noise
+    from meshdenoise.shapes import icosphere
+
+    V, F = icosphere(2)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
+    npz = tmp_path / "tiny.npz"
+    np.savez(npz, V=V, F=F, Vn=Vn, rho=0.02, h=0.1)
+    cell = scale.run_limited(scale.me("--child", "inproc", str(npz), scale.DEFAULT), 300)
+    assert cell["exit"] == 0, cell["stderr_tail"]
+    chosen = cell["records"]["choose"]
+    assert chosen["method"] in ("two_stage", "sobolev_bilaplacian")
+    assert cell["records"]["oracle"]["snr"] >= cell["records"]["filter"]["snr"]
+    text = scale.format_row({"label": "1k", "n": len(V)}, scale.DEFAULT, {"inproc": cell, "load_before": 0.0}, timeout=300)
+    assert f"method={chosen['method']}" in text
