@@ -81,7 +81,9 @@ def test_the_default_row_runs_choose_default_and_names_its_filter(scale, tmp_pat
     cell = scale.run_limited(scale.me("--child", "inproc", str(npz), scale.DEFAULT), 300)
     assert cell["exit"] == 0, cell["stderr_tail"]
     chosen = cell["records"]["choose"]
-    assert chosen["method"] in ("two_stage", "sobolev_bilaplacian")
+    from meshdenoise import auto_filters
+
+    assert chosen["method"] in auto_filters()  # the filter the default picked (its candidates change with it)
     assert cell["records"]["oracle"]["snr"] >= cell["records"]["filter"]["snr"]
     text = scale.format_row({"label": "1k", "n": len(V)}, scale.DEFAULT, {"inproc": cell, "load_before": 0.0}, timeout=300)
     assert f"method={chosen['method']}" in text
