@@ -15,6 +15,7 @@ from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
 from ..tuning.context import TuningContext
 from ..tuning.noise_level import MAD
 from ..tuning.risk import MC_SURE_STEP, Point, sure
+from ..tuning.walk import walk
 
 log = logging.getLogger("meshdenoise.auto")
 
@@ -526,15 +527,9 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
         for k, X in enumerate(outer_iterates(start, ops, None, **step, every=not fixed_k), start=1):
             yield (step["iterations"] if fixed_k else k), X
 
-    def best_on_run(points: Iterator[Point], patience: int | None = 2) -> Point:
-        """The best point of a run, which stops ``patience`` iterations after the minimum (``None``: never)."""
-        best = None
-        for p in points:
-            if best is None or p.score < best.score:
-                best = p
-            elif patience is not None and p.value >= best.value + patience:
-                break
-        return best
+    def best_on_run(points: Iterator[Point], patience: int = 2) -> Point:
+        """The best point of a run, which stops ``patience`` iterations after the minimum (the tuning walk)."""
+        return walk(points, lambda p: p.score, patience=patience).best[0].item
 
     if ctx.oracle:
         def path(params: dict) -> Point:

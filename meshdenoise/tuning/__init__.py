@@ -4,9 +4,14 @@ Floors, bottom up (none knows a filter; each filter's rule lives in its plugin m
 and is registered with it, ``register(..., auto=AutoRule(...))``):
 
 - :mod:`~meshdenoise.tuning.risk`: SURE, GCV, trace probes, the :class:`Point` and :class:`Criterion` of a search;
+- :mod:`~meshdenoise.tuning.walk`: :func:`walk`, the one walk along an iterative run until every score is past its
+  minimum (any score: SURE for the rules, the clean mesh for ``reproduce`` and the benchmarks' oracles);
 - :mod:`~meshdenoise.tuning.search`: the searches (along an iterative run, over a log weight) and shifted solves;
 - :mod:`~meshdenoise.tuning.noise_level`: :func:`estimate_noise` and the normals' spread;
 - :mod:`~meshdenoise.tuning.covariance`: :func:`estimate_noise_model` (level and correlation length) and :class:`NoiseModel`;
+- :mod:`~meshdenoise.tuning.region`: a sampled region of a large mesh (balls of vertex rings) that fits run on;
+- :mod:`~meshdenoise.tuning.detail`: :func:`separate_detail`, surface detail or correlated noise (a band spectrum
+  with a surface term; not yet used by the default: docs/noise-vs-detail.md);
 - :mod:`~meshdenoise.tuning.context`: the :class:`TuningContext` a rule is given;
 - :mod:`~meshdenoise.tuning.choose`: :func:`choose_parameters` (``meshdenoise.denoise``, which also chooses
   the filter, is the policy above this floor: :mod:`meshdenoise.default`);
@@ -17,7 +22,9 @@ from .choose import auto_filters, choose_parameters
 from .context import TuningContext
 from .covariance import NoiseModel, estimate_noise_model
 from .noise_level import estimate_noise
+from .detail import DetailVerdict, separate_detail
 from .risk import EXACT_TRACE_MAX, Criterion, Point, gcv, probe_block, sure
+from .walk import Walk, walk
 
 __all__ = [
     "choose_parameters",
@@ -32,4 +39,8 @@ __all__ = [
     "gcv",
     "probe_block",
     "EXACT_TRACE_MAX",
+    "walk",
+    "Walk",
+    "separate_detail",
+    "DetailVerdict",
 ]

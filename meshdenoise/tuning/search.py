@@ -18,6 +18,7 @@ from ..operators import Operators, spmm
 from ..solvers import LanczosQuadrature, shifted_solver
 from .memo import MEMO, digest
 from .risk import N_PROBES, Criterion, Point, as_criterion, probe_block
+from .walk import past_minimum, walk
 
 __all__ = [
     "averaging_step",
@@ -164,49 +165,27 @@ def best_on_curve(curve: PathCurve, n: int, rho: float | None, criterion: Criter
     return best
 
 
-PAST_MINIMUM_FACTOR, PAST_MINIMUM_MARGIN = 2, 20
-
-
-def past_minimum(k: int, k_best: int) -> bool:
-    """The one stopping rule of every walk along an iterative run: ``k >= 2 k_best + 20``.
-
-    The score curves of the smoothers here are unimodal in practice (bias grows, variance
-    falls, both monotone), so a walk twice as long as the best step count, and 20 past
-    it, has passed the minimum. Used by :func:`best_on_path` and by the paper's
-    SNR-along-a-run searches (:mod:`meshdenoise.reproduce`).
-
-    Examples
-    --------
-    >>> past_minimum(20, 0), past_minimum(29, 5), past_minimum(30, 5)
-    (True, False, True)
-    """
-    return k >= PAST_MINIMUM_FACTOR * k_best + PAST_MINIMUM_MARGIN
-
-
 def best_on_path(
     path: Iterator[Point], n: int, rho: float | None, criterion: Criterion | str, max_steps: int = 20000
 ) -> Point:
-    """Walk a path until its score has risen well past its minimum; return the minimum.
-
-    Stops when :func:`past_minimum` and the score exceeds the minimum.
-    """
+    """Walk a path until its score has risen well past its minimum (:func:`~meshdenoise.tuning.walk.walk`); return the minimum."""
     criterion = as_criterion(criterion)
-    best: Point | None = None
-    for p in path:
+
+    def score(p: Point) -> float:
         p.score = criterion.score(p, n, rho)
-        if best is None or p.score < best.score:
-            best = p
-        if past_minimum(p.value, best.value) and p.score > best.score:
-            return best
-        if p.value >= max_steps:
-            warnings.warn(
-                f"choose_parameters: the criterion still decreased after {max_steps} steps; "
-                "the noise may be too strong for this filter, consider sobolev or a larger step size",
-                UserWarning,
-                stacklevel=3,
-            )
-            return best
-    raise RuntimeError("best_on_path: the path ended before its score rose past the minimum")
+        return p.score
+
+    found = walk(path, score, max_steps=max_steps)
+    if found.stop == "max_steps":
+        warnings.warn(
+            f"choose_parameters: the criterion still decreased after {max_steps} steps; "
+            "the noise may be too strong for this filter, consider sobolev or a larger step size",
+            UserWarning,
+            stacklevel=3,
+        )
+    elif found.stop == "end":
+        raise RuntimeError("best_on_path: the path ended before its score rose past the minimum")
+    return found.best[0].item
 
 
 def search_log(evaluate: Callable[[float], Point], center: float, golden_steps: int = 8,

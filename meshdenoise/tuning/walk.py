@@ -9,7 +9,7 @@ feature benchmark. The automatic rules walk their risk estimate by the same rule
 (:func:`~meshdenoise.tuning.search.best_on_path`; ``tests/test_tuning_walk.py`` checks that
 both choose the same step, with SURE and with the oracle score).
 
-The stopping rule is :func:`~meshdenoise.tuning.search.past_minimum` (``k >= 2 k_best + 20``),
+The stopping rule is :func:`past_minimum` (``k >= 2 k_best + 20``),
 or, for a caller whose steps are costly, ``patience``: stop ``patience`` steps after the best.
 
 Examples
@@ -30,11 +30,27 @@ from typing import Any
 
 import numpy as np
 
-from .search import past_minimum
-
-__all__ = ["Best", "Walk", "walk", "past", "WALK_STOPS"]
+__all__ = ["Best", "Walk", "walk", "past", "past_minimum", "WALK_STOPS"]
 
 WALK_STOPS = ("past minimum", "max_steps", "end")
+
+PAST_MINIMUM_FACTOR, PAST_MINIMUM_MARGIN = 2, 20
+
+
+def past_minimum(k: int, k_best: int) -> bool:
+    """The one stopping rule of every walk along an iterative run: ``k >= 2 k_best + 20``.
+
+    The score curves of the smoothers here are unimodal in practice (bias grows, variance
+    falls, both monotone), so a walk twice as long as the best step count, and 20 past
+    it, has passed the minimum. Used by :func:`walk` (so by :func:`~meshdenoise.tuning.search.best_on_path`) and by the paper's
+    SNR-along-a-run searches (:mod:`meshdenoise.reproduce`).
+
+    Examples
+    --------
+    >>> past_minimum(20, 0), past_minimum(29, 5), past_minimum(30, 5)
+    (True, False, True)
+    """
+    return k >= PAST_MINIMUM_FACTOR * k_best + PAST_MINIMUM_MARGIN
 
 
 @dataclass
@@ -72,7 +88,7 @@ class Walk:
 
 
 def past(k: int, k_best: int, patience: int | None = None) -> bool:
-    """Whether step ``k`` is past the minimum found at ``k_best``: :func:`~meshdenoise.tuning.search.past_minimum`,
+    """Whether step ``k`` is past the minimum found at ``k_best``: :func:`past_minimum`,
     or ``k >= k_best + patience`` when ``patience`` is given.
 
     Examples
@@ -107,7 +123,7 @@ def walk(
         called once per state, in order.
     patience : int, optional
         Stop ``patience`` steps after the best of every score instead of the default rule
-        :func:`~meshdenoise.tuning.search.past_minimum` (``k >= 2 k_best + 20``). For runs whose
+        :func:`past_minimum` (``k >= 2 k_best + 20``). For runs whose
         steps are costly and whose score curves are known to be unimodal.
     max_steps : int
         Score at most the states 0 .. ``max_steps``.
