@@ -344,6 +344,26 @@ def test_cli_denoise_bad_use_is_one_line_and_exit_2(noisy_cap_file, args, messag
     assert message in result.output and "Traceback" not in result.output
 
 
+CUBE = (np.array([[x, y, z] for x in (0.0, 1.0) for y in (0.0, 1.0) for z in (0.0, 1.0)]),
+        np.array([[0, 2, 1], [1, 2, 3], [4, 5, 6], [5, 7, 6], [0, 1, 4], [1, 5, 4],
+                  [2, 6, 3], [3, 6, 7], [0, 4, 2], [2, 4, 6], [1, 3, 5], [3, 7, 5]]))
+
+
+def test_a_mesh_too_small_for_the_noise_estimate_is_bad_input_with_a_way_out(tmp_path):
+    with pytest.raises(ValueError, match="too small to estimate the noise: 0 of its 8 vertices"):
+        md.denoise(CUBE)  # pymeshlab's sample cube.obj: 8 vertices, every one a corner
+    src = save_mesh(tmp_path / "cube.ply", *CUBE)
+    for args in ([], ["--method", "sobolev", "--auto"]):
+        result = CliRunner().invoke(cli, ["denoise", str(src), str(tmp_path / "out.ply"), *args])
+        assert result.exit_code == 2, result.output  # bad input, not a crash (was exit 1, "ValueError")
+        lines = result.output.strip().splitlines()
+        assert len(lines) == 1 and "cube.ply" in lines[0] and "--method and --param" in lines[0]
+        assert not (tmp_path / "out.ply").exists()
+    result = CliRunner().invoke(cli, ["denoise", str(src), str(tmp_path / "out.ply"), "--method", "sobolev",
+                                      "--param", "mu=1"])
+    assert result.exit_code == 0, result.output  # the way out works
+
+
 def test_cli_warns_on_stderr_when_not_smoothing(tmp_path):
     V, F = icosphere(3)
     src, dst = tmp_path / "clean.ply", tmp_path / "out.ply"

@@ -13,6 +13,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..adapters import read_mesh
+from ..arrays import MeshValidationError
 from ..geometry import vertex_normals
 from ..operators import Operators, get_operators, spmm
 from .risk import colour_probes
@@ -106,7 +107,9 @@ def _normal_residual_scale(V: np.ndarray, ops: Operators, N: np.ndarray) -> tupl
     r = np.einsum("ij,ij->i", spmm(B, np.asarray(V, dtype=np.float64)), N)
     ok = (c > 1e-12) & ~ops.isolated & (np.linalg.norm(N, axis=1) > 0)
     if ok.sum() < 3:
-        raise ValueError(f"estimate_noise: the mesh has {int(ok.sum())} usable vertices; at least 3 are needed")
+        raise MeshValidationError(
+            f"estimate_noise: too small to estimate the noise: {int(ok.sum())} of its {ops.n} vertices have the "
+            "neighbourhood the estimate needs (at least 3); choose a filter and its parameters instead (--method and --param on the command line)")
     t = r[ok] / c[ok]
     mad = float(np.median(np.abs(t)) / MAD)
     if mad == 0:
@@ -130,7 +133,9 @@ def _residual_energy_scale(V: np.ndarray, ops: Operators) -> float:
     c2 = np.asarray(_squared(B).sum(axis=1)).ravel()
     ok = (c2 > 1e-24) & ~ops.isolated
     if ok.sum() < 3:
-        raise ValueError(f"estimate_noise: the mesh has {int(ok.sum())} usable vertices; at least 3 are needed")
+        raise MeshValidationError(
+            f"estimate_noise: too small to estimate the noise: {int(ok.sum())} of its {ops.n} vertices have the "
+            "neighbourhood the estimate needs (at least 3); choose a filter and its parameters instead (--method and --param on the command line)")
     R = spmm(B, np.asarray(V, dtype=np.float64))
     return float(np.sqrt(np.mean(np.sum(R[ok] ** 2, axis=1) / c2[ok])))
 
