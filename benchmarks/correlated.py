@@ -31,8 +31,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from meshdenoise.data import data_file, sample_mesh  # noqa: E402
+from tables import write_table  # noqa: E402
 from meshdenoise.io import load_arrays  # noqa: E402
 from meshdenoise.metrics import snr  # noqa: E402
 from meshdenoise.noise import add_scanner_noise, mean_edge_length  # noqa: E402
@@ -131,10 +133,7 @@ def main(argv: list[str] | None = None) -> None:
     losses = np.array([r["loss"] for r in rows])
     lines += ["", f"Rows within 1 dB of the oracle: {int(np.sum(losses <= 1.0))} of {len(rows)}; "
               f"worst loss {losses.max():.2f} dB; mean {losses.mean():.2f} dB."]
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text)
+    print(write_table(Path(args.out) if args.out else None, lines))  # atomic: never half-written
 
 
 if __name__ == "__main__":

@@ -40,6 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 from correlated import face_clean  # noqa: E402
+from tables import write_table  # noqa: E402
 
 import meshdenoise.default as default  # noqa: E402
 from meshdenoise.data import data_file, sample_mesh  # noqa: E402
@@ -224,10 +225,7 @@ def main(argv: list[str] | None = None) -> None:
         lines += default_table(rows) + [""]
     lines.append(f"Total {time.perf_counter() - start:.0f} s; load average {load_before:.1f} at the start, "
                  f"{os.getloadavg()[0]:.1f} at the end (2 cores shared).")
-    text = "\n".join(lines) + "\n"
-    print(text)
-    if args.out:
-        Path(args.out).write_text(text)
+    print(write_table(Path(args.out) if args.out else None, lines))  # atomic: never half-written
 
 
 if __name__ == "__main__":
