@@ -301,18 +301,18 @@ class Operators:
             self.cache[key] = B
         return self.cache[key]
 
-    def with_fixed_rows(self, A: sp.csr_matrix, fixed: np.ndarray | None, name: str) -> sp.csr_matrix:
-        """``A`` with the rows of ``fixed`` vertices replaced by identity rows (cached by mask).
+    def with_pinned_rows(self, A: sp.csr_matrix, pinned: np.ndarray | None, name: str) -> sp.csr_matrix:
+        """``A`` with the rows of ``pinned`` vertices replaced by identity rows (cached by mask).
 
-        Multiplying by the result leaves fixed vertices bit-identical, which is how the
+        Multiplying by the result leaves pinned vertices bit-identical, which is how the
         iterative filters impose pinned vertices as Dirichlet boundary conditions.
         """
-        if fixed is None or not fixed.any():
+        if pinned is None or not pinned.any():
             return A
-        key = ("fixed_rows", name, mask_key(fixed))
+        key = ("pinned_rows", name, mask_key(pinned))
         if key not in self.cache:
-            free = (~fixed).astype(np.float64)
-            B = sp.diags(free) @ A + sp.diags(fixed.astype(np.float64))
+            free = (~pinned).astype(np.float64)
+            B = sp.diags(free) @ A + sp.diags(pinned.astype(np.float64))
             B = sp.csr_matrix(B)
             B.eliminate_zeros()
             self.cache[key] = B

@@ -878,7 +878,7 @@ def ot_denoise(
     measure="uniform",
     debias=True,
     steps=1,
-    fixed=None,
+    pinned=None,
     stopThr=1e-10,
     numItermax=500,
     cache=None,
@@ -904,7 +904,7 @@ def ot_denoise(
         X \leftarrow 2\,TX - T(TX) = X - (I - T)^2 X,
 
     which removes the first-order shrinkage (blur) of :math:`T`.
-    Vertices in ``fixed`` are reset to their input position after each
+    Vertices in ``pinned`` are reset to their input position after each
     iteration; with ``measure="area"`` a vertex of zero area (isolated, or
     only in degenerate faces) carries no mass and stays put.
     Since :math:`T1 = 1` the result is translation equivariant.
@@ -931,7 +931,7 @@ def ot_denoise(
         Apply the twicing correction.
     steps : int
         Backward-Euler substeps of the heat kernel (:class:`MeshHeatKernel`).
-    fixed : array_like of bool, shape (n,), optional
+    pinned : array_like of bool, shape (n,), optional
         Vertices that must not move.
     stopThr, numItermax
         Tolerance and iteration cap of the Sinkhorn scaling.
@@ -973,10 +973,10 @@ def ot_denoise(
         raise TypeError(f"debias must be True or False, got {debias!r}")
     steps = _positive_int("steps", steps)
     n = V.shape[0]
-    if fixed is not None:
-        fixed = np.asarray(fixed)
-        if fixed.shape != (n,) or fixed.dtype != bool:
-            raise ValueError(f"fixed must be a bool array of shape ({n},), got {fixed.dtype} {fixed.shape}")
+    if pinned is not None:
+        pinned = np.asarray(pinned)
+        if pinned.shape != (n,) or pinned.dtype != bool:
+            raise ValueError(f"pinned must be a bool array of shape ({n},), got {pinned.dtype} {pinned.shape}")
     if cache is None:
         cache = {}
     X0 = V
@@ -1009,6 +1009,6 @@ def ot_denoise(
 
         TX = T(X)
         X = 2.0 * TX - T(TX) if debias else TX
-        if fixed is not None:
-            X[fixed] = X0[fixed]
+        if pinned is not None:
+            X[pinned] = X0[pinned]
     return X

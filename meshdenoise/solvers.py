@@ -1,4 +1,4 @@
-"""Symmetric positive definite systems with Dirichlet (fixed) rows: factorised or iterative.
+"""Symmetric positive definite systems with Dirichlet (pinned) rows: factorised or iterative.
 
 The implicit filters (Sobolev, higher-order Sobolev) all solve ``A Y = X`` with
 ``A = I + (positive semi-definite)``; with pinned vertices, on the free rows only.
@@ -31,25 +31,25 @@ FACTORS_PER_FAMILY = 4  # a parameter sweep keeps only the last few factorisatio
 
 
 class DirichletSystem:
-    """``A Y = X`` on the free rows of a symmetric positive definite ``A``, with ``Y = X`` on fixed rows.
+    """``A Y = X`` on the free rows of a symmetric positive definite ``A``, with ``Y = X`` on pinned rows.
 
     Holds the reduced matrix :math:`A_{ff}` (sorted CSR, attribute ``A``) and the coupling
-    :math:`A_{fp}` that moves the fixed values to the right-hand side,
+    :math:`A_{fp}` that moves the pinned values to the right-hand side,
     :math:`A_{ff} Y_f = X_f - A_{fp} X_p`; every :math:`A_{ff}` of an SPD ``A`` is SPD.
     Subclasses solve the reduced system (a factorisation, or conjugate gradients).
     """
 
-    def __init__(self, A: sp.spmatrix, fixed: np.ndarray | None = None):
+    def __init__(self, A: sp.spmatrix, pinned: np.ndarray | None = None):
         A = sp.csr_matrix(A, dtype=np.float64)
         self.n = A.shape[0]
-        self.fixed = None if fixed is None or not fixed.any() else fixed.copy()
-        if self.fixed is None:
+        self.pinned = None if pinned is None or not pinned.any() else pinned.copy()
+        if self.pinned is None:
             self.free = None
         else:
-            self.free = np.flatnonzero(~self.fixed)
-            self._pinned = np.flatnonzero(self.fixed)
+            self.free = np.flatnonzero(~self.pinned)
+            self._pinned_rows = np.flatnonzero(self.pinned)
             A_free = A[self.free]
-            self._coupling = A_free[:, self._pinned]  # moves the pinned values to the right-hand side
+            self._coupling = A_free[:, self._pinned_rows]  # moves the pinned values to the right-hand side
             A = sp.csr_matrix(A_free[:, self.free])
         A.sort_indices()
         self.A = A
@@ -71,10 +71,10 @@ class DirichletSystem:
         """The right-hand side of the reduced system: a new C-contiguous array (solvers may write into it)."""
         if self.free is None:
             return np.array(X2, dtype=np.float64, order="C")
-        return np.ascontiguousarray(X2[self.free] - self._coupling @ X2[self._pinned])
+        return np.ascontiguousarray(X2[self.free] - self._coupling @ X2[self._pinned_rows])
 
     def _expand(self, X2: np.ndarray, out: np.ndarray) -> np.ndarray:
-        """The full solution: ``out`` on the free rows, the fixed rows of ``X2`` bit for bit."""
+        """The full solution: ``out`` on the free rows, the pinned rows of ``X2`` bit for bit."""
         if self.free is None:
             return out
         Y = X2.copy()
@@ -122,9 +122,9 @@ def _without_cholmod_warnings(build: Callable[[], Any]) -> Any:
 
 
 class SPDSolver(DirichletSystem):
-    """A sparse Cholesky factorisation (cholespy) of SPD ``A``, reduced to free rows when some are fixed.
+    """A sparse Cholesky factorisation (cholespy) of SPD ``A``, reduced to free rows when some are pinned.
 
-    Solves ``A Y = X`` on the free rows with ``Y = X`` on the fixed ones, i.e. the reduced
+    Solves ``A Y = X`` on the free rows with ``Y = X`` on the pinned ones, i.e. the reduced
     system :math:`A_{ff} Y_f = X_f - A_{fp} X_p`.
 
     Examples
@@ -135,8 +135,8 @@ class SPDSolver(DirichletSystem):
     array([3., 5., 3.])
     """
 
-    def __init__(self, A: sp.spmatrix, fixed: np.ndarray | None = None):
-        super().__init__(A, fixed)
+    def __init__(self, A: sp.spmatrix, pinned: np.ndarray | None = None):
+        super().__init__(A, pinned)
         A = self.A
         self._solver = (
             _without_cholmod_warnings(lambda: CholeskySolverD(
@@ -302,13 +302,13 @@ class CGSolver(DirichletSystem):
 
     Builds the reduced system once (``A_ff``, the coupling ``A_fp`` and ``1 / diag(A_ff)``);
     each :meth:`solve` runs :func:`block_cg` on
-    :math:`A_{ff} Y_f = X_f - A_{fp} X_p` and copies the fixed rows ``Y_p = X_p``
+    :math:`A_{ff} Y_f = X_f - A_{fp} X_p` and copies the pinned rows ``Y_p = X_p``
     unchanged (bit-identical).
 
     Parameters
     ----------
     A : scipy.sparse matrix, shape (n, n), symmetric positive definite
-    fixed : ndarray of bool, shape (n,), optional
+    pinned : ndarray of bool, shape (n,), optional
     maxiter : int, optional
         Default iteration cap of :meth:`solve` (see :func:`block_cg`).
 
@@ -327,8 +327,8 @@ class CGSolver(DirichletSystem):
     array([3., 5., 3.])
     """
 
-    def __init__(self, A: sp.spmatrix, fixed: np.ndarray | None = None, *, maxiter: int | None = None):
-        super().__init__(A, fixed)
+    def __init__(self, A: sp.spmatrix, pinned: np.ndarray | None = None, *, maxiter: int | None = None):
+        super().__init__(A, pinned)
         self.maxiter = maxiter
         A = self.A
         diag = A.diagonal()
@@ -363,14 +363,14 @@ class CGSolver(DirichletSystem):
 
 
 def cached_solver(
-    ops: Operators, family: str, param: float, fixed: np.ndarray | None, build: Callable[[], SPDSolver]
+    ops: Operators, family: str, param: float, pinned: np.ndarray | None, build: Callable[[], SPDSolver]
 ) -> SPDSolver:
-    """The solver of ``family`` for ``(param, fixed mask)`` stored on this topology, built on first use.
+    """The solver of ``family`` for ``(param, pinned mask)`` stored on this topology, built on first use.
 
     Keeps the last :data:`FACTORS_PER_FAMILY` of each family (least recently used first out).
     """
     factors = ops.cache.setdefault(family, OrderedDict())
-    key = (float(param), mask_key(fixed if fixed is not None and fixed.any() else None))
+    key = (float(param), mask_key(pinned if pinned is not None and pinned.any() else None))
     if key in factors:
         factors.move_to_end(key)
         return factors[key]
@@ -408,8 +408,23 @@ def laplacian_power(ops: Operators, order: int) -> sp.csr_matrix:
 SHIFTED_METHODS = ("cholesky", "cg")
 
 
+def shifted_matrix(ops: Operators, mu: float, order: int = 1) -> sp.csr_matrix:
+    """:math:`I + \\mu L^p` (CSR): the one place the package writes this matrix (:func:`shifted_solver`,
+    :class:`meshdenoise.plugins.sobolev.SobolevSolver`).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from meshdenoise.operators import Operators
+    >>> ops = Operators(np.array([[0, 1, 2]]), 3)
+    >>> bool(np.allclose(shifted_matrix(ops, 2.0).toarray(), np.eye(3) + 2.0 * ops.L.toarray()))
+    True
+    """
+    return sp.csr_matrix(sp.identity(ops.n, format="csr") + float(mu) * laplacian_power(ops, order))
+
+
 def shifted_solver(
-    ops: Operators, mu: float, order: int = 1, fixed: np.ndarray | None = None, method: str = "cholesky"
+    ops: Operators, mu: float, order: int = 1, pinned: np.ndarray | None = None, method: str = "cholesky"
 ) -> SPDSolver | CGSolver:
     """The solver of :math:`(I + \\mu L^p) Y = X` on this topology (pinned rows as Dirichlet data), stored on ``ops``.
 
@@ -423,7 +438,7 @@ def shifted_solver(
     mu : float, > 0
     order : int, >= 1
         The power ``p`` of ``L = D - W``.
-    fixed : ndarray of bool, shape (n,), optional
+    pinned : ndarray of bool, shape (n,), optional
         Vertices held at their input value.
     method : {"cholesky", "cg"}
         A sparse Cholesky factorisation (:class:`SPDSolver`), or Jacobi-preconditioned
@@ -446,8 +461,8 @@ def shifted_solver(
     mu = float(mu)
     cls = SPDSolver if method == "cholesky" else CGSolver
     return cached_solver(
-        ops, f"shifted-p{order}-{method}", mu, fixed,
-        lambda: cls(sp.identity(ops.n, format="csr") + mu * laplacian_power(ops, order), fixed),
+        ops, f"shifted-p{order}-{method}", mu, pinned,
+        lambda: cls(shifted_matrix(ops, mu, order), pinned),
     )
 
 

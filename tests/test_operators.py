@@ -77,10 +77,10 @@ def test_fixed_rows_are_identity_rows():
     ops = Operators(F, len(V))
     fixed = np.zeros(len(V), bool)
     fixed[[0, 5]] = True
-    B = ops.with_fixed_rows(ops.P, fixed, "P").toarray()
+    B = ops.with_pinned_rows(ops.P, fixed, "P").toarray()
     np.testing.assert_array_equal(B[fixed], np.eye(len(V))[fixed])
     np.testing.assert_array_equal(B[~fixed], ops.P.toarray()[~fixed])
-    assert ops.with_fixed_rows(ops.P, fixed, "P") is ops.with_fixed_rows(ops.P, fixed.copy(), "P")
+    assert ops.with_pinned_rows(ops.P, fixed, "P") is ops.with_pinned_rows(ops.P, fixed.copy(), "P")
 
 
 def test_operators_do_not_touch_the_callers_faces():

@@ -489,7 +489,7 @@ def test_ot_denoise_fixed_and_identity(sphere3):
     X = add_noise(V, F, 0.05)
     fixed = np.zeros(len(V), bool)
     fixed[::7] = True
-    Y = mo.ot_denoise(X, F, fixed=fixed)
+    Y = mo.ot_denoise(X, F, pinned=fixed)
     np.testing.assert_array_equal(Y[fixed], X[fixed])
     assert np.abs(Y[~fixed] - X[~fixed]).max() > 1e-3
     np.testing.assert_array_equal(mo.ot_denoise(X, F, iterations=0), X)
@@ -514,7 +514,7 @@ def test_ot_denoise_caches_graph_kernel(sphere3):
         (dict(laplacian="uniform"), ValueError, "laplacian.*'uniform'"),
         (dict(measure="volume"), ValueError, "measure.*'volume'"),
         (dict(debias=1), TypeError, "debias"),
-        (dict(fixed=np.zeros(5, bool)), ValueError, "fixed"),
+        (dict(pinned=np.zeros(5, bool)), ValueError, "pinned"),
     ],
 )
 def test_ot_denoise_bad_inputs(sphere3, kwargs, exc, match):

@@ -88,7 +88,7 @@ def averaging_operator(
         A, name = _open3d_operator(ops), "open3d"
     else:
         raise ValueError(f"weights={weights!r} has no pinned matrix; linear rules are 'uniform', 'meshlab', 'open3d'")
-    return ops.with_fixed_rows(A, pinned, name)
+    return ops.with_pinned_rows(A, pinned, name)
 
 
 LOCALITY_MIN_VERTICES = 1 << 16  # below this X fits in cache and relabelling cannot pay
@@ -127,7 +127,7 @@ def step_matrix(
         A = ops.permuted(averaging_operator(ops, weights, None, boundary), f"{weights}-{boundary}")
         pinned = None if pinned is None else pinned[order]
         if lam == 1.0:
-            return ops.with_fixed_rows(A, pinned, f"permuted-{weights}-{boundary}")
+            return ops.with_pinned_rows(A, pinned, f"permuted-{weights}-{boundary}")
     elif lam == 1.0:
         return averaging_operator(ops, weights, pinned, boundary)
     else:

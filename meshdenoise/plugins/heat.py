@@ -323,9 +323,9 @@ def _chebyshev_with_cache(ops: Operators, V: np.ndarray, pinned, time: float, to
         if permuted:  # same computation on relabelled vertices: fewer cache misses
             order = ops.locality_order
             P = ops.permuted(ops.P, "uniform-True")
-            P = ops.with_fixed_rows(P, None if pinned is None else pinned[order], "permuted-uniform-True")
+            P = ops.with_pinned_rows(P, None if pinned is None else pinned[order], "permuted-uniform-True")
         else:
-            P = ops.with_fixed_rows(ops.P, pinned, "P")
+            P = ops.with_pinned_rows(ops.P, pinned, "P")
         ops.cache[key] = ChebyshevHeat(P, upper, backend)
     run = ops.cache[key]
     if not permuted:

@@ -170,6 +170,6 @@ def sinkhorn(V, F, *, ops, pinned, t, iterations, laplacian, measure, debias, st
         measure=measure,
         debias=debias,
         steps=steps,
-        fixed=pinned,
+        pinned=pinned,
         cache=ops.cache,
     )

@@ -5,14 +5,13 @@ from __future__ import annotations
 import math
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..operators import Operators
 from ..registry import AutoRule, Param, register
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import best_shifted
-from ..solvers import SPDSolver, shifted_solver
+from ..solvers import SPDSolver, shifted_matrix, shifted_solver
 
 __all__ = ["sobolev", "SobolevSolver", "choose_sobolev", "choose_solver", "SOLVERS"]
 
@@ -70,7 +69,7 @@ class SobolevSolver(SPDSolver):
         if not mu > 0:
             raise ValueError(f"SobolevSolver: mu must be > 0, got {mu!r}")
         self.mu = float(mu)
-        super().__init__(sp.identity(ops.n, format="csr") + self.mu * ops.L, pinned)
+        super().__init__(shifted_matrix(ops, self.mu), pinned)
 
 
 def cg_iteration_cap(ops: Operators, mu: float, tol: float) -> int:

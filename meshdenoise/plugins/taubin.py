@@ -221,9 +221,9 @@ def taubin(V, F, *, ops, pinned, iterations, lam, mu, weights):
     if weights == "open3d":
         return _open3d_taubin(X, ops, pinned, iterations, lam, mu)
     if weights == "uniform":
-        A = ops.with_fixed_rows(ops.P, pinned, "P")
+        A = ops.with_pinned_rows(ops.P, pinned, "P")
     else:
-        A = ops.with_fixed_rows(meshlab_taubin_operator(ops), pinned, "meshlab_taubin")
+        A = ops.with_pinned_rows(meshlab_taubin_operator(ops), pinned, "meshlab_taubin")
     for _ in range(iterations):
         for f in (lam, mu):
             AX = A @ X

@@ -63,12 +63,12 @@ def _cholmod_snr(batches: list[NoisyBatch], mus: np.ndarray, advance=None) -> li
     :func:`~meshdenoise.solvers.shifted_solver` builds one cholespy factor per mu, with no
     symbolic reuse; tests/test_reproduce.py checks the two agree to 1e-9 dB.)
     """
-    import scipy.sparse as sp
     from sksparse.cholmod import analyze
 
-    L = sp.csc_matrix(batches[0].ops.L)
-    eye = sp.identity(L.shape[0], format="csc")
-    factor = analyze(eye + L)
+    from ..solvers import shifted_matrix
+
+    ops = batches[0].ops
+    factor = analyze(shifted_matrix(ops, 1.0).tocsc())
     X = np.hstack([b.X for b in batches])
     widths = np.cumsum([0] + [b.X.shape[1] for b in batches])
     out = [np.empty((mus.size, b.n_seeds)) for b in batches]
@@ -76,7 +76,7 @@ def _cholmod_snr(batches: list[NoisyBatch], mus: np.ndarray, advance=None) -> li
         if mu == 0:
             Y = X
         else:
-            factor.cholesky_inplace(eye + mu * L)
+            factor.cholesky_inplace(shifted_matrix(ops, mu).tocsc())
             Y = factor(X)
         for j, b in enumerate(batches):
             out[j][i] = b.snr_stack(Y[:, widths[j] : widths[j + 1]])
