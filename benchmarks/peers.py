@@ -65,7 +65,10 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 MAX_ITERS = 200  # cap of an iteration-count search read along one run
-PATIENCE = 10  # stop such a search this many iterations after the last improvement
+# Stop a run this many iterations after the last improvement of the best over the whole grid so far: a grid
+# search with early termination across a peer's settings, not meshdenoise.tuning.walk's per-run minimum (the
+# oracle walk of our filters, quality.py and features.py); kept so the committed peers tables stay reproducible.
+PATIENCE = 10
 SCANNER_RHO_EDGES = 0.5  # scanner-like noise: rms displacement along normals, in mean edge lengths
 SCANNER_CORRELATION_EDGES = 2.0  # its correlation length, in mean edge lengths
 STANDIN_STEPS = 8  # lazy random-walk steps of the stand-in (about 2 edge lengths, see correlated_normal_noise)
@@ -628,12 +631,8 @@ def run_ours(method: str | None, V0: np.ndarray, F: np.ndarray, Vn: np.ndarray) 
 
 
 def _has_rule(spec: Any) -> bool:
-    """Whether a registered filter has an automatic rule (``FilterSpec.auto``; older code: ``auto.AUTO_METHODS``)."""
-    if hasattr(spec, "auto"):
-        return spec.auto is not None
-    from meshdenoise.auto import AUTO_METHODS  # before the rules moved into the plugins (issue 16)
-
-    return spec.name in AUTO_METHODS
+    """Whether a registered filter has an automatic rule (``FilterSpec.auto``, declared at registration)."""
+    return spec.auto is not None
 
 
 def our_methods() -> list[str]:
