@@ -1506,14 +1506,15 @@ def _ply_element_bytes(count: int, props, values: dict, binary: bool) -> tuple[l
                 fields.append((p, "<" + t))
             else:
                 fields += [(p + "#count", "<" + t[0]), (p, "<" + t[1], (values[p].shape[1],))]
+        if not binary:  # ASCII has no count type: the vertex and face tables' writer
+            columns = [(p, t, None) if isinstance(t, str) else (p, t[1], values[p].shape[1]) for p, t in props]
+            return head, _ply_table_bytes(columns, values, count, binary=False)
         rec = np.zeros(count, np.dtype(fields))
         for p, t in props:
             rec[p] = values[p]
             if not isinstance(t, str):
                 rec[p + "#count"] = values[p].shape[1]
-        if binary:
-            return head, rec.tobytes()
-        cols = [(f, rec.dtype[f].base.str[1:], rec[f].reshape(count, -1)) for f in rec.dtype.names]
+        return head, rec.tobytes()
     else:  # lists of varying length (a range grid: 0 or 1 vertex per cell): record by record
         pieces = []
         for i in range(count):
@@ -1535,13 +1536,6 @@ def _ply_element_bytes(count: int, props, values: dict, binary: bool) -> tuple[l
                 t, a = piece
                 words += [_ASCII_FORMAT.get(t, "%d") % v for v in a.astype(t).tolist()]
         return head, "".join(line + "\n" for line in lines).encode()
-    out = []
-    for i in range(count):
-        words = []
-        for _, t, A in cols:
-            words += [_ASCII_FORMAT.get(t, "%d") % v for v in A[i].tolist()]
-        out.append(" ".join(words) + "\n")
-    return head, "".join(out).encode()
 
 
 def _write_ply(fh, V, F, C, binary, extras: PlyExtras | None = None):
@@ -1574,9 +1568,7 @@ def _write_ply(fh, V, F, C, binary, extras: PlyExtras | None = None):
             head += [f"element vertex {len(V)}"] + _ply_columns(vcols)[0]
             blocks.append(_ply_table_bytes(vcols, vdata, len(V), binary))
         elif name == "face":
-            lines = _ply_columns(fcols)[0]
-            lines[0] = "property list uchar int vertex_indices"
-            head += [f"element face {len(F)}"] + lines
+            head += [f"element face {len(F)}"] + _ply_columns(fcols)[0]
             blocks.append(_ply_table_bytes(fcols, fdata, len(F), binary))
         else:
             lines, data = _ply_element_bytes(count, props, values, binary)
