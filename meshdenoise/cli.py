@@ -113,6 +113,9 @@ def filters_json() -> dict:
          "help": "choose the filter's parameters from the mesh"},
         {"name": "boundary_motion", "type": "str", "default": "free", "range": "free or normal",
          "help": "normal: vertices on open borders move along their normals only (no inward shrinking)"},
+        {"name": "noise", "type": "str|float", "default": None, "range": "RHO[h][,L], RHO >= 0, L >= 0",
+         "help": "the noise level to choose parameters for instead of the estimate (with parameters: auto): RHO in "
+                 "mesh units or in mean edge lengths with h, L the correlation length in mean edge lengths"},
     ]
     # the denoise step (the default) takes our filters' options except `parameters`, with borders along normals
     denoise_options = [{**o, "default": "normal"} if o["name"] == "boundary_motion" else o

@@ -191,9 +191,12 @@ def _print_rows(rows: list[dict]) -> None:
 @click.option("--boundary-motion", type=click.Choice(["normal", "free"]), default="normal", show_default=True,
               help="normal: vertices on open borders move along their normals only, so borders do not shrink inward; "
                    "free: as the filter moves them.")
+@click.option("--noise", "noise", default=None, metavar="RHO[h][,L]",
+              help="The noise level to choose for, instead of the estimate: RHO in mesh units, or in mean edge lengths "
+                   "with h (0.4h); L its correlation length in mean edge lengths (0.4h,2). With no --method, or with --auto.")
 @click.option("--dry-run", is_flag=True, help="Only print the noise estimate and what would be chosen; write nothing.")
 def denoise_command(input_path, output_path, method, params, pinned, region_from_selection, preserve_volume, auto,
-                    boundary_motion, dry_run):
+                    boundary_motion, noise, dry_run):
     """Denoise the mesh IN and write OUT (PLY, OBJ, OFF or STL; colours kept).
 
     With no --method the filter and its parameters are chosen from the mesh alone and
@@ -218,6 +221,17 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
     if auto and method is not None:
         given["parameters"] = "auto"
     given["boundary_motion"] = boundary_motion
+    if noise is not None:
+        from ..pipeline.noise_option import parse_noise_option
+
+        if method is not None and not auto:
+            _fail(f"--noise {noise}: the noise level is used only to choose parameters: add --auto, or drop --method "
+                  "(the default chooses the filter and its parameters for that level)", 2)
+        try:
+            parse_noise_option(noise, "--noise")  # said here with the option's name; the step reads it again
+        except ValueError as exc:
+            _fail(str(exc), 2)
+        given["noise"] = noise
     src = Path(input_path)
     if not src.is_file():
         _fail(f"{src}: no such file", 2)
@@ -281,28 +295,31 @@ def _dry_run(src: Path, method: str | None, given: dict) -> None:
         _fail(str(exc), 2)
     arrays = (mesh.V, mesh.F)
     try:
+        from ..pipeline.noise_option import parse_noise_option
+
+        known = parse_noise_option(given["noise"]).model(mesh.V, mesh.F) if "noise" in given else None
         if method is None:
             from ..default import choose_default
 
-            choice = choose_default(arrays, boundary_motion=given.get("boundary_motion", "normal"))
+            choice = choose_default(arrays, noise=known, boundary_motion=given.get("boundary_motion", "normal"))
             lines = choice.lines()
         else:
             from ..operators import get_operators
+            from ..pipeline.steps import COMMON
             from ..registry import get_filter
             from ..tuning import choose_parameters, estimate_noise_model
             from ..tuning.noise_level import mean_edge_length
 
             spec = get_filter(method)
             h = mean_edge_length(mesh.V, get_operators(mesh.F, mesh.V.shape[0]))
-            model = estimate_noise_model(arrays)
+            model = known if known is not None else estimate_noise_model(arrays)
             rho = model.rho
-            own = {k: v for k, v in given.items() if k not in ("pinned", "region", "preserve_volume", "parameters",
-                                                               "boundary_motion")}
+            own = {k: v for k, v in given.items() if k not in COMMON}
             if given.get("parameters") == "auto" and spec.auto is not None:
                 own = choose_parameters(arrays, method, noise=model, **own)
             settings = spec.resolve(own, f"--method '{method}'")
             spread = (f"correlated over {model.correlation_length:.3g} edge lengths" if model.correlated
-                      else "independent")
+                      else "independent") + ("; given by --noise" if known is not None else "")
             lines = [f"noise: {rho:.4g} ({rho / h:.3g} mean edge lengths; mean edge {h:.4g}; {spread})",
                      f"method: {method} ({', '.join(f'{k}={v!r}' for k, v in settings.items())})"]
     except KeyError as exc:

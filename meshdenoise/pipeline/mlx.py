@@ -24,6 +24,7 @@ from typing import Any
 
 from .meshlab_names import FILTERS
 from .pymeshlab_steps import PERCENT, check_value, filter_names, parameter_types
+from .steps import COMMON
 
 __all__ = ["mlx_to_steps", "steps_to_mlx", "OURS_PREFIX", "pythonize", "pymeshlab_name", "NO_SCRIPT_FORM"]
 
@@ -326,7 +327,7 @@ def _our_param(spec, key: str, value: Any, k: int, name: str) -> dict:
             raise ScriptStepError(k, f"step {k} '{name}': {exc}") from None
         kind = param.kind
     else:
-        if key not in ("pinned", "region", "preserve_volume", "parameters", "boundary_motion"):
+        if key not in COMMON:
             known = ", ".join(p.name for p in spec.params)
             raise ScriptStepError(k, f"step {k} '{name}': unknown parameter {key!r}; its parameters: {known}")
         if isinstance(value, (list, dict)) or value is None:

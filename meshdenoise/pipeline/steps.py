@@ -23,6 +23,7 @@ from ..progress import stage
 from ..registry import MAX_ITERATIONS, FilterSpec, Param, get_filter, list_filters
 from . import pymeshlab_steps
 from .errors import PipelineValidationError, where
+from .noise_option import parse_noise_option
 from .state import MeshState
 
 __all__ = ["Step", "parse_step", "run_step", "RunContext", "BUILTIN_STEPS", "OPEN3D_OPS", "step_names", "describe_steps", "describe_pymeshlab_step"]
@@ -63,7 +64,7 @@ BUILTIN_STEPS: dict[str, list[Param]] = {
     "metrics": [],  # checked by _check_metrics, described by METRICS_DOC
     "render": [],  # checked by _check_render, described by RENDER_DOC
 }
-COMMON = {"pinned", "region", "preserve_volume", "parameters", "boundary_motion"}
+COMMON = {"pinned", "region", "preserve_volume", "parameters", "boundary_motion", "noise"}
 RESERVED = {"label"}
 
 
@@ -78,7 +79,7 @@ class Step:
     label: str | None
     source: str
     line: int | None
-    options: dict = field(default_factory=dict)  # pinned / region / preserve_volume / parameters / boundary_motion
+    options: dict = field(default_factory=dict)  # pinned / region / preserve_volume / parameters / boundary_motion / noise
     notes: list = field(default_factory=list)  # things worth telling (a MeshLab GUI name was used...)
 
     @property
@@ -157,6 +158,11 @@ def _filter_options(given: dict, at: str, allowed: tuple[str, ...] = tuple(sorte
             if value != "auto":
                 raise PipelineValidationError(f"{at}: parameters: only 'auto' is understood, got {value!r}")
             options[key] = value
+        elif key == "noise":
+            try:
+                options[key] = parse_noise_option(value, f"{at}: noise")
+            except ValueError as exc:
+                raise PipelineValidationError(str(exc)) from None
     return options, rest
 
 
@@ -164,6 +170,9 @@ def _our_filter(index, name, given, label, source, line) -> Step:
     spec = get_filter(name)
     at = _step_at(source, line, index, name)
     options, rest = _filter_options(given, at)
+    if "noise" in options and options.get("parameters") != "auto":
+        raise PipelineValidationError(f"{at}: noise: the noise level is used only to choose parameters: add "
+                                      "'parameters: auto' (--auto), or leave noise out")
     try:
         if options.get("parameters") == "auto":
             spec.resolve(rest, at)  # explicit values are still checked; auto fills the others
@@ -202,6 +211,8 @@ OURS_OPTIONS_DOC = (
     ("preserve_volume", "bool", False, "rescale so the enclosed volume equals the input's"),
     ("parameters", "auto", None, "choose the parameters not written automatically (recorded in the results as auto.*)"),
     ("boundary_motion", "free | normal", "free", "normal: open borders move along their normals only (no inward shrinking)"),
+    ("noise", "RHO[h][,L]", None, "the noise level to choose parameters for, instead of the estimate: RHO in mesh units "
+     "or in mean edge lengths with h (0.4h), L its correlation length in mean edge lengths (with parameters: auto)"),
 )
 
 
@@ -423,12 +434,12 @@ def _parse(name, given, index, label, source, line, at_param) -> Step:
             raise _unknown_step(name, at)
         return Step(index, name, "open3d", _check_params(OPEN3D_OPS[op], given, at), label, source, line)
     if name == "denoise":
-        options, rest = _filter_options(given, at, ("pinned", "region", "preserve_volume", "boundary_motion"))
+        options, rest = _filter_options(given, at, ("pinned", "region", "preserve_volume", "boundary_motion", "noise"))
         if rest:
             key = next(iter(rest))
             raise PipelineValidationError(
                 f"{at_param(key)}: unknown parameter '{key}': denoise chooses the filter and its parameters "
-                "(its options: pinned, region, preserve_volume, boundary_motion); to set a filter's parameters, "
+                "(its options: pinned, region, preserve_volume, boundary_motion, noise); to set a filter's parameters, "
                 "use the filter as the step"
             )
         options.setdefault("boundary_motion", "normal")
@@ -585,14 +596,16 @@ def _run_ours(step: Step, ctx: RunContext) -> None:
     spec = get_filter(step.name)
     state = ctx.state
     params = dict(step.params)
-    options = {k: v for k, v in step.options.items() if k != "parameters"}
+    options = {k: v for k, v in step.options.items() if k not in ("parameters", "noise")}
     for key in ("pinned", "region"):
         if key in options:
             options[key] = _vertex_option(options[key], state, key)
     if step.options.get("parameters") == "auto":
         from ..auto import choose_parameters  # written separately; imported only when used
 
-        chosen = choose_parameters(state.arrays(), method=step.name)
+        given_noise = step.options.get("noise")
+        noise = given_noise.model(state.V, state.F) if given_noise is not None else None
+        chosen = choose_parameters(state.arrays(), method=step.name, noise=noise)
         chosen = {**chosen, **params}  # values written in the pipeline win
         params = spec.resolve(chosen, step.where)
         for k, v in params.items():
@@ -615,7 +628,9 @@ def _run_default(step: Step, ctx: RunContext) -> None:
     for key in ("pinned", "region"):
         if key in options:
             options[key] = _vertex_option(options[key], state, key)
-    choice = choose_default(state.arrays(), boundary_motion=options.get("boundary_motion", "normal"))
+    given_noise = options.pop("noise", None)
+    noise = given_noise.model(state.V, state.F) if given_noise is not None else None
+    choice = choose_default(state.arrays(), noise=noise, boundary_motion=options.get("boundary_motion", "normal"))
     if ctx.echo:  # the choice is said before the filter runs
         for line in choice.lines():
             ctx.echo(f"{ctx.input_path.name}: {line}")

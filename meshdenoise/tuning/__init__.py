@@ -18,7 +18,7 @@ and is registered with it, ``register(..., auto=AutoRule(...))``):
 - :mod:`~meshdenoise.tuning.memo`: the bounded memo of repeated solves.
 """
 
-from .choose import auto_filters, choose_parameters
+from .choose import auto_filters, choose_parameters, given_noise_model
 from .context import TuningContext
 from .covariance import NoiseModel, estimate_noise_model
 from .noise_level import estimate_noise
@@ -29,6 +29,7 @@ from .walk import Walk, walk
 __all__ = [
     "choose_parameters",
     "auto_filters",
+    "given_noise_model",
     "estimate_noise",
     "estimate_noise_model",
     "NoiseModel",

@@ -164,9 +164,44 @@ def choose_parameters(
     return (params, float(point.score)) if return_risk else params
 
 
+def given_noise_model(mesh: Any, rho: float, correlation_length: float = 0.0) -> NoiseModel:
+    """The :class:`~meshdenoise.tuning.covariance.NoiseModel` of a known level and correlation length on a mesh.
+
+    A correlated model's heat filter is built on the mesh smoothed by SURE-chosen averaging,
+    as :func:`~meshdenoise.tuning.covariance.estimate_noise_model` builds it, so a model given
+    by the user and an estimated one colour their probes the same way.
+
+    Parameters
+    ----------
+    mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
+        The noisy mesh.
+    rho : float
+        Noise level along the normals (mesh units, rms over vertices), >= 0.
+    correlation_length : float
+        In mean edge lengths, >= 0 (0: independent noise).
+
+    Returns
+    -------
+    NoiseModel
+
+    Examples
+    --------
+    >>> from meshdenoise.shapes import icosphere
+    >>> V, F = icosphere(2)
+    >>> m = given_noise_model((V, F), 0.01, 2.0)
+    >>> m.rho, m.correlation_length, m.V.shape == V.shape
+    (0.01, 2.0, True)
+    """
+    for name, value in (("rho", rho), ("correlation_length", correlation_length)):
+        if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, float, np.integer, np.floating)):
+            raise TypeError(f"given_noise_model: {name} must be a number, got {value!r}")
+        if not (math.isfinite(value) and value >= 0):
+            raise ValueError(f"given_noise_model: parameter {name!r} = {value!r} is out of range: {name} >= 0")
+    data = read_mesh(mesh)
+    return _with_length(float(rho), float(correlation_length), data.V, get_operators(data.F, data.V.shape[0]))
+
+
 def _with_length(rho: float, ell: float, V: np.ndarray, ops: Any) -> NoiseModel:
-    """A noise model of a given level and correlation length; a correlated one's heat filter is built on
-    the mesh smoothed by SURE-chosen averaging (as :func:`estimate_noise_model` does)."""
     if ell == 0 or rho == 0:
         return NoiseModel(rho)
     return NoiseModel(rho, ell, sure_smoothed(V, ops, rho).X, ops.F)
