@@ -168,11 +168,32 @@ def fit_vertices_to_normals(
     return X
 
 
+def restore_tangential(X: np.ndarray, Y: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """``x_i + (I - u_i u_i^T)(y_i - x_i)``, ``u_i`` the unit sum of the unit face normals of ``X`` at vertex i.
+
+    A vertex whose normal sum is zero (on no face) stays. Written with ``np.add.at``, one
+    corner at a time, as a check of the compiled ``restore_tangential``.
+    """
+    N = face_normals(X, F)
+    U = np.zeros_like(X)
+    for k in range(3):
+        np.add.at(U, F[:, k], N)
+    norm = np.linalg.norm(U, axis=1)
+    moved = norm > 0
+    U[moved] /= norm[moved, None]
+    R = Y - X
+    along = np.einsum("ij,ij->i", R, U)
+    out = X.copy()
+    out[moved] += (R - along[:, None] * U)[moved]
+    return out
+
+
 def reference_two_stage(V, F, *, fixed=None, iterations=3, normal_iterations=10, vertex_iterations=10, sigma_r=0.35,
-                        sigma_s=1.0, guidance="guided"):
-    """The old ``two_stage`` core, unchanged but for building its own neighbourhood."""
+                        sigma_s=1.0, guidance="guided", keep_tangential=False):
+    """The old ``two_stage`` core, unchanged but for building its own neighbourhood (and ``keep_tangential``)."""
     nb = FaceNeighbourhood(F, V.shape[0])
     X = np.array(V, dtype=np.float64)
+    Y = X.copy()
     if F.shape[0] == 0:
         return X
     for _ in range(iterations):
@@ -188,4 +209,6 @@ def reference_two_stage(V, F, *, fixed=None, iterations=3, normal_iterations=10,
             guided=guidance == "guided",
         )
         X = fit_vertices_to_normals(X, F, N, vertex_iterations, fixed)
+        if keep_tangential:
+            X = restore_tangential(X, Y, F)
     return X

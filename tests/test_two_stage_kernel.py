@@ -121,6 +121,9 @@ def test_vertex_update_matches_the_numpy_code(mesh):
         {"iterations": 2, "guidance": "bilateral", "sigma_r": 0.5, "sigma_s": 2.0},
         {"iterations": 1, "normal_iterations": 0, "vertex_iterations": 3},
         {"iterations": 2, "normal_iterations": 3, "vertex_iterations": 0},
+        # several outer iterations on the run's shared buffers (normals swapped with the passes' output)
+        {"iterations": 3, "normal_iterations": 4, "vertex_iterations": 5, "keep_tangential": True},
+        {"iterations": 3, "normal_iterations": 3, "vertex_iterations": 4, "guidance": "bilateral", "keep_tangential": True},
     ],
 )
 def test_two_stage_matches_the_numpy_code(mesh, params):

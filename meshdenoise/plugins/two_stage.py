@@ -53,11 +53,12 @@ class FaceNeighbourhood:
         from .. import kernels
 
         kernels.set_threads()
-        F = np.array(F, dtype=np.int64, order="C")
+        F = np.require(F, dtype=np.int64, requirements=["C", "W"])  # read only: no copy of an int64 C array
         m = F.shape[0]
         self.m = m
         # ties between patches go to the least label: the face's index in the caller's order
-        self.label = np.arange(m, dtype=np.int64) if label is None else np.array(label, dtype=np.int64)
+        # (an int64 label is kept, not copied: the caller's face_order)
+        self.label = np.arange(m, dtype=np.int64) if label is None else np.require(label, dtype=np.int64, requirements=["C"])
         self.indptr, self.indices = kernels.face_neighbour_lists(F, n)
         # faces sharing an edge: consecutive face sides of the same undirected edge, sides in the
         # caller's face order (which pairs an edge of 3 or more sides makes depends on it)
@@ -72,13 +73,16 @@ class FaceNeighbourhood:
         key = np.minimum(a, b) * np.int64(n) + np.maximum(a, b)
         del Fc, a, b
         order = np.argsort(key, kind="stable")
-        same = key[order][1:] == key[order][:-1]
+        key = key[order]
+        same = key[1:] == key[:-1]
         del key
+        edge_dtype = np.int32 if m < 2**31 - 1 else np.int64
         self.edge_a = order[:-1][same] // 3
         self.edge_b = order[1:][same] // 3
         del order, same
         if back is not None:
             self.edge_a, self.edge_b = back[self.edge_a], back[self.edge_b]
+        self.edge_a, self.edge_b = self.edge_a.astype(edge_dtype), self.edge_b.astype(edge_dtype)
         self.patch_ptr, self.patch_edge = kernels.patch_edge_lists(self.indptr, self.indices, self.edge_a, self.edge_b)
 
     @property
@@ -126,10 +130,14 @@ def _quantisation(H: np.ndarray) -> float:
 
 
 class _GuidanceBuffers:
-    """Scratch arrays of the guided filter, (m, 3) and (m,) and (E,), allocated once per run."""
+    """Scratch arrays of the guided filter, (m, 3) and (m,) and (E,), allocated once per run.
 
-    def __init__(self, nb: FaceNeighbourhood):
-        self.g = np.empty((nb.m, 3))
+    ``g`` (the patch means, (m, 3)) is needed only inside :meth:`guidance`: a caller may set it
+    to an (m, 3) array of its own that is dead at that time (the next pass's output) instead.
+    """
+
+    def __init__(self, nb: FaceNeighbourhood, g: np.ndarray | None = None):
+        self.g = np.empty((nb.m, 3)) if g is None else g
         self.H = np.empty(nb.m)
         self.phi = np.empty(nb.edge_a.size)
 
@@ -207,18 +215,25 @@ def bilateral_normals(
     return _bilateral_passes(N, areas, nb, S, sigma_r, iterations, guided)
 
 
-def _bilateral_passes(N, areas, nb, S, sigma_r, iterations, guided):
-    """The passes of :func:`bilateral_normals` on spatial weights ``S``; ``N`` is overwritten (returns the result)."""
+def _bilateral_passes(N, areas, nb, S, sigma_r, iterations, guided, out=None, G=None, buffers=None):
+    """The passes of :func:`bilateral_normals` on spatial weights ``S``; ``N`` is overwritten (returns the result).
+
+    Scratch: ``out`` and ``G`` (m, 3) and the guided filter's ``buffers``, allocated here when
+    not given. The result is ``N`` or ``out``. The patch means ``g`` live in the ``out`` of
+    each pass (dead until the pass writes it), so a guided pass needs three (m, 3) arrays.
+    """
     from .. import kernels
 
     if iterations == 0:
         return N
-    out = np.empty_like(N)
-    buffers = _GuidanceBuffers(nb) if guided else None
-    G = np.empty_like(N) if guided else N
+    out = np.empty_like(N) if out is None else out
+    if guided:
+        buffers = _GuidanceBuffers(nb, g=out) if buffers is None else buffers
+        G = np.empty_like(N) if G is None else G
     denom = 2.0 * sigma_r**2
     for _ in range(iterations):
         if guided:
+            buffers.g = out  # dead until bilateral_pass writes it below
             buffers.guidance(N, areas, nb, G)
         else:
             G = N
@@ -290,8 +305,9 @@ class _TwoStageTopology:
 
     @property
     def nbytes(self) -> int:
-        arrays = (self.vertex_order, self.face_order, self.F, self.corner_ptr, self.corners)
-        return self.nb.nbytes + sum(a.nbytes for a in arrays)
+        arrays = (self.vertex_order, self.F, self.corner_ptr, self.corners)
+        own = 0 if self.face_order is self.nb.label else self.face_order.nbytes  # shared with nb.label
+        return self.nb.nbytes + own + sum(a.nbytes for a in arrays)
 
 
 def _two_stage_topology(ops: Operators) -> _TwoStageTopology:
@@ -820,9 +836,14 @@ def outer_iterates(
     X = np.ldexp(gather_rows(X, topo.vertex_order), -k)  # relabelled vertices, a new array
     Y = X.copy() if keep_tangential else None
     m = F.shape[0]
-    N, areas, C = np.empty((m, 3)), np.empty(m), np.empty((m, 3))
+    guided = guidance == "guided"
+    # per run, reused by every outer iteration: three (m, 3) arrays in all. C holds the centroids,
+    # then (dead once S is made) the guidance normals of the passes, then fit_vertices' centroids;
+    # out holds each pass's output and, before it, the guided filter's patch means
+    N, areas, C, out = np.empty((m, 3)), np.empty(m), np.empty((m, 3)), np.empty((m, 3))
     S = np.empty(nb.indices.size)  # spatial weights of the face pairs, per outer iteration
-    sums = np.empty(m)
+    buffers = _GuidanceBuffers(nb, g=out) if guided and normal_iterations > 0 else None
+    sums = buffers.H if buffers is not None else np.empty(m)  # H is written by the passes, after the sums are used
     scale = _fit_scale(topo.corner_ptr, None if pinned is None else pinned[topo.vertex_order])
 
     def caller_order() -> np.ndarray:
@@ -839,8 +860,10 @@ def outer_iterates(
             break
         done += 1
         kernels.spatial_weights(C, areas, nb.indptr, nb.indices, 2.0 * (sigma_s * spacing) ** 2, S)
-        Nf = _bilateral_passes(N, areas, nb, S, sigma_r, normal_iterations, guidance == "guided")
+        Nf = _bilateral_passes(N, areas, nb, S, sigma_r, normal_iterations, guided, out=out, G=C, buffers=buffers)
+        spare = out if Nf is N else N
         kernels.fit_vertices(X, F, Nf, topo.corner_ptr, topo.corners, scale, int(vertex_iterations), C)
+        N, out = Nf, spare  # the next iteration's face normals overwrite the filtered ones (used up)
         if keep_tangential:  # pinned vertices sit at Y: they get back nothing and stay bit for bit
             kernels.face_geometry(X, F, N, areas, C)
             kernels.restore_tangential(X, Y, N, topo.corner_ptr, topo.corners)
