@@ -236,37 +236,6 @@ def bilateral_pass(N, G, S, indptr, indices, denom, out):  # pragma: no cover - 
         unit_into(out, i, s0, s1, s2)
 
 
-@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
-def bilateral_pass_inline(N, G, C, A, indptr, indices, denom_s, denom, out):  # pragma: no cover - compiled
-    """:func:`bilateral_pass` with the spatial weights computed on the fly, no ``S`` array (nnz,) held.
-
-    ``S_ij = A_j exp(-|c_i - c_j|^2 / denom_s)`` as :func:`spatial_weights` computes it, then the
-    same product as :func:`bilateral_pass`: the result is bit for bit the same, at one more
-    ``exp`` per face pair and pass (8 bytes per face pair less: 80 MB on a 400k-vertex mesh).
-    """
-    m = N.shape[0]
-    for i in prange(m):
-        s0 = 0.0
-        s1 = 0.0
-        s2 = 0.0
-        for k in range(indptr[i], indptr[i + 1]):
-            j = indices[k]
-            c0 = C[i, 0] - C[j, 0]
-            c1 = C[i, 1] - C[j, 1]
-            c2 = C[i, 2] - C[j, 2]
-            rs2 = c0 * c0 + c1 * c1 + c2 * c2
-            sk = A[j] * np.exp(-rs2 / denom_s) if rs2 != 0.0 else A[j]
-            d0 = G[i, 0] - G[j, 0]
-            d1 = G[i, 1] - G[j, 1]
-            d2 = G[i, 2] - G[j, 2]
-            r2 = d0 * d0 + d1 * d1 + d2 * d2
-            w = sk * np.exp(-r2 / denom) if r2 != 0.0 else sk
-            s0 += w * N[j, 0]
-            s1 += w * N[j, 1]
-            s2 += w * N[j, 2]
-        unit_into(out, i, s0, s1, s2)
-
-
 # --------------------------------------------------------------------------- vertex update
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def fit_vertices(X, F, N, corner_ptr, corners, scale, iterations, C):  # pragma: no cover - compiled
