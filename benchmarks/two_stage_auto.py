@@ -6,7 +6,7 @@ outer iterations only, other parameters at their defaults, reimplemented here as
 with the time of the choice); the generic oracle (``criterion="oracle"``: the same staged
 search on the whole mesh, scored by squared position error against the clean mesh); and the
 normal-error oracle: the least mean face-normal error over the rule's whole grid
-(``TWO_STAGE_SIGMA_R`` x ``TWO_STAGE_NORMAL_ITERATIONS`` x 10 and 20 vertex steps
+(``TWO_STAGE_SIGMA_R`` x ``TWO_STAGE_NORMAL_ITERATIONS`` x 10, 20 and 40 vertex steps
 x 1..``TWO_STAGE_MAX_ITERATIONS`` outer iterations, ``keep_tangential`` as the rule sets it),
 with the SNR-best of that grid beside it. Columns: mean face-normal error (deg), SNR (dB), time (s).
 
@@ -42,7 +42,7 @@ from meshdenoise.tuning.search import sure_smoothed
 
 PAIRS = ("Fandisk0.3", "Block0.4", "Twelve0.5Impulsive", "Bunny0.2")
 SMOOTH = ("bunny 0.5%", "elephant rho=0.015")
-GRID_VERTEX_ITERATIONS = ts.TWO_STAGE_ORACLE_VERTEX_ITERATIONS  # the grid oracles: 10 and 20 (the rule now tries 20 only)
+GRID_VERTEX_ITERATIONS = ts.TWO_STAGE_ORACLE_VERTEX_ITERATIONS  # the grid oracles: 20, 10 and 40 (the rule tries 20 and 40; sigma_s 1 only)
 
 
 def load_row(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
