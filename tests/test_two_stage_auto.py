@@ -312,3 +312,20 @@ def test_guard_lighter_run_is_taken_on_a_detailed_smooth_scan_and_lowers_the_tru
     out = {name: apply_filter("two_stage", (Vn, F), **p)[0] for name, p in (("guarded", guarded), ("plain", plain))}
     assert snr(V, out["guarded"]) > snr(V, out["plain"]) + 1.0
     assert normal_error_deg((V, F), out["guarded"]) < normal_error_deg((V, F), out["plain"])
+
+
+def test_a_lighter_run_sets_sigma_s_unless_it_is_given(monkeypatch):
+    """The guard's lighter runs may change sigma_s (the rule returns it, 1.0 by default); a given
+    sigma_s is held by them (their other changes still apply). The guard is made to accept every lighter point
+    (margins -inf) so that the plumbing, not the criterion, is under test."""
+    V, Vn, F, rho = noisy_box()
+    monkeypatch.setattr(ts, "TWO_STAGE_GUARD_MARGIN", -np.inf)
+    monkeypatch.setattr(ts, "TWO_STAGE_GUARD_LIGHTER_GAIN", -np.inf)
+    monkeypatch.setattr(ts, "TWO_STAGE_GUARD_LIGHTER", ({"vertex_iterations": 3, "sigma_s": 0.6},))
+    free = choose_parameters((Vn, F), "two_stage", noise=rho)
+    assert free["sigma_s"] == 0.6 and free["vertex_iterations"] == 3
+    held = choose_parameters((Vn, F), "two_stage", noise=rho, sigma_s=1.3)
+    assert held["sigma_s"] == 1.3 and held["vertex_iterations"] == 3  # the given value, returned as given
+    # nothing lighter to try: sigma_s is the filter's default
+    monkeypatch.setattr(ts, "TWO_STAGE_GUARD_LIGHTER", ())
+    assert choose_parameters((Vn, F), "two_stage", noise=rho)["sigma_s"] == 1.0
