@@ -49,10 +49,13 @@ from .progress import stage
 from .registry import COMMON_OPTIONS, apply_filter, get_filter
 from .tuning.choose import choose_parameters
 from .tuning.covariance import NoiseModel, estimate_noise_model
+from .tuning.detail import BANDS as DETAIL_BANDS
+from .tuning.detail import ELL_GRID as DETAIL_LENGTHS
+from .tuning.detail import DetailVerdict, separate_detail
 from .tuning.noise_level import mean_edge_length
 
 __all__ = ["DefaultChoice", "FeatureTest", "choose_default", "denoise", "detect_features", "feature_risk",
-           "SMOOTH_METHOD", "FEATURE_METHOD"]
+           "noise_policy", "SMOOTH_METHOD", "FEATURE_METHOD"]
 
 log = logging.getLogger("meshdenoise.auto")
 
@@ -195,6 +198,11 @@ class DefaultChoice:
         Time taken to decide.
     caveats : list of str
         What the estimate cannot tell (printed as ``note:`` lines).
+    verdict : str
+        Surface detail or noise (:func:`~meshdenoise.tuning.detail.separate_detail`): ``"noise"``,
+        ``"detail"`` or ``"ambiguous"``; ``"given"`` when the noise was given, ``""`` when not read.
+    rho_range : tuple of float
+        The noise levels (mesh units) the band spectrum allows, (low, high); NaN when not read.
     """
 
     method: str
@@ -207,6 +215,8 @@ class DefaultChoice:
     reasons: list[str] = field(default_factory=list)
     seconds: float = 0.0
     caveats: list[str] = field(default_factory=list)
+    verdict: str = ""
+    rho_range: tuple[float, float] = (float("nan"), float("nan"))
 
     @property
     def noise_in_edges(self) -> float:
@@ -221,6 +231,9 @@ class DefaultChoice:
         return [
             f"noise: {self.noise:.4g} ({self.noise_in_edges:.3g} mean edge lengths; mean edge {self.edge_length:.4g}; "
             f"{spread})",
+            *([f"surface detail or noise: {self.verdict} (the band spectrum allows noise from "
+               f"{self.rho_range[0] / self.edge_length:.3g} to {self.rho_range[1] / self.edge_length:.3g} "
+               "mean edge lengths)"] if self.verdict not in ("", "given") and self.edge_length > 0 else []),
             f"method: {self.method} ({settings})",
             *(f"  because {r}" for r in self.reasons),
             *(f"  note: {c}" for c in self.caveats),
@@ -235,6 +248,9 @@ class DefaultChoice:
             "too_noisy": self.features.too_noisy,
             "sharp_share": self.features.share, "boundary_vertices": self.boundary_vertices,
             "reasons": list(self.reasons), "caveats": list(self.caveats), "seconds": self.seconds,
+            "verdict": self.verdict, "rho_range": [float(r) for r in self.rho_range],
+            "rho_range_in_edges": [float(r) / self.edge_length if self.edge_length > 0 else float("nan")
+                                   for r in self.rho_range],
         }
 
 
@@ -317,6 +333,82 @@ def _short(v: Any) -> str:
     return f"{v:.4g}" if isinstance(v, float) else repr(v) if isinstance(v, str) else str(v)
 
 
+OVERRIDE = ("to set the noise yourself: noise=NoiseModel(rho, correlation_length, V, F) in Python, "
+            "--noise RHO[,L] on the command line")
+
+
+def noise_policy(band: NoiseModel, verdict: DetailVerdict, h: float, band_reason: str = "") -> tuple[NoiseModel, str, list[str]]:
+    """The noise model the default uses, from the fine bands' reading and the detail fit's verdict.
+
+    - the fine bands read independent noise (``band``, :func:`estimate_noise_model`, whose
+      significance test rejected a correlation): ``band``, whatever the verdict (the detail fit
+      has no such test: on a 602-vertex box with independent noise it reads "noise" of 0.69 h
+      over 2.3);
+    - they read correlated noise, and the verdict is ``"noise"`` or ``"detail"``: the detail fit's
+      model (:attr:`DetailVerdict.model`: its best joint level and correlation length, or
+      independent noise at ``estimate_noise``'s level);
+    - ``"ambiguous"``: ``band`` with its level clipped into the allowed range
+      :attr:`DetailVerdict.rho_range`, at its correlation length, and a caveat saying so and how
+      to override it.
+
+    Why (docs/noise-vs-detail.md): the detail fit's model leaves the clean meshes alone, but on the
+    real range scan face000 (ambiguous, 0.018 to 0.109 h allowed) its lowest allowed level stops
+    cleaning it; the fine bands' reading clipped into the range cleans it for 0.109 h.
+
+    Parameters
+    ----------
+    band : NoiseModel
+        :func:`~meshdenoise.tuning.covariance.estimate_noise_model`'s model.
+    verdict : DetailVerdict
+        :func:`~meshdenoise.tuning.detail.separate_detail`'s, on the same mesh.
+    h : float
+        The mean edge length (mesh units).
+    band_reason : str
+        ``estimate_noise_model``'s reason (``details=True``), said when ``band`` is kept.
+
+    Returns
+    -------
+    (NoiseModel, str, list of str)
+        The model, a reason (starting "the noise is independent" or "the noise is correlated"),
+        and caveats (``note:`` lines).
+    """
+    lo, hi = verdict.rho_range
+    e = h if h > 0 else float("nan")
+    allowed = f"noise from {lo / e:.3g} to {hi / e:.3g} mean edge lengths is consistent with the band spectrum"
+
+    def said(model: NoiseModel) -> str:
+        return (f"the noise is correlated over {model.correlation_length:.3g} edge lengths" if model.correlated else
+                "the noise is independent") + f" ({model.rho / e:.3g} mean edge lengths)"
+
+    if not band.correlated:
+        why = band_reason.split(": ", 1)[-1] if band_reason else "the fine bands read no correlation"
+        return band, f"{said(band)}: {why} (surface detail or noise: {verdict.verdict}; {allowed})", []
+    fine = (f"the fine bands read {band.rho / e:.3g} mean edge lengths correlated over "
+            f"{band.correlation_length:.3g}")
+    if verdict.verdict != "ambiguous":
+        model = verdict.model
+        caveats = []
+        if verdict.verdict == "detail":
+            caveats.append(f"{fine}, which the band spectrum explains as surface detail ({allowed}); the default "
+                           f"smooths for {model.rho / e:.3g} only. If the mesh is a noisy scan, {OVERRIDE} "
+                           "(docs/noise-vs-detail.md)")
+        elif model.correlated:
+            caveats.append(f"{fine}, more than surface detail continued from the coarse bands explains ({allowed}); "
+                           "if the mesh may already be clean, look at the change (meshdenoise render IN OUT) "
+                           "(docs/noise-vs-detail.md)")
+        return model, f"{said(model)}: {verdict.reason}", caveats
+    used = float(np.clip(band.rho, lo, hi))
+    model = NoiseModel(used, band.correlation_length, band.V, band.F)
+    clipped = "inside that range" if used == band.rho else f"{band.rho / e:.3g} clipped into that range"
+    reason = (f"{said(model)}: ambiguous: {fine}; the band spectrum allows both surface detail and noise ({allowed}) "
+              f"-> {used / e:.3g} ({clipped})")
+    caveat = (f"the fine bands may be surface detail: {allowed}; the default smooths for {used:.4g} "
+              f"({used / e:.3g} mean edge lengths) correlated over {band.correlation_length:.3g} edge lengths. If "
+              f"the mesh may already be clean, look at the change (meshdenoise render IN OUT); {OVERRIDE} "
+              "(docs/noise-vs-detail.md)")
+    return model, reason, [caveat]
+
+
 def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, boundary_motion: str = "normal") -> DefaultChoice:
     """Choose the filter and its parameters for a noisy mesh, and say why.
 
@@ -348,12 +440,16 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
     ops = get_operators(F, V.shape[0])
     h = mean_edge_length(V, ops)
     with stage("estimating the noise"):
-        if noise is None:
-            model, info = estimate_noise_model((V, F), details=True)
-            noise_reason = "the noise is " + info["reason"]
+        if noise is None:  # the fine bands' reading and, from the same probes and smoothed mesh, the detail fit
+            band, info = estimate_noise_model((V, F), details=True, spectrum=(DETAIL_BANDS, DETAIL_LENGTHS))
+            verdict = separate_detail((V, F), smooth=info["smooth"], rho_white=info["rho_white"],
+                                      spectrum=info.get("spectrum"))
+            model, noise_reason, caveats = noise_policy(band, verdict, h, info.get("reason", ""))
+            decided, rho_range = verdict.verdict, verdict.rho_range
         else:
             model = noise if isinstance(noise, NoiseModel) else NoiseModel(_checked_noise(noise))
-            noise_reason = "the noise level was given"
+            noise_reason, caveats = "the noise level was given", []
+            decided, rho_range = "given", (float("nan"), float("nan"))
     rho = model.rho
     with stage("looking for sharp features"):
         features = detect_features((V, F), ops=ops)
@@ -393,13 +489,8 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
                        if boundary_motion == "normal" else
                        f"{nb:,} vertices are on open borders: they move freely (boundary_motion='free')")
     reasons.insert(0, noise_reason)
-    caveats = []
-    if noise is None and model.correlated:  # measured in benchmarks/results/noise-model-grid.md
-        caveats.append("surface detail a few edges wide reads like correlated noise (clean meshes read 0.1 to 0.4 "
-                       "mean edge lengths over about 3 edges; docs/noise-vs-detail.md): if the mesh may already be "
-                       "clean, look at the change (meshdenoise render IN OUT)")
     choice = DefaultChoice(method, params, float(rho), float(h), model.correlation_length, features, nb, reasons,
-                           time.perf_counter() - start, caveats)
+                           time.perf_counter() - start, caveats, decided, (float(rho_range[0]), float(rho_range[1])))
     for line in choice.lines():
         log.info("default: %s", line)
     return choice

@@ -17,7 +17,9 @@ from meshdenoise.geometry import vertex_normals
 from meshdenoise.io import load_mesh, save_mesh
 from meshdenoise.operators import get_operators
 from meshdenoise.shapes import box, grid, icosphere
-from meshdenoise.tuning.noise_level import mean_edge_length
+from meshdenoise.tuning.covariance import NoiseModel
+from meshdenoise.tuning.detail import separate_detail
+from meshdenoise.tuning.noise_level import estimate_noise_and_smooth, mean_edge_length
 
 
 def open_cap(subdivisions: int = 4) -> tuple[np.ndarray, np.ndarray]:
@@ -424,11 +426,20 @@ def test_correlated_noise_is_estimated_reported_and_used_by_the_choice():
     Vn = md.add_scanner_noise((V, F), 0.3 * h, correlation_length=2.0, seed=0)[0]
     model = estimate_noise_model((Vn, F))
     assert model.correlation_length > 1.0  # read as correlated
+    verdict = separate_detail((Vn, F))  # the detail fit on its own (whole mesh, its own probes)
+    assert verdict.verdict == "noise"  # a smooth torus: its own band spectrum explains none of the fine bands
     choice = choose_default((Vn, F))
-    assert choice.correlation_length == model.correlation_length and choice.noise == model.rho
+    assert choice.verdict == "noise" and choice.rho_range == pytest.approx(verdict.rho_range, rel=0.02)
+    # "noise": the detail fit's joint model, near the truth
+    assert choice.correlation_length == pytest.approx(verdict.model.correlation_length, abs=0.11)
+    assert choice.noise == pytest.approx(verdict.model.rho, rel=0.02)
+    assert choice.noise == pytest.approx(0.3 * h, rel=0.2) and choice.correlation_length == pytest.approx(2.0, abs=0.5)
     assert "correlated over" in choice.lines()[0] and choice.reasons[0].startswith("the noise is correlated")
+    assert choice.lines()[1].startswith("surface detail or noise: noise") and choice.as_dict()["verdict"] == "noise"
     # a correlated estimate may be surface detail: said, with how to check (a note line, not a reason)
     assert len(choice.caveats) == 1 and "surface detail" in choice.caveats[0] and "render" in choice.caveats[0]
+    # the model the choice used, rebuilt on the smoothed mesh the estimates share
+    model = NoiseModel(choice.noise, choice.correlation_length, estimate_noise_and_smooth(Vn, F, 2)[1], F)
     assert choice.lines()[-1] == "  note: " + choice.caveats[0] and choice.as_dict()["caveats"] == choice.caveats
     assert choose_default((Vn, F), noise=model).caveats == []  # a noise model given: the user's call
     assert (choice.method, choice.params) == smaller_risk(Vn, F, model)

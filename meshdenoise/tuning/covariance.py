@@ -235,8 +235,38 @@ def _fit(logr: np.ndarray, grid: np.ndarray) -> tuple[float, int]:
     return float(fine[k]), j
 
 
+def _spectrum_medians(ops: Operators, N: np.ndarray, Zs: list[np.ndarray], ok: np.ndarray,
+                      weights: np.ndarray | None, bands: tuple[int, ...], group: int = 4) -> np.ndarray:
+    """Median square of the normal component of :math:`B_s (z \\odot N)`, per probe block of ``Zs`` and band.
+
+    ``Zs``: blocks (n, m) of probes (one per correlation length), read as :func:`_probe_medians`
+    reads one (weighted by ``weights`` (n,) when given), with ``bands`` any increasing band list.
+    The blocks are pushed through the band-pass operators ``group`` at a time (one wide sparse
+    product instead of one per block). Returns (len(Zs), len(bands)).
+    """
+    out = np.empty((len(Zs), len(bands)))
+    for start in range(0, len(Zs), group):
+        chunk = Zs[start:start + group]
+        m = chunk[0].shape[1]
+        Z = np.concatenate(chunk, axis=1)
+        Y = (Z[:, :, None] * N[:, None, :]).reshape(Z.shape[0], 3 * Z.shape[1])
+        w = None if weights is None else np.repeat(weights[ok], m)
+        done = 0
+        for j, s in enumerate(bands):
+            while done < s:
+                Y = spmm(ops.P, Y)
+                done += 1
+            A = Y - spmm(ops.P, Y)
+            r = _normal_component(A - spmm(ops.P, A), N)[ok]  # (k, m * len(chunk))
+            for g in range(len(chunk)):
+                x = r[:, g * m:(g + 1) * m] ** 2
+                out[start + g, j] = np.median(x) if w is None else _weighted_median(x.ravel(), w)
+    return out
+
+
 def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: bool = False,
-                         sample: int | None = None) -> NoiseModel:
+                         sample: int | None = None, spectrum: tuple[tuple[int, ...], tuple[float, ...]] | None = None
+                         ) -> NoiseModel:
     """Estimate the noise level and correlation length of a noisy mesh, without the clean mesh.
 
     See the module docstring for the model and the estimate.
@@ -266,6 +296,15 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
         reads independent) is always the whole mesh's. A mesh of at most ``sample`` vertices is
         fitted whole (the estimate of earlier versions, to the last digit). Against the
         whole-mesh fit, docs/scale.md.
+    spectrum : (bands, lengths), optional
+        Also read a band spectrum on the same vertices, with the same weights and the same
+        coloured probes (those the fit did not colour are coloured alike, to a relative residual
+        :data:`FIT_TOL`): ``info["spectrum"]`` (with ``details``) holds ``bands``, ``lengths``,
+        ``observed`` (len(bands),: the median square of the normal component of the mesh's own
+        :math:`B_s X`) and ``probes`` (len(lengths), len(bands): the same of unit-variance probes of
+        each correlation length). :func:`meshdenoise.tuning.detail.separate_detail` fits it; the
+        default asks for both at once so that the probes are coloured once. ``info["smooth"]`` is
+        always the smoothed mesh (n, 3) the normals come from.
 
     Returns
     -------
@@ -292,8 +331,13 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
         raise ValueError(f"estimate_noise_model: parameter 'sample' must be an int >= 1, got {sample!r}")
     data = read_mesh(mesh)
     V, F = data.V, data.F
+    if spectrum is not None:
+        bands_s, ells_s = (tuple(int(b) for b in spectrum[0]), tuple(float(x) for x in spectrum[1]))
+        if not bands_s or list(bands_s) != sorted(set(bands_s)) or bands_s[0] < 0 or not ells_s or min(ells_s) < 0:
+            raise ValueError(f"estimate_noise_model: parameter 'spectrum' = {spectrum!r} must be (increasing bands >= 0, "
+                             "correlation lengths >= 0)")
     rho0, smooth = estimate_noise_and_smooth(V, F, int(refine))
-    info: dict[str, Any] = {"rho_white": rho0}
+    info: dict[str, Any] = {"rho_white": rho0, "smooth": smooth}
     if rho0 == 0:
         model = NoiseModel(0.0)
         info["reason"] = "independent: no noise found (estimate_noise reads 0)"
@@ -347,27 +391,52 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
     full = np.array(ELL_GRID)
     logr = np.empty((full.size, len(BANDS)))
     used = 0
-    for j, ell in enumerate(full):  # up the grid until the spread has risen well past its minimum
+    coloured: dict[float, np.ndarray] = {}
+
+    def probes_of(ell: float, tol: float) -> np.ndarray:  # unit-variance probes of correlation length ell
         if ell == 0:
             Z = xi
         elif region.whole:
-            Z = HeatFilter(Vr, Fr, diffusion_length(ell), geometry)(xi)
+            Z = HeatFilter(Vr, Fr, diffusion_length(ell), geometry)(xi, tol=tol)
         else:  # a median of squares needs no 8 digits of the colouring
             Z = HeatFilter(Vr, Fr, diffusion_length(ell), geometry)(xi, tol=FIT_TOL)
         if region.whole:
-            Z = Z * math.sqrt(Z.size / float(np.sum(Z * Z)))  # mean square 1: tr(Sigma) = n
-            medians = _probe_medians(opsr, Nr, Z, okr)
-        else:  # the whole mesh's mean square, from the inner vertices' by stratum (the noise is stronger near a border)
-            msq = np.bincount(sr[inner], weights=np.mean(Z[inner] ** 2, axis=1), minlength=share_all.size)
-            msq = msq / np.maximum(np.bincount(sr[inner], minlength=share_all.size), 1)
-            Z = Z / math.sqrt(float(np.sum(share_all * msq)))
-            medians = _probe_medians(opsr, Nr, Z, okr, weights)
+            return Z * math.sqrt(Z.size / float(np.sum(Z * Z)))  # mean square 1: tr(Sigma) = n
+        # the whole mesh's mean square, from the inner vertices' by stratum (the noise is stronger near a border)
+        msq = np.bincount(sr[inner], weights=np.mean(Z[inner] ** 2, axis=1), minlength=share_all.size)
+        msq = msq / np.maximum(np.bincount(sr[inner], minlength=share_all.size), 1)
+        return Z / math.sqrt(float(np.sum(share_all * msq)))
+
+    for j, ell in enumerate(full):  # up the grid until the spread has risen well past its minimum
+        Z = probes_of(float(ell), 1e-8)
+        if spectrum is not None:
+            coloured[float(ell)] = Z
+        medians = _probe_medians(opsr, Nr, Z, okr, None if region.whole else weights)
         logr[j] = 0.5 * (np.log(observed_fit) - np.log(medians))
         used = j + 1
         spread = np.var(logr[:used], axis=1)
         best = int(np.argmin(spread))
         if j >= best + 2 and spread[j] > 4.0 * spread[best] + SPREAD_GAIN:
             break
+    if spectrum is not None:
+        Zs = [coloured[e] if e in coloured else probes_of(e, FIT_TOL) for e in ells_s]
+        w = None if region.whole else weights
+        # the whole mesh's own residuals, over all its usable vertices: the surface's spectrum varies over a scan,
+        # and the region's balls read it with a sampling error the probes do not have (face000: up to 0.2 decades
+        # at s = 8 to 16, which moved the allowed upper level from 0.109 to 0.061 h); the probes' statistic is
+        # the whole mesh's already (weighted by border distance), within 0.07 decades of it on face000
+        Y = np.array(V, dtype=np.float64)
+        obs = np.empty(len(bands_s))
+        done = 0
+        for jb, b in enumerate(bands_s):
+            while done < b:
+                Y = spmm(ops.P, Y)
+                done += 1
+            A = Y - spmm(ops.P, Y)
+            obs[jb] = np.median(_normal_component(A - spmm(ops.P, A), N)[ok] ** 2)
+        info["spectrum"] = {"bands": bands_s, "lengths": ells_s, "observed": obs,
+                            "probes": _spectrum_medians(opsr, Nr, Zs, okr, w, bands_s)}
+        del coloured, Zs
     grid, logr = full[:used], logr[:used]
     ell, _ = _fit(logr, grid)
     curves = np.array([np.interp(ell, grid, logr[:, b]) for b in range(len(BANDS))])

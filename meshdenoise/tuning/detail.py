@@ -324,7 +324,8 @@ def _fine_band_fit(o: np.ndarray, p: np.ndarray, ells: tuple[float, ...], bands:
 
 
 def separate_detail(mesh: Any, *, refine: int = 2, seed: int = 0, conservative: bool = True,
-                    smooth: np.ndarray | None = None, rho_white: float | None = None) -> DetailVerdict:
+                    smooth: np.ndarray | None = None, rho_white: float | None = None,
+                    spectrum: dict | None = None) -> DetailVerdict:
     """Tell the surface's own detail from correlated noise by the band spectrum, and give the noise model to use.
 
     See the module docstring for the model, the fit and the verdict.
@@ -344,6 +345,11 @@ def separate_detail(mesh: Any, *, refine: int = 2, seed: int = 0, conservative: 
         (:func:`~meshdenoise.tuning.noise_level.estimate_noise_and_smooth`), with ``rho_white``.
     rho_white : float, optional
         :func:`~meshdenoise.tuning.noise_level.estimate_noise`'s level, if the caller has it.
+    spectrum : dict, optional
+        The observed and probe spectra already read, with ``smooth`` and ``rho_white``:
+        ``info["spectrum"]`` of :func:`~meshdenoise.tuning.covariance.estimate_noise_model` called
+        with ``spectrum=(BANDS, ELL_GRID)`` (on a sampled region above its ``sample`` vertices,
+        with the probes its own fit coloured). Otherwise both are read here on the whole mesh.
 
     Returns
     -------
@@ -380,10 +386,17 @@ def separate_detail(mesh: Any, *, refine: int = 2, seed: int = 0, conservative: 
     if int(ok.sum()) < MIN_VERTICES:
         return plain(f"only {int(ok.sum())} usable vertices (fewer than {MIN_VERTICES}): no band fit, "
                      "independent noise assumed", "ambiguous")
-    o = band_spectrum(V, F, N, BANDS, ok)
+    if spectrum is not None:
+        if tuple(spectrum["bands"]) != BANDS or tuple(spectrum["lengths"]) != ELL_GRID:
+            raise ValueError(f"separate_detail: parameter 'spectrum' has bands {tuple(spectrum['bands'])} and lengths "
+                             f"{tuple(spectrum['lengths'])}; the fit needs bands {BANDS} and lengths {ELL_GRID}")
+        o = np.asarray(spectrum["observed"], dtype=np.float64)
+    else:
+        o = band_spectrum(V, F, N, BANDS, ok)
     if not np.all(o > 0):
         return plain("a band-pass residual is zero (no energy to call noise): no band fit, independent noise assumed")
-    p = probe_spectra(smooth, F, N, ELL_GRID, BANDS, ok, PROBES, seed)
+    p = (np.asarray(spectrum["probes"], dtype=np.float64) if spectrum is not None else
+         probe_spectra(smooth, F, N, ELL_GRID, BANDS, ok, PROBES, seed))
     if not np.all(p > 0):
         return plain("a probe's band-pass residual is zero: no band fit, independent noise assumed", "ambiguous")
     rho2_band, ell_band = _fine_band_fit(o, p, ELL_GRID, BANDS)
