@@ -199,8 +199,10 @@ class DefaultChoice:
     caveats : list of str
         What the estimate cannot tell (printed as ``note:`` lines).
     verdict : str
-        Surface detail or noise (:func:`~meshdenoise.tuning.detail.separate_detail`): ``"noise"``,
-        ``"detail"`` or ``"ambiguous"``; ``"given"`` when the noise was given, ``""`` when not read.
+        Surface detail or noise (:func:`~meshdenoise.tuning.detail.separate_detail`, asked when the
+        fine bands read correlated noise): ``"noise"``, ``"detail"`` or ``"ambiguous"``;
+        ``"independent"`` when they read independent noise (not asked), ``"given"`` when the noise
+        was given.
     rho_range : tuple of float
         The noise levels (mesh units) the band spectrum allows, (low, high); NaN when not read.
     """
@@ -233,7 +235,7 @@ class DefaultChoice:
             f"{spread})",
             *([f"surface detail or noise: {self.verdict} (the band spectrum allows noise from "
                f"{self.rho_range[0] / self.edge_length:.3g} to {self.rho_range[1] / self.edge_length:.3g} "
-               "mean edge lengths)"] if self.verdict not in ("", "given") and self.edge_length > 0 else []),
+               "mean edge lengths)"] if self.edge_length > 0 and np.all(np.isfinite(self.rho_range)) else []),
             f"method: {self.method} ({settings})",
             *(f"  because {r}" for r in self.reasons),
             *(f"  note: {c}" for c in self.caveats),
@@ -442,10 +444,14 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
     with stage("estimating the noise"):
         if noise is None:  # the fine bands' reading and, from the same probes and smoothed mesh, the detail fit
             band, info = estimate_noise_model((V, F), details=True, spectrum=(DETAIL_BANDS, DETAIL_LENGTHS))
-            verdict = separate_detail((V, F), smooth=info["smooth"], rho_white=info["rho_white"],
-                                      spectrum=info.get("spectrum"))
-            model, noise_reason, caveats = noise_policy(band, verdict, h, info.get("reason", ""))
-            decided, rho_range = verdict.verdict, verdict.rho_range
+            if band.correlated:  # surface detail or correlated noise? (only then: the fit costs colourings)
+                verdict = separate_detail((V, F), smooth=info["smooth"], rho_white=info["rho_white"],
+                                          spectrum=info.get("spectrum"))
+                model, noise_reason, caveats = noise_policy(band, verdict, h, info.get("reason", ""))
+                decided, rho_range = verdict.verdict, verdict.rho_range
+            else:
+                model, noise_reason, caveats = band, "the noise is " + info["reason"], []
+                decided, rho_range = "independent", (float("nan"), float("nan"))
         else:
             model = noise if isinstance(noise, NoiseModel) else NoiseModel(_checked_noise(noise))
             noise_reason, caveats = "the noise level was given", []

@@ -472,3 +472,73 @@ def test_the_default_picks_the_better_candidate_on_the_tiny_nefertiti_and_the_no
     assert err[choice.method] <= 1.05 * min(err.values())
     Vf, Ff = load_arrays(data_mesh_path("benchmark/Fandisk0.3/Noisy.obj"))
     assert choose_default((Vf, Ff)).method == "two_stage"
+
+
+# --- the noise policy: the fine bands' reading and the detail fit's verdict ----------------------------------------
+def _verdict(kind, lo, hi, model, h=1.0):
+    from meshdenoise.tuning.detail import DetailVerdict
+
+    return DetailVerdict(kind, model, 0.5, 3.0, 0.2, 2.5, 2.0, (lo, hi), 2.0, 0.01, h, f"{kind}: (test)")
+
+
+@pytest.mark.parametrize("band_rho, expected", [(0.5, 0.3), (0.2, 0.2), (0.05, 0.1)])
+def test_an_ambiguous_verdict_clips_the_fine_bands_level_into_the_allowed_range(band_rho, expected):
+    V, F = icosphere(1)
+    band = NoiseModel(band_rho, 3.0, V, F)
+    model, reason, caveats = default.noise_policy(band, _verdict("ambiguous", 0.1, 0.3, NoiseModel(0.1)), 0.5)
+    assert model.rho == expected and 0.1 <= model.rho <= 0.3  # min(max(rho, lo), hi), written out
+    assert model.correlation_length == 3.0 and model.V is V  # at the fine bands' correlation length
+    assert reason.startswith("the noise is correlated over 3 edge lengths") and "ambiguous" in reason
+    (note,) = caveats  # said, with the range in mean edge lengths (h = 0.5), the level used and how to override it
+    assert "may be surface detail" in note and "from 0.2 to 0.6 mean edge lengths" in note
+    assert f"({expected / 0.5:.3g} mean edge lengths) correlated over 3 edge lengths" in note
+    assert "--noise RHO[,L]" in note and "noise=NoiseModel(rho, correlation_length, V, F)" in note
+
+
+def test_noise_and_detail_verdicts_take_the_detail_fits_model_and_independent_noise_is_kept():
+    V, F = icosphere(1)
+    band = NoiseModel(0.5, 3.0, V, F)
+    joint = NoiseModel(0.25, 2.0, V, F)
+    model, reason, caveats = default.noise_policy(band, _verdict("noise", 0.2, 0.3, joint), 1.0)
+    assert model is joint and reason.startswith("the noise is correlated over 2 edge lengths (0.25 mean")
+    assert len(caveats) == 1 and "render" in caveats[0]
+    white = NoiseModel(0.01)
+    model, reason, caveats = default.noise_policy(band, _verdict("detail", 0.0, 0.1, white), 1.0)
+    assert model is white and reason.startswith("the noise is independent (0.01 mean edge lengths)")
+    assert "surface detail" in caveats[0] and "--noise RHO[,L]" in caveats[0]
+    independent = NoiseModel(0.02)  # the fine bands read no correlation: their reading stays, whatever the verdict
+    model, _, caveats = default.noise_policy(independent, _verdict("noise", 0.2, 0.3, joint), 1.0)
+    assert model is independent and caveats == []
+
+
+def bumpy_torus():
+    """A clean torus (5,000 vertices) displaced along its normals by plane waves of 3 to 40 edge lengths, rms 2 edge
+    lengths, amplitudes growing as wavelength^1.5: detail a few edges wide, no noise."""
+    from meshdenoise.shapes import torus
+
+    V, F = torus(100, 50)
+    h = mean_edge_length(V, get_operators(F, V.shape[0]))
+    rng = np.random.default_rng(0)
+    lam = np.exp(rng.uniform(np.log(3 * h), np.log(40 * h), 400))
+    d = rng.standard_normal((400, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    f = np.cos((V @ d.T) * (2 * np.pi / lam) + rng.uniform(0, 2 * np.pi, 400)) @ (lam / (3 * h)) ** 1.5
+    f *= 2.0 * h / np.sqrt(np.mean(f ** 2))
+    return V + f[:, None] * vertex_normals(V, F), F
+
+
+def test_a_clean_surface_with_bumps_reads_detail_and_the_default_does_not_smooth_it():
+    from meshdenoise.tuning import estimate_noise_model
+
+    V, F = bumpy_torus()
+    h = mean_edge_length(V, get_operators(F, V.shape[0]))
+    band = estimate_noise_model((V, F))
+    assert band.correlated and band.rho > 0.3 * h  # the fine bands alone read the bumps as correlated noise
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        (Vd, _), choice = md.denoise((V, F), return_params=True)
+    assert choice.verdict == "detail" and choice.rho_range[1] < 0.5 * band.rho
+    assert choice.noise < 0.1 * h  # the detail fit's model: the bumps are not noise
+    assert choice.lines()[1].startswith("surface detail or noise: detail")
+    move = float(np.sqrt(np.mean(np.sum((Vd - V) ** 2, axis=1)))) / h
+    assert move < default.NOT_SMOOTHING and any("not smoothing" in str(w.message) for w in caught)

@@ -159,3 +159,57 @@ def test_a_plane_reads_no_noise():
 def test_bad_refine_is_refused(refine):
     with pytest.raises(ValueError, match="refine"):
         separate_detail(icosphere(1), refine=refine)
+
+
+@pytest.fixture(scope="module")
+def correlated_sphere():
+    V, F = icosphere(4)  # 2,562 vertices
+    h = mean_edge_length(V, F)
+    Vn, _ = add_scanner_noise((V, F), 0.3 * h, correlation_length=1.5, seed=2)
+    return Vn, F, h
+
+
+def test_the_spectrum_read_with_the_noise_models_probes_is_the_detail_fits_own(correlated_sphere):
+    """estimate_noise_model(spectrum=...) colours the probes once for both fits: on a whole mesh its spectrum is the one
+    band_spectrum and probe_spectra read (the same white probes, coloured to 1e-8 there and 1e-5 here)."""
+    from meshdenoise.tuning.detail import ELL_GRID
+    from meshdenoise.tuning.noise_level import estimate_noise_and_smooth
+
+    Vn, F, h = correlated_sphere
+    model, info = estimate_noise_model((Vn, F), details=True, spectrum=(BANDS, ELL_GRID))
+    assert model.correlated
+    rho_white, smooth = estimate_noise_and_smooth(Vn, F, 2)
+    np.testing.assert_array_equal(info["smooth"], smooth)
+    N = vertex_normals(smooth, F)
+    np.testing.assert_allclose(info["spectrum"]["observed"], band_spectrum(Vn, F, N, BANDS), rtol=1e-10)
+    np.testing.assert_allclose(info["spectrum"]["probes"], probe_spectra(smooth, F, N, ELL_GRID, BANDS), rtol=1e-3)
+    a = separate_detail((Vn, F), smooth=smooth, rho_white=rho_white, spectrum=info["spectrum"])
+    b = separate_detail((Vn, F))
+    assert a.verdict == b.verdict == "noise"
+    assert a.model.rho == pytest.approx(b.model.rho, rel=1e-2) and a.rho_range == pytest.approx(b.rho_range, rel=2e-2)
+    assert a.model.rho == pytest.approx(0.3 * h, rel=0.15) and a.model.correlation_length == pytest.approx(1.5, abs=0.5)
+
+
+def test_on_a_sampled_region_the_probe_spectrum_is_the_whole_meshs_within_sampling(correlated_sphere):
+    from meshdenoise.tuning.detail import ELL_GRID
+
+    Vn, F, h = correlated_sphere
+    _, whole = estimate_noise_model((Vn, F), details=True, spectrum=(BANDS, ELL_GRID))
+    _, part = estimate_noise_model((Vn, F), details=True, spectrum=(BANDS, ELL_GRID), sample=2400)
+    assert part["fit_vertices"] < 2000  # read on a region (8 balls, 8 rings of margin)
+    np.testing.assert_array_equal(part["spectrum"]["observed"], whole["spectrum"]["observed"])  # the whole mesh's
+    # the probes' median squares over ~1,300 vertices x 4 probes (balls of ~10 rings, cut) against ~2,500 x 4: within
+    # 0.15 decades (0.13 here at s = 32; on face000's region of 30,000 vertices within 0.07 of the whole mesh's)
+    assert np.max(np.abs(np.log10(part["spectrum"]["probes"] / whole["spectrum"]["probes"]))) < 0.15
+
+
+def test_a_bad_spectrum_request_is_refused():
+    from meshdenoise.tuning.detail import ELL_GRID
+
+    with pytest.raises(ValueError, match="spectrum"):
+        estimate_noise_model(icosphere(2), spectrum=((4, 2), ELL_GRID))
+    V, F = icosphere(3)
+    with pytest.raises(ValueError, match="lengths"):
+        separate_detail((V, F), smooth=V, rho_white=0.01, spectrum={"bands": BANDS, "lengths": (0.0, 1.0),
+                                                                    "observed": np.ones(len(BANDS)),
+                                                                    "probes": np.ones((2, len(BANDS)))})

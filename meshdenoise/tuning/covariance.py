@@ -297,9 +297,11 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
         fitted whole (the estimate of earlier versions, to the last digit). Against the
         whole-mesh fit, docs/scale.md.
     spectrum : (bands, lengths), optional
-        Also read a band spectrum on the same vertices, with the same weights and the same
-        coloured probes (those the fit did not colour are coloured alike, to a relative residual
-        :data:`FIT_TOL`): ``info["spectrum"]`` (with ``details``) holds ``bands``, ``lengths``,
+        When the noise reads as correlated (the fit is significant), also read a band spectrum
+        with the same probes, coloured once (those the fit did not colour are coloured alike, to
+        a relative residual :data:`FIT_TOL`), read at the same vertices with the same weights
+        (the mesh's own residuals over all its usable vertices): ``info["spectrum"]`` (with
+        ``details``; absent when the noise reads independent) holds ``bands``, ``lengths``,
         ``observed`` (len(bands),: the median square of the normal component of the mesh's own
         :math:`B_s X`) and ``probes`` (len(lengths), len(bands): the same of unit-variance probes of
         each correlation length). :func:`meshdenoise.tuning.detail.separate_detail` fits it; the
@@ -418,7 +420,14 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
         best = int(np.argmin(spread))
         if j >= best + 2 and spread[j] > 4.0 * spread[best] + SPREAD_GAIN:
             break
-    if spectrum is not None:
+    grid, logr = full[:used], logr[:used]
+    ell, _ = _fit(logr, grid)
+    curves = np.array([np.interp(ell, grid, logr[:, b]) for b in range(len(BANDS))])
+    spread0, spread_fit = float(np.var(logr[0])), float(np.var(curves))
+    info.update(grid=grid, log_rho=logr, ell_fit=ell, observed=observed, spread_white=spread0, spread_fit=spread_fit)
+    significant = (ELL_MIN <= ell <= ELL_MAX and spread0 - spread_fit >= SPREAD_GAIN and spread0 >= SPREAD_RATIO * spread_fit
+                   and int(ok.sum()) >= MIN_PATCHES * math.pi * ell**2)
+    if spectrum is not None and significant:  # the surface-or-noise question arises only then
         Zs = [coloured[e] if e in coloured else probes_of(e, FIT_TOL) for e in ells_s]
         w = None if region.whole else weights
         # the whole mesh's own residuals, over all its usable vertices: the surface's spectrum varies over a scan,
@@ -437,13 +446,6 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
         info["spectrum"] = {"bands": bands_s, "lengths": ells_s, "observed": obs,
                             "probes": _spectrum_medians(opsr, Nr, Zs, okr, w, bands_s)}
         del coloured, Zs
-    grid, logr = full[:used], logr[:used]
-    ell, _ = _fit(logr, grid)
-    curves = np.array([np.interp(ell, grid, logr[:, b]) for b in range(len(BANDS))])
-    spread0, spread_fit = float(np.var(logr[0])), float(np.var(curves))
-    info.update(grid=grid, log_rho=logr, ell_fit=ell, observed=observed, spread_white=spread0, spread_fit=spread_fit)
-    significant = (ELL_MIN <= ell <= ELL_MAX and spread0 - spread_fit >= SPREAD_GAIN and spread0 >= SPREAD_RATIO * spread_fit
-                   and int(ok.sum()) >= MIN_PATCHES * math.pi * ell**2)
     if significant:
         model = NoiseModel(float(np.exp(curves.mean())), ell, smooth, F)
         info["reason"] = (f"correlated: the bands agree at {ell:.2f} edge lengths (spread of log rho "
