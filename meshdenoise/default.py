@@ -55,7 +55,7 @@ from .tuning.detail import DetailVerdict, separate_detail
 from .tuning.noise_level import mean_edge_length
 
 __all__ = ["DefaultChoice", "FeatureTest", "choose_default", "denoise", "detect_features", "feature_risk",
-           "noise_policy", "SMOOTH_METHOD", "FEATURE_METHOD"]
+           "noise_policy", "default_noise", "SMOOTH_METHOD", "FEATURE_METHOD"]
 
 log = logging.getLogger("meshdenoise.auto")
 
@@ -411,6 +411,36 @@ def noise_policy(band: NoiseModel, verdict: DetailVerdict, h: float, band_reason
     return model, reason, [caveat]
 
 
+def default_noise(V: np.ndarray, F: np.ndarray, h: float) -> tuple[NoiseModel, str, list[str], str, tuple[float, float]]:
+    """The default's noise model: the fine bands' reading, and the detail fit where it reads correlated noise.
+
+    :func:`estimate_noise_model` (on a sampled region above its ``sample`` vertices) reads the
+    level and correlation length; when it reads correlated noise it also returns the band spectrum
+    of the same coloured probes and smoothed mesh, which
+    :func:`~meshdenoise.tuning.detail.separate_detail` fits (no second smoothing, no second
+    colouring), and :func:`noise_policy` decides.
+
+    Parameters
+    ----------
+    V : ndarray, shape (n, 3)
+    F : ndarray, shape (m, 3)
+    h : float
+        The mean edge length.
+
+    Returns
+    -------
+    (NoiseModel, str, list of str, str, (float, float))
+        The model, the reason, caveats, the verdict (``"independent"`` when the fine bands read
+        independent noise: no detail fit) and the allowed range of levels (NaN when not fitted).
+    """
+    band, info = estimate_noise_model((V, F), details=True, spectrum=(DETAIL_BANDS, DETAIL_LENGTHS))
+    if not band.correlated:
+        return band, "the noise is " + info["reason"], [], "independent", (float("nan"), float("nan"))
+    verdict = separate_detail((V, F), smooth=info["smooth"], rho_white=info["rho_white"], spectrum=info.get("spectrum"))
+    model, reason, caveats = noise_policy(band, verdict, h, info.get("reason", ""))
+    return model, reason, caveats, verdict.verdict, verdict.rho_range
+
+
 def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, boundary_motion: str = "normal") -> DefaultChoice:
     """Choose the filter and its parameters for a noisy mesh, and say why.
 
@@ -442,16 +472,8 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
     ops = get_operators(F, V.shape[0])
     h = mean_edge_length(V, ops)
     with stage("estimating the noise"):
-        if noise is None:  # the fine bands' reading and, from the same probes and smoothed mesh, the detail fit
-            band, info = estimate_noise_model((V, F), details=True, spectrum=(DETAIL_BANDS, DETAIL_LENGTHS))
-            if band.correlated:  # surface detail or correlated noise? (only then: the fit costs colourings)
-                verdict = separate_detail((V, F), smooth=info["smooth"], rho_white=info["rho_white"],
-                                          spectrum=info.get("spectrum"))
-                model, noise_reason, caveats = noise_policy(band, verdict, h, info.get("reason", ""))
-                decided, rho_range = verdict.verdict, verdict.rho_range
-            else:
-                model, noise_reason, caveats = band, "the noise is " + info["reason"], []
-                decided, rho_range = "independent", (float("nan"), float("nan"))
+        if noise is None:
+            model, noise_reason, caveats, decided, rho_range = default_noise(V, F, h)
         else:
             model = noise if isinstance(noise, NoiseModel) else NoiseModel(_checked_noise(noise))
             noise_reason, caveats = "the noise level was given", []
