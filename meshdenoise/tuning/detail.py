@@ -159,7 +159,7 @@ def _band_stats(P: Any, X: np.ndarray, N: np.ndarray, ok: np.ndarray, bands: tup
             done += 1
         A = Y - spmm(P, Y)
         R = A - spmm(P, A)
-        r = np.einsum("ikj,ij->ik", R.reshape(R.shape[0], k, 3), N)[ok]
+        r = np.einsum("ikj,ij->ik", R.reshape(R.shape[0], k, 3), N, optimize=True)[ok]
         out[j] = np.median(r * r)
     return out
 
