@@ -135,12 +135,20 @@ def test_feature_risk_is_monte_carlo_sure_written_out():
     risk, out = default.feature_risk(Vn, F, params, NoiseModel(rho), N, probes=3, seed=7)
     f = lambda X: md.apply_filter("two_stage", (X, F), **params)[0]  # noqa: E731
     np.testing.assert_array_equal(out, f(Vn))
-    rng = np.random.default_rng(7)
+    Z = np.random.default_rng(7).choice([-1.0, 1.0], size=(len(V), 3))  # the probes, one per column
     d = 0.1 * rho
-    div = [float(np.sum(b * (f(Vn + d * b) - f(Vn)))) / d for b in (rng.choice([-1.0, 1.0], size=len(V))[:, None] * N
-                                                                   for _ in range(3))]
+    div = [float(np.sum(b * (f(Vn + d * b) - f(Vn)))) / d for b in (Z[:, k, None] * N for k in range(3))]
     n = len(V)
     assert risk == pytest.approx(np.sum((f(Vn) - Vn) ** 2) - n * rho**2 + 2 * rho**2 * np.mean(div), rel=1e-12)
+    # correlated noise: the probes heat-filtered all at once, scaled to mean square 1 over vertices and probes
+    from meshdenoise.noise import HeatFilter, diffusion_length
+
+    model = NoiseModel(rho, 1.5, Vn, F)
+    risk_c, _ = default.feature_risk(Vn, F, params, model, N, probes=3, seed=7)
+    Y = HeatFilter(Vn, F, diffusion_length(1.5))(Z)
+    Y *= np.sqrt(Y.size / np.sum(Y * Y))
+    div = [float(np.sum(b * (f(Vn + d * b) - f(Vn)))) / d for b in (Y[:, k, None] * N for k in range(3))]
+    assert risk_c == pytest.approx(np.sum((f(Vn) - Vn) ** 2) - n * rho**2 + 2 * rho**2 * np.mean(div), rel=1e-9)
     # the probe count follows the mesh size
     assert default.feature_risk(Vn, F, params, NoiseModel(0.0), N)[0] == pytest.approx(np.sum((f(Vn) - Vn) ** 2))
 
