@@ -334,8 +334,8 @@ def _short(v: Any) -> str:
     return f"{v:.4g}" if isinstance(v, float) else repr(v) if isinstance(v, str) else str(v)
 
 
-OVERRIDE = ("to set the noise yourself: noise=NoiseModel(rho, correlation_length, V, F) in Python, "
-            "--noise RHO[,L] on the command line")
+OVERRIDE = ("to set the noise yourself: --noise RHO[h][,L] on the command line (h: in mean edge lengths), "
+            "noise=NoiseModel(rho, correlation_length, V, F) in Python")
 
 
 def noise_policy(band: NoiseModel, verdict: DetailVerdict, h: float, band_reason: str = "") -> tuple[NoiseModel, str, list[str]]:
@@ -405,8 +405,8 @@ def noise_policy(band: NoiseModel, verdict: DetailVerdict, h: float, band_reason
               f"-> {used / e:.3g} ({clipped})")
     caveat = (f"the fine bands may be surface detail: {allowed}; the default smooths for {used:.4g} "
               f"({used / e:.3g} mean edge lengths) correlated over {band.correlation_length:.3g} edge lengths. If "
-              f"the mesh may already be clean, look at the change (meshdenoise render IN OUT); {OVERRIDE} "
-              "(docs/noise-vs-detail.md)")
+              f"the mesh may already be clean, look at the change (meshdenoise render IN OUT); {OVERRIDE}; this "
+              f"choice is --noise {used / e:.3g}h,{band.correlation_length:.3g} (docs/noise-vs-detail.md)")
     return model, reason, [caveat]
 
 

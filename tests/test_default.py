@@ -500,7 +500,8 @@ def test_an_ambiguous_verdict_clips_the_fine_bands_level_into_the_allowed_range(
     (note,) = caveats  # said, with the range in mean edge lengths (h = 0.5), the level used and how to override it
     assert "may be surface detail" in note and "from 0.2 to 0.6 mean edge lengths" in note
     assert f"({expected / 0.5:.3g} mean edge lengths) correlated over 3 edge lengths" in note
-    assert "--noise RHO[,L]" in note and "noise=NoiseModel(rho, correlation_length, V, F)" in note
+    assert "--noise RHO[h][,L]" in note and "noise=NoiseModel(rho, correlation_length, V, F)" in note
+    assert f"this choice is --noise {expected / 0.5:.3g}h,3 " in note
 
 
 def test_noise_and_detail_verdicts_take_the_detail_fits_model_and_independent_noise_is_kept():
@@ -513,7 +514,7 @@ def test_noise_and_detail_verdicts_take_the_detail_fits_model_and_independent_no
     white = NoiseModel(0.01)
     model, reason, caveats = default.noise_policy(band, _verdict("detail", 0.0, 0.1, white), 1.0)
     assert model is white and reason.startswith("the noise is independent (0.01 mean edge lengths)")
-    assert "surface detail" in caveats[0] and "--noise RHO[,L]" in caveats[0]
+    assert "surface detail" in caveats[0] and "--noise RHO[h][,L]" in caveats[0]
     independent = NoiseModel(0.02)  # the fine bands read no correlation: their reading stays, whatever the verdict
     model, _, caveats = default.noise_policy(independent, _verdict("noise", 0.2, 0.3, joint), 1.0)
     assert model is independent and caveats == []
