@@ -312,7 +312,7 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     if rho == 0:
         return residual, out
     delta = 0.1 * rho
-    Z = np.random.default_rng(seed).choice([-1.0, 1.0], size=(n, probes))
+    Z = np.random.default_rng(seed).choice([-1.0, 1.0], size=(probes, n)).T  # the draws of one probe at a time
     if model.correlated:  # all probes in one colouring (a block solve); mean square 1 per vertex over the probes
         Z = model.colour(Z, 1.0 / probes)
     divergence = 0.0

@@ -135,7 +135,8 @@ def test_feature_risk_is_monte_carlo_sure_written_out():
     risk, out = default.feature_risk(Vn, F, params, NoiseModel(rho), N, probes=3, seed=7)
     f = lambda X: md.apply_filter("two_stage", (X, F), **params)[0]  # noqa: E731
     np.testing.assert_array_equal(out, f(Vn))
-    Z = np.random.default_rng(7).choice([-1.0, 1.0], size=(len(V), 3))  # the probes, one per column
+    rng = np.random.default_rng(7)
+    Z = np.stack([rng.choice([-1.0, 1.0], size=len(V)) for _ in range(3)], axis=1)  # the probes, one per column
     d = 0.1 * rho
     div = [float(np.sum(b * (f(Vn + d * b) - f(Vn)))) / d for b in (Z[:, k, None] * N for k in range(3))]
     n = len(V)
