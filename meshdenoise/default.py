@@ -4,8 +4,10 @@ The policy, from measurements of the noisy mesh alone:
 
 1. the noise: its level and correlation length
    (:func:`~meshdenoise.tuning.covariance.estimate_noise_model`; a scanner's noise is
-   correlated over a few samples), printed absolute and in mean edge lengths; every risk
-   estimate below accounts for it;
+   correlated over a few samples), printed absolute and in mean edge lengths; where it reads
+   correlated noise, whether the surface's own detail explains it
+   (:func:`~meshdenoise.tuning.detail.separate_detail`, :func:`noise_policy`: its verdict and
+   the levels allowed are printed); every risk estimate below accounts for the model;
 2. a short feature-preserving pre-smoothing (:func:`detect_features`), after which CAD parts
    have almost all their creased edges sharp, scans and organic shapes have gradual creases,
    and a mesh whose noise is too strong for normals to be filtered still has a large share of
