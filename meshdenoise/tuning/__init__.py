@@ -11,7 +11,7 @@ and is registered with it, ``register(..., auto=AutoRule(...))``):
 - :mod:`~meshdenoise.tuning.covariance`: :func:`estimate_noise_model` (level and correlation length) and :class:`NoiseModel`;
 - :mod:`~meshdenoise.tuning.region`: a sampled region of a large mesh (balls of vertex rings) that fits run on;
 - :mod:`~meshdenoise.tuning.detail`: :func:`separate_detail`, surface detail or correlated noise (a band spectrum
-  with a surface term; not yet used by the default: docs/noise-vs-detail.md);
+  with a surface term; the default's noise policy uses its verdict: docs/noise-vs-detail.md);
 - :mod:`~meshdenoise.tuning.context`: the :class:`TuningContext` a rule is given;
 - :mod:`~meshdenoise.tuning.choose`: :func:`choose_parameters` (``meshdenoise.denoise``, which also chooses
   the filter, is the policy above this floor: :mod:`meshdenoise.default`);
