@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+import meshdenoise as md
 from meshdenoise import add_normal_noise
 from meshdenoise.geometry import vertex_normals
 from meshdenoise.noise import add_scanner_noise, mean_edge_length
@@ -60,15 +61,26 @@ def test_normal_residual_scale_equals_the_gathered_computation(case):
     ops = Operators(F, V.shape[0])
     N = vertex_normals(V, F)
     c_old, old = _old_normal_residual_scale(V, ops, N)
-    c_new = np.sqrt(nl._normal_weight_sums(nl.fourth_difference(ops), N))
-    np.testing.assert_allclose(c_new, c_old, rtol=1e-12, atol=1e-14)
-    np.testing.assert_allclose(nl._normal_residual_scale(V, ops, N), old, rtol=1e-10)
     B = nl.fourth_difference(ops)
+    c_new = np.sqrt(nl._normal_weight_sums(B, N))
+    np.testing.assert_allclose(c_new, c_old, rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(nl._normal_residual_scale(V, ops, N, B), old, rtol=1e-10)
     c2 = np.asarray(B.multiply(B).sum(axis=1)).ravel()
     ok = (c2 > 1e-24) & ~ops.isolated
     R = np.asarray(B @ V)
     old_energy = float(np.sqrt(np.mean(np.sum(R[ok] ** 2, axis=1) / c2[ok])))
-    assert nl._residual_energy_scale(V, ops) == pytest.approx(old_energy, rel=1e-12)
+    assert nl._residual_energy_scale(V, ops, B) == pytest.approx(old_energy, rel=1e-12)
+
+
+def test_fourth_difference_is_the_squared_averaging_difference_and_the_estimate_keeps_nothing_on_the_operators():
+    V, F = icosphere(3)
+    Vn = md.add_normal_noise((V, F), 0.01, seed=0)[0]
+    ops = get_operators(F, V.shape[0])
+    A = np.eye(ops.n) - ops.P.toarray()
+    np.testing.assert_allclose(nl.fourth_difference(ops).toarray(), A @ A, atol=1e-14)
+    before = set(ops.cache)
+    md.estimate_noise((Vn, F))
+    assert set(ops.cache) == before  # 220 bytes per vertex not kept after the call (issue 17's memory)
 
 
 def _bfs(W, sources, n):
