@@ -38,6 +38,8 @@ __all__ = [
     "shifted_quadrature",
     "SHIFTED_SEARCHES",
     "QUADRATURE_MIN_VERTICES",
+    "region_rule",
+    "REGION_MIN_VERTICES",
 ]
 
 PROBE_REFERENCE_VERTICES = 50_000  # up to this size every search keeps N_PROBES probes (all quality-table meshes)
@@ -376,3 +378,63 @@ def mu_guess(V: np.ndarray, ops: Operators, rho: float | None, criterion: Criter
                           coordinates=False).value
     dbar = float(np.mean(ops.degree[~ops.isolated])) if (~ops.isolated).any() else 1.0
     return max(k, 0.5) ** order / dbar**order
+
+
+REGION_MIN_VERTICES = 50_000  # region_rule: from this size a rule runs on a sampled region (every quality-table mesh
+# is below it, so their choices are unchanged)
+
+
+def region_rule(ctx, rule: Callable, size: int, patches: int, margin: int = 0, seed: int = 0,
+                min_vertices: int | None = None, given: Callable[[], dict] | None = None) -> tuple[dict, Point]:
+    """Run an automatic ``rule`` on a sampled region of about ``size`` vertices, its choice carried to the whole mesh.
+
+    For rules whose parameters are a property of the noise per edge length and of the local
+    shape (the Sobolev weights of ``sobolev_normal`` and ``sobolev_gls``: ``mu`` weighs the
+    combinatorial Laplacian, the same on any part of a mesh of one sampling density), whose cost
+    per candidate is a factorisation and a many-column solve of the whole mesh. The region
+    (:class:`~meshdenoise.tuning.region.SampledRegion`, ``patches`` balls of rings of vertices) is
+    cut out as a mesh of its own and the rule runs on it as ``rule(sub_ctx, scored)``, ``scored``
+    the region's vertices more than ``margin`` rings from a cut (the rule scores those only: near
+    a cut the region has a border the mesh has not), with the whole mesh's noise level (a
+    correlated noise model is rebuilt on the region with the same level and correlation length)
+    and, held fixed, the parameters ``given()`` returns (statistics of the whole mesh the rule
+    would otherwise compute on the region). On the whole mesh the rule runs as ``rule(ctx, None)``.
+    Below ``min_vertices`` (default :data:`REGION_MIN_VERTICES`), in oracle mode, or when
+    the region would be the whole mesh, the rule runs on the whole mesh as before.
+
+    Returns the rule's choice (with the ``given()`` values) and its best point, the point's score
+    and residual scaled by ``n / k`` (``k`` the region's scored vertices) so that a SURE score still estimates the whole
+    mesh's squared error; its ``X`` is the result on the region (``None`` coordinates are kept).
+    """
+    from .context import TuningContext  # context imports this module
+
+    n = ctx.ops.n
+    limit = REGION_MIN_VERTICES if min_vertices is None else int(min_vertices)
+    if ctx.oracle or n < limit or n <= size:
+        return rule(ctx, None)
+    from ..operators import get_operators
+    from .region import SampledRegion
+
+    region = SampledRegion(ctx.F, ctx.ops, int(size), int(patches), int(margin), seed)
+    if region.whole:
+        return rule(ctx, None)
+    k = region.vertices.size
+    V = np.ascontiguousarray(ctx.V[region.vertices], dtype=np.float64)
+    F = region.F
+    ops = get_operators(F, k)
+    model = ctx.noise
+    if model is not None and getattr(model, "correlated", False):
+        from .covariance import NoiseModel
+        from .risk import noise_colouring
+
+        model = NoiseModel(ctx.rho, float(model.correlation_length), sure_smoothed(V, ops, ctx.rho).X, F)
+    else:
+        from .risk import noise_colouring
+    held = {**(given() if given is not None else {}), **ctx.given}
+    sub = TuningContext(V, F, ops, ctx.rho, ctx.criterion, ctx.exact, held, model)
+    with noise_colouring(model):
+        chosen, point = rule(sub, region.inner)
+    chosen = {**{name: value for name, value in held.items() if name not in ctx.given}, **chosen}
+    scale = n / max(int(region.inner.sum()), 1)
+    point = Point(point.value, point.residual_sq * scale, point.trace * scale, point.X, point.score * scale)
+    return chosen, point
