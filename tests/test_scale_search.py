@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from meshdenoise import add_normal_noise, choose_parameters
+from meshdenoise import add_normal_noise, apply_filter, choose_parameters, snr
+from meshdenoise.operators import clear_cache, get_operators
 from meshdenoise.operators import Operators
 from meshdenoise.shapes import grid, icosphere, torus
 from meshdenoise.solvers import LanczosQuadrature
@@ -273,3 +274,106 @@ def test_path_curve_memo_is_keyed_by_the_probes(monkeypatch):
     monkeypatch.setattr(search, "probe_block", lambda *args, **kw: (2.0 * plain(*args, **kw)[0], plain(*args, **kw)[1]))
     b = path_curve(Vn, ops, step, ("P", 1.0), exact=False)  # other probes (a coloured noise model): another run
     assert b is not a and np.array_equal(b.Z, 2.0 * a.Z)
+
+
+# ----------------------------------------------------------------------------- sobolev_normal / sobolev_gls at scale
+@pytest.mark.parametrize("order, mu", [(1, 0.3), (2, 4.0), (3, 0.5), (3, 60.0)])
+def test_lanczos_shifted_equals_a_dense_solve(order, mu):
+    from meshdenoise.solvers import lanczos_shifted
+    from meshdenoise.shapes import grid
+
+    V, F = grid(9, 7)  # open: a border, and a zero eigenvalue
+    V = V + 0.05 * np.random.default_rng(0).standard_normal(V.shape)
+    ops = get_operators(F, len(V))
+    L = ops.L.toarray()
+    expected = np.linalg.solve(np.eye(len(V)) + mu * np.linalg.matrix_power(L, order), V)
+    np.testing.assert_allclose(lanczos_shifted(ops, V, mu, order, tol=1e-13), expected, atol=1e-10)
+    np.testing.assert_allclose(lanczos_shifted(ops, V[:, 0], mu, order, tol=1e-13), expected[:, 0], atol=1e-10)
+    assert lanczos_shifted(ops, V, 1e6, order, max_steps=3) is None
+    with pytest.raises(ValueError, match="mu"):
+        lanczos_shifted(ops, V, -1.0, order)
+    with pytest.raises(ValueError, match="order"):
+        lanczos_shifted(ops, V, 1.0, 0)
+
+
+def test_sobolev_normal_factor_free_path_equals_the_factor_path(monkeypatch):
+    import meshdenoise.plugins.sobolev_normal as sn
+
+    V, F = icosphere(3)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
+    for order, mu, t in ((2, 3.0, 0.0), (3, 0.7, 0.4)):
+        clear_cache()
+        before = apply_filter("sobolev_normal", (Vn, F), mu=mu, order=order, tangential=t)[0]
+        monkeypatch.setattr(sn, "SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES", 0)
+        clear_cache()
+        monkeypatch.setattr(sn, "shifted_solver", lambda *a, **k: pytest.fail("a factor was built"))
+        after = apply_filter("sobolev_normal", (Vn, F), mu=mu, order=order, tangential=t)[0]
+        monkeypatch.undo()
+        np.testing.assert_allclose(after, before, atol=1e-11)
+
+
+@pytest.mark.parametrize("method", ["sobolev_normal", "sobolev_gls"])
+def test_region_rule_is_not_used_below_its_size(monkeypatch, method):
+    """Every quality-table mesh is below REGION_MIN_VERTICES: the rule runs on the whole mesh, as before."""
+    import meshdenoise.tuning.region as region
+
+    monkeypatch.setattr(region, "SampledRegion", lambda *a, **k: pytest.fail("a region was cut"))
+    V, F = icosphere(2)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
+    params = choose_parameters((Vn, F), method, noise=0.02)
+    assert params["mu"] > 0
+
+
+def test_sobolev_normal_on_a_region_chooses_the_whole_mesh_weight(monkeypatch):
+    """The region search against the whole-mesh (per-candidate factor) search, which is the independent reference:
+    a sphere of 10,242 vertices, the region a third of it in 4 balls, scored 4 rings from the cuts."""
+    import meshdenoise.plugins.sobolev_normal as sn
+    import meshdenoise.tuning.search as search
+
+    V, F = icosphere(5)
+    rho = 0.4 * float(np.linalg.norm(V[F[:, 0]] - V[F[:, 1]], axis=1).mean())  # a normal-only update: GCV
+    Vn, _ = add_normal_noise((V, F), rho, seed=0)
+    whole = choose_parameters((Vn, F), "sobolev_normal", noise=rho)
+    monkeypatch.setattr(search, "REGION_MIN_VERTICES", 1000)
+    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_REGION", 3500)
+    params, risk = choose_parameters((Vn, F), "sobolev_normal", noise=rho, return_risk=True)
+    assert params["order"] == whole["order"] and params["tangential"] == whole["tangential"]
+    assert abs(np.log(params["mu"] / whole["mu"])) < np.log(1.5)
+    got = snr(V, apply_filter("sobolev_normal", (Vn, F), **params)[0])
+    best = snr(V, apply_filter("sobolev_normal", (Vn, F), **whole)[0])
+    assert got > best - 0.2
+    assert np.isfinite(risk)
+
+
+def test_sobolev_axes_quadrature_search_chooses_the_factor_search_weights(monkeypatch):
+    """Same candidates scored by quadrature and by a factor per mu (the independent path): same mu1..mu3, same risk."""
+    import meshdenoise.plugins.sobolev_axes as ax
+    import meshdenoise.tuning.search as search
+
+    V, F = torus(40, 20)
+    Vn, _ = add_normal_noise((V, F), 0.03, seed=0)
+    monkeypatch.setattr(search, "probe_count", lambda n: 24)  # the factor path's probe count
+    monkeypatch.setattr(ax, "probe_count", lambda n: 24)
+    old, old_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True)
+    monkeypatch.setattr(ax, "AXES_SCALE_MIN_VERTICES", 100)
+    monkeypatch.setattr(ax, "solve_shifted", lambda *a, **k: pytest.fail("a factor was used"))
+    new, new_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True)
+    for name in ("mu1", "mu2", "mu3"):
+        assert new[name] == pytest.approx(old[name], rel=1e-9)
+    assert new["frame_steps"] == old["frame_steps"]
+    assert new_risk == pytest.approx(old_risk, rel=1e-8)
+
+
+def test_sobolev_axes_factor_free_filter_equals_the_factor_filter(monkeypatch):
+    import meshdenoise.plugins.sobolev_axes as ax
+
+    V, F = icosphere(3)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
+    params = dict(mu1=0.3, mu2=0.0, mu3=4.0, order=3, frame_steps=2)
+    clear_cache()
+    before = apply_filter("sobolev_axes", (Vn, F), **params)[0]
+    monkeypatch.setattr(ax, "AXES_SCALE_MIN_VERTICES", 0)
+    monkeypatch.setattr(ax, "shifted_solver", lambda *a, **k: pytest.fail("a factor was built"))
+    clear_cache()
+    after = apply_filter("sobolev_axes", (Vn, F), **params)[0]
+    np.testing.assert_allclose(after, before, atol=1e-11)
