@@ -181,9 +181,9 @@ def normal_weighted_cg(
 SOBOLEV_GLS_BETAS = (1.0, 2.0, 3.0, 5.0, 8.0, 12.0)  # candidate tangential weights
 SOBOLEV_GLS_PROBES = 8  # Hutchinson probes of the divergence (the same for every candidate)
 SOBOLEV_GLS_EXACT_MAX = 400  # exact traces up to this many vertices: 3n right-hand sides through CG per candidate
-SOBOLEV_GLS_REGION = 6_000  # from search.REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices
-SOBOLEV_GLS_PATCHES = 4  # ... made of this many balls of vertices
-SOBOLEV_GLS_MARGIN = 4  # ... scoring only its vertices more than this many rings from a cut
+SOBOLEV_GLS_REGION = 10_000  # from search.REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices
+SOBOLEV_GLS_PATCHES = 8  # ... made of this many balls of vertices
+SOBOLEV_GLS_MARGIN = 8  # ... scoring only its vertices more than this many rings from a cut
 SOBOLEV_GLS_SPREAD_SAMPLES = 4  # simulated noise draws of the parametric bootstrap of the normals' spread
 
 

@@ -40,9 +40,10 @@ def project_update(X: np.ndarray, Y: np.ndarray, N: np.ndarray, tangential: floa
 SOBOLEV_NORMAL_ORDERS = (2, 3)  # candidate Laplacian powers of the automatic sobolev_normal rule
 SOBOLEV_NORMAL_PROBES = 16  # Monte-Carlo SURE probes (along the normals) of sobolev_normal
 SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES = 50_000  # without pinned vertices the filter factorises nothing from this size
-SOBOLEV_NORMAL_REGION = 10_000  # from search.REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices
-SOBOLEV_NORMAL_PATCHES = 4  # ... made of this many balls of vertices
-SOBOLEV_NORMAL_MARGIN = 4  # ... scoring only its vertices more than this many rings from a cut
+SOBOLEV_NORMAL_REGION = 16_000  # from search.REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices
+SOBOLEV_NORMAL_PATCHES = 8  # ... made of this many balls of vertices
+SOBOLEV_NORMAL_MARGIN = 8  # ... scoring only its vertices more than this many rings from a cut
+SOBOLEV_NORMAL_REGION_PROBES = 16  # ... with this many probes (48 moved no choice at 100k: the spread is the content)
 
 
 def _projected_divergence(V: np.ndarray, F: np.ndarray, out: np.ndarray, Bp: np.ndarray, t: float, delta: float) -> float:
@@ -117,8 +118,8 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
 
     ``scored`` (bool (n,), optional): SURE or GCV of the scored vertices only (the residual
     summed over them, the probes zero elsewhere, so the divergence is the trace of the scored
-    block of the Jacobian; ``n`` their count). For a region cut out of a larger mesh, whose
-    vertices near a cut see a border the mesh does not have.
+    block of the Jacobian; ``n`` their count), with ``SOBOLEV_NORMAL_REGION_PROBES`` probes. For a
+    region cut out of a larger mesh, whose vertices near a cut see a border the mesh does not have.
     """
     spec = get_filter("sobolev_normal")
     full = spec.resolve(ctx.given, where="choose_parameters(method='sobolev_normal')")
@@ -131,7 +132,7 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     t = float(full["tangential"]) if "tangential" in ctx.given else normal_trust(ctx.rho, mean_edge_length(smooth, ctx.ops))
     orders = [int(full["order"])] if "order" in ctx.given else list(SOBOLEV_NORMAL_ORDERS)
     use_gcv = ctx.reference is None and t == 0.0  # normal-only update: n coordinates; rho not needed
-    K = SOBOLEV_NORMAL_PROBES
+    K = SOBOLEV_NORMAL_PROBES if scored is None else SOBOLEV_NORMAL_REGION_PROBES
     Nh = vertex_normals(smooth, ctx.F)
     z = ctx.colour(np.random.default_rng(0).choice([-1.0, 1.0], size=(n, K)), 1.0 / K)  # Sigma^{1/2} xi if correlated
     Bp = np.hstack([z[:, [k]] * Nh for k in range(K)])  # (n, 3K): probe k in columns 3k..3k+2
