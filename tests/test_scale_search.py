@@ -21,7 +21,8 @@ from meshdenoise.operators import Operators
 from meshdenoise.shapes import grid, icosphere, torus
 from meshdenoise.solvers import LanczosQuadrature
 from meshdenoise.tuning.memo import MEMO
-from meshdenoise.tuning.risk import Criterion, probe_block
+from meshdenoise.tuning import TuningContext
+from meshdenoise.tuning.risk import Criterion, Point, probe_block
 from meshdenoise.tuning.search import (
     PathCurve,
     averaging_step,
@@ -347,6 +348,7 @@ def test_sobolev_normal_region_search_runs_on_a_cut_region_with_the_whole_mesh_t
         return real_rule(ctx, mask)
 
     monkeypatch.setattr(sn, "choose_sobolev_normal_whole", spy)
+    monkeypatch.setattr(sn, "shifted_reach", lambda mu, p: 0)  # no second cut here (next test)
     params, risk = choose_parameters((Vn, F), "sobolev_normal", noise=rho, return_risk=True)
     assert len(cut) == 1 and not cut[0].whole and 4864 <= cut[0].vertices.size < len(V)
     (ctx, mask), = scored
@@ -360,6 +362,32 @@ def test_sobolev_normal_region_search_runs_on_a_cut_region_with_the_whole_mesh_t
     sub_params, sub_point = real_rule(ctx, mask)
     assert sub_params == params
     assert risk == pytest.approx(sub_point.score * len(V) / mask.sum(), rel=1e-12)
+
+
+def test_region_rule_cuts_again_with_the_margin_the_choice_needs(monkeypatch):
+    """A choice that needs a wider margin than the region had: cut again with it; the whole mesh once too large."""
+    import meshdenoise.tuning.region as region
+    import meshdenoise.tuning.search as search
+
+    V, F = torus(100, 60)
+    Vn, _ = add_normal_noise((V, F), 0.01, seed=0)
+    ctx = TuningContext(Vn, F, get_operators(F, len(V)), 0.01, Criterion("sure"), None, {})
+    cut, calls = [], []
+    real_region = region.SampledRegion
+    monkeypatch.setattr(region, "SampledRegion", lambda *a, **k: cut.append(real_region(*a, **k)) or cut[-1])
+
+    def rule(c, mask):
+        calls.append((c.n, None if mask is None else int(mask.sum())))
+        return {"mu": 1.0}, Point(1.0, 1.0, 1.0, None, 1.0)
+
+    needs = iter([9, 9])
+    search.region_rule(ctx, rule, 1000, 2, 4, min_vertices=10, reach=lambda chosen: next(needs))
+    assert [c.radius > 0 for c in cut] == [True, True] and len(calls) == 2
+    assert cut[1].vertices.size >= 2 * 19 * 81 > cut[0].vertices.size  # grown for a 9-ring margin
+    assert calls[1][1] < calls[1][0]
+    calls.clear()
+    search.region_rule(ctx, rule, 1000, 2, 4, min_vertices=10, reach=lambda chosen: 16)  # 2 x 19 x 256 > n
+    assert calls[-1] == (len(V), None)
 
 
 def test_sobolev_normal_scored_rule_with_every_vertex_scored_is_the_whole_rule():

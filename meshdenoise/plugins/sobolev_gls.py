@@ -18,7 +18,7 @@ from ..solvers import lanczos_shifted, laplacian_power, shifted_solver
 from ..tuning.context import TuningContext
 from ..tuning.noise_level import mean_edge_length, normal_spread, normal_trust
 from ..tuning.risk import Point, gcv
-from ..tuning.search import best_shifted, region_rule, search_log, solve_shifted
+from ..tuning.search import best_shifted, region_rule, search_log, shifted_reach, solve_shifted
 
 log = logging.getLogger("meshdenoise.auto")
 
@@ -214,7 +214,9 @@ def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
     """:func:`choose_sobolev_gls_whole` on a sampled region of ``SOBOLEV_GLS_REGION`` vertices from
     :data:`~meshdenoise.tuning.search.REGION_MIN_VERTICES` vertices (:func:`~meshdenoise.tuning.search.region_rule`),
     on the whole mesh below (docs/scale.md: the same choice at 100k and 400k, a bounded cost)."""
-    return region_rule(ctx, choose_sobolev_gls_whole, SOBOLEV_GLS_REGION, SOBOLEV_GLS_PATCHES, SOBOLEV_GLS_MARGIN)
+    order = int(get_filter("sobolev_gls").resolve(ctx.given, where="choose_parameters(method='sobolev_gls')")["order"])
+    return region_rule(ctx, choose_sobolev_gls_whole, SOBOLEV_GLS_REGION, SOBOLEV_GLS_PATCHES, SOBOLEV_GLS_MARGIN,
+                       reach=lambda chosen: shifted_reach(chosen["mu"], order) if chosen.get("mu") else 0)
 
 
 def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = None) -> tuple[dict, Point]:

@@ -12,7 +12,7 @@ from ..tuning.context import TuningContext
 from ..tuning.memo import digest
 from ..tuning.noise_level import mean_edge_length, normal_trust
 from ..tuning.risk import MC_SURE_STEP, Point, gcv
-from ..tuning.search import region_rule, search_log, solve_shifted
+from ..tuning.search import region_rule, search_log, shifted_reach, solve_shifted
 
 __all__ = ["sobolev_normal", "project_update", "area_normals"]
 
@@ -80,8 +80,11 @@ def choose_sobolev_normal(ctx: TuningContext) -> tuple[dict, Point]:
             return {}
         return {"tangential": normal_trust(ctx.rho, mean_edge_length(ctx.smoothed("sure").X, ctx.ops))}
 
+    def reach(chosen: dict) -> int:  # the cut's reach at the chosen weight, for either order (both are scored)
+        return max(shifted_reach(chosen["mu"], p) for p in SOBOLEV_NORMAL_ORDERS) if chosen.get("mu") else 0
+
     return region_rule(ctx, choose_sobolev_normal_whole, SOBOLEV_NORMAL_REGION, SOBOLEV_NORMAL_PATCHES,
-                       SOBOLEV_NORMAL_MARGIN, given=whole_tangential)
+                       SOBOLEV_NORMAL_MARGIN, given=whole_tangential, reach=reach)
 
 
 def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = None) -> tuple[dict, Point]:
