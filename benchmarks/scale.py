@@ -60,7 +60,7 @@ sys.path.insert(0, str(ROOT))
 SIZES = {"100k": 1, "400k": 2, "1.6M": 3}  # label -> Loop subdivision levels
 DEFAULT = "default"  # the row of `meshdenoise denoise IN OUT` with no method: choose_default, then its filter
 METHODS = ("filtering", "heat", "taubin", "sobolev", "sobolev_bilaplacian", "sobolev_normal", "sobolev_gls", "two_stage",
-           DEFAULT)
+           DEFAULT, "sobolev_axes")
 NOISE_EDGES = 0.5  # noise standard deviation in mean edge lengths
 TWO_STAGE_COUNTS = (1, 20, 20)  # outer, normal, vertex iterations (MeshLab's defaults per outer iteration)
 TAUBIN_ARGS = (10, 0.5, -0.53)
@@ -70,6 +70,7 @@ CONTINUOUS = {  # main parameter of the methods without an iteration count to wa
     "sobolev_bilaplacian": "mu",
     "sobolev_normal": "mu",
     "sobolev_gls": "mu",
+    "sobolev_axes": ("mu1", "mu2", "mu3"),  # the three weights scaled together
 }
 GRID = (1.0 / 3.0, 3.0)
 
@@ -184,7 +185,8 @@ def child_inproc(npz: str, method: str) -> None:
     if method in CONTINUOUS:
         name = CONTINUOUS[method]
         for factor in GRID:
-            trial = {**params, name: params[name] * factor}
+            names = name if isinstance(name, tuple) else (name,)
+            trial = {**params, **{k: params[k] * factor for k in names}}
             if method == "heat":  # a chosen iteration count belongs to the chosen time: let it follow
                 trial.pop("iterations", None)
             s = md.snr(V, md.apply_filter(method, (Vn, F), **trial)[0])

@@ -15,12 +15,14 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from meshdenoise import add_normal_noise, choose_parameters
+from meshdenoise import add_normal_noise, apply_filter, choose_parameters, snr
+from meshdenoise.operators import clear_cache, get_operators
 from meshdenoise.operators import Operators
 from meshdenoise.shapes import grid, icosphere, torus
 from meshdenoise.solvers import LanczosQuadrature
 from meshdenoise.tuning.memo import MEMO
-from meshdenoise.tuning.risk import Criterion, probe_block
+from meshdenoise.tuning import TuningContext
+from meshdenoise.tuning.risk import Criterion, Point, probe_block
 from meshdenoise.tuning.search import (
     PathCurve,
     averaging_step,
@@ -273,3 +275,162 @@ def test_path_curve_memo_is_keyed_by_the_probes(monkeypatch):
     monkeypatch.setattr(search, "probe_block", lambda *args, **kw: (2.0 * plain(*args, **kw)[0], plain(*args, **kw)[1]))
     b = path_curve(Vn, ops, step, ("P", 1.0), exact=False)  # other probes (a coloured noise model): another run
     assert b is not a and np.array_equal(b.Z, 2.0 * a.Z)
+
+
+# ----------------------------------------------------------------------------- sobolev_normal / sobolev_gls at scale
+@pytest.mark.parametrize("order, mu", [(1, 0.3), (2, 4.0), (3, 0.5), (3, 60.0)])
+def test_lanczos_shifted_equals_a_dense_solve(order, mu):
+    from meshdenoise.solvers import lanczos_shifted
+    from meshdenoise.shapes import grid
+
+    V, F = grid(9, 7)  # open: a border, and a zero eigenvalue
+    V = V + 0.05 * np.random.default_rng(0).standard_normal(V.shape)
+    ops = get_operators(F, len(V))
+    L = ops.L.toarray()
+    expected = np.linalg.solve(np.eye(len(V)) + mu * np.linalg.matrix_power(L, order), V)
+    np.testing.assert_allclose(lanczos_shifted(ops, V, mu, order, tol=1e-13), expected, atol=1e-10)
+    np.testing.assert_allclose(lanczos_shifted(ops, V[:, 0], mu, order, tol=1e-13), expected[:, 0], atol=1e-10)
+    assert lanczos_shifted(ops, V, 1e6, order, max_steps=3) is None
+    with pytest.raises(ValueError, match="mu"):
+        lanczos_shifted(ops, V, -1.0, order)
+    with pytest.raises(ValueError, match="order"):
+        lanczos_shifted(ops, V, 1.0, 0)
+
+
+def test_sobolev_normal_factor_free_path_equals_the_factor_path(monkeypatch):
+    import meshdenoise.plugins.sobolev_normal as sn
+
+    V, F = icosphere(3)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
+    for order, mu, t in ((2, 3.0, 0.0), (3, 0.7, 0.4)):
+        clear_cache()
+        before = apply_filter("sobolev_normal", (Vn, F), mu=mu, order=order, tangential=t)[0]
+        monkeypatch.setattr(sn, "SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES", 0)
+        clear_cache()
+        monkeypatch.setattr(sn, "shifted_solver", lambda *a, **k: pytest.fail("a factor was built"))
+        after = apply_filter("sobolev_normal", (Vn, F), mu=mu, order=order, tangential=t)[0]
+        monkeypatch.undo()
+        np.testing.assert_allclose(after, before, atol=1e-11)
+
+
+@pytest.mark.parametrize("method", ["sobolev_normal", "sobolev_gls"])
+def test_region_rule_is_not_used_below_its_size(monkeypatch, method):
+    """Every quality-table mesh is below REGION_MIN_VERTICES: the rule runs on the whole mesh, as before."""
+    import meshdenoise.tuning.region as region
+
+    monkeypatch.setattr(region, "SampledRegion", lambda *a, **k: pytest.fail("a region was cut"))
+    V, F = icosphere(2)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
+    params = choose_parameters((Vn, F), method, noise=0.02)
+    assert params["mu"] > 0
+
+
+def test_sobolev_normal_region_search_runs_on_a_cut_region_with_the_whole_mesh_tangential(monkeypatch):
+    """The wiring of region_rule: a region is cut (grown to patches x 19 x margin^2 vertices), the rule scores its
+    inner vertices with the whole mesh's tangential share held, and the risk is scaled to the whole mesh. Its
+    quality against the whole-mesh search is measured in docs/scale.md (elephant at 100k; a torus where it fails)."""
+    import meshdenoise.plugins.sobolev_normal as sn
+    import meshdenoise.tuning.region as region
+    import meshdenoise.tuning.search as search
+
+    V, F = torus(100, 60)
+    rho = 0.4 * float(np.linalg.norm(V[F[:, 0]] - V[F[:, 1]], axis=1).mean())
+    Vn, _ = add_normal_noise((V, F), rho, seed=0)
+    monkeypatch.setattr(search, "REGION_MIN_VERTICES", 1000)
+    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_REGION", 3000)  # grown by region_shape to 4 x 19 x 8^2 = 4864
+    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_PATCHES", 4)
+    cut, scored = [], []
+    real_region, real_rule = region.SampledRegion, sn.choose_sobolev_normal_whole
+    monkeypatch.setattr(region, "SampledRegion", lambda *a, **k: cut.append(real_region(*a, **k)) or cut[-1])
+
+    def spy(ctx, mask):
+        scored.append((ctx, mask))
+        return real_rule(ctx, mask)
+
+    monkeypatch.setattr(sn, "choose_sobolev_normal_whole", spy)
+    monkeypatch.setattr(sn, "shifted_reach", lambda mu, p: 0)  # no second cut here (next test)
+    params, risk = choose_parameters((Vn, F), "sobolev_normal", noise=rho, return_risk=True)
+    assert len(cut) == 1 and not cut[0].whole and 4864 <= cut[0].vertices.size < len(V)
+    (ctx, mask), = scored
+    assert ctx.n == cut[0].vertices.size and np.array_equal(mask, cut[0].inner) and 0 < mask.sum() < ctx.n
+    np.testing.assert_array_equal(ctx.V, Vn[cut[0].vertices])
+    whole_t = sn.normal_trust(rho, sn.mean_edge_length(
+        real_rule.__globals__["TuningContext"](Vn, F, get_operators(F, len(V)), rho, Criterion("sure"), None, {})
+        .smoothed("sure").X, get_operators(F, len(V))))
+    assert ctx.given == {"tangential": whole_t} and params["tangential"] == whole_t
+    assert set(params) == {"mu", "order", "tangential"}
+    sub_params, sub_point = real_rule(ctx, mask)
+    assert sub_params == params
+    assert risk == pytest.approx(sub_point.score * len(V) / mask.sum(), rel=1e-12)
+
+
+def test_region_rule_cuts_again_with_the_margin_the_choice_needs(monkeypatch):
+    """A choice that needs a wider margin than the region had: cut again with it; the whole mesh once too large."""
+    import meshdenoise.tuning.region as region
+    import meshdenoise.tuning.search as search
+
+    V, F = torus(100, 60)
+    Vn, _ = add_normal_noise((V, F), 0.01, seed=0)
+    ctx = TuningContext(Vn, F, get_operators(F, len(V)), 0.01, Criterion("sure"), None, {})
+    cut, calls = [], []
+    real_region = region.SampledRegion
+    monkeypatch.setattr(region, "SampledRegion", lambda *a, **k: cut.append(real_region(*a, **k)) or cut[-1])
+
+    def rule(c, mask):
+        calls.append((c.n, None if mask is None else int(mask.sum())))
+        return {"mu": 1.0}, Point(1.0, 1.0, 1.0, None, 1.0)
+
+    needs = iter([9, 9])
+    search.region_rule(ctx, rule, 1000, 2, 4, min_vertices=10, reach=lambda chosen: next(needs))
+    assert [c.radius > 0 for c in cut] == [True, True] and len(calls) == 2
+    assert cut[1].vertices.size >= 2 * 19 * 81 > cut[0].vertices.size  # grown for a 9-ring margin
+    assert calls[1][1] < calls[1][0]
+    calls.clear()
+    search.region_rule(ctx, rule, 1000, 2, 4, min_vertices=10, reach=lambda chosen: 16)  # 2 x 19 x 256 > n
+    assert calls[-1] == (len(V), None)
+
+
+def test_sobolev_normal_scored_rule_with_every_vertex_scored_is_the_whole_rule():
+    from meshdenoise.plugins.sobolev_normal import choose_sobolev_normal_whole
+    from meshdenoise.tuning import TuningContext
+
+    V, F = torus(16, 8)
+    Vn, _ = add_normal_noise((V, F), 0.05, seed=2)
+    ops = get_operators(F, len(V))
+    for given in ({}, {"tangential": 0.5}):
+        ctx = TuningContext(Vn, F, ops, 0.05, Criterion("sure"), None, dict(given))
+        (c0, p0), (c1, p1) = choose_sobolev_normal_whole(ctx, None), choose_sobolev_normal_whole(ctx, np.ones(len(V), bool))
+        assert c0 == c1 and p0.score == pytest.approx(p1.score, rel=1e-12)
+
+
+def test_sobolev_axes_quadrature_search_chooses_the_factor_search_weights(monkeypatch):
+    """Same candidates scored by quadrature and by a factor per mu (the independent path): same mu1..mu3, same risk."""
+    import meshdenoise.plugins.sobolev_axes as ax
+    import meshdenoise.tuning.search as search
+
+    V, F = torus(40, 20)
+    Vn, _ = add_normal_noise((V, F), 0.03, seed=0)
+    monkeypatch.setattr(ax, "probe_count", lambda n: 24)
+    old, old_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True)
+    monkeypatch.setattr(ax, "AXES_SCALE_MIN_VERTICES", 100)
+    monkeypatch.setattr(ax, "solve_shifted", lambda *a, **k: pytest.fail("a factor was used"))
+    new, new_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True)
+    for name in ("mu1", "mu2", "mu3"):
+        assert new[name] == pytest.approx(old[name], rel=1e-9)
+    assert new["frame_steps"] == old["frame_steps"]
+    assert new_risk == pytest.approx(old_risk, rel=1e-8)
+
+
+def test_sobolev_axes_factor_free_filter_equals_the_factor_filter(monkeypatch):
+    import meshdenoise.plugins.sobolev_axes as ax
+
+    V, F = icosphere(3)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
+    params = dict(mu1=0.3, mu2=0.0, mu3=4.0, order=3, frame_steps=2)
+    clear_cache()
+    before = apply_filter("sobolev_axes", (Vn, F), **params)[0]
+    monkeypatch.setattr(ax, "AXES_SCALE_MIN_VERTICES", 0)
+    monkeypatch.setattr(ax, "shifted_solver", lambda *a, **k: pytest.fail("a factor was built"))
+    clear_cache()
+    after = apply_filter("sobolev_axes", (Vn, F), **params)[0]
+    np.testing.assert_allclose(after, before, atol=1e-11)

@@ -252,3 +252,60 @@ def test_coherent_normals_derivative_matches_central_differences_on_both_branche
     assert k_half[0]  # vertex 0 is on the k/2 branch: its two faces are 60+ degrees apart
     flat = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]])  # a zero-area face
     assert not coherent_normals_derivative(flat, np.array([[0, 1, 2]]), rng.standard_normal((3, 3, 2))).any()
+
+
+# ----------------------------------------------------------------------------- scan-sized path (issue 17)
+@pytest.mark.parametrize("mu, beta, order, jacobi_cap", [(0.4, 4.0, 3, 3000), (5.0, 12.0, 2, 3000), (0.4, 4.0, 3, 3)])
+def test_sobolev_gls_factor_free_path_matches_the_dense_solve(monkeypatch, mu, beta, order, jacobi_cap):
+    """From GLS_ITERATIVE_MIN_VERTICES (set to 0 here) nothing is factorised: Lanczos passes and block-Jacobi CG
+    (a cap of 3 iterations forces the Lanczos-preconditioned fallback); the dense 3n x 3n solve is the reference."""
+    import meshdenoise.plugins.sobolev_gls as sg
+    from meshdenoise.operators import clear_cache
+
+    V, F = torus(12, 6)
+    Vn, _ = add_normal_noise((V, F), 0.03, seed=1)
+    n = len(V)
+    Lp = np.linalg.matrix_power(_dense_L(F, n), order)
+    expected = _dense_gls(Vn.ravel(), F, Lp, mu, beta).reshape(n, 3)
+    monkeypatch.setattr(sg, "GLS_ITERATIVE_MIN_VERTICES", 0)
+    monkeypatch.setattr(sg, "GLS_JACOBI_MAX_ITERATIONS", jacobi_cap)
+    clear_cache()
+    built = []
+    monkeypatch.setattr(sg, "shifted_solver", lambda *a, **k: built.append(a) or pytest.fail("a factor was built"))
+    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=order)[0]
+    np.testing.assert_allclose(got, expected, atol=1e-8)
+    iso = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=1.0, order=order)[0]
+    np.testing.assert_allclose(iso, np.linalg.solve(np.eye(n) + mu * Lp, Vn), atol=1e-10)
+
+
+def test_normal_weighted_cg_solves_the_dense_system_and_reports_non_convergence():
+    from meshdenoise.plugins.sobolev_gls import normal_weighted_cg
+
+    V, F = icosphere(2)
+    n = len(V)
+    ops = get_operators(F, n)
+    N = _unit_normals(V + 0.05 * np.random.default_rng(0).standard_normal(V.shape), F)
+    B = np.random.default_rng(1).standard_normal((n, 3))
+    for order, mu, beta in ((1, 3.0, 2.0), (2, 0.5, 8.0), (3, 0.2, 12.0)):
+        _, A = _dense_system(N, beta, mu, np.linalg.matrix_power(_dense_L(F, n), order))
+        Y, ok = normal_weighted_cg(ops, N, beta, mu, order, B, tol=1e-12)
+        assert ok
+        np.testing.assert_allclose(Y.ravel(), np.linalg.solve(A, B.ravel()), atol=1e-9)
+    _, ok = normal_weighted_cg(ops, N, 12.0, 100.0, 3, B, tol=1e-12, maxiter=2)
+    assert not ok
+
+
+def test_sobolev_gls_scored_rule_with_every_vertex_scored_is_the_whole_rule():
+    """region_rule's scored mask: all True must give the whole-mesh rule's choice and score exactly."""
+    from meshdenoise.plugins.sobolev_gls import choose_sobolev_gls_whole
+    from meshdenoise.tuning.risk import Criterion
+
+    V, F = torus(16, 8)
+    Vn, _ = add_normal_noise((V, F), 0.05, seed=2)
+    ops = get_operators(F, len(V))
+
+    def run(scored):
+        return choose_sobolev_gls_whole(TuningContext(Vn, F, ops, 0.05, Criterion("sure"), False, {}), scored)
+
+    (c0, p0), (c1, p1) = run(None), run(np.ones(len(V), dtype=bool))
+    assert c0 == c1 and p0.score == pytest.approx(p1.score, rel=1e-12)

@@ -9,12 +9,16 @@ import numpy as np
 from ..geometry import vertex_normals
 from ..operators import Operators
 from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
-from ..solvers import shifted_solver
+from ..operators import spmm
+from ..solvers import LanczosQuadrature, lanczos_shifted, shifted_solver
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
 from ..tuning.noise_level import fourth_difference, mean_edge_length, normal_trust
 from ..tuning.risk import Point, probe_block
-from ..tuning.search import best_shifted, solve_shifted
+from ..tuning.search import best_shifted, probe_count, solve_shifted
+
+AXES_SCALE_MIN_VERTICES = 50_000  # from this size: the search by Lanczos quadrature, the filter without a factor
+# (every quality-table mesh is below it: their choices are unchanged)
 
 __all__ = ["sobolev_axes", "normal_frame", "choose_sobolev_axes"]
 
@@ -102,6 +106,12 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
     residual energy on each axis (:func:`_axis_share_correction`): the smoothed normals
     misplace up to 30 % of an axis's noise on Nefertiti at rho = 1 (3 edge lengths),
     which made the per-axis SURE pick mu2 = 0.08 instead of about 10 on two of five seeds.
+
+    From ``AXES_SCALE_MIN_VERTICES`` vertices (not the oracle) the candidates are the same and
+    their scores come from one Lanczos run on ``L`` (Gauss quadrature of both terms, which are
+    quadratic forms of functions of ``L``, as :func:`~meshdenoise.tuning.search.shifted_quadrature`;
+    the probes :func:`~meshdenoise.tuning.search.probe_count`), no factorisation per ``mu``; a
+    candidate whose rule has not converged in 600 steps falls back to its factor.
     """
     spec = get_filter("sobolev_axes")
     full = spec.resolve(ctx.given, where="choose_parameters(method='sobolev_axes')")
@@ -123,15 +133,36 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
         c = c * _axis_share_correction(ctx.V, ctx.ops, E, c, ctx.rho, smooth)[None, :]
     Xf = ctx.V @ E
     Yf = None if ctx.reference is None else ctx.reference @ E
-    Z, s = probe_block(n, ctx.exact)
+    large = n >= AXES_SCALE_MIN_VERTICES and Yf is None
+    Z, s = probe_block(n, ctx.exact, n_probes=probe_count(n)) if large else probe_block(n, ctx.exact)
     m = Z.shape[1]
     Q = np.hstack([Z * np.sqrt(c[:, [d]]) for d in range(3)])
     held = [f"mu{d + 1}" in ctx.given for d in range(3)]
     evaluated: dict[float, list[float]] = {}  # log10 mu -> per-axis score
     key = digest(ctx.ops.F, order, np.hstack([Xf, Q]))
+    quad = None
+    if large:  # every candidate's terms from one Lanczos run on L (as search.shifted_quadrature)
+        hp = Xf
+        for _ in range(order):
+            hp = spmm(ctx.ops.L, np.ascontiguousarray(hp))
+        quad = LanczosQuadrature(ctx.ops.L, np.hstack([hp, Q]), max_steps=600)
+
+    def by_quadrature(mu: float) -> list | None:
+        """Per-axis SURE: :math:`\\|H x_d - x_d\\|^2 = c_d^T \\mu^2 (I + \\mu L^p)^{-2} c_d`, :math:`c_d = L^p x_d`,
+        and the weighted traces :math:`q^T (I + \\mu L^p)^{-1} q`, Gauss quadrature on the same Lanczos run."""
+        r = quad.evaluate(lambda x: mu**2 / (1.0 + mu * np.maximum(x, 0.0) ** order) ** 2, range(3))
+        q = quad.evaluate(lambda x: 1.0 / (1.0 + mu * np.maximum(x, 0.0) ** order), range(3, 3 + 3 * m))
+        if r is None or q is None:
+            return None
+        return [float(r[d]) - ctx.rho**2 * float(c[:, d].sum()) + 2 * ctx.rho**2 * s * float(q[d * m:(d + 1) * m].sum())
+                for d in range(3)]
 
     def at(t: float) -> list:
         t = round(t, 9)
+        if t not in evaluated and quad is not None:
+            scores = by_quadrature(10.0**t)
+            if scores is not None:
+                evaluated[t] = scores
         if t not in evaluated:
             mu = 10.0**t
             out = solve_shifted(ctx.ops, order, mu, np.hstack([Xf, Q]), key)
@@ -256,6 +287,12 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps):
     E, _ = normal_frame(X, F, ops, frame_steps)
     C = X @ E
     out = np.empty_like(C)
+    factor_free = ops.n >= AXES_SCALE_MIN_VERTICES and (pinned is None or not pinned.any())
     for d, mu in enumerate((mu1, mu2, mu3)):
-        out[:, d] = C[:, d] if mu == 0 else shifted_solver(ops, mu, order, pinned).solve(C[:, d])
+        y = None
+        if mu != 0 and factor_free and (float(mu), None) not in ops.cache.get(f"shifted-p{order}-cholesky", {}):
+            y = lanczos_shifted(ops, C[:, d], mu, order, tol=1e-12)  # a 100k factor of I + mu L^3: 20 s
+        if y is None:
+            y = C[:, d] if mu == 0 else shifted_solver(ops, mu, order, pinned).solve(C[:, d])
+        out[:, d] = y
     return out @ E.T

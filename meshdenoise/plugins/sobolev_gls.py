@@ -12,13 +12,13 @@ import numpy as np
 
 from ..geometry import coherent_normals  # re-exported: the filter's normals
 from ..geometry import coherent_normals_derivative, vertex_normals
-from ..operators import Operators
+from ..operators import Operators, spmm
 from ..registry import AutoRule, Param, get_filter, register
-from ..solvers import laplacian_power, shifted_solver
+from ..solvers import lanczos_shifted, laplacian_power, shifted_solver
 from ..tuning.context import TuningContext
 from ..tuning.noise_level import mean_edge_length, normal_spread, normal_trust
 from ..tuning.risk import Point, gcv
-from ..tuning.search import best_shifted, search_log, solve_shifted
+from ..tuning.search import best_shifted, region_rule, search_log, shifted_reach, solve_shifted
 
 log = logging.getLogger("meshdenoise.auto")
 
@@ -37,7 +37,7 @@ def _apply_weight(N: np.ndarray, beta: float, Y: np.ndarray) -> np.ndarray:
 
 def normal_weighted_solve(
     ops: Operators, N: np.ndarray, beta: float, mu: float, order: int, B: np.ndarray,
-    pinned: np.ndarray | None = None, x0: np.ndarray | None = None,
+    pinned: np.ndarray | None = None, x0: np.ndarray | None = None, prec: Any = None,
 ) -> np.ndarray:
     """Solve :math:`(W + \\mu\\, L^p \\otimes I_3)\\, Y = B` by conjugate gradients, for one or several right-hand sides.
 
@@ -47,19 +47,26 @@ def normal_weighted_solve(
     coordinate (the cached Cholesky factor of ``sobolev_axes``): :math:`I \\preceq W \\preceq \\beta I`,
     so the preconditioned matrix has its spectrum in :math:`[1, \\beta]` and CG converges in
     :math:`O(\\sqrt\\beta)` iterations whatever the mesh. With ``pinned`` vertices their rows
-    of ``x0`` are kept and the free rows solve the reduced system.
+    of ``x0`` are kept and the free rows solve the reduced system. ``prec`` (optional, no pinned
+    vertices) applies :math:`(I + \\mu L^p)^{-1}` to an (n, c) array instead of the factor.
     """
     many = B.ndim == 3
     Bk = B if many else B[:, :, None]
     n, _, k = Bk.shape
-    S = shifted_solver(ops, mu, order, pinned)
     M = laplacian_power(ops, order)
+    if prec is None:
+        S = shifted_solver(ops, mu, order, pinned)
+
+        def prec(R):
+            return S.solve(R.reshape(n, 3 * k)).reshape(n, 3, k)
+    else:
+        apply_inverse = prec
+
+        def prec(R):
+            return apply_inverse(R.reshape(n, 3 * k)).reshape(n, 3, k)
 
     def A(Y):  # (n, 3, k)
         return _apply_weight(N, beta, Y) + mu * (M @ Y.reshape(n, 3 * k)).reshape(n, 3, k)
-
-    def prec(R):
-        return S.solve(R.reshape(n, 3 * k)).reshape(n, 3, k)
 
     Y = np.zeros_like(Bk) if x0 is None else np.array(x0 if many else x0[:, :, None], dtype=np.float64)
     free = None if pinned is None or not pinned.any() else ~pinned
@@ -98,10 +105,85 @@ def normal_weighted_solve(
     return Y if many else Y[:, :, 0]
 
 
+GLS_ITERATIVE_MIN_VERTICES = 50_000  # without pinned vertices the filter factorises nothing from this size
+GLS_JACOBI_MAX_ITERATIONS = 3000  # block-Jacobi CG's cap before the Lanczos-preconditioned solve takes over
+
+
+def _laplacian_power_diagonal(ops: Operators, order: int) -> np.ndarray:
+    """:math:`\\mathrm{diag}(L^p)` (n,), as :math:`\\sum_j (L^a)_{ij} (L^b)_{ij}`, :math:`a = \\lceil p/2 \\rceil`,
+    :math:`b = \\lfloor p/2 \\rfloor` (``L`` symmetric), without forming :math:`L^p` beyond :math:`L^a`."""
+    a, b = (order + 1) // 2, order // 2
+    La = laplacian_power(ops, a)
+    if b == 0:
+        return np.asarray(La.diagonal(), dtype=np.float64)
+    Lb = laplacian_power(ops, b)
+    return np.asarray(La.multiply(Lb).sum(axis=1), dtype=np.float64).ravel()
+
+
+def normal_weighted_cg(
+    ops: Operators, N: np.ndarray, beta: float, mu: float, order: int, B: np.ndarray,
+    tol: float = CG_TOL, maxiter: int = GLS_JACOBI_MAX_ITERATIONS,
+) -> tuple[np.ndarray, bool]:
+    """:math:`(W + \\mu L^p \\otimes I_3)\\, Y = B` (``B`` (n, 3)) by block-Jacobi CG, nothing factorised, no pinned rows.
+
+    The operator is applied matrix-free (``p`` products with ``L`` on the three columns, not
+    :math:`L^p`); the preconditioner is the inverse of its 3 x 3 diagonal blocks
+    :math:`M_i = W_i + c_i I`, :math:`c_i = \\mu (L^p)_{ii}`, in closed form:
+
+    .. math:: M_i^{-1} = \\frac{1}{\\beta + c_i}\\Big(I + \\frac{\\beta - 1}{1 + c_i} N_i N_i^T\\Big)
+
+    (:math:`W_i = \\beta I - (\\beta - 1) N_i N_i^T`). Its iterations grow like
+    :math:`\\sqrt{\\mu}\\,\\lambda_{max}^{p/2}` (no longer bounded by :math:`\\sqrt\\beta` as
+    :func:`normal_weighted_solve`'s), but each costs ``p`` products on three columns where the
+    factor-preconditioned iteration costs a solve with the factor of :math:`I + \\mu L^p` (at 100k
+    vertices and ``p = 3``: a 20 s factorisation). Returns ``(Y, converged)`` (relative
+    residual ``tol`` within ``maxiter`` iterations).
+    """
+    n = N.shape[0]
+    L = ops.L
+    c = mu * _laplacian_power_diagonal(ops, order)
+    inv_a = 1.0 / (beta + c)
+    g = (beta - 1.0) / (1.0 + c)
+
+    def A(Y):
+        Z = Y
+        for _ in range(order):
+            Z = spmm(L, np.ascontiguousarray(Z))
+        return _apply_weight(N, beta, Y) + mu * Z
+
+    def prec(R):
+        return inv_a[:, None] * (R + (g * np.sum(N * R, axis=1))[:, None] * N)
+
+    Y = np.zeros((n, 3))
+    R = np.array(B, dtype=np.float64)
+    norm0 = float(np.sqrt(np.sum(R * R))) + 1e-300
+    Z = prec(R)
+    P = Z.copy()
+    rz = float(np.sum(R * Z))
+    for _ in range(int(maxiter)):
+        if float(np.sqrt(np.sum(R * R))) <= tol * norm0:
+            return Y, True
+        AP = A(P)
+        pap = float(np.sum(P * AP))
+        if pap <= 0:
+            break
+        alpha = rz / pap
+        Y += alpha * P
+        R -= alpha * AP
+        Z = prec(R)
+        rz_new = float(np.sum(R * Z))
+        P = Z + (rz_new / rz) * P if rz > 0 else Z
+        rz = rz_new
+    return Y, bool(float(np.sqrt(np.sum(R * R))) <= tol * norm0)
+
+
 # ----------------------------------------------------------------------------- automatic rule
 SOBOLEV_GLS_BETAS = (1.0, 2.0, 3.0, 5.0, 8.0, 12.0)  # candidate tangential weights
 SOBOLEV_GLS_PROBES = 8  # Hutchinson probes of the divergence (the same for every candidate)
 SOBOLEV_GLS_EXACT_MAX = 400  # exact traces up to this many vertices: 3n right-hand sides through CG per candidate
+SOBOLEV_GLS_REGION = 10_000  # from search.REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices
+SOBOLEV_GLS_PATCHES = 8  # ... made of this many balls of vertices
+SOBOLEV_GLS_MARGIN = 8  # ... scoring only its vertices more than this many rings from a cut
 SOBOLEV_GLS_SPREAD_SAMPLES = 4  # simulated noise draws of the parametric bootstrap of the normals' spread
 
 
@@ -129,6 +211,15 @@ def _normals_divergence(
 
 
 def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
+    """:func:`choose_sobolev_gls_whole` on a sampled region of ``SOBOLEV_GLS_REGION`` vertices from
+    :data:`~meshdenoise.tuning.search.REGION_MIN_VERTICES` vertices (:func:`~meshdenoise.tuning.search.region_rule`),
+    on the whole mesh below (docs/scale.md: the same choice at 100k and 400k, a bounded cost)."""
+    order = int(get_filter("sobolev_gls").resolve(ctx.given, where="choose_parameters(method='sobolev_gls')")["order"])
+    return region_rule(ctx, choose_sobolev_gls_whole, SOBOLEV_GLS_REGION, SOBOLEV_GLS_PATCHES, SOBOLEV_GLS_MARGIN,
+                       reach=lambda chosen: shifted_reach(chosen["mu"], order) if chosen.get("mu") else 0)
+
+
+def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = None) -> tuple[dict, Point]:
     """``mu`` and ``beta`` of ``sobolev_gls``: SURE (GCV at low noise) with the filter's full divergence.
 
     The filter is :math:`f(X) = X_0 + A^{-1} (\\beta - 1) P (X - X_0)`, :math:`X_0 = (I + \\mu L^p)^{-1} X`,
@@ -181,6 +272,10 @@ def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
     (Nefertiti rho = 0.015: auto loss 0.75 dB with SURE, 0.23 with GCV, 5 seeds).
     Search: ``mu`` by :func:`~meshdenoise.tuning.search.search_log` at ``beta = 3``, then ``beta`` over
     ``SOBOLEV_GLS_BETAS`` at that ``mu``, then ``mu`` again at the best ``beta``.
+
+    ``scored`` (bool (n,), optional): the risk of the scored vertices only (residual summed over
+    them, probes zero elsewhere: the trace of the scored block of :math:`\\hat\\Sigma J`), for a
+    region cut out of a larger mesh (:func:`~meshdenoise.tuning.search.region_rule`).
     """
     spec = get_filter("sobolev_gls")
     full = spec.resolve(ctx.given, where="choose_parameters(method='sobolev_gls')")
@@ -206,6 +301,8 @@ def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
         z = ctx.colour(z.reshape(n, -1), s / 3.0).reshape(z.shape)  # correlated noise: each coordinate Sigma^{1/2} xi
         zn = np.sum(Nn[:, :, None] * z, axis=1, keepdims=True) * Nn[:, :, None]
         B = math.sqrt(1.0 - tau) * zn + math.sqrt(tau / 2.0) * (z - zn)  # probes b = Sigma^{1/2} z / rho
+        if scored is not None:
+            B[~np.asarray(scored, dtype=bool)] = 0.0
         noise_sq = ctx.rho**2 * float(np.sum(B * B)) * s
         # below half an edge length of noise the normals hardly move and GCV (no rho) scores the n normal
         # coordinates, as for sobolev_normal; rho is over-read there on small meshes (Nefertiti 0.015)
@@ -214,6 +311,7 @@ def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
         # cancel as J -> I (with n itself, 8 probes' error drove the search to mu -> 0 on a 642-vertex sphere)
         noise_dof = noise_sq / ctx.rho**2
         log.info("sobolev_gls: tangential share of the noise tau = %.4g", tau)
+    rows = slice(None) if scored is None else np.asarray(scored, dtype=bool)
     evaluated: dict[tuple, Point] = {}
 
     def evaluate(mu: float, beta: float) -> Point:
@@ -238,7 +336,7 @@ def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
                     X, AiB = X0 + out[:, :, 0], out[:, :, 1:]
                     fixed_normals = float(np.sum(AiB * _apply_weight(N, beta, B)))
                     tr = s * (fixed_normals + _normals_divergence(X0, ctx.F, ctx.V - X, N, beta, S, B, AiB))
-                p = Point(mu, float(np.sum((X - ctx.V) ** 2)), tr, X)
+                p = Point(mu, float(np.sum((X - ctx.V)[rows] ** 2)), tr, X)
                 p.score = gcv(p.residual_sq, tr, noise_dof) if use_gcv else p.residual_sq - noise_sq + 2.0 * ctx.rho**2 * tr
             evaluated[key] = (p, beta)
         return evaluated[key][0]
@@ -334,11 +432,39 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order):
     X = np.array(V, dtype=np.float64)
     if F.shape[0] == 0 or mu == 0:
         return X
+    if _iterative(ops, mu, order, pinned):
+        return _sobolev_gls_iterative(X, F, ops, mu, beta, order)
     X0 = shifted_solver(ops, mu, order, pinned).solve(X)
     if beta == 1.0:
         return X0
     N = coherent_normals(X0, F)
     return X0 + normal_weighted_solve(ops, N, beta, mu, order, _correction_rhs(N, beta, X, X0), pinned)
+
+
+def _iterative(ops: Operators, mu: float, order: int, pinned: np.ndarray | None) -> bool:
+    """Whether :func:`sobolev_gls` factorises nothing: from ``GLS_ITERATIVE_MIN_VERTICES`` vertices, no pinned
+    vertex, and no factor of :math:`I + \\mu L^p` stored already."""
+    if ops.n < GLS_ITERATIVE_MIN_VERTICES or (pinned is not None and pinned.any()):
+        return False
+    return (float(mu), None) not in ops.cache.get(f"shifted-p{order}-cholesky", {})
+
+
+def _sobolev_gls_iterative(X: np.ndarray, F: np.ndarray, ops: Operators, mu: float, beta: float, order: int) -> np.ndarray:
+    """:func:`sobolev_gls` on a large mesh: :math:`X_0` by two Lanczos passes (:func:`~meshdenoise.solvers.lanczos_shifted`),
+    the correction by block-Jacobi CG (:func:`normal_weighted_cg`), else CG preconditioned by Lanczos solves."""
+    def shifted(R: np.ndarray) -> np.ndarray:
+        Y = lanczos_shifted(ops, R, mu, order, tol=1e-12)
+        return shifted_solver(ops, mu, order).solve(R) if Y is None else Y
+
+    X0 = shifted(X)
+    if beta == 1.0:
+        return X0
+    N = coherent_normals(X0, F)
+    rhs = _correction_rhs(N, beta, X, X0)
+    D, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs)
+    if not ok:  # a very large mu: the factor-free preconditioned iteration, its count bounded by sqrt(beta)
+        D = normal_weighted_solve(ops, N, beta, mu, order, rhs, x0=D, prec=shifted)
+    return X0 + D
 
 
 def _correction_rhs(N: np.ndarray, beta: float, X: np.ndarray, X0: np.ndarray) -> np.ndarray:

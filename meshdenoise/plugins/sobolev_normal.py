@@ -7,12 +7,12 @@ import numpy as np
 from ..geometry import area_normals  # re-exported: the filter's normals
 from ..registry import AutoRule, Param, get_filter, register
 from ..geometry import vertex_normals
-from ..solvers import shifted_solver
+from ..solvers import lanczos_shifted, shifted_solver
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
 from ..tuning.noise_level import mean_edge_length, normal_trust
 from ..tuning.risk import MC_SURE_STEP, Point, gcv
-from ..tuning.search import search_log, solve_shifted
+from ..tuning.search import region_rule, search_log, shifted_reach, solve_shifted
 
 __all__ = ["sobolev_normal", "project_update", "area_normals"]
 
@@ -39,6 +39,11 @@ def project_update(X: np.ndarray, Y: np.ndarray, N: np.ndarray, tangential: floa
 # ----------------------------------------------------------------------------- automatic rule
 SOBOLEV_NORMAL_ORDERS = (2, 3)  # candidate Laplacian powers of the automatic sobolev_normal rule
 SOBOLEV_NORMAL_PROBES = 16  # Monte-Carlo SURE probes (along the normals) of sobolev_normal
+SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES = 50_000  # without pinned vertices the filter factorises nothing from this size
+SOBOLEV_NORMAL_REGION = 16_000  # from search.REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices
+SOBOLEV_NORMAL_PATCHES = 8  # ... made of this many balls of vertices
+SOBOLEV_NORMAL_MARGIN = 8  # ... scoring only its vertices more than this many rings from a cut
+SOBOLEV_NORMAL_REGION_PROBES = 16  # ... with this many probes (48 moved no choice at 100k: the spread is the content)
 
 
 def _projected_divergence(V: np.ndarray, F: np.ndarray, out: np.ndarray, Bp: np.ndarray, t: float, delta: float) -> float:
@@ -61,6 +66,28 @@ def _projected_divergence(V: np.ndarray, F: np.ndarray, out: np.ndarray, Bp: np.
 
 
 def choose_sobolev_normal(ctx: TuningContext) -> tuple[dict, Point]:
+    """:func:`choose_sobolev_normal_whole`, from :data:`~meshdenoise.tuning.search.REGION_MIN_VERTICES` vertices
+    on a sampled region of ``SOBOLEV_NORMAL_REGION`` vertices (:func:`~meshdenoise.tuning.search.region_rule`,
+    scored on the vertices more than ``SOBOLEV_NORMAL_MARGIN`` rings from a cut), the whole mesh below.
+
+    ``tangential`` is a statistic of the whole mesh (the noise per mean edge length of its
+    SURE-smoothed copy, read on the memoised averaging run) and is computed there, so the region
+    search uses the whole mesh's value (it also decides GCV against SURE). docs/scale.md: the
+    region's choice at 100k against the whole mesh's.
+    """
+    def whole_tangential() -> dict:
+        if "tangential" in ctx.given or not ctx.rho:
+            return {}
+        return {"tangential": normal_trust(ctx.rho, mean_edge_length(ctx.smoothed("sure").X, ctx.ops))}
+
+    def reach(chosen: dict) -> int:  # the cut's reach at the chosen weight, for either order (both are scored)
+        return max(shifted_reach(chosen["mu"], p) for p in SOBOLEV_NORMAL_ORDERS) if chosen.get("mu") else 0
+
+    return region_rule(ctx, choose_sobolev_normal_whole, SOBOLEV_NORMAL_REGION, SOBOLEV_NORMAL_PATCHES,
+                       SOBOLEV_NORMAL_MARGIN, given=whole_tangential, reach=reach)
+
+
+def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = None) -> tuple[dict, Point]:
     """``mu`` and ``order`` (in {2, 3}) of ``sobolev_normal`` by GCV or Monte-Carlo SURE; ``tangential`` from rho.
 
     The filter :math:`f(X) = X + \\Pi(Y)(Y - X)`, :math:`Y = H X`, :math:`H = (I + \\mu L^p)^{-1}`,
@@ -91,6 +118,11 @@ def choose_sobolev_normal(ctx: TuningContext) -> tuple[dict, Point]:
     ``tangential`` = :func:`_tangential_share` of the noise per edge length of that mesh
     (normals of ``Y`` are meaningless above one edge length of noise). ``mu`` by the log
     search of ``sobolev`` for each order; the smaller score wins.
+
+    ``scored`` (bool (n,), optional): SURE or GCV of the scored vertices only (the residual
+    summed over them, the probes zero elsewhere, so the divergence is the trace of the scored
+    block of the Jacobian; ``n`` their count), with ``SOBOLEV_NORMAL_REGION_PROBES`` probes. For a
+    region cut out of a larger mesh, whose vertices near a cut see a border the mesh does not have.
     """
     spec = get_filter("sobolev_normal")
     full = spec.resolve(ctx.given, where="choose_parameters(method='sobolev_normal')")
@@ -103,10 +135,14 @@ def choose_sobolev_normal(ctx: TuningContext) -> tuple[dict, Point]:
     t = float(full["tangential"]) if "tangential" in ctx.given else normal_trust(ctx.rho, mean_edge_length(smooth, ctx.ops))
     orders = [int(full["order"])] if "order" in ctx.given else list(SOBOLEV_NORMAL_ORDERS)
     use_gcv = ctx.reference is None and t == 0.0  # normal-only update: n coordinates; rho not needed
-    K = SOBOLEV_NORMAL_PROBES
+    K = SOBOLEV_NORMAL_PROBES if scored is None else SOBOLEV_NORMAL_REGION_PROBES
     Nh = vertex_normals(smooth, ctx.F)
     z = ctx.colour(np.random.default_rng(0).choice([-1.0, 1.0], size=(n, K)), 1.0 / K)  # Sigma^{1/2} xi if correlated
     Bp = np.hstack([z[:, [k]] * Nh for k in range(K)])  # (n, 3K): probe k in columns 3k..3k+2
+    rows = slice(None) if scored is None else np.asarray(scored, dtype=bool)
+    n_scored = n if scored is None else int(rows.sum())
+    if scored is not None:
+        Bp[~rows] = 0.0
     delta = MC_SURE_STEP * ctx.rho
     rhs = np.hstack([ctx.V, Bp])
     best, best_order = None, None
@@ -118,8 +154,8 @@ def choose_sobolev_normal(ctx: TuningContext) -> tuple[dict, Point]:
             Y = out[:, :3]
             X = project_update(ctx.V, Y, area_normals(Y, ctx.F), t)
             div = float(n) if ctx.reference is not None else _projected_divergence(ctx.V, ctx.F, out, Bp, t, delta)
-            p = Point(mu, float(np.sum((X - ctx.V) ** 2)), div, X)
-            p.score = gcv(p.residual_sq, div, n) if use_gcv else ctx.score(p)
+            p = Point(mu, float(np.sum((X - ctx.V)[rows] ** 2)), div, X)
+            p.score = gcv(p.residual_sq, div, n_scored) if use_gcv else ctx.criterion.score(p, n_scored, ctx.rho)
             return p
 
         p = search_log(evaluate, ctx.mu_guess(order))
@@ -158,7 +194,10 @@ def sobolev_normal(V, F, *, ops, pinned, mu, order, tangential):
     chooses ``mu`` (and ``order`` in {2, 3}) by Monte-Carlo SURE. Not linear (the
     normals depend on the input); translation and rotation equivariant. The factors of
     :math:`I + \\mu L^p` are cached per (topology, p, mu, pinned mask) as for
-    ``sobolev_axes``; pinned vertices do not move (their update is zero).
+    ``sobolev_axes``; pinned vertices do not move (their update is zero). From
+    ``SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES`` vertices, with no pinned vertex and no stored factor,
+    ``Y`` comes from two Lanczos passes on ``L`` (:func:`~meshdenoise.solvers.lanczos_shifted`), no
+    factorisation (the same ``Y`` to about 1e-13 of the coordinates).
 
     Choosing ``mu`` for a scan: no rule of thumb holds across shapes (with noise of 0.1, 0.3 and 1
     mean edge lengths along the normals the oracle chose 21, 31 and 12 on a sphere, 4.5, 11 and 24
@@ -200,5 +239,10 @@ def sobolev_normal(V, F, *, ops, pinned, mu, order, tangential):
     X = np.array(V, dtype=np.float64)
     if F.shape[0] == 0 or mu == 0:
         return X
-    Y = shifted_solver(ops, mu, order, pinned).solve(X)
+    Y = None
+    if ops.n >= SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES and (pinned is None or not pinned.any()) and (
+            (float(mu), None) not in ops.cache.get(f"shifted-p{order}-cholesky", {})):
+        Y = lanczos_shifted(ops, X, mu, order, tol=1e-12)  # a 100k factor of I + mu L^3: 20 s; this: 1 s
+    if Y is None:
+        Y = shifted_solver(ops, mu, order, pinned).solve(X)
     return project_update(X, Y, area_normals(Y, F), tangential)
