@@ -434,15 +434,8 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
         # and the region's balls read it with a sampling error the probes do not have (face000: up to 0.2 decades
         # at s = 8 to 16, which moved the allowed upper level from 0.109 to 0.061 h); the probes' statistic is
         # the whole mesh's already (weighted by border distance), within 0.07 decades of it on face000
-        Y = np.array(V, dtype=np.float64)
-        obs = np.empty(len(bands_s))
-        done = 0
-        for jb, b in enumerate(bands_s):
-            while done < b:
-                Y = spmm(ops.P, Y)
-                done += 1
-            A = Y - spmm(ops.P, Y)
-            obs[jb] = np.median(_normal_component(A - spmm(ops.P, A), N)[ok] ** 2)
+        residuals = band_residuals(ops, V, bands_s)
+        obs = np.array([np.median(_normal_component(residuals.pop(b), N)[ok] ** 2) for b in bands_s])
         info["spectrum"] = {"bands": bands_s, "lengths": ells_s, "observed": obs,
                             "probes": _spectrum_medians(opsr, Nr, Zs, okr, w, bands_s)}
         del coloured, Zs
