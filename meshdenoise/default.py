@@ -55,6 +55,7 @@ from .tuning.detail import BANDS as DETAIL_BANDS
 from .tuning.detail import ELL_GRID as DETAIL_LENGTHS
 from .tuning.detail import DetailVerdict, separate_detail
 from .tuning.noise_level import mean_edge_length
+from .tuning.risk import MC_SURE_STEP
 
 __all__ = ["DefaultChoice", "FeatureTest", "choose_default", "denoise", "detect_features", "feature_risk",
            "noise_policy", "default_noise", "SMOOTH_METHOD", "FEATURE_METHOD"]
@@ -313,7 +314,7 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     residual = float(np.sum((out - V) ** 2))
     if rho == 0:
         return residual, out
-    delta = 0.1 * rho
+    delta = MC_SURE_STEP * rho  # two_stage's guard uses 1 rho under correlated noise (less biased); not yet measured here
     Z = np.random.default_rng(seed).choice([-1.0, 1.0], size=(probes, n)).T  # the draws of one probe at a time
     if model.correlated:  # all probes in one colouring (a block solve); mean square 1 per vertex over the probes
         Z = model.colour(Z, 1.0 / probes)
