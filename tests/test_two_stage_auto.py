@@ -397,3 +397,14 @@ def test_guard_divergence_step_under_correlated_noise_keeps_sure_differences_wit
     bias = {step: np.mean(e, axis=0) for step, e in errors.items()}
     assert np.all(np.abs(bias[ts.TWO_STAGE_GUARD_STEP_CORRELATED][2:4]) < ts.TWO_STAGE_GUARD_MARGIN)
     assert bias[MC_SURE_STEP][2] < -ts.TWO_STAGE_GUARD_MARGIN  # the generic step: the bias the fix removes
+
+
+def test_mc_sure_step_is_the_guard_step_and_checks_rho():
+    """The shared rule gives the guard's step under correlated noise and the generic one otherwise."""
+    from meshdenoise.tuning.risk import MC_SURE_STEP, mc_sure_step
+
+    assert mc_sure_step(0.2, True) == pytest.approx(ts.TWO_STAGE_GUARD_STEP_CORRELATED * 0.2)
+    assert mc_sure_step(0.2, False) == pytest.approx(MC_SURE_STEP * 0.2)
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="rho"):
+            mc_sure_step(bad, False)

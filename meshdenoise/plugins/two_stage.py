@@ -14,7 +14,7 @@ from ..operators import Operators, gather_rows, get_operators
 from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
 from ..tuning.context import TuningContext
 from ..tuning.noise_level import MAD
-from ..tuning.risk import MC_SURE_STEP, Point, sure
+from ..tuning.risk import MC_SURE_STEP_CORRELATED, Point, mc_sure_step, sure
 from ..tuning.walk import walk
 
 log = logging.getLogger("meshdenoise.auto")
@@ -346,7 +346,7 @@ TWO_STAGE_GUARD_LIGHTER = (  # the guard also tries the chosen run made lighter 
     {"normal_iterations": 5, "vertex_iterations": 5, "sigma_s": 0.7},  # Bunny0.2: 5.60 -> 5.31 deg, 53.27 -> 54.76 dB
 )
 TWO_STAGE_GUARD_LIGHTER_GAIN = 0.1  # ... one taken when its SURE is lower again by this share of the chosen one's (0.46 dB)
-TWO_STAGE_GUARD_STEP_CORRELATED = 1.0  # the guard's finite-difference step under correlated noise, in units of rho (docs/automatic-parameters.md)
+TWO_STAGE_GUARD_STEP_CORRELATED = MC_SURE_STEP_CORRELATED  # the guard's finite-difference step under correlated noise, in units of rho (docs/automatic-parameters.md)
 TWO_STAGE_HEAVY_TAIL = 1.5  # rms / (MAD / 0.6745) of the noise above which SURE's guard is skipped (impulsive noise)
 TWO_STAGE_SYNTHETIC_SCALE = 1.3  # the synthetic copy's noise, in units of the estimated rho
 TWO_STAGE_MARGIN = 2  # rings of vertices next to a cut whose faces are left out of the score
@@ -628,7 +628,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     # under correlated noise the filter's response to a probe of 0.1 rho misses 10 % of its divergence (the
     # realised covariance e^T f of the noise), more after fewer iterations, so the guard cut too many: a step
     # of one rho measures it (bunny scanner l=2: 0.5265 against 0.5263 at k=2; docs/automatic-parameters.md)
-    delta = (TWO_STAGE_GUARD_STEP_CORRELATED if ctx.correlation_length else MC_SURE_STEP) * ctx.rho
+    delta = mc_sure_step(ctx.rho, bool(ctx.correlation_length))
     inner = region.inner
 
     def sure_per_probe(params: dict) -> list[tuple[Point, np.ndarray]]:
