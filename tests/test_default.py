@@ -143,10 +143,11 @@ def test_feature_risk_is_monte_carlo_sure_written_out():
     assert risk == pytest.approx(np.sum((f(Vn) - Vn) ** 2) - n * rho**2 + 2 * rho**2 * np.mean(div), rel=1e-12)
     # correlated noise: the probes heat-filtered all at once, scaled to mean square 1 over vertices and probes
     from meshdenoise.noise import HeatFilter, diffusion_length
+    from meshdenoise.tuning.covariance import COLOUR_TOL
 
     model = NoiseModel(rho, 1.5, Vn, F)
     risk_c, _ = default.feature_risk(Vn, F, params, model, N, probes=3, seed=7)
-    Y = HeatFilter(Vn, F, diffusion_length(1.5))(Z)
+    Y = HeatFilter(Vn, F, diffusion_length(1.5))(Z, tol=COLOUR_TOL)
     Y *= np.sqrt(Y.size / np.sum(Y * Y))
     div = [float(np.sum(b * (f(Vn + d * b) - f(Vn)))) / d for b in (Y[:, k, None] * N for k in range(3))]
     assert risk_c == pytest.approx(np.sum((f(Vn) - Vn) ** 2) - n * rho**2 + 2 * rho**2 * np.mean(div), rel=1e-9)

@@ -75,7 +75,9 @@ FIT_SAMPLE = 30_000  # above this many vertices the probes' statistic is read on
 FIT_PATCHES = 8  # ... made of this many balls of vertices
 FIT_MARGIN = 8  # ... counting only vertices more than this many rings from a cut
 FIT_SAMPLE_PROBES = 4  # ... with this many probes (the whole mesh: FIT_PROBES)
-FIT_TOL = 1e-5  # ... colouring its probes to this relative residual (the whole mesh: HeatFilter's 1e-8)
+FIT_TOL = 1e-5  # relative residual of the fit's probe colourings (a median of squares needs no 8 digits)
+COLOUR_TOL = 1e-5  # ... and of NoiseModel.colour's random probes: rescaled to the model's energy, they only feed
+# Monte-Carlo traces, whose sampling error (~1/sqrt(probes)) is far above this (the exact identity probes: 1e-8)
 FIT_BORDER_RINGS = 12  # ... weighting its vertices by their ring distance to the mesh's own border (0 .. this, farther)
 
 
@@ -144,7 +146,8 @@ class NoiseModel:
         key = (digest(Z), float(s))
         if key in self._coloured:  # the rules of one choice colour the same probes several times
             return self._coloured[key].copy()
-        Y = self.filter()(Z)
+        # exact traces (Z = I, as many columns as rows: small meshes) keep 8 digits; probes need no more than 5
+        Y = self.filter()(Z, tol=1e-8 if Z.shape[1] >= Z.shape[0] else COLOUR_TOL)
         energy = s * float(np.sum(Y * Y))
         n = Y.shape[0]
         Y = Y * math.sqrt(n / energy) if energy > 0 else Y
@@ -294,8 +297,8 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
         counts as in the whole mesh; lengths are in the whole mesh's mean edge length. The fit
         then costs the same at any size. The white-noise level (the estimate when the noise
         reads independent) is always the whole mesh's. A mesh of at most ``sample`` vertices is
-        fitted whole (the estimate of earlier versions, to the last digit). Against the
-        whole-mesh fit, docs/scale.md.
+        fitted whole, its probes also coloured to :data:`FIT_TOL` (1e-8 before: the level moved by
+        5e-6 relative on the bunny with scanner noise). Against the whole-mesh fit, docs/scale.md.
     spectrum : (bands, lengths), optional
         When the noise reads as correlated (the fit is significant), also read a band spectrum
         with the same probes, coloured once (those the fit did not colour are coloured alike, to
@@ -395,12 +398,10 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
     used = 0
     coloured: dict[float, np.ndarray] = {}
 
-    def probes_of(ell: float, tol: float) -> np.ndarray:  # unit-variance probes of correlation length ell
+    def probes_of(ell: float) -> np.ndarray:  # unit-variance probes of correlation length ell
         if ell == 0:
             Z = xi
-        elif region.whole:
-            Z = HeatFilter(Vr, Fr, diffusion_length(ell), geometry)(xi, tol=tol)
-        else:  # a median of squares needs no 8 digits of the colouring
+        else:
             Z = HeatFilter(Vr, Fr, diffusion_length(ell), geometry)(xi, tol=FIT_TOL)
         if region.whole:
             return Z * math.sqrt(Z.size / float(np.sum(Z * Z)))  # mean square 1: tr(Sigma) = n
@@ -410,7 +411,7 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
         return Z / math.sqrt(float(np.sum(share_all * msq)))
 
     for j, ell in enumerate(full):  # up the grid until the spread has risen well past its minimum
-        Z = probes_of(float(ell), 1e-8)
+        Z = probes_of(float(ell))
         if spectrum is not None:
             coloured[float(ell)] = Z
         medians = _probe_medians(opsr, Nr, Z, okr, None if region.whole else weights)
@@ -428,7 +429,7 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
     significant = (ELL_MIN <= ell <= ELL_MAX and spread0 - spread_fit >= SPREAD_GAIN and spread0 >= SPREAD_RATIO * spread_fit
                    and int(ok.sum()) >= MIN_PATCHES * math.pi * ell**2)
     if spectrum is not None and significant:  # the surface-or-noise question arises only then
-        Zs = [coloured[e] if e in coloured else probes_of(e, FIT_TOL) for e in ells_s]
+        Zs = [coloured[e] if e in coloured else probes_of(e) for e in ells_s]
         w = None if region.whole else weights
         # the whole mesh's own residuals, over all its usable vertices: the surface's spectrum varies over a scan,
         # and the region's balls read it with a sampling error the probes do not have (face000: up to 0.2 decades
