@@ -55,7 +55,7 @@ from .tuning.detail import BANDS as DETAIL_BANDS
 from .tuning.detail import ELL_GRID as DETAIL_LENGTHS
 from .tuning.detail import DetailVerdict, separate_detail
 from .tuning.noise_level import mean_edge_length
-from .tuning.risk import MC_SURE_STEP
+from .tuning.risk import mc_sure_step
 
 __all__ = ["DefaultChoice", "FeatureTest", "choose_default", "denoise", "detect_features", "feature_risk",
            "noise_policy", "default_noise", "SMOOTH_METHOD", "FEATURE_METHOD"]
@@ -265,7 +265,7 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     """Monte-Carlo SURE of ``two_stage`` (or ``method``) with ``params`` on the whole mesh, probes along ``normals``.
 
     .. math:: \\widehat R = \\|f(X) - X\\|_F^2 - n\\rho^2 + \\frac{2\\rho^2}{P}\\sum_{k=1}^P
-              \\frac{b_k^T (f(X + \\delta b_k) - f(X))}{\\delta}, \\quad b_{k,i} = z_{k,i} N_i,\\ \\delta = 0.1\\rho
+              \\frac{b_k^T (f(X + \\delta b_k) - f(X))}{\\delta}, \\quad b_{k,i} = z_{k,i} N_i,\\ \\delta = \\mathrm{mc\\_sure\\_step}(\\rho)
 
     with :math:`z_k` Rademacher (coloured by the noise model when it is correlated, as every
     rule's probes are: all probes at once, scaled so that :math:`\\sum_k \\|z_k\\|^2 = P n`). An unbiased estimate of :math:`\\|f(X) - X^0\\|_F^2` when ``N`` is the
@@ -314,7 +314,7 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     residual = float(np.sum((out - V) ** 2))
     if rho == 0:
         return residual, out
-    delta = MC_SURE_STEP * rho  # two_stage's guard uses 1 rho under correlated noise (less biased); not yet measured here
+    delta = mc_sure_step(rho, model.correlated)  # 0.1 rho; 1 rho under correlated noise (0.1 reads it short)
     Z = np.random.default_rng(seed).choice([-1.0, 1.0], size=(probes, n)).T  # the draws of one probe at a time
     if model.correlated:  # all probes in one colouring (a block solve); mean square 1 per vertex over the probes
         Z = model.colour(Z, 1.0 / probes)
