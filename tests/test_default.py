@@ -157,7 +157,7 @@ def test_feature_risk_is_monte_carlo_sure_written_out():
     risk_c, _ = default.feature_risk(Vn, F, params, model, N, probes=3, seed=7)
     Y = HeatFilter(Vn, F, diffusion_length(1.5))(Z)
     Y *= np.sqrt(Y.size / np.sum(Y * Y))
-    d = 1.0 * rho  # under correlated noise the finite-difference step is one rho (tuning.risk.mc_sure_step)
+    # the same step under correlated noise: one rho (two_stage's guard's) flipped bunny scanner's pick to the worse filter
     div = [float(np.sum(b * (f(Vn + d * b) - f(Vn)))) / d for b in (Y[:, k, None] * N for k in range(3))]
     assert risk_c == pytest.approx(np.sum((f(Vn) - Vn) ** 2) - n * rho**2 + 2 * rho**2 * np.mean(div), rel=1e-9)
     # the probe count follows the mesh size
