@@ -555,12 +555,22 @@ def choose_post_step(V: np.ndarray, F: np.ndarray, method: str, params: dict, mo
     Returns
     -------
     PostStep
-        ``scale`` 1 and no step when the noise is 0 or no other candidate is allowed.
+        ``scale`` 1 and no step when the noise is 0, when the prior as chosen moves the vertices by
+        less than :data:`NOT_SMOOTHING` mean edge lengths (rms: the default then says it does not
+        smooth; measured, the clean Bunny0.2 read as detail would otherwise move 0.0078 h instead of
+        0.0041), or when no other candidate is allowed.
     """
     if "mu" not in params:
         raise ValueError(f"choose_post_step: {method}'s parameters {sorted(params)} have no 'mu' to scale")
     if not float(model.rho) > 0 or not float(params["mu"]) > 0:
         return PostStep(1.0, 0, (), "no noise to remove: the smooth prior as chosen")
+    ops = ops if ops is not None else get_operators(F, V.shape[0])
+    h = mean_edge_length(V, ops)
+    base = np.asarray(get_filter(method).public((V, F), operators=ops, **params)[0])
+    move = float(np.sqrt(np.mean(np.sum((base - V) ** 2, axis=1)))) / h if h > 0 else 0.0
+    if move < NOT_SMOOTHING:  # a clean mesh (or detail read as such): what the prior leaves is left alone
+        return PostStep(1.0, 0, (), f"smooth-prior post-step: none: the prior as chosen moves the vertices by {move:.2g} "
+                                    f"mean edge lengths (rms), under {NOT_SMOOTHING:g}: nothing to smooth further")
     est = post_step_estimates(V, F, method, params, model, ops=ops, normals=normals, probes=probes, seed=seed)
     S0 = est[(1.0, 0)][1]
     G0 = float(np.mean(est[(1.0, 0)][0]))

@@ -569,6 +569,7 @@ def test_a_clean_surface_with_bumps_reads_detail_and_the_default_does_not_smooth
     assert choice.lines()[1].startswith("surface detail or noise: detail")
     move = float(np.sqrt(np.mean(np.sum((Vd - V) ** 2, axis=1)))) / h
     assert move < default.NOT_SMOOTHING and any("not smoothing" in str(w.message) for w in caught)
+    assert choice.post_steps == 0 and (choice.post is None or choice.post.scale == 1.0)  # no post-step on a clean mesh
 
 
 # --- the smooth-prior post-step ------------------------------------------------------------------------------------
@@ -709,3 +710,18 @@ def test_the_post_step_runs_after_a_smooth_prior_only_and_in_the_cli_as_in_pytho
         choice.method, (Vn, F), **{**choice.params, "mu": choice.params["mu"] / choice.post.scale})[0], F))
     assert CliRunner().invoke(cli, ["denoise", str(src), str(dst)]).exit_code == 0
     np.testing.assert_allclose(load_mesh(dst).V, Vd, atol=1e-5)  # the file's float precision
+
+
+def test_no_post_step_where_the_prior_does_not_smooth():
+    # a clean sphere read with a tiny noise level: the prior as chosen moves the vertices by less than
+    # NOT_SMOOTHING mean edge lengths, and the post-step leaves it so (no scale, no Taubin step)
+    V, F = icosphere(3)
+    h = mean_edge_length(V, get_operators(F, V.shape[0]))
+    params = md.choose_parameters((V, F), "sobolev_bilaplacian", noise=1e-4 * h)
+    Y = md.apply_filter("sobolev_bilaplacian", (V, F), **params)[0]
+    assert np.sqrt(np.mean(np.sum((Y - V) ** 2, axis=1))) / h < default.NOT_SMOOTHING
+    post = default.choose_post_step(V, F, "sobolev_bilaplacian", params, NoiseModel(1e-4 * h))
+    assert (post.scale, post.steps, post.candidates) == (1.0, 0, ()) and "nothing to smooth further" in post.reason
+    assert default.choose_post_step(V, F, "sobolev_bilaplacian", params, NoiseModel(0.0)).candidates == ()
+    with pytest.raises(ValueError, match="no 'mu'"):
+        default.choose_post_step(V, F, "two_stage", {"sigma_r": 0.3}, NoiseModel(0.01))
