@@ -28,7 +28,10 @@ against 28.6); no wrong pick in 10 rows (docs/scans.md). The sharp-feature verdi
 On meshes of at most :data:`SMALL_MESH` vertices ``sobolev_normal`` is a third candidate (its search
 costs under a second there; on the 299-vertex Nefertiti at rho 0.2 it gives 16.7 degrees and 25.9 dB
 against 19.3 and 24.8 for ``sobolev_bilaplacian``), scored like ``two_stage``.
-Parameters are those of the filter's own automatic rule.
+Parameters are those of the filter's own automatic rule; after a smooth prior,
+:func:`choose_post_step` then scales its ``mu`` by 1, 1.5 or 2 and adds 0, 2 or 5 Taubin steps, by a
+normal-domain risk estimate guarded by SURE on positions (the paper's elephant at rho 0.2: 19.74 ->
+18.88 degrees, 27.42 -> 27.14 dB; docs/peers.md, "Smooth-prior post-step").
 This module names filters: it is policy, above the
 generic tuning machinery.
 """
