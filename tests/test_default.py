@@ -723,5 +723,11 @@ def test_no_post_step_where_the_prior_does_not_smooth():
     post = default.choose_post_step(V, F, "sobolev_bilaplacian", params, NoiseModel(1e-4 * h))
     assert (post.scale, post.steps, post.candidates) == (1.0, 0, ()) and "nothing to smooth further" in post.reason
     assert default.choose_post_step(V, F, "sobolev_bilaplacian", params, NoiseModel(0.0)).candidates == ()
+    # correlated noise: no post-step (measured to lose there), whatever the estimates would say
+    Vn = md.add_normal_noise((V, F), 0.05, seed=0)[0]
+    params = md.choose_parameters((Vn, F), "sobolev_bilaplacian", noise=0.05)
+    assert default.choose_post_step(Vn, F, "sobolev_bilaplacian", params, NoiseModel(0.05)).candidates != ()
+    post = default.choose_post_step(Vn, F, "sobolev_bilaplacian", params, NoiseModel(0.05, 1.5, Vn, F))
+    assert (post.scale, post.steps, post.candidates) == (1.0, 0, ()) and "correlated" in post.reason
     with pytest.raises(ValueError, match="no 'mu'"):
         default.choose_post_step(V, F, "two_stage", {"sigma_r": 0.3}, NoiseModel(0.01))
