@@ -731,3 +731,28 @@ def test_no_post_step_where_the_prior_does_not_smooth():
     assert (post.scale, post.steps, post.candidates) == (1.0, 0, ()) and "correlated" in post.reason
     with pytest.raises(ValueError, match="no 'mu'"):
         default.choose_post_step(V, F, "two_stage", {"sigma_r": 0.3}, NoiseModel(0.01))
+
+
+_TORUS_RESULT: dict = {}  # the array result, computed once for every mesh type
+
+
+def test_the_post_steps_on_every_mesh_type_give_the_array_result(mesh_kind):
+    from meshdenoise.shapes import torus
+
+    from .conftest import make_mesh, vertices_of
+
+    V, F = torus(40, 20)
+    Vn = md.add_normal_noise((V, F), 0.03, seed=0)[0]
+    if not _TORUS_RESULT:
+        _TORUS_RESULT["out"] = md.denoise((Vn, F), return_params=True)
+    expected, choice = _TORUS_RESULT["out"]
+    assert choice.post_steps > 0  # sobolev_normal, mu x 1.5, then 5 Taubin steps
+    mesh = make_mesh(mesh_kind, Vn, F)
+    out, got = md.denoise(mesh, return_params=True)
+    assert (got.method, got.params, got.post_steps) == (choice.method, choice.params, choice.post_steps)
+    assert type(out) is type(mesh)
+    np.testing.assert_allclose(vertices_of(out), expected[0], atol=1e-9)
+    if mesh_kind == "meshset":
+        assert out is mesh
+    elif mesh_kind == "open3d":
+        np.testing.assert_array_equal(np.asarray(mesh.vertices), Vn)  # the input is unchanged
