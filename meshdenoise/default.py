@@ -28,7 +28,10 @@ against 28.6); no wrong pick in 10 rows (docs/scans.md). The sharp-feature verdi
 On meshes of at most :data:`SMALL_MESH` vertices ``sobolev_normal`` is a third candidate (its search
 costs under a second there; on the 299-vertex Nefertiti at rho 0.2 it gives 16.7 degrees and 25.9 dB
 against 19.3 and 24.8 for ``sobolev_bilaplacian``), scored like ``two_stage``.
-Parameters are those of the filter's own automatic rule.
+Parameters are those of the filter's own automatic rule; after a smooth prior,
+:func:`choose_post_step` then scales its ``mu`` by 1, 1.5 or 2 and adds 0, 2 or 5 Taubin steps, by a
+normal-domain risk estimate guarded by SURE on positions (the paper's elephant at rho 0.2: 19.74 ->
+18.88 degrees, 27.42 -> 27.14 dB; docs/peers.md, "Smooth-prior post-step").
 This module names filters: it is policy, above the
 generic tuning machinery.
 """
@@ -55,10 +58,11 @@ from .tuning.detail import BANDS as DETAIL_BANDS
 from .tuning.detail import ELL_GRID as DETAIL_LENGTHS
 from .tuning.detail import DetailVerdict, separate_detail
 from .tuning.noise_level import mean_edge_length
-from .tuning.risk import MC_SURE_STEP
+from .tuning.risk import mc_sure_step
 
 __all__ = ["DefaultChoice", "FeatureTest", "choose_default", "denoise", "detect_features", "feature_risk",
-           "noise_policy", "default_noise", "SMOOTH_METHOD", "FEATURE_METHOD"]
+           "noise_policy", "default_noise", "SMOOTH_METHOD", "FEATURE_METHOD", "NormalJacobian", "PostCandidate",
+           "PostStep", "post_step_estimates", "choose_post_step", "run_post_step"]
 
 log = logging.getLogger("meshdenoise.auto")
 
@@ -77,6 +81,13 @@ SMALL_MESH = 2000  # up to this many vertices the default also tries ...
 SMALL_MESH_METHOD = "sobolev_normal"  # ... this smooth prior with a normal-aware update (its search costs under a second there)
 RISK_PROBE_RUNS = 30_000  # the feature filter's risk: Monte-Carlo SURE probes x vertices, about (see feature_risk) ...
 RISK_PROBES = (2, 16)  # ... within these bounds on the probe count
+SMOOTH_PRIORS = (SMOOTH_METHOD, SMALL_MESH_METHOD)  # the picks after which the post-step is chosen (choose_post_step)
+POST_SCALES = (1.0, 1.5, 2.0)  # the post-step: multiples of the smooth prior's SURE-chosen mu ...
+POST_STEPS = (0, 2, 5)  # ... times Taubin steps after it ...
+POST_TAUBIN = {"lam": 0.5, "mu": -0.53}  # ... with these (uniform weights: the filter's default)
+POST_MAX_LOSS_DB = 0.3  # a candidate is allowed if its SURE on positions loses less than this (dB), 2 s.e. included
+POST_PROBE_RUNS = 60_000  # probes x vertices of the post-step's estimates, about ...
+POST_PROBES = (4, 16)  # ... within these bounds on the probe count
 
 
 @dataclass(frozen=True)
@@ -208,6 +219,11 @@ class DefaultChoice:
         was given.
     rho_range : tuple of float
         The noise levels (mesh units) the band spectrum allows, (low, high); NaN when not read.
+    post_steps : int
+        Taubin steps (:data:`POST_TAUBIN`) run after the filter (:func:`choose_post_step`, after
+        a smooth prior only; its ``mu`` in ``params`` is already scaled); 0: none.
+    post : PostStep or None
+        The post-step's choice and its candidates (None when the filter is not a smooth prior).
     """
 
     method: str
@@ -222,6 +238,8 @@ class DefaultChoice:
     caveats: list[str] = field(default_factory=list)
     verdict: str = ""
     rho_range: tuple[float, float] = (float("nan"), float("nan"))
+    post_steps: int = 0
+    post: PostStep | None = None
 
     @property
     def noise_in_edges(self) -> float:
@@ -239,7 +257,9 @@ class DefaultChoice:
             *([f"surface detail or noise: {self.verdict} (the band spectrum allows noise from "
                f"{self.rho_range[0] / self.edge_length:.3g} to {self.rho_range[1] / self.edge_length:.3g} "
                "mean edge lengths)"] if self.edge_length > 0 and np.all(np.isfinite(self.rho_range)) else []),
-            f"method: {self.method} ({settings})",
+            f"method: {self.method} ({settings})" + (
+                f", then {self.post_steps} Taubin steps (taubin: iterations={self.post_steps}, "
+                f"lam={POST_TAUBIN['lam']:g}, mu={POST_TAUBIN['mu']:g})" if self.post_steps else ""),
             *(f"  because {r}" for r in self.reasons),
             *(f"  note: {c}" for c in self.caveats),
         ]
@@ -254,6 +274,8 @@ class DefaultChoice:
             "sharp_share": self.features.share, "boundary_vertices": self.boundary_vertices,
             "reasons": list(self.reasons), "caveats": list(self.caveats), "seconds": self.seconds,
             "verdict": self.verdict, "rho_range": [float(r) for r in self.rho_range],
+            "post_steps": self.post_steps, "post_taubin": dict(POST_TAUBIN) if self.post_steps else None,
+            "post_scale": self.post.scale if self.post is not None else None,
             "rho_range_in_edges": [float(r) / self.edge_length if self.edge_length > 0 else float("nan")
                                    for r in self.rho_range],
         }
@@ -314,7 +336,10 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     residual = float(np.sum((out - V) ** 2))
     if rho == 0:
         return residual, out
-    delta = MC_SURE_STEP * rho  # two_stage's guard uses 1 rho under correlated noise (less biased); not yet measured here
+    # 0.1 rho, also under correlated noise: measured (docs/peers.md, smooth-prior post-step), the 1 rho of
+    # two_stage's guard (mc_sure_step(rho, True)) read two_stage 0.328 h rms against 0.300 on bunny scanner l=2 and
+    # flipped the pick to sobolev_bilaplacian (8.63 / 48.93 -> 8.76 / 48.40); no other row of four changed
+    delta = mc_sure_step(rho, False)
     Z = np.random.default_rng(seed).choice([-1.0, 1.0], size=(probes, n)).T  # the draws of one probe at a time
     if model.correlated:  # all probes in one colouring (a block solve); mean square 1 per vertex over the probes
         Z = model.colour(Z, 1.0 / probes)
@@ -323,6 +348,258 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
         b = Z[:, k, None] * normals
         divergence += float(np.sum(b * (run(V + delta * b) - out))) / delta
     return residual - n * rho**2 + 2 * rho**2 * divergence / probes, out
+
+
+class NormalJacobian:
+    """The derivative of the unit face normals with respect to the vertex positions, at fixed vertices ``R``.
+
+    For a face :math:`(p_0, p_1, p_2)` with :math:`c = (p_1 - p_0) \\times (p_2 - p_0)` and
+    :math:`n = c / \\|c\\|`, a displacement :math:`d` of its vertices turns the normal by
+
+    .. math:: J d = \\frac{(I - n n^T)\\,\\big((d_1 - d_0) \\times (p_2 - p_0) + (p_1 - p_0) \\times (d_2 - d_0)\\big)}{\\|c\\|},
+
+    so that :math:`\\|J d\\|^2` is, to first order, the sum over faces of the squared angles
+    (radians) by which ``d`` turns them. Zero-area faces count 0.
+
+    Parameters
+    ----------
+    R : ndarray, shape (n, 3)
+        The vertices where the derivative is taken.
+    F : ndarray, shape (m, 3)
+    """
+
+    def __init__(self, R: np.ndarray, F: np.ndarray):
+        P = np.asarray(R, dtype=np.float64)[F]
+        self.F = np.asarray(F)
+        self.e1, self.e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+        c = np.cross(self.e1, self.e2)
+        area2 = np.linalg.norm(c, axis=1)
+        self.inv = np.divide(1.0, area2, out=np.zeros_like(area2), where=area2 > 0)
+        self.n = c * self.inv[:, None]
+
+    def __call__(self, D: np.ndarray) -> np.ndarray:
+        """:math:`J d` for ``D`` of shape (n, 3): the turn of each unit face normal, shape (m, 3)."""
+        Q = np.asarray(D, dtype=np.float64)[self.F]
+        dc = np.cross(Q[:, 1] - Q[:, 0], self.e2) + np.cross(self.e1, Q[:, 2] - Q[:, 0])
+        dc -= self.n * np.einsum("ij,ij->i", self.n, dc)[:, None]
+        return dc * self.inv[:, None]
+
+
+@dataclass(frozen=True)
+class PostCandidate:
+    """One candidate of :func:`choose_post_step` and its estimates (means over the probes).
+
+    Attributes
+    ----------
+    scale : float
+        The multiple of the smooth prior's ``mu``.
+    steps : int
+        Taubin steps after it.
+    normal_risk : float
+        Estimated mean squared turn of the face normals from the clean ones (rad^2, per face).
+    sure : float
+        Monte-Carlo SURE on positions (squared error, mesh units^2, summed over vertices).
+    loss_db : float
+        Estimated SNR loss against the smooth prior as chosen (``scale`` 1, no step), dB, from
+        the paired difference plus two standard errors (positive: a loss).
+    allowed : bool
+        Whether ``loss_db`` is below :data:`POST_MAX_LOSS_DB`.
+    """
+
+    scale: float
+    steps: int
+    normal_risk: float
+    sure: float
+    loss_db: float
+    allowed: bool
+
+
+@dataclass(frozen=True)
+class PostStep:
+    """What :func:`choose_post_step` chose: ``mu`` times ``scale``, then ``steps`` Taubin steps.
+
+    Attributes
+    ----------
+    scale : float
+    steps : int
+    candidates : tuple of PostCandidate
+    reason : str
+        One sentence saying why.
+    """
+
+    scale: float
+    steps: int
+    candidates: tuple
+    reason: str
+
+
+def post_step_estimates(V: np.ndarray, F: np.ndarray, method: str, params: dict, model: NoiseModel, *,
+                        ops: Operators | None = None, normals: np.ndarray | None = None, scales: tuple = POST_SCALES,
+                        steps: tuple = POST_STEPS, probes: int | None = None, seed: int = 0) -> dict[tuple[float, int], tuple[np.ndarray, np.ndarray]]:
+    """Per-probe normal-domain risk and position SURE of the smooth prior with ``mu`` scaled, then Taubin steps.
+
+    For each candidate :math:`f` (``method`` with ``mu`` times a scale, then ``k`` Taubin steps
+    :data:`POST_TAUBIN`) and each probe :math:`b_p = z_p N` (Rademacher :math:`z_p`, coloured like
+    the noise when it is correlated, as in :func:`feature_risk`; :math:`N` the unit vertex normals of
+    the prior's own result :math:`R`), with :math:`\\Delta_p = (f(X + \\delta b_p) - f(X)) / \\delta`
+    (:math:`\\delta` = :func:`~meshdenoise.tuning.risk.mc_sure_step`):
+
+    - on positions, Monte-Carlo SURE
+      :math:`S_p = \\|f(X) - X\\|^2 - n\\rho^2 + 2\\rho^2\\, b_p^T \\Delta_p`;
+    - on normals, the same Stein identity for the quadratic form :math:`W = J^T J` of the
+      face normals' derivative at :math:`R` (:class:`NormalJacobian`),
+
+      .. math:: G_p = \\frac1m\\Big(\\|J(f(X) - X)\\|^2 - \\rho^2 \\|J b_p\\|^2 + 2\\rho^2 (J b_p)^T (J \\Delta_p)\\Big),
+
+      unbiased for :math:`\\frac1m \\mathbb E\\|J(f(X) - X^0)\\|^2`, to first order the mean
+      squared angle between the result's and the clean face normals (the benchmark's target
+      is their mean angle). Its noise term :math:`\\rho^2\\|J b_p\\|^2` is the same for every
+      candidate: paired differences do not see it.
+
+    Every candidate uses the same probes (paired differences). Cost: ``len(scales)`` x
+    (probes + 1) runs of ``method`` (one factorisation per scale for ``sobolev_bilaplacian``)
+    and cheap Taubin steps.
+
+    Parameters
+    ----------
+    V : ndarray, shape (n, 3)
+        The noisy vertices.
+    F : ndarray, shape (m, 3)
+    method : str
+        The smooth prior (a filter with a ``mu`` parameter).
+    params : dict
+        Its parameters as chosen by its rule.
+    model : NoiseModel
+        The noise level and correlation (rho > 0).
+    ops : Operators, optional
+    normals : ndarray, shape (n, 3), optional
+        Unit probe directions: the noise's direction. Default: the vertex normals of the
+        prior's result; the default passes those of ``sobolev_bilaplacian``'s result, an
+        estimate independent of ``sobolev_normal``'s own errors (see :func:`feature_risk`).
+    scales : tuple of float
+    steps : tuple of int
+    probes : int, optional
+        By default ``POST_PROBE_RUNS / n`` within :data:`POST_PROBES`.
+    seed : int
+
+    Returns
+    -------
+    dict
+        ``(scale, steps)`` -> (``G`` (P,), ``S`` (P,)).
+    """
+    n = V.shape[0]
+    ops = ops if ops is not None else get_operators(F, n)
+    if probes is None:
+        probes = int(np.clip(math.ceil(POST_PROBE_RUNS / max(n, 1)), *POST_PROBES))
+    spec, taubin = get_filter(method), get_filter("taubin")
+    prior = lambda X, c: np.asarray(spec.public((X, F), operators=ops, **{**params, "mu": params["mu"] * c})[0])  # noqa: E731
+    rho = float(model.rho)
+    delta = mc_sure_step(rho, model.correlated)
+    base = prior(V, 1.0)
+    normals = vertex_normals(base, F) if normals is None else normals
+    J = NormalJacobian(base, F)
+    m = max(F.shape[0], 1)
+    Z = np.random.default_rng(seed).choice([-1.0, 1.0], size=(probes, n)).T
+    if model.correlated:
+        Z = model.colour(Z, 1.0 / probes)
+    B = [Z[:, p, None] * normals for p in range(probes)]
+    JB = [J(b) for b in B]
+    noise_term = np.array([rho**2 * float(np.sum(jb * jb)) for jb in JB])
+    out = {}
+    for c in scales:
+        runs = [base if c == 1.0 else prior(V, c)] + [prior(V + delta * b, c) for b in B]
+        done = 0
+        for k in sorted(steps):
+            if k > done:  # Taubin is run on from the previous count
+                runs = [np.asarray(taubin.public((X, F), operators=ops, iterations=k - done, **POST_TAUBIN)[0]) for X in runs]
+                done = k
+            Y, D = runs[0], [(X - runs[0]) / delta for X in runs[1:]]
+            residual = float(np.sum((Y - V) ** 2))
+            JR = J(Y - V)
+            normal_residual = float(np.sum(JR * JR))
+            S = np.array([residual - n * rho**2 + 2 * rho**2 * float(np.sum(b * d)) for b, d in zip(B, D)])
+            G = np.array([normal_residual - t + 2 * rho**2 * float(np.sum(jb * J(d))) for jb, t, d in zip(JB, noise_term, D)]) / m
+            out[(float(c), int(k))] = (G, S)
+    return out
+
+
+def _loss_db(S: np.ndarray, S0: np.ndarray) -> float:
+    """The SNR loss (dB) of SURE ``S`` against ``S0`` (paired probes): 10 log10 of their ratio, two standard errors up."""
+    d = np.asarray(S, dtype=np.float64) - np.asarray(S0, dtype=np.float64)
+    se = float(np.std(d, ddof=1)) / math.sqrt(d.size) if d.size > 1 else 0.0
+    base = float(np.mean(S0))
+    if base <= 0:  # SURE of the prior below its own scatter: no loss can be measured against it
+        return 0.0 if float(d.mean()) + 2 * se <= 0 else math.inf
+    return 10.0 * math.log10(max(1.0 + (float(d.mean()) + 2 * se) / base, 1e-12))
+
+
+def choose_post_step(V: np.ndarray, F: np.ndarray, method: str, params: dict, model: NoiseModel, *,
+                     ops: Operators | None = None, normals: np.ndarray | None = None, probes: int | None = None,
+                     seed: int = 0, max_loss_db: float = POST_MAX_LOSS_DB) -> PostStep:
+    """After a smooth prior: a multiple of its ``mu`` and a Taubin step count, by a normal-domain risk, guarded by SURE.
+
+    SURE chooses the prior's ``mu`` for positions; face normals ask for a little more
+    smoothing (docs/peers.md, "smooth-prior post-step": on the paper's elephant and Nefertiti
+    at rho 0.2, ``mu`` x 1.5 then 5 Taubin steps takes the normal error below every peer's).
+    Among :data:`POST_SCALES` x :data:`POST_STEPS`, the candidate of least normal-domain risk
+    (:func:`post_step_estimates`: Stein's estimate of the squared turn of the face normals)
+    is taken among those whose SURE on positions loses less than ``max_loss_db`` against the
+    prior as chosen (the paired difference of the probes plus two standard errors, as
+    ``two_stage``'s guard tests), so that a mesh whose positions lose more (Bunny0.2: -1.4 dB
+    at ``mu`` x 1.5) keeps the prior's choice.
+
+    Parameters
+    ----------
+    V, F, method, params, model, ops, normals, probes, seed
+        As :func:`post_step_estimates`.
+    max_loss_db : float
+        The SNR loss allowed (dB).
+
+    Returns
+    -------
+    PostStep
+        ``scale`` 1 and no step when the noise is 0 or correlated (``model.correlated``: measured, the
+        estimates allowed mu x 2 on the elephant with scanner noise of 1.5 mean edge lengths correlated
+        over 2, which lost 1.07 dB for no normal gain, and mu x 1.5 on pymeshlab's bunny, -0.64 dB and
+        0.2 degrees worse), when the prior as chosen moves the vertices by
+        less than :data:`NOT_SMOOTHING` mean edge lengths (rms: the default then says it does not
+        smooth; measured, the clean Bunny0.2 read as detail would otherwise move 0.0078 h instead of
+        0.0041), or when no other candidate is allowed.
+    """
+    if "mu" not in params:
+        raise ValueError(f"choose_post_step: {method}'s parameters {sorted(params)} have no 'mu' to scale")
+    if not float(model.rho) > 0 or not float(params["mu"]) > 0:
+        return PostStep(1.0, 0, (), "no noise to remove: the smooth prior as chosen")
+    if model.correlated:  # measured: it lost 0.6-1.1 dB with no normal gain (docs/peers.md, "Smooth-prior post-step")
+        return PostStep(1.0, 0, (), "smooth-prior post-step: none under correlated noise (its estimates, measured, "
+                                    "allowed a loss of up to 1.1 dB there with no gain in normal error)")
+    ops = ops if ops is not None else get_operators(F, V.shape[0])
+    h = mean_edge_length(V, ops)
+    base = np.asarray(get_filter(method).public((V, F), operators=ops, **params)[0])
+    move = float(np.sqrt(np.mean(np.sum((base - V) ** 2, axis=1)))) / h if h > 0 else 0.0
+    if move < NOT_SMOOTHING:  # a clean mesh (or detail read as such): what the prior leaves is left alone
+        return PostStep(1.0, 0, (), f"smooth-prior post-step: none: the prior as chosen moves the vertices by {move:.2g} "
+                                    f"mean edge lengths (rms), under {NOT_SMOOTHING:g}: nothing to smooth further")
+    est = post_step_estimates(V, F, method, params, model, ops=ops, normals=normals, probes=probes, seed=seed)
+    S0 = est[(1.0, 0)][1]
+    G0 = float(np.mean(est[(1.0, 0)][0]))
+    cands = []
+    for (c, k), (G, S) in est.items():
+        loss = 0.0 if (c, k) == (1.0, 0) else _loss_db(S, S0)
+        cands.append(PostCandidate(c, k, float(np.mean(G)), float(np.mean(S)), loss, loss < max_loss_db))
+    best = min((p for p in cands if p.allowed), key=lambda p: (p.normal_risk, p.scale, p.steps))
+    said = lambda p: f"mu x {p.scale:g}, {p.steps} Taubin steps"  # noqa: E731
+    refused = [p for p in cands if not p.allowed and p.normal_risk < best.normal_risk]
+    if (best.scale, best.steps) == (1.0, 0):
+        why = "smooth-prior post-step: none (mu as SURE chose it): no candidate allowed by SURE has a smaller normal-domain risk"
+    else:
+        why = (f"smooth-prior post-step: {said(best)}: the least normal-domain risk allowed (Stein, face normals' squared "
+               f"turn: {best.normal_risk - G0:+.3g} rad^2 per face against mu as chosen; SURE on positions loses at most "
+               f"{max(best.loss_db, 0):.2g} dB, under {max_loss_db:g})")
+    if refused:
+        worst = min(refused, key=lambda p: p.normal_risk)
+        why += f"; {said(worst)} would lose up to {worst.loss_db:.2g} dB"
+    return PostStep(best.scale, best.steps, tuple(cands), why)
 
 
 def _checked_noise(noise: Any) -> float:
@@ -493,6 +770,7 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
     candidates = [SMOOTH_METHOD] if features.too_noisy else [FEATURE_METHOD, SMOOTH_METHOD]
     if n <= SMALL_MESH:
         candidates.append(SMALL_MESH_METHOD)
+    normals = None  # the smooth prior's result's vertex normals, when there are candidates to score
     if len(candidates) == 1:
         method = SMOOTH_METHOD
         params = choose_parameters((V, F), method, noise=model)
@@ -513,6 +791,12 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
                                         f"{SMALL_MESH_METHOD} is tried as well)"] if features.too_noisy else []) + [
                    f"{method} has the smaller estimated error (SURE, rms over vertices): {rms(scored[method][1])} "
                    f"mean edge lengths against {others}; its parameters minimise it"]
+    post = None
+    if method in SMOOTH_PRIORS and rho > 0:  # the smooth prior's mu (SURE on positions) under-smooths the normals
+        with stage("choosing the smooth prior's post-step"):
+            post = choose_post_step(V, F, method, params, model, ops=ops, normals=normals)  # sobolev_bilaplacian's
+        params = {**params, "mu": params["mu"] * post.scale}
+        reasons.append(post.reason)
     nb = int(np.count_nonzero(ops.boundary_vertices))
     if nb:
         reasons.append(f"{nb:,} vertices are on open borders: they move along their normals only (no inward shrinking)"
@@ -520,7 +804,8 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
                        f"{nb:,} vertices are on open borders: they move freely (boundary_motion='free')")
     reasons.insert(0, noise_reason)
     choice = DefaultChoice(method, params, float(rho), float(h), model.correlation_length, features, nb, reasons,
-                           time.perf_counter() - start, caveats, decided, (float(rho_range[0]), float(rho_range[1])))
+                           time.perf_counter() - start, caveats, decided, (float(rho_range[0]), float(rho_range[1])),
+                           post.steps if post is not None else 0, post)
     for line in choice.lines():
         log.info("default: %s", line)
     return choice
@@ -599,11 +884,34 @@ def denoise(
     before = read_mesh(mesh).V.copy() if choice is not None else None
     with stage(f"running {method}"):
         out = apply_filter(method, mesh, **chosen, **options)
+    if choice is not None and choice.post_steps:
+        out = run_post_step(choice, out, **options)
     if choice is not None:
         warn_if_not_smoothing(before, read_mesh(out).V, choice)
     if return_params:
         return out, (choice if choice is not None else chosen)
     return out
+
+
+def run_post_step(choice: DefaultChoice, mesh: Any, **options: Any) -> Any:
+    """The choice's Taubin steps after its filter (:attr:`DefaultChoice.post_steps`; ``mesh`` as it is when 0).
+
+    Parameters
+    ----------
+    choice : DefaultChoice
+    mesh : (V, F) tuple, pymeshlab.MeshSet or Mesh, or open3d.geometry.TriangleMesh
+        The filter's result.
+    **options
+        The common options the filter ran with (``boundary_motion``, ``pinned``, ...).
+
+    Returns
+    -------
+    Same type as ``mesh``.
+    """
+    if not choice.post_steps:
+        return mesh
+    with stage(f"running {choice.post_steps} Taubin steps"):
+        return apply_filter("taubin", mesh, iterations=choice.post_steps, **POST_TAUBIN, **options)
 
 
 def warn_if_not_smoothing(before: np.ndarray, after: np.ndarray, choice: DefaultChoice) -> float:

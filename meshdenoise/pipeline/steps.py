@@ -621,7 +621,7 @@ def _run_default(step: Step, ctx: RunContext) -> None:
     """The ``denoise`` step: :func:`meshdenoise.default.choose_default`, then the chosen filter; the decision is recorded."""
     import warnings
 
-    from ..default import choose_default, warn_if_not_smoothing
+    from ..default import choose_default, run_post_step, warn_if_not_smoothing
 
     state = ctx.state
     options = dict(step.options)
@@ -636,6 +636,7 @@ def _run_default(step: Step, ctx: RunContext) -> None:
             ctx.echo(f"{ctx.input_path.name}: {line}")
     with stage(f"running {choice.method}"):
         V, _ = get_filter(choice.method).public(state.arrays(), **choice.params, **options)
+    V, _ = run_post_step(choice, (V, state.F), **options)  # Taubin steps after a smooth prior (none otherwise)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         warn_if_not_smoothing(state.V, V, choice)
@@ -646,6 +647,7 @@ def _run_default(step: Step, ctx: RunContext) -> None:
     row["denoise.sharp_share"] = choice.features.share
     for k, v in choice.params.items():
         row[f"auto.{choice.method}.{k}"] = v
+    row["denoise.post_steps"] = choice.post_steps
     if ctx.echo:
         for w in caught:
             ctx.echo(f"{ctx.input_path.name}: warning: {w.message}")
