@@ -349,6 +349,9 @@ TWO_STAGE_GUARD_LIGHTER_GAIN = 0.1  # ... one taken when its SURE is lower again
 TWO_STAGE_GUARD_STEP_CORRELATED = MC_SURE_STEP_CORRELATED  # the guard's finite-difference step under correlated noise, in units of rho (docs/automatic-parameters.md)
 TWO_STAGE_HEAVY_TAIL = 1.5  # rms / (MAD / 0.6745) of the noise above which SURE's guard is skipped (impulsive noise)
 TWO_STAGE_SYNTHETIC_SCALE = 1.3  # the synthetic copy's noise, in units of the estimated rho
+TWO_STAGE_FINE = {"normal_iterations": 1, "vertex_iterations": 10}  # the many-light-iterations run (PyGEL's regime) ...
+TWO_STAGE_FINE_MAX_ITERATIONS = 48  # ... searched over 1..this many outer iterations ...
+TWO_STAGE_FINE_PATIENCE = 4  # ... stopping this many after its minimum (the median angle is noisy at fine steps)
 TWO_STAGE_MARGIN = 2  # rings of vertices next to a cut whose faces are left out of the score
 TUNED = ("iterations", "normal_iterations", "vertex_iterations", "sigma_r", "sigma_s", "keep_tangential")
 STAGES = ("sigma_r", "normal_iterations", "sigma_r", "vertex_iterations")  # the coordinate search
@@ -440,6 +443,16 @@ def median_angle(A: np.ndarray, B: np.ndarray, F: np.ndarray, faces: np.ndarray)
         return float("inf")
     sin = np.linalg.norm(np.cross(a[ok], b[ok]), axis=1)
     return float(np.median(np.arctan2(sin, np.einsum("ij,ij->i", a[ok], b[ok]))))
+
+
+def mean_angle(A: np.ndarray, B: np.ndarray, F: np.ndarray, faces: np.ndarray) -> float:
+    """Mean over ``faces`` of the angle between the unit normals of faces ``F`` under ``A`` and ``B``, radians (as :func:`median_angle`)."""
+    a, b = face_normals(A, F)[faces], face_normals(B, F)[faces]
+    ok = (np.abs(a).sum(axis=1) > 0) & (np.abs(b).sum(axis=1) > 0)
+    if not ok.any():
+        return float("inf")
+    sin = np.linalg.norm(np.cross(a[ok], b[ok]), axis=1)
+    return float(np.mean(np.arctan2(sin, np.einsum("ij,ij->i", a[ok], b[ok]))))
 
 
 def _search_grid(given: dict, oracle: bool = False) -> dict[str, tuple]:
@@ -559,11 +572,12 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
         ni = {**full, **params}["normal_iterations"]
         return max(TWO_STAGE_PATIENCE, TWO_STAGE_PATIENCE_PASSES // max(ni, 1))
 
-    def runs(start: np.ndarray, F: np.ndarray, ops: Operators, params: dict) -> Iterator[tuple[int, np.ndarray]]:
-        """(k, positions after k outer iterations), k = 1.. (the given count only, when held)."""
+    def runs(start: np.ndarray, F: np.ndarray, ops: Operators, params: dict,
+             length: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+        """(k, positions after k outer iterations), k = 1.. ``length`` or :func:`run_length` (the given count only, when held)."""
         step = {**full, **params}
         per_iteration = max(1, step["normal_iterations"] + step["vertex_iterations"])
-        step["iterations"] = max(1, min(run_length(params), MAX_ITERATIONS // per_iteration))  # the filter's bound on passes
+        step["iterations"] = max(1, min(run_length(params) if length is None else length, MAX_ITERATIONS // per_iteration))  # the filter's bound on passes
         for k, X in enumerate(outer_iterates(start, ops, None, **step, every=not fixed_k), start=1):
             yield (step["iterations"] if fixed_k else k), X
 
@@ -614,6 +628,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
 
     chosen, best = _staged_search(path, _search_grid(ctx.given))
     chosen["iterations"] = int(best.value)
+    consistent = (dict(chosen), best)  # the criterion's choice, before the guard
 
     # the guard: Monte-Carlo SURE on positions along the chosen run (probes coloured like the noise)
     # probes along the normals of the SURE-smoothed mesh, not the pilot's: with keep_tangential a vertex keeps
@@ -676,6 +691,27 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
         if agreed:
             final, light = min(agreed, key=lambda c: c[0].score)  # ties: the earlier lighter run, the fewer iterations
             chosen = {**light, "iterations": int(final.value)}
+    fine_ok = not fixed_k and not heavy and not any(k in ctx.given for k in TWO_STAGE_FINE)
+    if fine_ok and chosen == {**consistent[0], "sigma_s": chosen["sigma_s"]}:
+        # the guard kept the criterion's choice (a feature mesh): the same sigma_r in many light iterations
+        fine = {**chosen, **TWO_STAGE_FINE}
+        def fine_points():
+            for k, X in runs(synthetic, F, ops, fine, length=TWO_STAGE_FINE_MAX_ITERATIONS):
+                p = Point(k, 0.0, 0.0, X)
+                p.score = median_angle(X, pilot, F, region.scored)
+                yield p
+        fp = best_on_run(fine_points(), TWO_STAGE_FINE_PATIENCE)
+        mean_fine = mean_angle(fp.X, pilot, F, region.scored)
+        mean_chosen = mean_angle(consistent[1].X, pilot, F, region.scored)
+        log.debug("two_stage rule: fine run %s k=%d median %.5f mean %.5f; chosen median %.5f mean %.5f", fine,
+                  int(fp.value), fp.score, mean_fine, consistent[1].score, mean_chosen)
+        if mean_fine < mean_chosen:
+            fine["iterations"] = int(fp.value)
+            fine_sure = sure_per_probe(fine)
+            log.debug("two_stage rule: fine SURE %.6g, chosen %.6g (n rho^2 %.6g)", fine_sure[-1][0].score, final.score,
+                      int(inner.sum()) * ctx.rho**2)
+            if fine_sure[-1][0].score < final.score - TWO_STAGE_GUARD_LIGHTER_GAIN * abs(final.score):
+                chosen, final = fine, fine_sure[-1][0]
     # the returned score estimates the whole mesh's squared error ||f(X) - X0||^2 (comparable with
     # other filters' SURE, as choose_parameters(return_risk=True) reports it): the region's SURE on its
     # inner vertices, scaled to the mesh's vertex count
