@@ -408,3 +408,27 @@ def test_mc_sure_step_is_the_guard_step_and_checks_rho():
     for bad in (-0.1, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="rho"):
             mc_sure_step(bad, False)
+
+
+def test_correlated_fields_colour_each_column_as_alone_in_one_block():
+    """The rule's correlated noise fields (the synthetic copy's and the guard's probes), coloured in one block,
+    equal each column coloured alone by the heat filter written out here (white draws by their seeds, the
+    filter's output scaled to mean square 1 per vertex over the mesh), restricted to the region's vertices."""
+    from meshdenoise.noise import HeatFilter, diffusion_length
+    from meshdenoise.tuning import given_noise_model
+
+    V, F = icosphere(3)
+    n = V.shape[0]
+    Vn = add_normal_noise((V, F), 0.02, seed=1)[0]
+    model = given_noise_model((Vn, F), 0.02, 2.0)
+    ctx = TuningContext(Vn, F, get_operators(F, n), 0.02, "sure", None, {}, model)
+    vertices = np.arange(3, n, 7)
+    got = ts.correlated_fields(ctx, vertices, 3)
+    C = HeatFilter(model.V, model.F, diffusion_length(2.0))
+    draws = [np.random.default_rng(0).standard_normal(n)] + [np.random.default_rng(p).choice([-1.0, 1.0], size=n)
+                                                            for p in range(3)]
+    assert got.shape == (vertices.size, 4)
+    for j, z in enumerate(draws):
+        y = C(z[:, None])[:, 0]
+        y *= np.sqrt(n / np.sum(y**2))
+        np.testing.assert_allclose(got[:, j], y[vertices], rtol=1e-5, atol=1e-6)

@@ -373,6 +373,27 @@ def sure_probe(N: np.ndarray, seed: int = 0) -> np.ndarray:
     return z[:, None] * N
 
 
+def correlated_fields(ctx: TuningContext, vertices: np.ndarray, probes: int) -> np.ndarray:
+    """The rule's noise fields under correlated noise, coloured in one block and restricted to ``vertices`` (k,): (k, 1 + probes).
+
+    Column 0: the synthetic copy's noise, white :math:`\\mathcal N(0, 1)` (seed 0); columns
+    ``1 + p``: the guard's probes, Rademacher (seed ``p``), each drawn on the whole mesh (n
+    values) and coloured by ``ctx.colour`` (one block solve for all the columns). Each column is
+    then scaled to mean square 1 per vertex over the mesh, as if coloured alone
+    (``ctx.colour(z[:, None], 1.0)`` normalises its one column so); the block's own
+    normalisation is the mean over the columns only.
+    """
+    n = ctx.n
+    white = np.empty((n, 1 + probes))
+    white[:, 0] = np.random.default_rng(0).standard_normal(n)
+    for p in range(probes):
+        white[:, 1 + p] = np.random.default_rng(p).choice([-1.0, 1.0], size=n)
+    coloured = ctx.colour(white, 1.0 / white.shape[1])
+    energy = np.sum(coloured**2, axis=0)
+    scale = np.sqrt(n / np.where(energy > 0, energy, 1.0))
+    return coloured[vertices] * scale
+
+
 class SampledRegion:
     """A part of a mesh made of ``patches`` vertex balls (rings of neighbours), about ``size`` vertices in all.
 
@@ -608,12 +629,9 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     pilot = spec.core(Y, F, ops=ops, pinned=None, **pilot_params)
     Np = vertex_normals(pilot, F)
 
-    def region_field(draw) -> np.ndarray:
-        """A noise field on the region: correlated noise is drawn on the whole mesh, coloured, then restricted."""
-        return ctx.colour(draw(ctx.n)[:, None], 1.0)[region.vertices, 0]
-
     if ctx.correlation_length:  # no extra scale: the estimate already reads correlated noise 1.2-1.5 times too high
-        eps = region_field(lambda m: np.random.default_rng(0).standard_normal(m))
+        fields = correlated_fields(ctx, region.vertices, TWO_STAGE_GUARD_PROBES)
+        eps = fields[:, 0]
         synthetic = pilot + ctx.rho * eps[:, None] * Np
     else:
         synthetic = pilot + synthetic_noise(Np, TWO_STAGE_SYNTHETIC_SCALE * ctx.rho)
@@ -636,8 +654,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     # errors (the pilot's) do not see (docs/automatic-parameters.md)
     Ng = vertex_normals(ctx.smoothed().X, ctx.F)[region.vertices]
     if ctx.correlation_length:
-        probes = [region_field(lambda m, seed=seed: np.random.default_rng(seed).choice([-1.0, 1.0], size=m))[:, None] * Ng
-                  for seed in range(TWO_STAGE_GUARD_PROBES)]
+        probes = [fields[:, 1 + seed, None] * Ng for seed in range(TWO_STAGE_GUARD_PROBES)]
     else:
         probes = [sure_probe(Ng, seed) for seed in range(TWO_STAGE_GUARD_PROBES)]
     # under correlated noise the filter's response to a probe of 0.1 rho misses 10 % of its divergence (the
