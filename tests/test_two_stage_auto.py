@@ -432,3 +432,39 @@ def test_correlated_fields_colour_each_column_as_alone_in_one_block():
         y = C(z[:, None])[:, 0]
         y *= np.sqrt(n / np.sum(y**2))
         np.testing.assert_allclose(got[:, j], y[vertices], rtol=1e-5, atol=1e-6)
+
+
+def test_fine_run_is_the_median_best_of_many_light_iterations_on_the_synthetic_copy(monkeypatch):
+    """Noisy box (0.5 edge lengths, seed 4; the whole mesh is the region): with SURE's gain requirement lifted,
+    the rule takes the many-light-iterations run (1 normal pass, 10 vertex steps); its outer count is the least
+    median face-normal angle to the pilot along that run on the synthetic copy (pilot, copy, angles and the
+    run's stop written out here)."""
+    from meshdenoise.registry import get_filter
+
+    V, F = box(12)
+    rho = 0.5 / 11
+    Vn = add_normal_noise((V, F), rho, seed=4)[0]
+    monkeypatch.setattr(ts, "TWO_STAGE_GUARD_LIGHTER_GAIN", -np.inf)  # SURE's condition always holds
+    got = choose_parameters((Vn, F), "two_stage", noise=rho)
+    assert (got["normal_iterations"], got["vertex_iterations"]) == (1, 10)
+    assert got["sigma_r"] in ts.TWO_STAGE_SIGMA_R and got["sigma_s"] == 1.0 and got["keep_tangential"]
+
+    n = V.shape[0]
+    ops = get_operators(F, n)
+    defaults = {p.name: p.default for p in get_filter("two_stage").params}
+    pilot = apply_filter("two_stage", (Vn, F), **{**defaults, "iterations": 3, "keep_tangential": True})[0]
+    synthetic = pilot + 1.3 * rho * np.random.default_rng(0).standard_normal(n)[:, None] * vertex_normals(pilot, F)
+
+    def angles(X):
+        a, b = face_normals(X, F), face_normals(pilot, F)
+        return np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.sum(a * b, axis=1))
+
+    fine = {**defaults, **got, "iterations": 48}
+    medians = [np.median(angles(X)) for X in ts.outer_iterates(synthetic, ops, None, **fine)]
+    k = 1  # the least median of the run, which stops TWO_STAGE_FINE_PATIENCE iterations after it
+    for j, m in enumerate(medians, start=1):
+        if j >= k + ts.TWO_STAGE_FINE_PATIENCE:
+            break
+        if m < medians[k - 1]:
+            k = j
+    assert got["iterations"] == k
