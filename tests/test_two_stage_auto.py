@@ -129,6 +129,10 @@ def test_median_angle_against_arccos():
     a, b = face_normals(V, F)[faces], face_normals(X, F)[faces]
     expected = np.median(np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1, 1)))
     assert ts.median_angle(V, X, F, faces) == pytest.approx(expected, rel=1e-9)
+    assert ts.median_angle(V, None, F, faces, b) == pytest.approx(expected, rel=1e-9)  # X's normals given
+    mean = np.mean(np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1, 1)))
+    assert ts.mean_angle(V, X, F, faces) == pytest.approx(mean, rel=1e-9)
+    assert ts.mean_angle(V, None, F, faces, b) == pytest.approx(mean, rel=1e-9)
 
 
 def test_synthetic_noise_and_probe_follow_the_noise_model():

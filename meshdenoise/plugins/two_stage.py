@@ -453,27 +453,35 @@ def guard_drops(per_probe: np.ndarray, last: np.ndarray, margin: float) -> bool:
     return bool(float(d.mean()) + 2.0 * se < -margin)
 
 
-def median_angle(A: np.ndarray, B: np.ndarray, F: np.ndarray, faces: np.ndarray) -> float:
+def face_angles(A: np.ndarray, B: np.ndarray | None, F: np.ndarray, faces: np.ndarray,
+                normals_b: np.ndarray | None = None) -> np.ndarray:
+    """Angles (radians) between the unit normals of faces ``F[faces]`` under ``A`` and ``B`` (n, 3), shape (k,).
+
+    ``faces`` (m,) bool. ``normals_b`` (k, 3): ``face_normals(B, F)[faces]`` when known (``B``
+    is then not read). Faces of zero area in either are left out.
+    """
+    a = face_normals(A, F)[faces]
+    b = face_normals(B, F)[faces] if normals_b is None else normals_b
+    ok = (np.abs(a).sum(axis=1) > 0) & (np.abs(b).sum(axis=1) > 0)
+    a, b = a[ok], b[ok]
+    return np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.einsum("ij,ij->i", a, b))
+
+
+def median_angle(A: np.ndarray, B: np.ndarray | None, F: np.ndarray, faces: np.ndarray,
+                 normals_b: np.ndarray | None = None) -> float:
     """Median over ``faces`` (bool (m,)) of the angle between the unit normals of faces ``F`` under ``A`` and ``B`` (n, 3), radians.
 
-    Faces of zero area in either are left out; ``inf`` when none is left.
+    Faces of zero area in either are left out; ``inf`` when none is left (:func:`face_angles`).
     """
-    a, b = face_normals(A, F)[faces], face_normals(B, F)[faces]
-    ok = (np.abs(a).sum(axis=1) > 0) & (np.abs(b).sum(axis=1) > 0)
-    if not ok.any():
-        return float("inf")
-    sin = np.linalg.norm(np.cross(a[ok], b[ok]), axis=1)
-    return float(np.median(np.arctan2(sin, np.einsum("ij,ij->i", a[ok], b[ok]))))
+    t = face_angles(A, B, F, faces, normals_b)
+    return float(np.median(t)) if t.size else float("inf")
 
 
-def mean_angle(A: np.ndarray, B: np.ndarray, F: np.ndarray, faces: np.ndarray) -> float:
+def mean_angle(A: np.ndarray, B: np.ndarray | None, F: np.ndarray, faces: np.ndarray,
+               normals_b: np.ndarray | None = None) -> float:
     """Mean over ``faces`` of the angle between the unit normals of faces ``F`` under ``A`` and ``B``, radians (as :func:`median_angle`)."""
-    a, b = face_normals(A, F)[faces], face_normals(B, F)[faces]
-    ok = (np.abs(a).sum(axis=1) > 0) & (np.abs(b).sum(axis=1) > 0)
-    if not ok.any():
-        return float("inf")
-    sin = np.linalg.norm(np.cross(a[ok], b[ok]), axis=1)
-    return float(np.mean(np.arctan2(sin, np.einsum("ij,ij->i", a[ok], b[ok]))))
+    t = face_angles(A, B, F, faces, normals_b)
+    return float(np.mean(t)) if t.size else float("inf")
 
 
 def _search_grid(given: dict, oracle: bool = False) -> dict[str, tuple]:
@@ -645,6 +653,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
                     "iterations": TWO_STAGE_PILOT_ITERATIONS, "keep_tangential": True}
     pilot = spec.core(Y, F, ops=ops, pinned=None, **pilot_params)
     Np = vertex_normals(pilot, F)
+    pilot_normals = face_normals(pilot, F)[region.scored]  # the candidates' angles are to these
 
     if ctx.correlation_length:  # no extra scale: the estimate already reads correlated noise 1.2-1.5 times too high
         fields = correlated_fields(ctx, region.vertices, TWO_STAGE_GUARD_PROBES)
@@ -657,7 +666,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
         def scored():
             for k, X in runs(synthetic, F, ops, params):
                 p = Point(k, 0.0, 0.0, X)
-                p.score = median_angle(X, pilot, F, region.scored)
+                p.score = median_angle(X, None, F, region.scored, pilot_normals)
                 yield p
         return best_on_run(scored(), patience(params))
 
@@ -732,11 +741,11 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
         def fine_points():
             for k, X in runs(synthetic, F, ops, fine, length=TWO_STAGE_FINE_MAX_ITERATIONS):
                 p = Point(k, 0.0, 0.0, X)
-                p.score = median_angle(X, pilot, F, region.scored)
+                p.score = median_angle(X, None, F, region.scored, pilot_normals)
                 yield p
         fp = best_on_run(fine_points(), TWO_STAGE_FINE_PATIENCE)
-        mean_fine = mean_angle(fp.X, pilot, F, region.scored)
-        mean_chosen = mean_angle(consistent[1].X, pilot, F, region.scored)
+        mean_fine = mean_angle(fp.X, None, F, region.scored, pilot_normals)
+        mean_chosen = mean_angle(consistent[1].X, None, F, region.scored, pilot_normals)
         log.debug("two_stage rule: fine run %s k=%d median %.5f mean %.5f; chosen median %.5f mean %.5f", fine,
                   int(fp.value), fp.score, mean_fine, consistent[1].score, mean_chosen)
         if mean_fine < mean_chosen:
