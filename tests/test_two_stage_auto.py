@@ -448,7 +448,7 @@ def test_fine_run_is_the_median_best_of_many_light_iterations_on_the_synthetic_c
     V, F = box(12)
     rho = 0.5 / 11
     Vn = add_normal_noise((V, F), rho, seed=4)[0]
-    monkeypatch.setattr(ts, "TWO_STAGE_GUARD_LIGHTER_GAIN", -np.inf)  # SURE's condition always holds
+    monkeypatch.setattr(ts, "TWO_STAGE_FINE_GAIN", -np.inf)  # SURE's condition always holds
     got = choose_parameters((Vn, F), "two_stage", noise=rho)
     assert (got["normal_iterations"], got["vertex_iterations"]) == (1, 10)
     assert got["sigma_r"] in ts.TWO_STAGE_SIGMA_R and got["sigma_s"] == 1.0 and got["keep_tangential"]
