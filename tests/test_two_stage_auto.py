@@ -209,6 +209,26 @@ def test_staged_search_visits_the_coordinates_in_order_and_keeps_ties_early():
     assert len(seen) < len(ts.TWO_STAGE_SIGMA_R) * len(ts.TWO_STAGE_NORMAL_ITERATIONS) * 3
 
 
+def test_staged_search_ends_with_both_counts_jointly_where_one_at_a_time_stalls():
+    """A score whose best counts (5 passes, 40 steps) are worse than (10, 20) when either count is changed
+    alone: the search ends at the least score over the pairs (brute force here) at its sigma_r."""
+    table = {(5, 20): 0.30, (5, 40): 0.05, (10, 20): 0.10, (10, 40): 0.20, (20, 20): 0.40, (20, 40): 0.50}
+
+    def score(params):
+        return abs(params["sigma_r"] - 0.3) + table[params["normal_iterations"], params["vertex_iterations"]]
+
+    def path(params):
+        return ts.Point(3, 0.0, 0.0, np.zeros((1, 3)), score(params))
+
+    grid = ts._search_grid({})
+    chosen, best = ts._staged_search(path, grid)
+    pairs = [{**chosen, "normal_iterations": a, "vertex_iterations": b} for a, b in table]
+    expected = min(pairs, key=score)
+    assert (chosen["normal_iterations"], chosen["vertex_iterations"]) == (5, 40)
+    assert chosen == expected and best.score == pytest.approx(score(expected))
+    assert chosen["sigma_r"] == 0.3
+
+
 def test_the_rule_searches_20_and_40_vertex_steps_and_the_oracle_10_as_well():
     assert ts._search_grid({})["vertex_iterations"] == (20, 40)
     assert ts._search_grid({"vertex_iterations": 7})["vertex_iterations"] == (7,)
