@@ -15,7 +15,11 @@ clean given), pymeshlab's sample bunny with normal noise of 0.5 % of its boundin
 and the elephant with rho = 0.015 (seed 0; smooth meshes, where the rule must not do worse
 than before).
 
-Run:  PYTHONPATH=. python benchmarks/two_stage_auto.py [--rows NAME ...] [--no-grid] [--out FILE.md]
+Run:  PYTHONPATH=. python benchmarks/two_stage_auto.py [--rows NAME ...] [--no-grid [--grid-from OLD.json]] [--out FILE.md]
+
+The grid oracles depend on the filter only (not on the rule): after a change of the rule,
+``--no-grid --grid-from benchmarks/results/two-stage-auto.json`` measures the rule and the
+position oracle again and copies the grid columns of the earlier run.
 """
 
 from __future__ import annotations
@@ -164,6 +168,9 @@ def main() -> None:
     ap.add_argument("--rows", nargs="*", default=list(PAIRS + SMOOTH))
     ap.add_argument("--no-grid", action="store_true", help="skip the whole-grid oracles (slow on large meshes)")
     ap.add_argument("--out", help="write the markdown table here (and FILE.json)")
+    ap.add_argument("--grid-from", metavar="JSON",
+                    help="with --no-grid: take the whole-grid oracles (ne-best, snr-best: the filter's, not the rule's) "
+                         "from this earlier run's JSON, row by row")
     ap.add_argument("--one", help=argparse.SUPPRESS)  # internal: measure one row in this process, print JSON
     args = ap.parse_args()
     if args.one:
@@ -178,6 +185,12 @@ def main() -> None:
             raise SystemExit(f"two_stage_auto.py: row {name!r} failed:\n{res.stderr}")
         results.append(json.loads(res.stdout.strip().splitlines()[-1]))
         print(f"{name}: done", file=sys.stderr, flush=True)
+    if args.grid_from:
+        with open(args.grid_from) as f:
+            earlier = {r["row"]: r for r in json.load(f)}
+        for r in results:
+            if r["row"] in earlier and "grid_ne" in earlier[r["row"]]:
+                r["grid_ne"], r["grid_snr"] = earlier[r["row"]]["grid_ne"], earlier[r["row"]]["grid_snr"]
     command = "PYTHONPATH=. python benchmarks/two_stage_auto.py " + " ".join(
         a if " " not in a else repr(a) for a in sys.argv[1:])
     text = table(results, command, " ".join(load))

@@ -129,6 +129,10 @@ def test_median_angle_against_arccos():
     a, b = face_normals(V, F)[faces], face_normals(X, F)[faces]
     expected = np.median(np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1, 1)))
     assert ts.median_angle(V, X, F, faces) == pytest.approx(expected, rel=1e-9)
+    assert ts.median_angle(V, None, F, faces, b) == pytest.approx(expected, rel=1e-9)  # X's normals given
+    mean = np.mean(np.arccos(np.clip(np.einsum("ij,ij->i", a, b), -1, 1)))
+    assert ts.mean_angle(V, X, F, faces) == pytest.approx(mean, rel=1e-9)
+    assert ts.mean_angle(V, None, F, faces, b) == pytest.approx(mean, rel=1e-9)
 
 
 def test_synthetic_noise_and_probe_follow_the_noise_model():
@@ -203,6 +207,26 @@ def test_staged_search_visits_the_coordinates_in_order_and_keeps_ties_early():
     keys = [tuple(sorted(p.items())) for p in seen]
     assert len(keys) == len(set(keys))  # no run twice
     assert len(seen) < len(ts.TWO_STAGE_SIGMA_R) * len(ts.TWO_STAGE_NORMAL_ITERATIONS) * 3
+
+
+def test_staged_search_ends_with_both_counts_jointly_where_one_at_a_time_stalls():
+    """A score whose best counts (5 passes, 40 steps) are worse than (10, 20) when either count is changed
+    alone: the search ends at the least score over the pairs (brute force here) at its sigma_r."""
+    table = {(5, 20): 0.30, (5, 40): 0.05, (10, 20): 0.10, (10, 40): 0.20, (20, 20): 0.40, (20, 40): 0.50}
+
+    def score(params):
+        return abs(params["sigma_r"] - 0.3) + table[params["normal_iterations"], params["vertex_iterations"]]
+
+    def path(params):
+        return ts.Point(3, 0.0, 0.0, np.zeros((1, 3)), score(params))
+
+    grid = ts._search_grid({})
+    chosen, best = ts._staged_search(path, grid)
+    pairs = [{**chosen, "normal_iterations": a, "vertex_iterations": b} for a, b in table]
+    expected = min(pairs, key=score)
+    assert (chosen["normal_iterations"], chosen["vertex_iterations"]) == (5, 40)
+    assert chosen == expected and best.score == pytest.approx(score(expected))
+    assert chosen["sigma_r"] == 0.3
 
 
 def test_the_rule_searches_20_and_40_vertex_steps_and_the_oracle_10_as_well():
@@ -408,3 +432,63 @@ def test_mc_sure_step_is_the_guard_step_and_checks_rho():
     for bad in (-0.1, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="rho"):
             mc_sure_step(bad, False)
+
+
+def test_correlated_fields_colour_each_column_as_alone_in_one_block():
+    """The rule's correlated noise fields (the synthetic copy's and the guard's probes), coloured in one block,
+    equal each column coloured alone by the heat filter written out here (white draws by their seeds, the
+    filter's output scaled to mean square 1 per vertex over the mesh), restricted to the region's vertices."""
+    from meshdenoise.noise import HeatFilter, diffusion_length
+    from meshdenoise.tuning import given_noise_model
+
+    V, F = icosphere(3)
+    n = V.shape[0]
+    Vn = add_normal_noise((V, F), 0.02, seed=1)[0]
+    model = given_noise_model((Vn, F), 0.02, 2.0)
+    ctx = TuningContext(Vn, F, get_operators(F, n), 0.02, "sure", None, {}, model)
+    vertices = np.arange(3, n, 7)
+    got = ts.correlated_fields(ctx, vertices, 3)
+    C = HeatFilter(model.V, model.F, diffusion_length(2.0))
+    draws = [np.random.default_rng(0).standard_normal(n)] + [np.random.default_rng(p).choice([-1.0, 1.0], size=n)
+                                                            for p in range(3)]
+    assert got.shape == (vertices.size, 4)
+    for j, z in enumerate(draws):
+        y = C(z[:, None])[:, 0]
+        y *= np.sqrt(n / np.sum(y**2))
+        np.testing.assert_allclose(got[:, j], y[vertices], rtol=1e-5, atol=1e-6)
+
+
+def test_fine_run_is_the_median_best_of_many_light_iterations_on_the_synthetic_copy(monkeypatch):
+    """Noisy box (0.5 edge lengths, seed 4; the whole mesh is the region): with SURE's gain requirement lifted,
+    the rule takes the many-light-iterations run (1 normal pass, 10 vertex steps); its outer count is the least
+    median face-normal angle to the pilot along that run on the synthetic copy (pilot, copy, angles and the
+    run's stop written out here)."""
+    from meshdenoise.registry import get_filter
+
+    V, F = box(12)
+    rho = 0.5 / 11
+    Vn = add_normal_noise((V, F), rho, seed=4)[0]
+    monkeypatch.setattr(ts, "TWO_STAGE_FINE_GAIN", -np.inf)  # SURE's condition always holds
+    got = choose_parameters((Vn, F), "two_stage", noise=rho)
+    assert (got["normal_iterations"], got["vertex_iterations"]) == (1, 10)
+    assert got["sigma_r"] in ts.TWO_STAGE_SIGMA_R and got["sigma_s"] == 1.0 and got["keep_tangential"]
+
+    n = V.shape[0]
+    ops = get_operators(F, n)
+    defaults = {p.name: p.default for p in get_filter("two_stage").params}
+    pilot = apply_filter("two_stage", (Vn, F), **{**defaults, "iterations": 3, "keep_tangential": True})[0]
+    synthetic = pilot + 1.3 * rho * np.random.default_rng(0).standard_normal(n)[:, None] * vertex_normals(pilot, F)
+
+    def angles(X):
+        a, b = face_normals(X, F), face_normals(pilot, F)
+        return np.arctan2(np.linalg.norm(np.cross(a, b), axis=1), np.sum(a * b, axis=1))
+
+    fine = {**defaults, **got, "iterations": 48}
+    medians = [np.median(angles(X)) for X in ts.outer_iterates(synthetic, ops, None, **fine)]
+    k = 1  # the least median of the run, which stops TWO_STAGE_FINE_PATIENCE iterations after it
+    for j, m in enumerate(medians, start=1):
+        if j >= k + ts.TWO_STAGE_FINE_PATIENCE:
+            break
+        if m < medians[k - 1]:
+            k = j
+    assert got["iterations"] == k
