@@ -455,7 +455,9 @@ def test_correlated_fields_colour_each_column_as_alone_in_one_block():
     for j, z in enumerate(draws):
         y = C(z[:, None])[:, 0]
         y *= np.sqrt(n / np.sum(y**2))
-        np.testing.assert_allclose(got[:, j], y[vertices], rtol=1e-5, atol=1e-6)
+        # the rule's colouring solves to COLOUR_TOL (1e-5 relative residual): agreement to ~1e-4 of the unit scale
+        np.testing.assert_allclose(got[:, j], y[vertices], rtol=0, atol=5e-4)
+        assert not np.allclose(got[:, (j + 1) % 4], y[vertices], atol=5e-2)  # the columns are not interchangeable
 
 
 def test_fine_run_is_the_median_best_of_many_light_iterations_on_the_synthetic_copy(monkeypatch):
