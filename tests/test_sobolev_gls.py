@@ -272,6 +272,12 @@ def test_sobolev_gls_factor_free_path_matches_the_dense_solve(monkeypatch, mu, b
     clear_cache()
     built = []
     monkeypatch.setattr(sg, "shifted_solver", lambda *a, **k: built.append(a) or pytest.fail("a factor was built"))
+    # at the filter's tolerance: the correction D solves A D = b with A >= I (W >= I, L^p >= 0), so a relative
+    # residual tol bounds its error by tol ||b||, ||b|| <= (beta - 1) ||X - X0|| (b a projection of (beta - 1)(X - X0))
+    X0 = np.linalg.solve(np.eye(n) + mu * Lp, Vn)
+    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=order)[0]
+    assert np.linalg.norm(got - expected) <= sg.GLS_ITERATIVE_TOL * (beta - 1.0) * np.linalg.norm(Vn - X0) + 1e-10
+    monkeypatch.setattr(sg, "GLS_ITERATIVE_TOL", 1e-12)
     got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=order)[0]
     np.testing.assert_allclose(got, expected, atol=1e-8)
     iso = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=1.0, order=order)[0]
@@ -293,6 +299,14 @@ def test_normal_weighted_cg_solves_the_dense_system_and_reports_non_convergence(
         np.testing.assert_allclose(Y.ravel(), np.linalg.solve(A, B.ravel()), atol=1e-9)
     _, ok = normal_weighted_cg(ops, N, 12.0, 100.0, 3, B, tol=1e-12, maxiter=2)
     assert not ok
+    # a starting guess: from the solution itself it stops at once; from a perturbed one it converges to the same
+    _, A = _dense_system(N, 12.0, 0.2, np.linalg.matrix_power(_dense_L(F, n), 3))
+    exact = np.linalg.solve(A, B.ravel()).reshape(n, 3)
+    Y, ok = normal_weighted_cg(ops, N, 12.0, 0.2, 3, B, tol=1e-8, maxiter=0, x0=exact)
+    assert ok and np.array_equal(Y, exact)
+    Y, ok = normal_weighted_cg(ops, N, 12.0, 0.2, 3, B, tol=1e-12, x0=exact + 0.1)
+    assert ok
+    np.testing.assert_allclose(Y, exact, atol=1e-9)
 
 
 def test_sobolev_gls_scored_rule_with_every_vertex_scored_is_the_whole_rule():
