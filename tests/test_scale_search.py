@@ -434,3 +434,47 @@ def test_sobolev_axes_factor_free_filter_equals_the_factor_filter(monkeypatch):
     clear_cache()
     after = apply_filter("sobolev_axes", (Vn, F), **params)[0]
     np.testing.assert_allclose(after, before, atol=1e-11)
+
+
+# --------------------------------------------------------------------------- session 9: cheaper region searches
+def test_search_log_narrow_grid_finds_the_minimum_with_few_evaluations():
+    """A quadratic in log10 mu with its minimum at 0.3: the default grid and the narrow refining grid both find it;
+    the narrow one (three points 0.2 decades apart, 4 golden steps) from a start 0.15 decades off in at most 9."""
+    from meshdenoise.tuning.search import search_log
+
+    seen = []
+
+    def evaluate(mu):
+        seen.append(mu)
+        t = np.log10(mu)
+        return Point(mu, 0.0, 0.0, None, (t - 0.3) ** 2)
+
+    assert abs(np.log10(search_log(evaluate, 1.0, golden_steps=8).value) - 0.3) < 0.05
+    seen.clear()
+    best = search_log(evaluate, 10**0.45, golden_steps=4, spacing=0.2, half_width=1)
+    assert abs(np.log10(best.value) - 0.3) < 0.05 and len(seen) <= 9
+    seen.clear()  # a start far off: the grid is extended while the minimum sits at its end
+    assert abs(np.log10(search_log(evaluate, 10**-1.0, golden_steps=4, spacing=0.2, half_width=1).value) - 0.3) < 0.1
+    with pytest.raises(ValueError, match="spacing"):
+        search_log(evaluate, 1.0, spacing=0.0)
+
+
+def test_region_rule_restart_hands_the_previous_choice_to_the_next_run(monkeypatch):
+    """restart=True: a run after the first gets the choice of the run before as its third argument."""
+    import meshdenoise.tuning.search as search
+
+    V, F = torus(100, 60)
+    Vn, _ = add_normal_noise((V, F), 0.01, seed=0)
+    ctx = TuningContext(Vn, F, get_operators(F, len(V)), 0.01, Criterion("sure"), None, {})
+    calls = []
+
+    def rule(c, mask, previous=None):
+        calls.append(previous)
+        return {"mu": 1.0 + len(calls)}, Point(1.0, 1.0, 1.0, None, 1.0)
+
+    needs = iter([9, 9])
+    chosen, _ = search.region_rule(ctx, rule, 1000, 2, 4, min_vertices=10, reach=lambda c: next(needs), restart=True)
+    assert calls == [None, {"mu": 2.0}] and chosen == {"mu": 3.0}
+    calls.clear()
+    search.region_rule(ctx, rule, 1000, 2, 4, min_vertices=10, reach=lambda c: 4, restart=True)  # one run
+    assert calls == [None]

@@ -37,7 +37,7 @@ def _apply_weight(N: np.ndarray, beta: float, Y: np.ndarray) -> np.ndarray:
 
 def normal_weighted_solve(
     ops: Operators, N: np.ndarray, beta: float, mu: float, order: int, B: np.ndarray,
-    pinned: np.ndarray | None = None, x0: np.ndarray | None = None, prec: Any = None,
+    pinned: np.ndarray | None = None, x0: np.ndarray | None = None, prec: Any = None, tol: float = CG_TOL,
 ) -> np.ndarray:
     """Solve :math:`(W + \\mu\\, L^p \\otimes I_3)\\, Y = B` by conjugate gradients, for one or several right-hand sides.
 
@@ -48,7 +48,8 @@ def normal_weighted_solve(
     so the preconditioned matrix has its spectrum in :math:`[1, \\beta]` and CG converges in
     :math:`O(\\sqrt\\beta)` iterations whatever the mesh. With ``pinned`` vertices their rows
     of ``x0`` are kept and the free rows solve the reduced system. ``prec`` (optional, no pinned
-    vertices) applies :math:`(I + \\mu L^p)^{-1}` to an (n, c) array instead of the factor.
+    vertices) applies :math:`(I + \\mu L^p)^{-1}` to an (n, c) array instead of the factor. ``tol``: the
+    relative residual every system reaches.
     """
     many = B.ndim == 3
     Bk = B if many else B[:, :, None]
@@ -80,7 +81,7 @@ def normal_weighted_solve(
     rz = np.einsum("ijk,ijk->k", R, Z)
     norm0 = np.sqrt(np.einsum("ijk,ijk->k", Bk, Bk)) + 1e-300
     for _ in range(CG_MAXITER):
-        if np.all(np.sqrt(np.einsum("ijk,ijk->k", R, R)) <= CG_TOL * norm0):
+        if np.all(np.sqrt(np.einsum("ijk,ijk->k", R, R)) <= tol * norm0):
             break
         AP = A(P)
         if free is not None:
@@ -97,7 +98,7 @@ def normal_weighted_solve(
         rz = rz_new
     else:
         warnings.warn(
-            f"sobolev_gls: conjugate gradients did not reach a relative residual of {CG_TOL:g} in {CG_MAXITER} "
+            f"sobolev_gls: conjugate gradients did not reach a relative residual of {tol:g} in {CG_MAXITER} "
             f"iterations (beta = {beta:g}); a smaller beta converges faster",
             UserWarning,
             stacklevel=3,
@@ -165,8 +166,8 @@ def normal_weighted_cg(
         Z *= inv_a
         return Z
 
-    def dot(a, b):
-        return float(np.dot(a.ravel(), b.ravel()))
+    def dot(a, b):  # einsum, not BLAS: OpenBLAS's threaded dot was 13x slower on a loaded machine
+        return float(np.einsum("ij,ij->", a, b))
 
     B = np.ascontiguousarray(B, dtype=np.float64)
     norm0 = math.sqrt(dot(B, B)) + 1e-300
@@ -209,6 +210,9 @@ SOBOLEV_GLS_REGION = 10_000  # from search.REGION_MIN_VERTICES the rule runs on 
 SOBOLEV_GLS_PATCHES = 8  # ... made of this many balls of vertices
 SOBOLEV_GLS_MARGIN = 8  # ... scoring only its vertices more than this many rings from a cut
 SOBOLEV_GLS_SPREAD_SAMPLES = 4  # simulated noise draws of the parametric bootstrap of the normals' spread
+SOBOLEV_GLS_REGION_TOL = 1e-6  # on a region: CG's relative residual per candidate (1e-9 on a whole mesh), each solve
+# started from the nearest candidate's solution
+SOBOLEV_GLS_REGION_WARM = 4  # ... of the last this many candidates
 
 
 
@@ -239,11 +243,15 @@ def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
     :data:`~meshdenoise.tuning.search.REGION_MIN_VERTICES` vertices (:func:`~meshdenoise.tuning.search.region_rule`),
     on the whole mesh below (docs/scale.md: the same choice at 100k and 400k, a bounded cost)."""
     order = int(get_filter("sobolev_gls").resolve(ctx.given, where="choose_parameters(method='sobolev_gls')")["order"])
-    return region_rule(ctx, choose_sobolev_gls_whole, SOBOLEV_GLS_REGION, SOBOLEV_GLS_PATCHES, SOBOLEV_GLS_MARGIN,
-                       reach=lambda chosen: shifted_reach(chosen["mu"], order) if chosen.get("mu") else 0)
+    def on_region(sub: TuningContext, scored: np.ndarray | None, previous: dict | None = None) -> tuple[dict, Point]:
+        return choose_sobolev_gls_whole(sub, scored, previous, region=scored is not None)
+
+    return region_rule(ctx, on_region, SOBOLEV_GLS_REGION, SOBOLEV_GLS_PATCHES, SOBOLEV_GLS_MARGIN,
+                       reach=lambda chosen: shifted_reach(chosen["mu"], order) if chosen.get("mu") else 0, restart=True)
 
 
-def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = None) -> tuple[dict, Point]:
+def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = None,
+                             previous: dict | None = None, region: bool = False) -> tuple[dict, Point]:
     """``mu`` and ``beta`` of ``sobolev_gls``: SURE (GCV at low noise) with the filter's full divergence.
 
     The filter is :math:`f(X) = X_0 + A^{-1} (\\beta - 1) P (X - X_0)`, :math:`X_0 = (I + \\mu L^p)^{-1} X`,
@@ -299,7 +307,11 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
 
     ``scored`` (bool (n,), optional): the risk of the scored vertices only (residual summed over
     them, probes zero elsewhere: the trace of the scored block of :math:`\\hat\\Sigma J`), for a
-    region cut out of a larger mesh (:func:`~meshdenoise.tuning.search.region_rule`).
+    region cut out of a larger mesh (:func:`~meshdenoise.tuning.search.region_rule`). With ``region``
+    (set there) each candidate's CG stops at a relative residual of ``SOBOLEV_GLS_REGION_TOL`` and starts from the
+    nearest of the last candidates' solutions. ``previous`` (the choice on a smaller region, whose
+    border pulled ``mu`` down): ``beta`` is held at its value and ``mu`` refined around its ``mu``
+    (:func:`~meshdenoise.tuning.search.search_log` on three points 0.2 decades apart, 4 golden steps).
     """
     spec = get_filter("sobolev_gls")
     full = spec.resolve(ctx.given, where="choose_parameters(method='sobolev_gls')")
@@ -337,6 +349,14 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
         log.info("sobolev_gls: tangential share of the noise tau = %.4g", tau)
     rows = slice(None) if scored is None else np.asarray(scored, dtype=bool)
     evaluated: dict[tuple, Point] = {}
+    tol = SOBOLEV_GLS_REGION_TOL if region else CG_TOL
+    warm: list[tuple[float, float, np.ndarray]] = []  # (log10 mu, log10 beta, solution) of the last candidates
+
+    def start(mu: float, beta: float) -> np.ndarray | None:
+        if not warm:
+            return None
+        near = min(warm, key=lambda w: abs(w[0] - math.log10(mu)) + abs(w[1] - math.log10(beta)))
+        return near[2]
 
     def evaluate(mu: float, beta: float) -> Point:
         key = (round(math.log10(mu), 9), float(beta))
@@ -356,7 +376,11 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
                 else:
                     # A^-1 b only: b^T A^-1 W b = (A^-1 b)^T W b (A symmetric), and the normals' part needs A^-1 b too
                     rhs = np.concatenate([_correction_rhs(N, beta, ctx.V, X0)[:, :, None], B], axis=2)
-                    out = normal_weighted_solve(ctx.ops, N, beta, mu, order, rhs)
+                    out = normal_weighted_solve(ctx.ops, N, beta, mu, order, rhs, tol=tol,
+                                                x0=start(mu, beta) if region else None)
+                    if region:
+                        warm.append((math.log10(mu), math.log10(beta), out))
+                        del warm[:-SOBOLEV_GLS_REGION_WARM]
                     X, AiB = X0 + out[:, :, 0], out[:, :, 1:]
                     fixed_normals = float(np.sum(AiB * _apply_weight(N, beta, B)))
                     tr = s * (fixed_normals + _normals_divergence(X0, ctx.F, ctx.V - X, N, beta, S, B, AiB))
@@ -365,6 +389,12 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
             evaluated[key] = (p, beta)
         return evaluated[key][0]
 
+    if previous is not None and not ({"mu", "beta"} <= set(ctx.given)):  # refine a smaller region's choice
+        beta = float(full["beta"]) if "beta" in ctx.given else float(previous["beta"])
+        mu = float(full["mu"]) if "mu" in ctx.given else float(
+            search_log(lambda m: evaluate(m, beta), float(previous["mu"]), golden_steps=4, spacing=0.2,
+                       half_width=1).value)
+        return {"mu": float(mu), "beta": float(beta)}, evaluate(mu, beta)
     beta = float(full["beta"]) if "beta" in ctx.given else 3.0
     held_mu = "mu" in ctx.given
     mu = float(full["mu"]) if held_mu else float(search_log(lambda m: evaluate(m, beta), ctx.mu_guess(order), golden_steps=6).value)

@@ -193,12 +193,14 @@ def best_on_path(
 
 
 def search_log(evaluate: Callable[[float], Point], center: float, golden_steps: int = 8,
-               lo_limit: float = -8.0, hi_limit: float = 10.0) -> Point:
+               lo_limit: float = -8.0, hi_limit: float = 10.0, spacing: float = 0.75, half_width: int = 2) -> Point:
     """Minimise ``evaluate(10**t).score`` over ``t`` (a decimal logarithm).
 
-    Five points 0.75 decades apart around ``center``, extended while the minimum sits
-    at an end of the grid, then golden-section search between the minimum's
-    neighbours (1.5 decades shrink to about 0.03 decades in 8 steps).
+    ``2 half_width + 1`` points ``spacing`` decades apart around ``center`` (default: five points
+    0.75 decades apart), extended while the minimum sits at an end of the grid, then
+    golden-section search between the minimum's neighbours (1.5 decades shrink to about 0.03
+    decades in 8 steps). A narrower grid (``spacing`` 0.2, ``half_width`` 1) refines a
+    choice already known roughly.
     """
     cache: dict[float, Point] = {}
 
@@ -209,14 +211,16 @@ def search_log(evaluate: Callable[[float], Point], center: float, golden_steps: 
         return cache[t]
 
     c0 = math.log10(center)
-    grid = [c0 + 0.75 * j for j in range(-2, 3)]
+    if not (spacing > 0 and int(half_width) >= 1):
+        raise ValueError(f"search_log: spacing must be > 0 and half_width >= 1, got {spacing!r}, {half_width!r}")
+    grid = [c0 + spacing * j for j in range(-int(half_width), int(half_width) + 1)]
     while True:
         scores = [at(t).score for t in grid]
         i = int(np.argmin(scores))
         if i == 0 and grid[0] > lo_limit:
-            grid.insert(0, grid[0] - 0.75)
+            grid.insert(0, grid[0] - spacing)
         elif i == len(grid) - 1 and grid[-1] < hi_limit:
-            grid.append(grid[-1] + 0.75)
+            grid.append(grid[-1] + spacing)
         else:
             break
     a, b = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
@@ -426,7 +430,7 @@ def shifted_reach(mu: float, order: int, headroom: float = 3.0, decays: float = 
 
 def region_rule(ctx, rule: Callable, size: int, patches: int, margin: int = 0, seed: int = 0,
                 min_vertices: int | None = None, given: Callable[[], dict] | None = None,
-                reach: Callable[[dict], int] | None = None) -> tuple[dict, Point]:
+                reach: Callable[[dict], int] | None = None, restart: bool = False) -> tuple[dict, Point]:
     """Run an automatic ``rule`` on a sampled region of about ``size`` vertices, its choice carried to the whole mesh.
 
     For rules whose parameters are a property of the noise per edge length and of the local
@@ -447,7 +451,10 @@ def region_rule(ctx, rule: Callable, size: int, patches: int, margin: int = 0, s
     influence on the filter, :func:`shifted_reach`); a free border penalises strong smoothing, so
     while the choice needs more than the margin used, the region is cut again with that margin
     (at most :data:`REGION_MAX_MARGIN`, the region grown by :func:`region_shape`'s rule) and the
-    rule run again: at most three runs.
+    rule run again: at most three runs. With ``restart`` the rule is called on a run after the
+    first as ``rule(sub_ctx, scored, previous)``, ``previous`` the choice of the run before (a
+    search that only refines it: the larger region moves the choice by its border's pull, not
+    from scratch).
 
     Returns the rule's choice (with the ``given()`` values) and its best point, the point's score
     and residual scaled by ``n / k`` (``k`` the region's scored vertices) so that a SURE score still estimates the whole
@@ -463,11 +470,16 @@ def region_rule(ctx, rule: Callable, size: int, patches: int, margin: int = 0, s
     from .region import SampledRegion  # context imports this module: local imports
 
     held = {**(given() if given is not None else {}), **ctx.given}
+    previous: dict | None = None
     for _ in range(3):
         region = SampledRegion(ctx.F, ctx.ops, int(size), int(patches), int(margin), seed)
         if region.whole:
             return rule(ctx, None)
-        chosen, point = _on_region(ctx, rule, region, held)
+        if restart and previous is not None:
+            chosen, point = _on_region(ctx, lambda c, s, p=previous: rule(c, s, p), region, held)
+        else:
+            chosen, point = _on_region(ctx, rule, region, held)
+        previous = chosen
         need = min(REGION_MAX_MARGIN, reach(chosen)) if reach is not None else margin
         if need <= margin:
             break
