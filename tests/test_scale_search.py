@@ -478,3 +478,18 @@ def test_region_rule_restart_hands_the_previous_choice_to_the_next_run(monkeypat
     calls.clear()
     search.region_rule(ctx, rule, 1000, 2, 4, min_vertices=10, reach=lambda c: 4, restart=True)  # one run
     assert calls == [None]
+
+
+def test_solve_shifted_without_memo_equals_a_dense_solve_and_keeps_nothing():
+    """memo=False (the region searches): the same solve, no factor stored on the operators, nothing in the memo."""
+    from meshdenoise.tuning.search import solve_shifted
+
+    V, F = icosphere(2)
+    ops = Operators(F, len(V))
+    rhs = np.random.default_rng(0).standard_normal((len(V), 5))
+    MEMO.clear()
+    before = len(MEMO)
+    for order, mu in ((2, 0.7), (3, 2.0)):
+        A = np.eye(len(V)) + mu * np.linalg.matrix_power(ops.L.toarray(), order)
+        np.testing.assert_allclose(solve_shifted(ops, order, mu, rhs, memo=False), np.linalg.solve(A, rhs), atol=1e-10)
+    assert not any(k.startswith("shifted-") for k in ops.cache) and len(MEMO) == before

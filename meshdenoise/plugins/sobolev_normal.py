@@ -150,7 +150,7 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
         key = digest(ctx.ops.F, order, rhs)
 
         def evaluate(mu: float, order=order, key=key) -> Point:
-            out = solve_shifted(ctx.ops, order, mu, rhs, key)
+            out = solve_shifted(ctx.ops, order, mu, rhs, key, memo=scored is None)  # a region: nothing kept
             Y = out[:, :3]
             X = project_update(ctx.V, Y, area_normals(Y, ctx.F), t)
             div = float(n) if ctx.reference is not None else _projected_divergence(ctx.V, ctx.F, out, Bp, t, delta)

@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..operators import Operators, spmm
-from ..solvers import LanczosQuadrature, shifted_solver
+from ..solvers import LanczosQuadrature, SPDSolver, shifted_matrix, shifted_solver
 from .memo import MEMO, digest
 from .risk import N_PROBES, Criterion, Point, as_criterion, probe_block
 from .walk import past_minimum, walk
@@ -236,12 +236,17 @@ def search_log(evaluate: Callable[[float], Point], center: float, golden_steps: 
     return min(cache.values(), key=lambda p: p.score)
 
 
-def solve_shifted(ops: Operators, order: int, mu: float, rhs: np.ndarray, key: str | None = None) -> np.ndarray:
+def solve_shifted(ops: Operators, order: int, mu: float, rhs: np.ndarray, key: str | None = None,
+                  memo: bool = True) -> np.ndarray:
     """``(I + mu L^order)^{-1} rhs`` through :func:`~meshdenoise.solvers.shifted_solver`, memoised on (topology, order, rhs, mu).
 
     ``key`` (a :func:`~meshdenoise.tuning.memo.digest` of the topology, order and ``rhs``)
-    saves hashing ``rhs`` again when one search solves it for many ``mu``.
+    saves hashing ``rhs`` again when one search solves it for many ``mu``. ``memo=False``: a
+    factor of its own, neither stored on ``ops`` nor its result in the memo (a search that
+    evaluates each ``mu`` once on a region: nothing held after it, one factor at a time).
     """
+    if not memo:
+        return SPDSolver(shifted_matrix(ops, mu, order)).solve(rhs)
     key = key or digest(ops.F, order, rhs)
     return MEMO.get(("solve", key, float(mu)), lambda: shifted_solver(ops, mu, order).solve(rhs))
 
@@ -495,14 +500,14 @@ def region_rule(ctx, rule: Callable, size: int, patches: int, margin: int = 0, s
 
 def _on_region(ctx, rule: Callable, region, held: dict) -> tuple[dict, Point]:
     """``rule(sub_ctx, region.inner)`` on ``region`` cut out of ``ctx``'s mesh, ``held`` parameters fixed."""
-    from ..operators import get_operators
+    from ..operators import Operators
     from .context import TuningContext
     from .risk import noise_colouring
 
     k = region.vertices.size
     V = np.ascontiguousarray(ctx.V[region.vertices], dtype=np.float64)
     F = region.F
-    ops = get_operators(F, k)
+    ops = Operators(F, k)  # not in the operators cache: the region's factors go with it when the rule returns
     model = ctx.noise
     if model is not None and getattr(model, "correlated", False):
         from .covariance import NoiseModel
