@@ -24,7 +24,7 @@ from .operators import Operators, mask_key, spmm, trim_cache
 
 __all__ = [
     "DirichletSystem", "SPDSolver", "CGSolver", "block_cg", "cached_solver", "laplacian_power", "shifted_solver",
-    "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted",
+    "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows",
 ]
 
 FACTORS_PER_FAMILY = 4  # a parameter sweep keeps only the last few factorisations of each filter
@@ -722,3 +722,73 @@ def lanczos_shifted(ops: Operators, X: np.ndarray, mu: float, order: int, tol: f
     if Y is None:
         return None
     return (X2 - mu * Y).reshape(X.shape)
+
+
+class LanczosRows(LanczosQuadrature):
+    r""":math:`g(M)\, B` on a few rows only, for any ``g``, from one Lanczos run that keeps those rows of its basis.
+
+    The Lanczos approximation :math:`g(M) b \approx \|b\|\, Q_k\, g(T_k)\, e_1` (as
+    :meth:`LanczosQuadrature.apply`) needs the basis :math:`Q_k` only at the rows wanted: they are
+    recorded as the recurrence runs (``len(rows) x steps`` per column, nothing of size
+    ``n x steps``), so every further ``g`` (every candidate weight of a search) costs a few small
+    tridiagonal eigenproblems and no sparse product unless the run must be extended.
+
+    Parameters
+    ----------
+    M : scipy.sparse matrix, shape (n, n), symmetric
+    B : ndarray, shape (n, k)
+    rows : ndarray of int, shape (r,)
+    max_steps : int
+
+    Examples
+    --------
+    >>> import numpy as np, scipy.sparse as sp
+    >>> M = sp.csr_matrix(np.diag([0.0, 1.0, 2.0, 4.0]))
+    >>> run = LanczosRows(M, np.ones((4, 1)), np.array([1, 3]))
+    >>> np.round(run.rows_apply(lambda t: 1.0 / (1.0 + t)).ravel(), 12).tolist()
+    [0.5, 0.2]
+    """
+
+    def __init__(self, M: sp.spmatrix, B: np.ndarray, rows: np.ndarray, *, max_steps: int = 1000):
+        super().__init__(M, B, max_steps=max_steps)
+        self.rows = np.asarray(rows, dtype=np.int64)
+        self._kept: list[np.ndarray] = []  # q_i at the rows, (r, k) per step
+
+    def extend(self, steps: int) -> None:
+        """Run ``steps`` more steps, recording the basis vectors at :attr:`rows`."""
+        for _ in range(int(steps)):
+            before = self.steps
+            self._kept.append(self._q[self.rows].copy())
+            super().extend(1)
+            if self.steps == before:  # every column exhausted: nothing was run
+                self._kept.pop()
+                break
+
+    def rows_apply(self, g: Callable[[np.ndarray], np.ndarray], *, rtol: float = 1e-10,
+                   check: int = 10) -> np.ndarray | None:
+        """:math:`(g(M) B)` at :attr:`rows`, shape (r, k); converged as :meth:`LanczosQuadrature.apply`, else ``None``."""
+        kcols = self._q.shape[1]
+        if self.steps < check:
+            self.extend(check - self.steps)
+        while True:
+            k = self.steps
+            ok = True
+            coef = []
+            for j in range(kcols):
+                now = self._coefficients(g, j, k)
+                before = self._coefficients(g, j, k - check)
+                diff = now.copy()
+                diff[: before.size] -= before
+                if self._active[j] and np.linalg.norm(diff) > rtol * np.linalg.norm(now):
+                    ok = False
+                coef.append(now)
+            if ok:
+                break
+            if k >= self.max_steps:
+                return None
+            self.extend(min(check, self.max_steps - k))
+        out = np.zeros((self.rows.size, kcols))
+        for j, c in enumerate(coef):
+            if c.size:
+                out[:, j] = np.stack([q[:, j] for q in self._kept[: c.size]], axis=1) @ c
+        return out

@@ -7,7 +7,8 @@ import numpy as np
 from ..geometry import area_normals  # re-exported: the filter's normals
 from ..registry import AutoRule, Param, get_filter, register
 from ..geometry import vertex_normals
-from ..solvers import lanczos_shifted, shifted_solver
+from ..operators import spmm
+from ..solvers import LanczosRows, SPDSolver, lanczos_shifted, shifted_matrix, shifted_solver
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
 from ..tuning.noise_level import mean_edge_length, normal_trust
@@ -44,6 +45,9 @@ SOBOLEV_NORMAL_REGION = 16_000  # from search.REGION_MIN_VERTICES the rule runs 
 SOBOLEV_NORMAL_PATCHES = 8  # ... made of this many balls of vertices
 SOBOLEV_NORMAL_MARGIN = 8  # ... scoring only its vertices more than this many rings from a cut
 SOBOLEV_NORMAL_REGION_PROBES = 16  # ... with this many probes (48 moved no choice at 100k: the spread is the content)
+SOBOLEV_NORMAL_PIN = max(SOBOLEV_NORMAL_ORDERS)  # ... its vertices this few rings from a cut held at the whole mesh's
+# result for each candidate (Dirichlet data, not a free border, whose drift biased the choice low: docs/scale.md)
+SOBOLEV_NORMAL_PIN_MAX_STEPS = 1000  # whole_result_at: Lanczos steps before a candidate's border is left free
 
 
 def _projected_divergence(V: np.ndarray, F: np.ndarray, out: np.ndarray, Bp: np.ndarray, t: float, delta: float) -> float:
@@ -84,10 +88,35 @@ def choose_sobolev_normal(ctx: TuningContext) -> tuple[dict, Point]:
         return max(shifted_reach(chosen["mu"], p) for p in SOBOLEV_NORMAL_ORDERS) if chosen.get("mu") else 0
 
     return region_rule(ctx, choose_sobolev_normal_whole, SOBOLEV_NORMAL_REGION, SOBOLEV_NORMAL_PATCHES,
-                       SOBOLEV_NORMAL_MARGIN, given=whole_tangential, reach=reach)
+                       SOBOLEV_NORMAL_MARGIN, given=whole_tangential, reach=reach,
+                       pin=SOBOLEV_NORMAL_PIN, boundary=lambda rows: whole_result_at(ctx, rows))
 
 
-def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = None) -> tuple[dict, Point]:
+def whole_result_at(ctx: TuningContext, rows: np.ndarray):
+    """``values(mu, order)``: rows ``rows`` of :math:`Y = (I + \\mu L^p)^{-1} X` on the whole mesh, any ``mu`` and ``p``.
+
+    .. math:: Y = X - \\mu\\, g(L)\\, L X, \\qquad g(t) = \\frac{t^{p-1}}{1 + \\mu t^p},
+
+    from one Lanczos run on ``L`` started at the high-pass ``L X`` that keeps its basis at ``rows``
+    only (:class:`~meshdenoise.solvers.LanczosRows`): every candidate of the region search, of
+    either order, costs small tridiagonal eigenproblems (the run is extended when one needs more
+    steps). ``None`` for a candidate not converged in ``SOBOLEV_NORMAL_PIN_MAX_STEPS`` steps.
+    """
+    rows = np.asarray(rows, dtype=np.int64)
+    run = LanczosRows(ctx.ops.L, spmm(ctx.ops.L, np.ascontiguousarray(ctx.V, dtype=np.float64)), rows,
+                      max_steps=SOBOLEV_NORMAL_PIN_MAX_STEPS)
+    X = np.asarray(ctx.V, dtype=np.float64)[rows]
+
+    def values(mu: float, order: int) -> np.ndarray | None:
+        p = int(order)
+        Z = run.rows_apply(lambda t: np.maximum(t, 0.0) ** (p - 1) / (1.0 + mu * np.maximum(t, 0.0) ** p), rtol=1e-8)
+        return None if Z is None else X - mu * Z
+
+    return values
+
+
+def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = None,
+                                boundary: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[dict, Point]:
     """``mu`` and ``order`` (in {2, 3}) of ``sobolev_normal`` by GCV or Monte-Carlo SURE; ``tangential`` from rho.
 
     The filter :math:`f(X) = X + \\Pi(Y)(Y - X)`, :math:`Y = H X`, :math:`H = (I + \\mu L^p)^{-1}`,
@@ -123,6 +152,9 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     summed over them, the probes zero elsewhere, so the divergence is the trace of the scored
     block of the Jacobian; ``n`` their count), with ``SOBOLEV_NORMAL_REGION_PROBES`` probes. For a
     region cut out of a larger mesh, whose vertices near a cut see a border the mesh does not have.
+    ``boundary`` (``(pinned, values)``, optional): the rows ``pinned`` (bool (n,)) held at
+    ``values(mu, order)`` ((pinned count, 3), the whole mesh's result there; ``None``: left free) in
+    every solve (Dirichlet data at a region's cut, :func:`whole_result_at`; no pinned row may be scored).
     """
     spec = get_filter("sobolev_normal")
     full = spec.resolve(ctx.given, where="choose_parameters(method='sobolev_normal')")
@@ -145,12 +177,25 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
         Bp[~rows] = 0.0
     delta = MC_SURE_STEP * ctx.rho
     rhs = np.hstack([ctx.V, Bp])
+    pinned = None
+    if boundary is not None:
+        pinned = np.asarray(boundary[0], dtype=bool)
+        if scored is not None and (pinned & rows).any():
+            raise ValueError("choose_sobolev_normal_whole: a pinned vertex is scored; pin fewer rings than the margin")
+        pinned_values = boundary[1]
     best, best_order = None, None
     for order in orders:
         key = digest(ctx.ops.F, order, rhs)
 
         def evaluate(mu: float, order=order, key=key) -> Point:
-            out = solve_shifted(ctx.ops, order, mu, rhs, key, memo=scored is None)  # a region: nothing kept
+            held = pinned_values(mu, order) if pinned is not None else None
+            if held is not None:  # the probes are zero there, and the held values do not follow them
+                rhs_p = rhs.copy()
+                rhs_p[pinned, :3] = held
+                rhs_p[pinned, 3:] = 0.0
+                out = SPDSolver(shifted_matrix(ctx.ops, mu, order), pinned).solve(rhs_p)
+            else:
+                out = solve_shifted(ctx.ops, order, mu, rhs, key, memo=scored is None)  # a region: nothing kept
             Y = out[:, :3]
             X = project_update(ctx.V, Y, area_normals(Y, ctx.F), t)
             div = float(n) if ctx.reference is not None else _projected_divergence(ctx.V, ctx.F, out, Bp, t, delta)

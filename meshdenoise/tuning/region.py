@@ -92,6 +92,7 @@ class SampledRegion:
             self.scored = np.ones(F.shape[0], dtype=bool)
             self.whole = True
             self.seeds, self.radius = np.zeros(0, dtype=np.int64), -1
+            self._sub, self._cut = None, np.zeros(0, dtype=np.int64)
             return
         self.whole = False
         W = ops.W
@@ -130,8 +131,18 @@ class SampledRegion:
         self.F = number[F[keep]]
         cut = np.flatnonzero(inside & (W @ (~inside).astype(np.float64) > 0))
         sub = sp.csr_matrix(W)[self.vertices][:, self.vertices]
+        self._sub, self._cut = sub, number[cut]
         if cut.size:
             self.inner = ~(ring_distance(sub, number[cut], float(margin)) <= margin)
         else:
             self.inner = np.ones(self.vertices.size, dtype=bool)
         self.scored = self.inner[self.F].all(axis=1)
+
+    def cut_rings(self, limit: int) -> np.ndarray:
+        """Rings from the nearest cut vertex (0 on one) of every region vertex, ``inf`` beyond ``limit`` rings.
+
+        (k,) float64; all ``inf`` for a region that is the whole mesh or has no cut.
+        """
+        if self._sub is None or self._cut.size == 0:
+            return np.full(self.vertices.size, np.inf)
+        return ring_distance(self._sub, self._cut, float(limit))

@@ -435,7 +435,8 @@ def shifted_reach(mu: float, order: int, headroom: float = 3.0, decays: float = 
 
 def region_rule(ctx, rule: Callable, size: int, patches: int, margin: int = 0, seed: int = 0,
                 min_vertices: int | None = None, given: Callable[[], dict] | None = None,
-                reach: Callable[[dict], int] | None = None, restart: bool = False) -> tuple[dict, Point]:
+                reach: Callable[[dict], int] | None = None, restart: bool = False, pin: int = 0,
+                boundary: Callable[[np.ndarray], Callable] | None = None) -> tuple[dict, Point]:
     """Run an automatic ``rule`` on a sampled region of about ``size`` vertices, its choice carried to the whole mesh.
 
     For rules whose parameters are a property of the noise per edge length and of the local
@@ -461,6 +462,16 @@ def region_rule(ctx, rule: Callable, size: int, patches: int, margin: int = 0, s
     search that only refines it: the larger region moves the choice by its border's pull, not
     from scratch).
 
+    ``pin`` rings and ``boundary``: the region's vertices fewer than ``pin`` rings from a cut
+    are held as Dirichlet data instead of leaving the cut a free border. ``boundary(rows)``
+    (``rows`` their indices in the whole mesh) returns ``values(**candidate)``: the whole mesh's
+    result at those rows for a candidate's parameters, ``(len(rows), 3)``, or ``None`` (then the
+    border is left free for it); the rule gets ``boundary=(pinned, values)`` (``pinned`` bool (k,)
+    on the region). A free border lets the region's low modes drift under strong smoothing and
+    its pull does not decay with depth, which biased the choice low (docs/scale.md, the torus);
+    held at the whole mesh's own result the region's free rows are the whole mesh's result (with
+    ``pin >= p`` the free rows of the region's :math:`L^p` are the whole mesh's).
+
     Returns the rule's choice (with the ``given()`` values) and its best point, the point's score
     and residual scaled by ``n / k`` (``k`` the region's scored vertices) so that a SURE score still estimates the whole
     mesh's squared error; its ``X`` is the result on the region (``None`` coordinates are kept).
@@ -480,10 +491,15 @@ def region_rule(ctx, rule: Callable, size: int, patches: int, margin: int = 0, s
         region = SampledRegion(ctx.F, ctx.ops, int(size), int(patches), int(margin), seed)
         if region.whole:
             return rule(ctx, None)
+        extra = {}
+        if pin > 0 and boundary is not None:
+            pinned = region.cut_rings(pin - 1) <= pin - 1
+            if pinned.any():
+                extra["boundary"] = (pinned, boundary(region.vertices[pinned]))
         if restart and previous is not None:
-            chosen, point = _on_region(ctx, lambda c, s, p=previous: rule(c, s, p), region, held)
+            chosen, point = _on_region(ctx, lambda c, s, p=previous, e=extra: rule(c, s, p, **e), region, held)
         else:
-            chosen, point = _on_region(ctx, rule, region, held)
+            chosen, point = _on_region(ctx, lambda c, s, e=extra: rule(c, s, **e), region, held)
         previous = chosen
         need = min(REGION_MAX_MARGIN, reach(chosen)) if reach is not None else margin
         if need <= margin:
