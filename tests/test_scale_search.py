@@ -540,27 +540,3 @@ def test_region_held_at_the_whole_result_on_its_cut_rings_reproduces_the_whole_m
     whole80 = SPDSolver(shifted_matrix(ops, 80.0, 3)).solve(Vn)[region.vertices]
     drift = np.sqrt(np.mean(np.sum((free - whole80)[region.inner] ** 2, axis=1)))
     assert region.inner.any() and drift > 0.1 * rho
-
-
-def test_sobolev_normal_divergence_step_is_mc_sure_step(monkeypatch):
-    """The Monte-Carlo SURE step of sobolev_normal comes from tuning.risk.mc_sure_step: 0.1 rho for independent noise,
-    the correlated step under a correlated noise model."""
-    import meshdenoise.plugins.sobolev_normal as sn
-    from meshdenoise.tuning.covariance import NoiseModel
-    from meshdenoise.tuning.risk import MC_SURE_STEP, MC_SURE_STEP_CORRELATED, noise_colouring
-
-    V, F = icosphere(2)
-    rho = 0.02
-    Vn, _ = add_normal_noise((V, F), rho, seed=0)
-    ops = get_operators(F, len(V))
-    steps = []
-    real = sn._projected_divergence
-    monkeypatch.setattr(sn, "_projected_divergence", lambda *a: steps.append(a[-1]) or real(*a))
-    given = {"tangential": 0.5, "order": 2}
-    sn.choose_sobolev_normal_whole(TuningContext(Vn, F, ops, rho, Criterion("sure"), None, dict(given)))
-    assert steps and set(steps) == {MC_SURE_STEP * rho}
-    steps.clear()
-    model = NoiseModel(rho, 1.0, V, F)
-    with noise_colouring(model):
-        sn.choose_sobolev_normal_whole(TuningContext(Vn, F, ops, rho, Criterion("sure"), None, dict(given), model))
-    assert steps and set(steps) == {MC_SURE_STEP_CORRELATED * rho} and MC_SURE_STEP_CORRELATED != MC_SURE_STEP

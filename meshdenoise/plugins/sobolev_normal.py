@@ -12,7 +12,7 @@ from ..solvers import LanczosRows, SPDSolver, lanczos_shifted, shifted_matrix, s
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
 from ..tuning.noise_level import mean_edge_length, normal_trust
-from ..tuning.risk import Point, gcv, mc_sure_step
+from ..tuning.risk import MC_SURE_STEP, Point, gcv
 from ..tuning.search import region_rule, search_log, shifted_reach, solve_shifted
 
 __all__ = ["sobolev_normal", "project_update", "area_normals"]
@@ -123,7 +123,7 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     is not linear (the projector :math:`\\Pi` uses the normals of ``Y``), so the trace of
     the smoother is replaced by the divergence along the noise directions (Ramani, Blu and
     Unser 2008) with ``K = SOBOLEV_NORMAL_PROBES`` Rademacher probes :math:`b_k = z_k \\odot \\hat N`
-    (unit normals of the SURE-smoothed mesh, as for ``two_stage``), :math:`\\delta` = :func:`~meshdenoise.tuning.risk.mc_sure_step` (0.1 rho; 1 rho under correlated noise):
+    (unit normals of the SURE-smoothed mesh, as for ``two_stage``), :math:`\\delta = 0.1\\rho`:
 
     .. math:: d = \\frac1K \\sum_k b_k^T \\big(f(X + \\delta b_k) - f(X)\\big)/\\delta, \\qquad
               \\mathrm{GCV} = \\frac{n \\|f(X) - X\\|^2}{(n - d)^2}
@@ -175,7 +175,7 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     n_scored = n if scored is None else int(rows.sum())
     if scored is not None:
         Bp[~rows] = 0.0
-    delta = mc_sure_step(ctx.rho, bool(ctx.correlation_length))  # 1 rho under correlated noise, else 0.1 rho
+    delta = MC_SURE_STEP * ctx.rho
     rhs = np.hstack([ctx.V, Bp])
     pinned = None
     if boundary is not None:
