@@ -173,11 +173,20 @@ def child_inproc(npz: str, method: str) -> None:
         choice, wall, cpu = timed(lambda: choose_default((Vn, F)))
         method, params = choice.method, dict(choice.params)
     else:
+        choice = None
         params, wall, cpu = timed(lambda: md.choose_parameters((Vn, F), method))
     params = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in params.items()}
     emit(stage="choose", seconds=wall, cpu=cpu, params=params, method=method)
     clear_cache()
-    (X, _), wall, cpu = timed(lambda: md.apply_filter(method, (Vn, F), **params))
+    def run():  # what denoise does: the filter, then the default's Taubin post-steps (none unless chosen)
+        out = md.apply_filter(method, (Vn, F), **params)
+        if choice is not None:
+            from meshdenoise.default import run_post_step
+
+            out = run_post_step(choice, out)
+        return out
+
+    (X, _), wall, cpu = timed(run)
     auto_snr = md.snr(V, X)
     emit(stage="filter", seconds=wall, cpu=cpu, snr=auto_snr)
     del X
