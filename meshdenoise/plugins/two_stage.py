@@ -889,10 +889,10 @@ def two_stage(
             f"parameters 'iterations' = {iterations} x ('normal_iterations' = {normal_iterations} + 'vertex_iterations' = "
             f"{vertex_iterations}) = {passes} passes, more than the limit {MAX_ITERATIONS}"
         )
-    X = np.array(V, dtype=np.float64, order="C")
     if F.shape[0] == 0 or iterations == 0:
-        return X
-    for X in outer_iterates(X, ops, pinned, iterations, normal_iterations, vertex_iterations, sigma_r, sigma_s,
+        return np.array(V, dtype=np.float64, order="C")
+    X = None  # outer_iterates reads V (no copy of it here: it relabels the vertices into a new array)
+    for X in outer_iterates(V, ops, pinned, iterations, normal_iterations, vertex_iterations, sigma_r, sigma_s,
                             guidance, keep_tangential, every=False):
         pass
     return X
@@ -922,13 +922,14 @@ def outer_iterates(
     from .. import kernels
 
     kernels.set_threads()
-    X = np.array(V, dtype=np.float64, order="C")
+    X = np.asarray(V, dtype=np.float64, order="C")  # only read: the relabelled copy below is the one worked on
     # Work on X / 2^k with 2^k ~ the extent: exact (powers of two), so the result is the same
     # as on X, but nothing overflows or underflows at 1e80 or 1e-80 (squared lengths, areas).
     k = _power_of_two_scale(X)
     topo = _two_stage_topology(ops)
     nb, F = topo.nb, topo.F
-    X = np.ldexp(gather_rows(X, topo.vertex_order), -k)  # relabelled vertices, a new array
+    X = gather_rows(X, topo.vertex_order)  # relabelled vertices, a new array ...
+    np.ldexp(X, -k, out=X)  # ... scaled in place
     Y = X.copy() if keep_tangential else None
     m = F.shape[0]
     guided = guidance == "guided"
@@ -944,7 +945,7 @@ def outer_iterates(
     def caller_order() -> np.ndarray:
         out = np.empty_like(X)
         out[topo.vertex_order] = X
-        return np.ldexp(out, k)
+        return np.ldexp(out, k, out=out)
 
     done = 0
     for it in range(iterations):
@@ -965,4 +966,6 @@ def outer_iterates(
         if every and it < iterations - 1:
             yield caller_order()
     if not every or done in (0, iterations):  # else the last state was yielded in the loop
+        # the run's buffers are dead: free them before the result is made (they were the peak's largest part)
+        N = areas = C = out = S = buffers = sums = Y = None
         yield caller_order()
