@@ -818,6 +818,11 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
         with stage("estimating the candidates' errors"):  # on the whole mesh, along the smooth prior's normals
             smooth = np.asarray(get_filter(SMOOTH_METHOD).public((V, F), operators=ops, **scored[SMOOTH_METHOD][0])[0])
             normals = vertex_normals(smooth, F)
+            del smooth
+            if all(m in (SMOOTH_METHOD, FEATURE_METHOD) for m in candidates):
+                # two_stage's runs below need its own topology only: the vertex matrices (about 260 bytes per
+                # vertex) are dropped for them, rebuilt if the smooth prior is chosen (issue 17)
+                ops.drop_matrices()
             for m in candidates:
                 if m != SMOOTH_METHOD:  # the smooth prior is linear: its own SURE is exact in expectation
                     scored[m][1] = feature_risk(V, F, scored[m][0], model, normals, ops=ops, method=m)[0]

@@ -102,6 +102,19 @@ class Operators:
         self.__dict__.clear()
         self.F, self.n, self.cache = F, n, {}
 
+    def drop_matrices(self) -> int:
+        """Drop the vertex matrices ``W``, ``P``, ``L``, their permuted copies and the edge list; return the bytes freed.
+
+        They are rebuilt lazily, the same, on next use. For a caller whose remaining work needs
+        none of them (the default before its ``two_stage`` runs): about 260 bytes per vertex. Kept:
+        what is small (degrees, masks), :attr:`locality_order` and the :attr:`cache`'s other entries.
+        """
+        names = ("W", "P", "L", "_undirected_edges", "boundary_edges", "nonmanifold_edges")
+        dropped = [self.__dict__.pop(name) for name in names if name in self.__dict__]
+        keys = [key for key in self.cache if isinstance(key, tuple) and key[:1] == ("permuted",)]
+        dropped += [self.cache.pop(key) for key in keys]
+        return nbytes(dropped)
+
     # --- edges -----------------------------------------------------------------------
     @cached_property
     def _undirected_edges(self) -> tuple[np.ndarray, np.ndarray]:

@@ -10,7 +10,7 @@ from meshdenoise import default
 from meshdenoise.geometry import vertex_normals
 from meshdenoise.operators import get_operators
 from meshdenoise.registry import get_filter
-from meshdenoise.shapes import box, icosphere
+from meshdenoise.shapes import box, grid, icosphere
 from meshdenoise.tuning.covariance import NoiseModel
 
 
@@ -44,3 +44,40 @@ def test_feature_risk_output_is_the_public_filter_bit_for_bit_on_int32_faces():
     risk, out = default.feature_risk(Vn, F32, params, NoiseModel(0.02), vertex_normals(V, F), probes=2, seed=1)
     np.testing.assert_array_equal(out, md.apply_filter("two_stage", (Vn, F32), **params)[0])
     assert np.isfinite(risk)
+
+
+def test_drop_matrices_frees_them_and_they_come_back_the_same():
+    V, F = box(5)
+    ops = get_operators(F, len(V))
+    W, P, L, edges = ops.W.copy(), ops.P.copy(), ops.L.copy(), ops.edges.copy()
+    Pp = ops.permuted(ops.P, "P").copy()
+    held = W.data.nbytes + P.data.nbytes + L.data.nbytes + edges.nbytes  # at least the values
+    freed = ops.drop_matrices()
+    assert freed >= held
+    assert not {"W", "P", "L", "_undirected_edges"} & set(vars(ops))
+    assert not [k for k in ops.cache if isinstance(k, tuple) and k[0] == "permuted"]
+    assert ops.drop_matrices() == 0  # nothing left to drop
+    for old, new in ((W, ops.W), (P, ops.P), (L, ops.L), (Pp, ops.permuted(ops.P, "P"))):
+        assert (old != new).nnz == 0 and old.shape == new.shape
+    np.testing.assert_array_equal(edges, ops.edges)
+
+
+def test_choose_default_with_dropped_matrices_is_the_same_choice_and_result():
+    # two candidates (two_stage and the smooth prior, above SMALL_MESH vertices): the matrices are dropped
+    # before two_stage's risk runs; the choice must be what it is with them held (a fresh topology, same numbers)
+    V, F = grid(46, 46)  # 2116 vertices > SMALL_MESH
+    assert len(V) > default.SMALL_MESH
+    Vn = md.add_normal_noise((V, F), 0.01, seed=4)[0]
+    ops = get_operators(F, len(V))
+    first = default.choose_default((Vn, F))
+    assert "W" not in vars(ops) or first.features.too_noisy  # dropped on this path
+    from meshdenoise.operators import clear_cache
+
+    clear_cache()
+    original = default.Operators.drop_matrices
+    try:
+        default.Operators.drop_matrices = lambda self: 0  # keep everything: the reference run
+        second = default.choose_default((Vn, F))
+    finally:
+        default.Operators.drop_matrices = original
+    assert (first.method, first.params, first.post_steps) == (second.method, second.params, second.post_steps)

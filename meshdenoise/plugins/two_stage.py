@@ -70,7 +70,9 @@ class FaceNeighbourhood:
             back = np.empty(m, dtype=np.int64)
             back[self.label] = np.arange(m)
         a, b = Fc.ravel(), Fc[:, [1, 2, 0]].ravel()
-        key = np.minimum(a, b) * np.int64(n) + np.maximum(a, b)
+        key = np.minimum(a, b).astype(np.int64)  # int64 whatever F's integer type (int32 in two_stage's topology)
+        key *= n
+        key += np.maximum(a, b)
         del Fc, a, b
         order = np.argsort(key, kind="stable")
         key = key[order]
@@ -295,7 +297,8 @@ class _TwoStageTopology:
     def __init__(self, ops: Operators):
         n = ops.n
         self.vertex_order = ops.locality_order
-        rank = np.empty(n, dtype=np.int64)
+        # int32 faces when the vertex count allows (half of int64's bytes; the kernels take either)
+        rank = np.empty(n, dtype=np.int32 if n < 2**31 - 1 else np.int64)
         rank[self.vertex_order] = np.arange(n)
         F = rank[ops.F]
         self.face_order = np.argsort(F.min(axis=1), kind="stable")
