@@ -119,13 +119,22 @@ def _dihedral_angles(V: np.ndarray, F: np.ndarray, ops: Operators) -> np.ndarray
     """Dihedral angles (degrees, 0 for a flat pair) of the edges shared by exactly two faces."""
     N = face_normals(V, F)
     n = ops.n
-    e = np.sort(np.stack([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]], axis=1).reshape(-1, 2), axis=1)
-    face = np.repeat(np.arange(F.shape[0]), 3)
-    key = e[:, 0] * (n + 1) + e[:, 1]
+    # side 3 f + k of face f is (F[f, k], F[f, k + 1 mod 3]); its key min * (n + 1) + max names the edge.
+    # Lean on memory (issue 17: this was the default's peak at 400k vertices): no (3m, 2) edge array,
+    # no np.unique (a second sort), the face of a side is its index // 3; the same angles as before
+    Fi = np.asarray(F, dtype=np.int64)
+    key = np.minimum(Fi.ravel(), Fi[:, [1, 2, 0]].ravel())
+    key *= n + 1
+    key += np.maximum(Fi.ravel(), Fi[:, [1, 2, 0]].ravel())
     order = np.argsort(key, kind="stable")
-    _, start, counts = np.unique(key[order], return_index=True, return_counts=True)
+    key = key[order]  # sorted
+    start = np.flatnonzero(np.concatenate(([True], key[1:] != key[:-1]))) if key.size else np.zeros(0, dtype=np.int64)
+    counts = np.diff(np.append(start, key.size))
+    del key
     first = start[counts == 2]  # manifold edges: a key seen exactly twice, adjacent once sorted
-    a, b = face[order][first], face[order][first + 1]
+    del start, counts
+    a, b = order[first] // 3, order[first + 1] // 3
+    del order, first
     c = np.clip(np.einsum("ij,ij->i", N[a], N[b]), -1.0, 1.0)
     return np.degrees(np.arccos(c))
 
@@ -165,10 +174,17 @@ def detect_features(mesh: Any, *, ops: Operators | None = None) -> FeatureTest:
     data = read_mesh(mesh)
     V, F = data.V, data.F
     ops = ops if ops is not None else get_operators(F, V.shape[0])
+    return _feature_test(V, F, ops)
+
+
+def _feature_test(V: np.ndarray, F: np.ndarray, ops: Operators) -> FeatureTest:
+    """:func:`detect_features` on arrays ``V`` (n, 3), ``F`` (m, 3) and their operators (no copy of them)."""
     if F.shape[0] < 2:
         return FeatureTest(False, False, float("nan"), 0.0, "fewer than two faces: no dihedral angle")
-    smooth = np.asarray(get_filter(FEATURE_METHOD).public((V, F), operators=ops, **PRESMOOTH)[0])
+    spec = get_filter(FEATURE_METHOD)
+    smooth = core_run(spec, V, ops, spec.resolve(dict(PRESMOOTH)))  # the public filter's result, bit for bit
     theta = _dihedral_angles(smooth, F, ops)
+    del smooth
     creased = int(np.count_nonzero(theta > CREASE_DEG))
     sharp = int(np.count_nonzero(theta > SHARP_DEG))
     share = sharp / creased if creased else float("nan")
@@ -796,7 +812,7 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
             decided, rho_range = "given", (float("nan"), float("nan"))
     rho = model.rho
     with stage("looking for sharp features"):
-        features = detect_features((V, F), ops=ops)
+        features = _feature_test(V, F, ops)  # detect_features without its copies of V and F
     n = V.shape[0]
 
     def rms(risk: float) -> str:  # SURE's estimated squared error as an rms distance in mean edge lengths

@@ -81,3 +81,23 @@ def test_choose_default_with_dropped_matrices_is_the_same_choice_and_result():
     finally:
         default.Operators.drop_matrices = original
     assert (first.method, first.params, first.post_steps) == (second.method, second.params, second.post_steps)
+
+
+def test_dihedral_angles_match_a_loop_over_edges_with_boundary_and_nonmanifold_edges():
+    from meshdenoise.default import _dihedral_angles
+    from meshdenoise.geometry import face_normals
+
+    V, F = icosphere(1)
+    rng = np.random.default_rng(5)
+    V = V + 0.05 * rng.standard_normal(V.shape)
+    F = np.vstack([F[1:], [[F[3, 0], F[3, 1], len(V)]]])  # a hole (boundary edges) and a fin on F[3]'s edge (3 sides)
+    V = np.vstack([V, [[2.0, 0.0, 0.0]]])
+    N = face_normals(V, F)
+    sides: dict = {}
+    for f, face in enumerate(F):
+        for k in range(3):
+            sides.setdefault(tuple(sorted((int(face[k]), int(face[(k + 1) % 3])))), []).append(f)
+    expected = sorted(np.degrees(np.arccos(np.clip(N[fs[0]] @ N[fs[1]], -1, 1))) for fs in sides.values() if len(fs) == 2)
+    got = _dihedral_angles(V, F, get_operators(F, len(V)))
+    assert len(got) == len(expected) < len(sides)
+    np.testing.assert_allclose(np.sort(got), expected, rtol=0, atol=1e-12)
