@@ -614,15 +614,11 @@ class LanczosQuadrature:
         theta, U = eigh_tridiagonal(self._alpha[:k, j], self._beta[: k - 1, j])
         return math.sqrt(self.norms2[j]) * (U @ (g(theta) * U[0]))
 
-    def apply(self, g: Callable[[np.ndarray], np.ndarray], *, rtol: float = 1e-10, check: int = 10) -> np.ndarray | None:
-        """:math:`g(M)\\, B` (n, k) by the Lanczos approximation :math:`\\|b\\| Q_k\\, g(T_k)\\, e_1`, per column.
-
-        The coefficients in the Lanczos basis are extended until they change by at most
-        ``rtol`` (relative, in norm) over the last ``check`` steps (``None`` if
-        :attr:`max_steps` is reached first); then a second pass regenerates the basis
-        vectors from the stored recurrence (nothing of size ``n x steps`` is kept) and sums
-        them. Two passes of sparse products, no factorisation.
-        """
+    def _converged_coefficients(self, g: Callable[[np.ndarray], np.ndarray], rtol: float,
+                                check: int) -> list[np.ndarray] | None:
+        """Every column's coefficients :meth:`_coefficients`, the run extended until none of the active
+        columns' changes by more than ``rtol`` (relative, in norm) over the last ``check`` steps; ``None``
+        if :attr:`max_steps` is reached first."""
         kcols = self._q.shape[1]
         if self.steps < check:
             self.extend(check - self.steps)
@@ -639,10 +635,24 @@ class LanczosQuadrature:
                     ok = False
                 coef.append(now)
             if ok:
-                break
+                return coef
             if k >= self.max_steps:
                 return None
             self.extend(min(check, self.max_steps - k))
+
+    def apply(self, g: Callable[[np.ndarray], np.ndarray], *, rtol: float = 1e-10, check: int = 10) -> np.ndarray | None:
+        """:math:`g(M)\\, B` (n, k) by the Lanczos approximation :math:`\\|b\\| Q_k\\, g(T_k)\\, e_1`, per column.
+
+        The coefficients in the Lanczos basis are extended until they change by at most
+        ``rtol`` (relative, in norm) over the last ``check`` steps (``None`` if
+        :attr:`max_steps` is reached first); then a second pass regenerates the basis
+        vectors from the stored recurrence (nothing of size ``n x steps`` is kept) and sums
+        them. Two passes of sparse products, no factorisation.
+        """
+        kcols = self._q.shape[1]
+        coef = self._converged_coefficients(g, rtol, check)
+        if coef is None:
+            return None
         inv = np.divide(1.0, np.sqrt(self.norms2), out=np.zeros(kcols), where=self.norms2 > 0)
         q_prev, q = np.zeros_like(self._B), self._B * inv
         beta_prev = np.zeros(kcols)
@@ -768,25 +778,9 @@ class LanczosRows(LanczosQuadrature):
                    check: int = 10) -> np.ndarray | None:
         """:math:`(g(M) B)` at :attr:`rows`, shape (r, k); converged as :meth:`LanczosQuadrature.apply`, else ``None``."""
         kcols = self._q.shape[1]
-        if self.steps < check:
-            self.extend(check - self.steps)
-        while True:
-            k = self.steps
-            ok = True
-            coef = []
-            for j in range(kcols):
-                now = self._coefficients(g, j, k)
-                before = self._coefficients(g, j, k - check)
-                diff = now.copy()
-                diff[: before.size] -= before
-                if self._active[j] and np.linalg.norm(diff) > rtol * np.linalg.norm(now):
-                    ok = False
-                coef.append(now)
-            if ok:
-                break
-            if k >= self.max_steps:
-                return None
-            self.extend(min(check, self.max_steps - k))
+        coef = self._converged_coefficients(g, rtol, check)
+        if coef is None:
+            return None
         out = np.zeros((self.rows.size, kcols))
         for j, c in enumerate(coef):
             if c.size:
