@@ -88,6 +88,10 @@ POST_TAUBIN = {"lam": 0.5, "mu": -0.53}  # ... with these (uniform weights: the 
 POST_MAX_LOSS_DB = 0.3  # a candidate is allowed if its SURE on positions loses less than this (dB), 2 s.e. included
 POST_PROBE_RUNS = 60_000  # probes x vertices of the post-step's estimates, about ...
 POST_PROBES = (4, 16)  # ... within these bounds on the probe count
+# above this many vertices no post-step: its 3 x (probes + 1) whole-mesh runs of the prior took 548 s of an 813 s
+# choice on the 1.6M elephant (session 9); the measured rows have at most 35k vertices. One Lanczos run serving
+# every scale and probe (as the rules' searches do) would lift it
+POST_MAX_VERTICES = 50_000
 
 
 @dataclass(frozen=True)
@@ -611,7 +615,7 @@ def choose_post_step(V: np.ndarray, F: np.ndarray, method: str, params: dict, mo
     Returns
     -------
     PostStep
-        ``scale`` 1 and no step when the noise is 0 or correlated (``model.correlated``: measured, the
+        ``scale`` 1 and no step above :data:`POST_MAX_VERTICES` vertices, when the noise is 0 or correlated (``model.correlated``: measured, the
         estimates allowed mu x 2 on the elephant with scanner noise of 1.5 mean edge lengths correlated
         over 2, which lost 1.07 dB for no normal gain, and mu x 1.5 on pymeshlab's bunny, -0.64 dB and
         0.2 degrees worse), when the prior as chosen moves the vertices by
@@ -626,6 +630,9 @@ def choose_post_step(V: np.ndarray, F: np.ndarray, method: str, params: dict, mo
     if model.correlated:  # measured: it lost 0.6-1.1 dB with no normal gain (docs/peers.md, "Smooth-prior post-step")
         return PostStep(1.0, 0, (), "smooth-prior post-step: none under correlated noise (its estimates, measured, "
                                     "allowed a loss of up to 1.1 dB there with no gain in normal error)")
+    if V.shape[0] > POST_MAX_VERTICES:  # its cost grows as 3 x (probes + 1) whole-mesh runs of the prior
+        return PostStep(1.0, 0, (), f"smooth-prior post-step: none above {POST_MAX_VERTICES:,} vertices "
+                                    f"({V.shape[0]:,}: its whole-mesh runs would cost more than the choice)")
     ops = ops if ops is not None else get_operators(F, V.shape[0])
     h = mean_edge_length(V, ops)
     base = np.asarray(get_filter(method).public((V, F), operators=ops, **params)[0])
