@@ -51,7 +51,7 @@ from .adapters import read_mesh
 from .geometry import face_normals, vertex_normals
 from .operators import Operators, get_operators
 from .progress import stage
-from .registry import COMMON_OPTIONS, FilterSpec, ParameterError, apply_filter, get_filter, power_of_two_scale
+from .registry import COMMON_OPTIONS, FilterSpec, ParameterError, apply_filter, get_filter, run_core
 from .tuning.choose import choose_parameters
 from .tuning.covariance import NoiseModel, estimate_noise_model
 from .tuning.detail import BANDS as DETAIL_BANDS
@@ -393,14 +393,7 @@ def core_run(spec: FilterSpec, V: np.ndarray, ops: Operators, values: dict) -> n
     -------
     ndarray, shape (n, 3)
     """
-    scale = power_of_two_scale(V) if spec.scale_free else 1.0
-    V_in = V.view() if scale == 1.0 else V / scale
-    V_in.flags.writeable = False  # a core must return new arrays, never write into its input
-    out = np.asarray(spec.core(V_in, ops.F, ops=ops, pinned=None, **values), dtype=np.float64)
-    if np.may_share_memory(out, V):
-        out = out.copy()
-    if scale != 1.0:
-        out *= scale
+    out = run_core(spec, V, ops, values)
     if not np.isfinite(out).all():
         raise ParameterError(f"filter '{spec.name}' produced non-finite coordinates (overflow: a parameter is too "
                              "large or too small for this mesh)")

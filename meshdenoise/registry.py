@@ -324,13 +324,8 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
             + ", ".join(map(repr, BOUNDARY_MOTIONS))
         )
     pinned = fixed_mask(ops, options.get("pinned"), options.get("region"), data)
-    scale = power_of_two_scale(V) if spec.scale_free else 1.0
-    V_in = V.view() if scale == 1.0 else V / scale
-    V_in.flags.writeable = False  # a core must return new arrays, never write into its input
     try:
-        V_out = np.array(spec.core(V_in, F, ops=ops, pinned=pinned, **values), dtype=np.float64)
-        if boundary_motion == "normal":
-            V_out = boundary_along_normals(spec, V_in, F, ops, pinned, values, V_out)
+        V_out = run_core(spec, V, ops, values, pinned=pinned, boundary_motion=boundary_motion)
     except MeshValidationError:
         raise
     except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
@@ -341,8 +336,6 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
             f"filter '{spec.name}' with {_settings_text(values)} failed on this mesh: {text} "
             "(a parameter is too large or too small for it)"
         ) from exc
-    if scale != 1.0:
-        V_out *= scale
     if pinned is not None:
         V_out[pinned] = V[pinned]
     if preserve_volume:
@@ -353,6 +346,30 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
             "(overflow: a parameter is too large or too small for this mesh)"
         )
     return data.write(V_out)
+
+
+def run_core(spec: FilterSpec, V: np.ndarray, ops: Any, values: dict, *, pinned: np.ndarray | None = None,
+             boundary_motion: str = "free") -> np.ndarray:
+    """The filter's array core on ``V`` (n, 3) and ``ops.F``: a new (n, 3) float64 array, ``V`` untouched.
+
+    A scale-free filter runs on ``V`` divided by a power of two near its extent (exact, so the
+    result is the same, but nothing overflows or underflows), then is scaled back; with
+    ``boundary_motion="normal"`` border vertices move along their normals only
+    (:func:`boundary_along_normals`). ``values`` are resolved parameters (``spec.resolve``).
+    Used by the public adapter and by callers that run one filter many times on one topology
+    (:func:`meshdenoise.default.feature_risk`), who then skip the adapter's copies.
+    """
+    scale = power_of_two_scale(V) if spec.scale_free else 1.0
+    V_in = V.view() if scale == 1.0 else V / scale
+    V_in.flags.writeable = False  # a core must return new arrays, never write into its input
+    V_out = np.asarray(spec.core(V_in, ops.F, ops=ops, pinned=pinned, **values), dtype=np.float64)
+    if np.may_share_memory(V_out, V) or np.may_share_memory(V_out, V_in):
+        V_out = V_out.copy()
+    if boundary_motion == "normal":
+        V_out = boundary_along_normals(spec, V_in, ops.F, ops, pinned, values, V_out)
+    if scale != 1.0:
+        V_out *= scale
+    return V_out
 
 
 def boundary_along_normals(
