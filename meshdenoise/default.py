@@ -19,7 +19,9 @@ Where the noise is too strong for normals to be filtered, ``sobolev_bilaplacian`
 prior) is chosen; elsewhere both it and ``two_stage`` (feature-preserving normal filtering) get
 their automatic parameters and the one with the smaller estimated error is kept (SURE of
 ``sobolev_bilaplacian``'s choice, and :func:`feature_risk` for ``two_stage``'s: Monte-Carlo SURE on
-the whole mesh with probes along the smooth prior's result's normals). Measured
+the whole mesh with probes along the smooth prior's result's normals; from :data:`REGION_FROM`
+vertices the feature test, both candidates' Monte-Carlo SURE and the post-step below run on a
+sampled region, :class:`RiskRegion`, in time independent of the mesh's size). Measured
 (``benchmarks/results/default-candidates.md``): the normal filter on the CAD parts (2.5-3.1 against
 10.5-12.0 degrees of normal error), on the benchmark's scanned Bunny0.2 and on the range scan with
 scanner noise (5.6-8.0 against 9.4-11.7), the smooth prior on the bunny with independent scanner
@@ -58,7 +60,9 @@ from .tuning.detail import BANDS as DETAIL_BANDS
 from .tuning.detail import ELL_GRID as DETAIL_LENGTHS
 from .tuning.detail import DetailVerdict, separate_detail
 from .tuning.noise_level import mean_edge_length
+from .tuning.region import SampledRegion
 from .tuning.risk import mc_sure_step
+from .tuning.search import shifted_reach
 
 __all__ = ["DefaultChoice", "FeatureTest", "choose_default", "denoise", "detect_features", "feature_risk",
            "noise_policy", "default_noise", "SMOOTH_METHOD", "FEATURE_METHOD", "NormalJacobian", "PostCandidate",
@@ -88,10 +92,22 @@ POST_TAUBIN = {"lam": 0.5, "mu": -0.53}  # ... with these (uniform weights: the 
 POST_MAX_LOSS_DB = 0.3  # a candidate is allowed if its SURE on positions loses less than this (dB), 2 s.e. included
 POST_PROBE_RUNS = 60_000  # probes x vertices of the post-step's estimates, about ...
 POST_PROBES = (4, 16)  # ... within these bounds on the probe count
-# above this many vertices no post-step: its 3 x (probes + 1) whole-mesh runs of the prior took 548 s of an 813 s
-# choice on the 1.6M elephant (session 9); the measured rows have at most 35k vertices. One Lanczos run serving
-# every scale and probe (as the rules' searches do) would lift it
-POST_MAX_VERTICES = 50_000
+# Above this many vertices the candidates' risks, the probes' normals and the post-step are estimated on a sampled
+# region (:class:`RiskRegion`) instead of the whole mesh: on the 1.6M elephant their whole-mesh runs took 160 s
+# (feature_risk) and 548 s (the post-step's 17 runs of the prior) of an 813 s choice (session 9). The measured rows of
+# the benchmark tables have at most 35k vertices, so none of them changes.
+REGION_FROM = 50_000
+RISK_REGION = 40_000  # the region: about this many vertices ...
+RISK_PATCHES = 12  # ... in this many balls (the 400k elephant: 8, 12 and 24 chose the post-step as the whole mesh did) ...
+RISK_MARGIN = 10  # ... scored from this many rings from a cut on (more where the smooth prior reaches farther):
+# measured on the 100k elephant (a 32k region cut in 24 balls), two_stage at the default's 400k choice moves region
+# vertices 10 rings from a cut by 0.003 rho rms from the whole mesh's result (0.018 at 4 outer iterations), the
+# smooth prior at mu 1.1 by 0.01 rho at 8 rings
+RISK_MAX_MARGIN = 16  # ... and at most this many
+FEATURE_REGION = 60_000  # the feature test's region from REGION_FROM vertices: about this many vertices ...
+FEATURE_PATCHES = 48  # ... in this many balls (it reads shares of edges: many small balls sample the mesh wider) ...
+FEATURE_MARGIN = 8  # ... its edges counted from this many rings from a cut on (two outer iterations of PRESMOOTH: 0.02
+# rho rms from the whole mesh's result there, measured as for RISK_MARGIN)
 
 
 @dataclass(frozen=True)
@@ -119,8 +135,9 @@ class FeatureTest:
     reason: str
 
 
-def _dihedral_angles(V: np.ndarray, F: np.ndarray, ops: Operators) -> np.ndarray:
-    """Dihedral angles (degrees, 0 for a flat pair) of the edges shared by exactly two faces."""
+def _dihedral_angles(V: np.ndarray, F: np.ndarray, ops: Operators, faces: np.ndarray | None = None) -> np.ndarray:
+    """Dihedral angles (degrees, 0 for a flat pair) of the edges shared by exactly two faces (both in ``faces``,
+    a boolean mask (m,), when given)."""
     N = face_normals(V, F)
     n = ops.n
     # side 3 f + k of face f is (F[f, k], F[f, k + 1 mod 3]); its key min * (n + 1) + max names the edge.
@@ -139,6 +156,9 @@ def _dihedral_angles(V: np.ndarray, F: np.ndarray, ops: Operators) -> np.ndarray
     del start, counts
     a, b = order[first] // 3, order[first + 1] // 3
     del order, first
+    if faces is not None:
+        both = faces[a] & faces[b]
+        a, b = a[both], b[both]
     c = np.clip(np.einsum("ij,ij->i", N[a], N[b]), -1.0, 1.0)
     return np.degrees(np.arccos(c))
 
@@ -158,6 +178,10 @@ def detect_features(mesh: Any, *, ops: Operators | None = None) -> FeatureTest:
     meshes with or without noise 0.28 to 0.64; the threshold is :data:`SHARP_SHARE`. When more
     than :data:`TOO_NOISY` of all edges stay sharp the noise (several edge lengths) was not
     removed and no sharp feature is reported: a smooth prior is the safe choice there.
+    Above :data:`REGION_FROM` vertices the pre-smoothing runs on a :class:`RiskRegion` of about
+    :data:`FEATURE_REGION` vertices in :data:`FEATURE_PATCHES` balls and the shares count its
+    edges :data:`FEATURE_MARGIN` rings or more from a cut: both are shares, which a sample
+    estimates (the edge count said is the region's).
 
     Parameters
     ----------
@@ -186,8 +210,15 @@ def _feature_test(V: np.ndarray, F: np.ndarray, ops: Operators) -> FeatureTest:
     if F.shape[0] < 2:
         return FeatureTest(False, False, float("nan"), 0.0, "fewer than two faces: no dihedral angle")
     spec = get_filter(FEATURE_METHOD)
-    smooth = core_run(spec, V, ops, spec.resolve(dict(PRESMOOTH)))  # the public filter's result, bit for bit
-    theta = _dihedral_angles(smooth, F, ops)
+    on = ""
+    if V.shape[0] > REGION_FROM:  # shares of edges: read on a region of fixed size, away from its cuts
+        region = RiskRegion.cut(V, F, ops, FEATURE_MARGIN, size=FEATURE_REGION, patches=FEATURE_PATCHES)
+        smooth = core_run(spec, region.V, region.ops, spec.resolve(dict(PRESMOOTH)))
+        theta = _dihedral_angles(smooth, region.F, region.ops, faces=region.rows[region.F].all(axis=1))
+        on = f" (on {theta.size:,} edges of a sampled region)"
+    else:
+        smooth = core_run(spec, V, ops, spec.resolve(dict(PRESMOOTH)))  # the public filter's result, bit for bit
+        theta = _dihedral_angles(smooth, F, ops)
     del smooth
     creased = int(np.count_nonzero(theta > CREASE_DEG))
     sharp = int(np.count_nonzero(theta > SHARP_DEG))
@@ -195,7 +226,7 @@ def _feature_test(V: np.ndarray, F: np.ndarray, ops: Operators) -> FeatureTest:
     fraction = sharp / theta.size if theta.size else 0.0
     where = (f"after a feature-preserving pre-smoothing {sharp:,} edges are sharp (> {SHARP_DEG:g} deg), "
              f"{share:.0%} of the {creased:,} creased ones (> {CREASE_DEG:g} deg)" if creased else
-             f"after a feature-preserving pre-smoothing no edge is creased (> {CREASE_DEG:g} deg)")
+             f"after a feature-preserving pre-smoothing no edge is creased (> {CREASE_DEG:g} deg)") + on
     if fraction > TOO_NOISY:
         return FeatureTest(False, True, share, fraction, f"{where}, but that is {fraction:.0%} of all edges (over "
                            f"{TOO_NOISY:.0%}): the noise is too strong for normals to be filtered")
@@ -301,9 +332,89 @@ class DefaultChoice:
         }
 
 
+def risk_margin(mu: float) -> int:
+    """Rings of a :class:`RiskRegion`'s margin for a smooth prior of weight ``mu``: the reach of ``mu`` times the
+    post-step's largest scale (:func:`~meshdenoise.tuning.search.shifted_reach`, order 2) plus its Taubin steps, at
+    least :data:`RISK_MARGIN` (``two_stage``'s), at most :data:`RISK_MAX_MARGIN`."""
+    reach = shifted_reach(float(mu) * max(POST_SCALES), 2) + max(POST_STEPS) if mu > 0 else 0
+    return int(min(RISK_MAX_MARGIN, max(RISK_MARGIN, reach)))
+
+
+@dataclass(frozen=True)
+class RiskRegion:
+    """A sampled part of a large mesh, cut out as a mesh of its own, on which the default's estimates run.
+
+    From :data:`REGION_FROM` vertices :func:`choose_default` scores its candidates
+    (:func:`feature_risk`) and chooses the post-step (:func:`choose_post_step`) on such a region:
+    :data:`RISK_PATCHES` balls of rings of vertices
+    (:class:`~meshdenoise.tuning.region.SampledRegion`), about :data:`RISK_REGION` vertices or
+    more with a wide margin, in time independent of the mesh's size. Near a cut the region has a
+    free border the mesh has not: only vertices ``margin`` rings or more from every cut are
+    scored (``rows``). Both candidates are scored on the same rows with the same probes, so the
+    comparison is paired.
+
+    Attributes
+    ----------
+    vertices : ndarray of int64, shape (k,)
+        The region's vertices (indices into the mesh).
+    V : ndarray, shape (k, 3)
+        Their coordinates.
+    F : ndarray of int64, shape (l, 3)
+        The region's faces, on its numbering.
+    ops : Operators
+        The region's operators.
+    rows : ndarray of bool, shape (k,)
+        The scored vertices.
+    n : int
+        The whole mesh's vertex count.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from meshdenoise.shapes import icosphere
+    >>> from meshdenoise.operators import get_operators
+    >>> V, F = icosphere(5)
+    >>> r = RiskRegion.cut(V, F, get_operators(F, len(V)), 3, size=2000, patches=4)
+    >>> 2000 <= r.V.shape[0] < len(V), bool(np.allclose(r.V, V[r.vertices])), bool(0 < r.rows.sum() < r.V.shape[0])
+    (True, True, True)
+    """
+
+    vertices: np.ndarray
+    V: np.ndarray
+    F: np.ndarray
+    ops: Operators
+    rows: np.ndarray
+    n: int
+
+    @classmethod
+    def cut(cls, V: np.ndarray, F: np.ndarray, ops: Operators, margin: int, *, size: int | None = None,
+            patches: int | None = None, seed: int = 0) -> "RiskRegion":
+        """Cut a region with ``margin`` rings unscored next to its cuts: at least ``size`` vertices (default
+        :data:`RISK_REGION`) in ``patches`` balls (default :data:`RISK_PATCHES`), and balls of at least twice the
+        margin's radius (``patches x 12 x margin^2`` vertices) so that some of each is scored."""
+        size = RISK_REGION if size is None else size
+        patches = RISK_PATCHES if patches is None else patches
+        size = int(max(size, patches * 12 * margin * margin))
+        region = SampledRegion(F, ops, size, patches, int(margin), seed)
+        sub_ops = ops if region.whole else get_operators(region.F, region.vertices.size)
+        return cls(region.vertices, np.ascontiguousarray(V[region.vertices]), region.F, sub_ops, region.inner,
+                   int(V.shape[0]))
+
+    @property
+    def scale(self) -> float:
+        """The whole mesh's vertices per scored vertex: a sum over ``rows`` times this estimates the mesh's sum."""
+        return self.n / max(int(np.count_nonzero(self.rows)), 1)
+
+    def noise_model(self, model: NoiseModel) -> NoiseModel:
+        """``model`` on the region (a correlated model's heat filter built on the region's part of its geometry)."""
+        if not model.correlated:
+            return model
+        return NoiseModel(model.rho, model.correlation_length, V=np.asarray(model.V)[self.vertices], F=self.F)
+
+
 def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, normals: np.ndarray, *,
                  ops: Operators | None = None, probes: int | None = None, seed: int = 0,
-                 method: str = FEATURE_METHOD) -> tuple[float, np.ndarray]:
+                 method: str = FEATURE_METHOD, rows: np.ndarray | None = None) -> tuple[float, np.ndarray]:
     """Monte-Carlo SURE of ``two_stage`` (or ``method``) with ``params`` on the whole mesh, probes along ``normals``.
 
     .. math:: \\widehat R = \\|f(X) - X\\|_F^2 - n\\rho^2 + \\frac{2\\rho^2}{P}\\sum_{k=1}^P
@@ -319,7 +430,9 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     the result's and the clean normal); probes along normals that share the result's own errors
     (the pilot's) do not see it: Nefertiti rho 0.2, 30 probes: 2.7 against a true 4.55, 4.8 along
     the clean normals. The caller passes the normals of an independent estimate (the smooth prior's
-    result), which see it.
+    result), which see it. With ``rows`` the sums run over those vertices only (each term of
+    Stein's identity is a vertex's own: the estimate is unbiased for their squared error); the
+    default passes a :class:`RiskRegion`'s scored vertices.
 
     Parameters
     ----------
@@ -334,11 +447,14 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
         Unit noise directions.
     ops : Operators, optional
     probes : int, optional
-        Probe count; by default ``RISK_PROBE_RUNS / n`` within ``RISK_PROBES`` (16 on a
-        300-vertex mesh, 2 from 15,000 vertices).
+        Probe count; by default ``RISK_PROBE_RUNS`` divided by the vertices scored, within
+        ``RISK_PROBES`` (16 on a 300-vertex mesh, 2 from 15,000 vertices).
     seed : int
     method : str
-        The filter (``two_stage`` by default; the default also scores ``sobolev_normal`` with it).
+        The filter (``two_stage`` by default; the default also scores ``sobolev_normal`` and, on a
+        region, ``sobolev_bilaplacian`` with it).
+    rows : ndarray of bool, shape (n,), optional
+        The vertices scored (default: all).
 
     Returns
     -------
@@ -347,14 +463,17 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     """
     n = V.shape[0]
     ops = ops if ops is not None else get_operators(F, n)
+    keep = _rows(rows, n, "feature_risk")
+    count = n if keep is None else int(np.count_nonzero(keep))
     if probes is None:
-        probes = int(np.clip(math.ceil(RISK_PROBE_RUNS / max(n, 1)), *RISK_PROBES))
+        probes = int(np.clip(math.ceil(RISK_PROBE_RUNS / max(count, 1)), *RISK_PROBES))
     spec = get_filter(method)
     values = spec.resolve(dict(params))
     run = lambda X: core_run(spec, X, ops, values)  # noqa: E731
+    part = (lambda A: A) if keep is None else (lambda A: A[keep])  # noqa: E731
     rho = float(model.rho)
     out = run(V)
-    residual = float(np.sum((out - V) ** 2))
+    residual = float(np.sum((part(out) - part(V)) ** 2))
     if rho == 0:
         return residual, out
     # 0.1 rho, also under correlated noise: measured (docs/peers.md, smooth-prior post-step), the 1 rho of
@@ -367,8 +486,18 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     divergence = 0.0
     for k in range(probes):  # the filter is not linear: one run per probe
         b = Z[:, k, None] * normals
-        divergence += float(np.sum(b * (run(V + delta * b) - out))) / delta
-    return residual - n * rho**2 + 2 * rho**2 * divergence / probes, out
+        divergence += float(np.sum(part(b) * part(run(V + delta * b) - out))) / delta
+    return residual - count * rho**2 + 2 * rho**2 * divergence / probes, out
+
+
+def _rows(rows: np.ndarray | None, n: int, who: str) -> np.ndarray | None:
+    """``rows`` checked as a boolean mask of ``n`` vertices (None: all)."""
+    if rows is None:
+        return None
+    rows = np.asarray(rows)
+    if rows.dtype != bool or rows.shape != (n,):
+        raise ValueError(f"{who}: rows must be a boolean mask of shape ({n},), got {rows.dtype} {rows.shape}")
+    return rows
 
 
 def core_run(spec: FilterSpec, V: np.ndarray, ops: Operators, values: dict) -> np.ndarray:
@@ -485,7 +614,8 @@ class PostStep:
 
 def post_step_estimates(V: np.ndarray, F: np.ndarray, method: str, params: dict, model: NoiseModel, *,
                         ops: Operators | None = None, normals: np.ndarray | None = None, scales: tuple = POST_SCALES,
-                        steps: tuple = POST_STEPS, probes: int | None = None, seed: int = 0) -> dict[tuple[float, int], tuple[np.ndarray, np.ndarray]]:
+                        steps: tuple = POST_STEPS, probes: int | None = None, seed: int = 0,
+                        rows: np.ndarray | None = None) -> dict[tuple[float, int], tuple[np.ndarray, np.ndarray]]:
     """Per-probe normal-domain risk and position SURE of the smooth prior with ``mu`` scaled, then Taubin steps.
 
     For each candidate :math:`f` (``method`` with ``mu`` times a scale, then ``k`` Taubin steps
@@ -508,7 +638,9 @@ def post_step_estimates(V: np.ndarray, F: np.ndarray, method: str, params: dict,
 
     Every candidate uses the same probes (paired differences). Cost: ``len(scales)`` x
     (probes + 1) runs of ``method`` (one factorisation per scale for ``sobolev_bilaplacian``)
-    and cheap Taubin steps.
+    and cheap Taubin steps. With ``rows`` the sums run over those vertices and the faces whose
+    three corners are among them (a :class:`RiskRegion`'s scored part); :math:`n` and :math:`m`
+    are then their counts.
 
     Parameters
     ----------
@@ -529,8 +661,10 @@ def post_step_estimates(V: np.ndarray, F: np.ndarray, method: str, params: dict,
     scales : tuple of float
     steps : tuple of int
     probes : int, optional
-        By default ``POST_PROBE_RUNS / n`` within :data:`POST_PROBES`.
+        By default ``POST_PROBE_RUNS`` divided by the vertices scored, within :data:`POST_PROBES`.
     seed : int
+    rows : ndarray of bool, shape (n,), optional
+        The vertices scored (default: all).
 
     Returns
     -------
@@ -539,8 +673,13 @@ def post_step_estimates(V: np.ndarray, F: np.ndarray, method: str, params: dict,
     """
     n = V.shape[0]
     ops = ops if ops is not None else get_operators(F, n)
+    keep = _rows(rows, n, "post_step_estimates")
+    count = n if keep is None else int(np.count_nonzero(keep))
     if probes is None:
-        probes = int(np.clip(math.ceil(POST_PROBE_RUNS / max(n, 1)), *POST_PROBES))
+        probes = int(np.clip(math.ceil(POST_PROBE_RUNS / max(count, 1)), *POST_PROBES))
+    part = (lambda A: A) if keep is None else (lambda A: A[keep])  # noqa: E731
+    faces = None if keep is None else keep[np.asarray(F)].all(axis=1)
+    turn = (lambda D: J(D)) if faces is None else (lambda D: J(D)[faces])  # noqa: E731
     spec, taubin = get_filter(method), get_filter("taubin")
     prior = lambda X, c: np.asarray(spec.public((X, F), operators=ops, **{**params, "mu": params["mu"] * c})[0])  # noqa: E731
     rho = float(model.rho)
@@ -548,12 +687,12 @@ def post_step_estimates(V: np.ndarray, F: np.ndarray, method: str, params: dict,
     base = prior(V, 1.0)
     normals = vertex_normals(base, F) if normals is None else normals
     J = NormalJacobian(base, F)
-    m = max(F.shape[0], 1)
+    m = max(F.shape[0] if faces is None else int(np.count_nonzero(faces)), 1)
     Z = np.random.default_rng(seed).choice([-1.0, 1.0], size=(probes, n)).T
     if model.correlated:
         Z = model.colour(Z, 1.0 / probes)
     B = [Z[:, p, None] * normals for p in range(probes)]
-    JB = [J(b) for b in B]
+    JB = [turn(b) for b in B]
     noise_term = np.array([rho**2 * float(np.sum(jb * jb)) for jb in JB])
     out = {}
     for c in scales:
@@ -564,11 +703,11 @@ def post_step_estimates(V: np.ndarray, F: np.ndarray, method: str, params: dict,
                 runs = [np.asarray(taubin.public((X, F), operators=ops, iterations=k - done, **POST_TAUBIN)[0]) for X in runs]
                 done = k
             Y, D = runs[0], [(X - runs[0]) / delta for X in runs[1:]]
-            residual = float(np.sum((Y - V) ** 2))
-            JR = J(Y - V)
+            residual = float(np.sum(part(Y - V) ** 2))
+            JR = turn(Y - V)
             normal_residual = float(np.sum(JR * JR))
-            S = np.array([residual - n * rho**2 + 2 * rho**2 * float(np.sum(b * d)) for b, d in zip(B, D)])
-            G = np.array([normal_residual - t + 2 * rho**2 * float(np.sum(jb * J(d))) for jb, t, d in zip(JB, noise_term, D)]) / m
+            S = np.array([residual - count * rho**2 + 2 * rho**2 * float(np.sum(part(b) * part(d))) for b, d in zip(B, D)])
+            G = np.array([normal_residual - t + 2 * rho**2 * float(np.sum(jb * turn(d))) for jb, t, d in zip(JB, noise_term, D)]) / m
             out[(float(c), int(k))] = (G, S)
     return out
 
@@ -585,7 +724,7 @@ def _loss_db(S: np.ndarray, S0: np.ndarray) -> float:
 
 def choose_post_step(V: np.ndarray, F: np.ndarray, method: str, params: dict, model: NoiseModel, *,
                      ops: Operators | None = None, normals: np.ndarray | None = None, probes: int | None = None,
-                     seed: int = 0, max_loss_db: float = POST_MAX_LOSS_DB) -> PostStep:
+                     seed: int = 0, max_loss_db: float = POST_MAX_LOSS_DB, rows: np.ndarray | None = None) -> PostStep:
     """After a smooth prior: a multiple of its ``mu`` and a Taubin step count, by a normal-domain risk, guarded by SURE.
 
     SURE chooses the prior's ``mu`` for positions; face normals ask for a little more
@@ -598,9 +737,14 @@ def choose_post_step(V: np.ndarray, F: np.ndarray, method: str, params: dict, mo
     ``two_stage``'s guard tests), so that a mesh whose positions lose more (Bunny0.2: -1.4 dB
     at ``mu`` x 1.5) keeps the prior's choice.
 
+    Above :data:`REGION_FROM` vertices (and no ``rows`` given) it runs on a :class:`RiskRegion`
+    (its margin :func:`risk_margin`), in time independent of the mesh's size: the scale and step
+    count chosen there are applied to the whole mesh (both are per-vertex smoothing strengths of
+    a filter whose weights depend on the graph only).
+
     Parameters
     ----------
-    V, F, method, params, model, ops, normals, probes, seed
+    V, F, method, params, model, ops, normals, probes, seed, rows
         As :func:`post_step_estimates`.
     max_loss_db : float
         The SNR loss allowed (dB).
@@ -608,7 +752,7 @@ def choose_post_step(V: np.ndarray, F: np.ndarray, method: str, params: dict, mo
     Returns
     -------
     PostStep
-        ``scale`` 1 and no step above :data:`POST_MAX_VERTICES` vertices, when the noise is 0 or correlated (``model.correlated``: measured, the
+        ``scale`` 1 and no step when the noise is 0 or correlated (``model.correlated``: measured, the
         estimates allowed mu x 2 on the elephant with scanner noise of 1.5 mean edge lengths correlated
         over 2, which lost 1.07 dB for no normal gain, and mu x 1.5 on pymeshlab's bunny, -0.64 dB and
         0.2 degrees worse), when the prior as chosen moves the vertices by
@@ -623,17 +767,23 @@ def choose_post_step(V: np.ndarray, F: np.ndarray, method: str, params: dict, mo
     if model.correlated:  # measured: it lost 0.6-1.1 dB with no normal gain (docs/peers.md, "Smooth-prior post-step")
         return PostStep(1.0, 0, (), "smooth-prior post-step: none under correlated noise (its estimates, measured, "
                                     "allowed a loss of up to 1.1 dB there with no gain in normal error)")
-    if V.shape[0] > POST_MAX_VERTICES:  # its cost grows as 3 x (probes + 1) whole-mesh runs of the prior
-        return PostStep(1.0, 0, (), f"smooth-prior post-step: none above {POST_MAX_VERTICES:,} vertices "
-                                    f"({V.shape[0]:,}: its whole-mesh runs would cost more than the choice)")
     ops = ops if ops is not None else get_operators(F, V.shape[0])
+    if rows is None and V.shape[0] > REGION_FROM:  # 3 x (probes + 1) runs of the prior: on a region of fixed size
+        region = RiskRegion.cut(np.asarray(V, dtype=np.float64), F, ops, risk_margin(float(params["mu"])), seed=seed)
+        return choose_post_step(region.V, region.F, method, params, region.noise_model(model), ops=region.ops,
+                                normals=None if normals is None else np.asarray(normals)[region.vertices],
+                                probes=probes, seed=seed, max_loss_db=max_loss_db, rows=region.rows)
+    keep = _rows(rows, V.shape[0], "choose_post_step")
     h = mean_edge_length(V, ops)
     base = np.asarray(get_filter(method).public((V, F), operators=ops, **params)[0])
-    move = float(np.sqrt(np.mean(np.sum((base - V) ** 2, axis=1)))) / h if h > 0 else 0.0
+    moved = np.sum((base - V) ** 2, axis=1)
+    move = float(np.sqrt(np.mean(moved if keep is None else moved[keep]))) / h if h > 0 else 0.0
     if move < NOT_SMOOTHING:  # a clean mesh (or detail read as such): what the prior leaves is left alone
         return PostStep(1.0, 0, (), f"smooth-prior post-step: none: the prior as chosen moves the vertices by {move:.2g} "
                                     f"mean edge lengths (rms), under {NOT_SMOOTHING:g}: nothing to smooth further")
-    est = post_step_estimates(V, F, method, params, model, ops=ops, normals=normals, probes=probes, seed=seed)
+    del base, moved
+    est = post_step_estimates(V, F, method, params, model, ops=ops, normals=normals, probes=probes, seed=seed,
+                              rows=keep)
     S0 = est[(1.0, 0)][1]
     G0 = float(np.mean(est[(1.0, 0)][0]))
     cands = []
@@ -824,6 +974,7 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
     if n <= SMALL_MESH:
         candidates.append(SMALL_MESH_METHOD)
     normals = None  # the smooth prior's result's vertex normals, when there are candidates to score
+    region = None  # above REGION_FROM vertices: the estimates below run on a RiskRegion
     if len(candidates) == 1:
         method = SMOOTH_METHOD
         params = choose_parameters((V, F), method, noise=model)
@@ -831,28 +982,46 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
                    f"its parameters minimise {method}'s risk estimate (SURE) for that noise level"]
     else:  # the filter with the smaller estimated error (it picks two_stage on the CAD pairs by 2.5x)
         scored = {m: list(choose_parameters((V, F), m, noise=model, return_risk=True)) for m in candidates}
-        with stage("estimating the candidates' errors"):  # on the whole mesh, along the smooth prior's normals
-            smooth = np.asarray(get_filter(SMOOTH_METHOD).public((V, F), operators=ops, **scored[SMOOTH_METHOD][0])[0])
-            normals = vertex_normals(smooth, F)
-            del smooth
-            if all(m in (SMOOTH_METHOD, FEATURE_METHOD) for m in candidates):
-                # two_stage's runs below need its own topology only: the vertex matrices (about 260 bytes per
-                # vertex) are dropped for them, rebuilt if the smooth prior is chosen (issue 17)
-                ops.drop_matrices()
-            for m in candidates:
-                if m != SMOOTH_METHOD:  # the smooth prior is linear: its own SURE is exact in expectation
-                    scored[m][1] = feature_risk(V, F, scored[m][0], model, normals, ops=ops, method=m)[0]
+        with stage("estimating the candidates' errors"):  # along the smooth prior's normals
+            if n > REGION_FROM:  # both candidates by Monte-Carlo SURE on one region, same probes: a paired comparison
+                region = RiskRegion.cut(V, F, ops, risk_margin(float(scored[SMOOTH_METHOD][0]["mu"])))
+                sub = (region.V, region.F)
+                smooth = np.asarray(get_filter(SMOOTH_METHOD).public(sub, operators=region.ops,
+                                                                     **scored[SMOOTH_METHOD][0])[0])
+                normals = vertex_normals(smooth, region.F)
+                del smooth
+                sub_model = region.noise_model(model)
+                for m in candidates:
+                    scored[m][1] = region.scale * feature_risk(*sub, scored[m][0], sub_model, normals, ops=region.ops,
+                                                               method=m, rows=region.rows)[0]
+            else:  # on the whole mesh
+                smooth = np.asarray(get_filter(SMOOTH_METHOD).public((V, F), operators=ops,
+                                                                     **scored[SMOOTH_METHOD][0])[0])
+                normals = vertex_normals(smooth, F)
+                del smooth
+                if all(m in (SMOOTH_METHOD, FEATURE_METHOD) for m in candidates):
+                    # two_stage's runs below need its own topology only: the vertex matrices (about 260 bytes per
+                    # vertex) are dropped for them, rebuilt if the smooth prior is chosen (issue 17)
+                    ops.drop_matrices()
+                for m in candidates:
+                    if m != SMOOTH_METHOD:  # the smooth prior is linear: its own SURE is exact in expectation
+                        scored[m][1] = feature_risk(V, F, scored[m][0], model, normals, ops=ops, method=m)[0]
         method = min(scored, key=lambda m: scored[m][1])
         params = scored[method][0]
         others = ", ".join(f"{rms(scored[m][1])} for {m}" for m in candidates if m != method)
         reasons = [features.reason] + ([f"too noisy for normal filtering: the smooth priors only ({n:,} vertices: "
                                         f"{SMALL_MESH_METHOD} is tried as well)"] if features.too_noisy else []) + [
-                   f"{method} has the smaller estimated error (SURE, rms over vertices): {rms(scored[method][1])} "
-                   f"mean edge lengths against {others}; its parameters minimise it"]
+                   f"{method} has the smaller estimated error (SURE, rms over vertices"
+                   + (f", on {int(np.count_nonzero(region.rows)):,} vertices of a sampled region" if region else "")
+                   + f"): {rms(scored[method][1])} mean edge lengths against {others}; its parameters minimise it"]
     post = None
     if method in SMOOTH_PRIORS and rho > 0:  # the smooth prior's mu (SURE on positions) under-smooths the normals
-        with stage("choosing the smooth prior's post-step"):
-            post = choose_post_step(V, F, method, params, model, ops=ops, normals=normals)  # sobolev_bilaplacian's
+        with stage("choosing the smooth prior's post-step"):  # along sobolev_bilaplacian's normals when computed
+            if region is not None:
+                post = choose_post_step(region.V, region.F, method, params, region.noise_model(model), ops=region.ops,
+                                        normals=normals, rows=region.rows)
+            else:
+                post = choose_post_step(V, F, method, params, model, ops=ops, normals=normals)
         params = {**params, "mu": params["mu"] * post.scale}
         reasons.append(post.reason)
     nb = int(np.count_nonzero(ops.boundary_vertices))

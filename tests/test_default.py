@@ -734,21 +734,6 @@ def test_no_post_step_where_the_prior_does_not_smooth():
         default.choose_post_step(V, F, "two_stage", {"sigma_r": 0.3}, NoiseModel(0.01))
 
 
-def test_no_post_step_above_its_vertex_cap_and_none_of_its_runs(monkeypatch):
-    # the cap read at call time: the noisy sphere that gets candidates below it (test above) gets none above it,
-    # and the prior is not run at all (its whole-mesh runs are what the cap avoids)
-    V, F = icosphere(3)
-    Vn = md.add_normal_noise((V, F), 0.05, seed=0)[0]
-    params = md.choose_parameters((Vn, F), "sobolev_bilaplacian", noise=0.05)
-    monkeypatch.setattr(default, "POST_MAX_VERTICES", V.shape[0] - 1)
-    runs = []
-    monkeypatch.setattr(default, "post_step_estimates", lambda *a, **k: runs.append(1))
-    monkeypatch.setattr(default, "get_filter", lambda name: runs.append(name))
-    post = default.choose_post_step(Vn, F, "sobolev_bilaplacian", params, NoiseModel(0.05))
-    assert (post.scale, post.steps, post.candidates) == (1.0, 0, ()) and f"{V.shape[0]:,}" in post.reason
-    assert runs == []
-
-
 _TORUS_RESULT: dict = {}  # the array result, computed once for every mesh type
 
 
