@@ -167,8 +167,8 @@ def main() -> None:
         lines += run(label, Path(a.cache_dir), a.whole, [int(b) for b in a.patches.split(",")])
         print("\n".join(lines), flush=True)
     if a.out:
-        out = Path(a.out).with_suffix(".md")
-        tmp = out.with_suffix(".md.tmp")
+        out = Path(a.out if a.out.endswith(".md") else a.out + ".md")  # "-1.6M" is no suffix to replace
+        tmp = out.with_name(out.name + ".tmp")
         tmp.write_text("\n".join(lines) + "\n")
         tmp.replace(out)
 
