@@ -396,7 +396,8 @@ class RiskRegion:
         patches = RISK_PATCHES if patches is None else patches
         size = int(max(size, patches * 12 * margin * margin))
         region = SampledRegion(F, ops, size, patches, int(margin), seed)
-        sub_ops = ops if region.whole else get_operators(region.F, region.vertices.size)
+        # its own operators, not the shared cache's: freed with the region (its factorisations too)
+        sub_ops = ops if region.whole else Operators(region.F, region.vertices.size)
         return cls(region.vertices, np.ascontiguousarray(V[region.vertices]), region.F, sub_ops, region.inner,
                    int(V.shape[0]))
 
@@ -985,6 +986,7 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
         with stage("estimating the candidates' errors"):  # along the smooth prior's normals
             if n > REGION_FROM:  # both candidates by Monte-Carlo SURE on one region, same probes: a paired comparison
                 region = RiskRegion.cut(V, F, ops, risk_margin(float(scored[SMOOTH_METHOD][0]["mu"])))
+                ops.drop_matrices()  # the whole mesh's vertex matrices: rebuilt if the smooth prior is chosen
                 sub = (region.V, region.F)
                 smooth = np.asarray(get_filter(SMOOTH_METHOD).public(sub, operators=region.ops,
                                                                      **scored[SMOOTH_METHOD][0])[0])
