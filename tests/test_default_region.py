@@ -167,3 +167,24 @@ def test_above_region_from_the_default_scores_both_candidates_on_one_region_and_
         assert sorted(m for _, m in calls) == ["sobolev_bilaplacian", "two_stage"]  # both, by Monte-Carlo SURE
         assert all(k < len(V) for k, _ in calls)  # on the region
         assert any("of a sampled region" in r for r in choice.reasons)
+
+
+def test_on_the_region_path_the_whole_meshs_vertex_matrices_are_dropped_and_the_region_keeps_nothing(monkeypatch):
+    # what the whole-mesh path does (issue 17: about 260 bytes per vertex at the peak of the two_stage runs);
+    # the region's operators are its own, not in the shared cache, so nothing of the region outlives the choice
+    from meshdenoise import operators as operators_module
+
+    V, F = box(16)
+    Vn = md.add_normal_noise((V, F), 0.02, seed=2)[0]
+    ops = get_operators(F, len(V))
+    for name, value in (("SMALL_MESH", 0), ("REGION_FROM", 1000), ("RISK_REGION", 600), ("RISK_PATCHES", 4),
+                        ("RISK_MARGIN", 3), ("RISK_MAX_MARGIN", 3), ("FEATURE_REGION", 600), ("FEATURE_PATCHES", 8),
+                        ("FEATURE_MARGIN", 3)):
+        monkeypatch.setattr(default, name, value)
+    cached = []
+    real = operators_module.get_operators
+    monkeypatch.setattr(default, "get_operators", lambda F, n: cached.append(n) or real(F, n))
+    choice = default.choose_default((Vn, F), noise=0.02)
+    assert choice.method == "two_stage"
+    assert "L" not in ops.__dict__ and "W" not in ops.__dict__  # dropped, rebuilt lazily if needed
+    assert set(cached) == {len(V)}  # only the whole mesh's operators come from the shared cache
