@@ -50,7 +50,7 @@ from typing import Any
 import numpy as np
 
 from .adapters import read_mesh
-from .geometry import face_normals, vertex_normals
+from .geometry import cross_rows, face_normals, vertex_normals
 from .operators import Operators, get_operators
 from .progress import stage
 from .registry import COMMON_OPTIONS, FilterSpec, ParameterError, apply_filter, get_filter, run_core
@@ -552,7 +552,7 @@ class NormalJacobian:
         P = np.asarray(R, dtype=np.float64)[F]
         self.F = np.asarray(F)
         self.e1, self.e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
-        c = np.cross(self.e1, self.e2)
+        c = cross_rows(self.e1, self.e2)
         area2 = np.linalg.norm(c, axis=1)
         self.inv = np.divide(1.0, area2, out=np.zeros_like(area2), where=area2 > 0)
         self.n = c * self.inv[:, None]
@@ -560,7 +560,7 @@ class NormalJacobian:
     def __call__(self, D: np.ndarray) -> np.ndarray:
         """:math:`J d` for ``D`` of shape (n, 3): the turn of each unit face normal, shape (m, 3)."""
         Q = np.asarray(D, dtype=np.float64)[self.F]
-        dc = np.cross(Q[:, 1] - Q[:, 0], self.e2) + np.cross(self.e1, Q[:, 2] - Q[:, 0])
+        dc = cross_rows(Q[:, 1] - Q[:, 0], self.e2) + cross_rows(self.e1, Q[:, 2] - Q[:, 0])
         dc -= self.n * np.einsum("ij,ij->i", self.n, dc)[:, None]
         return dc * self.inv[:, None]
 

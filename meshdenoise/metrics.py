@@ -24,7 +24,7 @@ import numpy as np
 
 from .adapters import mesh_kind, to_arrays
 from .arrays import check_vertices
-from .geometry import face_normals, signed_volume
+from .geometry import cross_rows, face_normals, signed_volume
 
 __all__ = [
     "snr",
@@ -132,7 +132,7 @@ def normal_error_deg(reference: Any, candidate: Any) -> float:
     if not ok.any():
         raise ValueError("normal_error_deg: no face has a non-zero area in both meshes")
     # atan2 of (sin, cos) stays accurate near 0 where arccos loses half the digits
-    sin = np.linalg.norm(np.cross(a[ok], b[ok]), axis=1)
+    sin = np.linalg.norm(cross_rows(a[ok], b[ok]), axis=1)
     cos = np.einsum("ij,ij->i", a[ok], b[ok])
     return float(np.degrees(np.arctan2(sin, cos)).mean())
 
