@@ -275,6 +275,9 @@ class DefaultChoice:
         a smooth prior only; its ``mu`` in ``params`` is already scaled); 0: none.
     post : PostStep or None
         The post-step's choice and its candidates (None when the filter is not a smooth prior).
+    region : tuple of int
+        ``(vertices, scored)`` of the :class:`RiskRegion` the candidates' risks were estimated on
+        (above :data:`REGION_FROM` vertices); ``(0, 0)`` when they were estimated on the whole mesh.
     """
 
     method: str
@@ -291,6 +294,7 @@ class DefaultChoice:
     rho_range: tuple[float, float] = (float("nan"), float("nan"))
     post_steps: int = 0
     post: PostStep | None = None
+    region: tuple[int, int] = (0, 0)
 
     @property
     def noise_in_edges(self) -> float:
@@ -327,6 +331,7 @@ class DefaultChoice:
             "verdict": self.verdict, "rho_range": [float(r) for r in self.rho_range],
             "post_steps": self.post_steps, "post_taubin": dict(POST_TAUBIN) if self.post_steps else None,
             "post_scale": self.post.scale if self.post is not None else None,
+            "region_vertices": self.region[0], "region_scored": self.region[1],
             "rho_range_in_edges": [float(r) / self.edge_length if self.edge_length > 0 else float("nan")
                                    for r in self.rho_range],
         }
@@ -1034,7 +1039,8 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
     reasons.insert(0, noise_reason)
     choice = DefaultChoice(method, params, float(rho), float(h), model.correlation_length, features, nb, reasons,
                            time.perf_counter() - start, caveats, decided, (float(rho_range[0]), float(rho_range[1])),
-                           post.steps if post is not None else 0, post)
+                           post.steps if post is not None else 0, post,
+                           (int(region.V.shape[0]), int(np.count_nonzero(region.rows))) if region is not None else (0, 0))
     for line in choice.lines():
         log.info("default: %s", line)
     return choice

@@ -118,6 +118,7 @@ def test_choice_names_the_method_the_noise_and_why():
     assert "smaller estimated error" in text
     assert choice.caveats == [] and "note:" not in text  # independent noise: nothing the estimate cannot tell
     json.dumps(choice.as_dict())  # plain values
+    assert choice.region == (0, 0)  # a small mesh: the candidates' risks on the whole mesh
 
 
 @pytest.mark.parametrize("mesh", ["sphere", "box", "torus"])

@@ -166,7 +166,9 @@ def test_above_region_from_the_default_scores_both_candidates_on_one_region_and_
         assert choice.method == method
         assert sorted(m for _, m in calls) == ["sobolev_bilaplacian", "two_stage"]  # both, by Monte-Carlo SURE
         assert all(k < len(V) for k, _ in calls)  # on the region
-        assert any("of a sampled region" in r for r in choice.reasons)
+        assert any(f"on {choice.region[1]:,} vertices of a sampled region" in r for r in choice.reasons)
+        assert 0 < choice.region[1] < choice.region[0] < len(V)
+        assert (choice.as_dict()["region_vertices"], choice.as_dict()["region_scored"]) == choice.region
 
 
 def test_on_the_region_path_the_whole_meshs_vertex_matrices_are_dropped_and_the_region_keeps_nothing(monkeypatch):
