@@ -211,3 +211,108 @@ def test_weighted_median_and_nearest_stratum():
     present = np.array([False, True, False, False, True, False, False])
     np.testing.assert_array_equal(_nearest_present(present), [1, 1, 1, 4, 4, 4, 4])  # ties to the lower
     np.testing.assert_array_equal(_nearest_present(np.array([False, True, False])), [1, 1, 1])
+
+
+# --- the noise model's probes of every correlation length from one Krylov space (session 10) -------------------
+def _dense_heat(V, F, length, Z):
+    """HeatFilter written out densely: diag(s) Z, then HEAT_STEPS implicit steps (M + tau/k L) u' = M u."""
+    from meshdenoise.noise import HEAT_STEPS, heat_geometry
+
+    h, mass, L = heat_geometry(V, F)
+    surface = mass > 2e-9 * mass[mass > 0].mean()
+    s = np.where(surface, np.sqrt(mass[surface].mean() / mass), 0.0)
+    A = np.diag(mass) + ((length * h) ** 2 / 8.0 / HEAT_STEPS) * L.toarray()
+    u = s[:, None] * Z
+    for _ in range(HEAT_STEPS):
+        u = np.linalg.solve(A, mass[:, None] * u)
+    return u
+
+
+def test_heat_krylov_equals_the_dense_heat_filter_for_every_length_in_any_order():
+    from meshdenoise.noise import HeatKrylov
+
+    V, F = grid(12, 10)  # open borders, and a vertex on no face (a range map's unreferenced sample)
+    V = np.vstack([V + 0.01 * np.random.default_rng(0).standard_normal(V.shape), [[5.0, 5.0, 1.0]]])
+    Z = np.random.default_rng(1).standard_normal((V.shape[0], 3))
+    family = HeatKrylov(V, F, Z, tol=1e-10)
+    for length in (6.0, 0.5, 2.3, 0.5, 4.0):  # longest first: the shorter ones read the same space
+        Y = family(length)
+        ref = _dense_heat(V, F, length, Z)
+        np.testing.assert_allclose(Y, ref, rtol=0, atol=1e-8 * np.abs(ref).max())
+        assert np.all(Y[-1] == 0)  # the unreferenced vertex gets no noise
+    assert family.fallbacks == 0
+
+
+@pytest.mark.parametrize("tol", [1e-5, 1e-8])
+def test_heat_krylov_is_within_its_tolerance_of_a_tightly_solved_heat_filter(tol):
+    """icosphere(4) (2,562 vertices, a Krylov space far from exhausted): every column within tol of HeatFilter
+    solved to 1e-12, for the noise model's lengths; the basis is float32 from tol 1e-6 up."""
+    from meshdenoise.noise import HeatFilter, HeatKrylov, diffusion_length
+
+    V, F = icosphere(4)
+    Z = np.random.default_rng(2).standard_normal((V.shape[0], 4))
+    family = HeatKrylov(V, F, Z, tol=tol)
+    for ell in (0.5, 2.0, 6.0, 1.0):
+        d = diffusion_length(ell)
+        ref = HeatFilter(V, F, d)(Z, tol=1e-12)
+        err = np.linalg.norm(family(d) - ref, axis=0) / np.linalg.norm(ref, axis=0)
+        assert err.max() < tol, (ell, err)
+    assert family.fallbacks == 0 and family.steps < 128
+
+
+def test_heat_krylov_falls_back_to_cg_for_lengths_it_cannot_settle():
+    from meshdenoise.noise import HeatFilter, HeatKrylov
+
+    V, F = icosphere(3)
+    Z = np.random.default_rng(3).standard_normal((V.shape[0], 2))
+    family = HeatKrylov(V, F, Z, tol=1e-5, max_steps=8)  # far too few steps for a length of 6 edges
+    np.testing.assert_array_equal(family(6.0), HeatFilter(V, F, 6.0)(Z, tol=1e-5))
+    assert family.fallbacks == 1 and family.steps == 8
+    with pytest.raises(ValueError, match="tol"):
+        HeatKrylov(V, F, Z, tol=0.0)
+    with pytest.raises(ValueError, match="length"):
+        family(-1.0)
+
+
+class _PerLengthHeatFilters:
+    """The fit's colouring before session 10, as a drop-in for HeatKrylov: a HeatFilter per length, to FIT_TOL."""
+
+    def __init__(self, V, F, Z, *, geometry=None, tol=1e-5):
+        self.args = (V, F, Z, geometry, tol)
+
+    def __call__(self, length):
+        from meshdenoise.noise import HeatFilter
+
+        V, F, Z, geometry, tol = self.args
+        return HeatFilter(V, F, length, geometry)(Z, tol=tol)
+
+
+@pytest.mark.parametrize("sample", [None, 6000])
+def test_noise_model_from_one_krylov_space_keeps_the_per_length_estimate(sample, monkeypatch):
+    """The same chosen length, level and band spectrum as the per-length heat filters (whose own CG error,
+    4e-5 relative, is the larger one), on the whole mesh and on a sampled region."""
+    from meshdenoise.tuning import covariance
+    from meshdenoise.tuning.detail import BANDS, ELL_GRID
+
+    Vn, F = _scanner(2.0)
+    kw = dict(details=True, spectrum=(BANDS, ELL_GRID), **({} if sample is None else {"sample": sample}))
+    new, info_new = estimate_noise_model((Vn, F), **kw)
+    monkeypatch.setattr(covariance, "HeatKrylov", _PerLengthHeatFilters)
+    old, info_old = estimate_noise_model((Vn, F), **kw)
+    assert new.correlated and old.correlated
+    assert (info_new["fit_vertices"] < Vn.shape[0]) == (sample is not None)
+    assert info_new["grid"].size == info_old["grid"].size
+    assert new.correlation_length == pytest.approx(old.correlation_length, abs=1e-3)
+    assert new.rho == pytest.approx(old.rho, rel=1e-4)
+    # a median of squares moves to a neighbouring sample when the probes move by the old CG error (4e-5 relative)
+    np.testing.assert_allclose(info_new["log_rho"], info_old["log_rho"], rtol=0, atol=5e-4)
+    np.testing.assert_allclose(info_new["spectrum"]["probes"], info_old["spectrum"]["probes"], rtol=1e-3)
+
+
+def test_noise_model_with_a_sample_too_small_for_its_margin_fits_the_whole_mesh():
+    # 8 balls of ~190 vertices each lie within 8 rings of a cut: no vertex to read (an IndexError before)
+    Vn, F = _scanner(2.0)
+    small, info = estimate_noise_model((Vn, F), details=True, sample=1500)
+    whole, info_whole = estimate_noise_model((Vn, F), details=True, sample=10**9)
+    assert info["fit_vertices"] == info_whole["fit_vertices"] == Vn.shape[0]
+    assert (small.rho, small.correlation_length) == (whole.rho, whole.correlation_length)
