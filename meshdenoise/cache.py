@@ -76,7 +76,7 @@ class ByteLRU:
     >>> _ = c.get("b", lambda: np.zeros(100))  # 1600 B in all: "a" goes
     >>> list(c), c.total_bytes()
     (['b'], 800)
-    >>> c.clear(); len(c)
+    >>> c.discard("b"); c.discard("b"); len(c)
     0
     """
 
@@ -119,6 +119,11 @@ class ByteLRU:
         if hit is not None or key in self._data:
             return hit
         return self.put(key, compute())
+
+    def discard(self, key: Hashable) -> None:
+        """Forget the entry under ``key`` (nothing when there is none)."""
+        with self._lock:
+            self._data.pop(key, None)
 
     def total_bytes(self) -> int:
         """The entries' current total size in bytes."""

@@ -316,3 +316,44 @@ def test_noise_model_with_a_sample_too_small_for_its_margin_fits_the_whole_mesh(
     whole, info_whole = estimate_noise_model((Vn, F), details=True, sample=10**9)
     assert info["fit_vertices"] == info_whole["fit_vertices"] == Vn.shape[0]
     assert (small.rho, small.correlation_length) == (whole.rho, whole.correlation_length)
+
+
+@pytest.mark.parametrize("ell", [0.0, 2.0])
+def test_noise_model_under_correlated_noise_leaves_no_averaging_run_behind(ell):
+    """tracemalloc: after estimate_noise_model returns (the model kept, the topology's matrices built before),
+    a correlated reading holds nothing of estimate_noise's averaging runs (white probes, which no rule under the
+    correlated model reads): only the model's smoothed mesh (n, 3); with release=False the memo keeps the run's
+    (n, 7) state, (n, 4) probes and copy of V, so the check can fail. Independent noise keeps them (the rules read them)."""
+    import gc
+    import tracemalloc
+
+    from meshdenoise.operators import clear_cache
+    from meshdenoise.tuning.memo import MEMO
+
+    Vn, F = _scanner(ell)
+    n = Vn.shape[0]
+    held, paths = {}, {}
+    for release in (True, False):
+        clear_cache()
+        MEMO.clear()
+        ops = get_operators(F, n)
+        ops.P, ops.edges, ops.boundary_vertices  # the topology's matrices, as a caller holds them
+        gc.collect()
+        tracemalloc.start()
+        before = tracemalloc.get_traced_memory()[0]
+        model = estimate_noise_model((Vn, F), release=release)
+        gc.collect()
+        held[release] = tracemalloc.get_traced_memory()[0] - before
+        tracemalloc.stop()
+        paths[release] = sum(1 for key in MEMO if key[:1] == ("path",))
+        assert model.correlated == (ell > 0)
+    curve = (7 + 4 + 3) * 8 * n  # an averaging run in the memo: state, probes, V
+    if ell > 0:
+        assert paths == {True: 0, False: 1}
+        assert held[True] < 24 * n + 16 * n + 65536, held  # the smoothed mesh; degrees and masks of the topology
+        assert held[False] > held[True] + curve, held
+    else:
+        assert paths == {True: 1, False: 1}
+        assert abs(held[True] - held[False]) < 65536, held
+    with pytest.raises(TypeError, match="release"):
+        estimate_noise_model((Vn, F), release="yes")

@@ -47,7 +47,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 import scipy.sparse as sp
@@ -57,7 +57,7 @@ from ..geometry import vertex_normals
 from ..noise import HeatFilter, HeatKrylov, diffusion_length, heat_geometry
 from ..noise import mean_edge_length as noise_mean_edge_length
 from ..operators import Operators, get_operators, spmm
-from .memo import digest
+from .memo import MEMO, digest
 from .noise_level import estimate_noise_and_smooth
 from .region import SampledRegion, ring_distance
 
@@ -165,7 +165,12 @@ class NoiseModel:
 
 
 def band_residuals(ops: Operators, X: np.ndarray, bands: tuple[int, ...] = BANDS) -> dict[int, np.ndarray]:
-    """:math:`B_s X = (I - P)^2 P^s X` for every ``s`` in ``bands``, ``X`` (n, k) -> dict of (n, k)."""
+    """:math:`B_s X = (I - P)^2 P^s X` for every ``s`` in ``bands``, ``X`` (n, k) -> dict of (n, k).
+
+    Differences taken before each product (:math:`(I - P)((I - P) P^s X)`): for coordinates, whose
+    offset from the origin may be far above the residual, this cancels the offset first. Zero-mean
+    probes take :func:`_band_chain` (fewer products).
+    """
     out = {}
     Y = np.array(X, dtype=np.float64)
     done = 0
@@ -176,6 +181,31 @@ def band_residuals(ops: Operators, X: np.ndarray, bands: tuple[int, ...] = BANDS
         A = Y - spmm(ops.P, Y)
         out[s] = A - spmm(ops.P, A)
     return out
+
+
+def _band_chain(ops: Operators, X: np.ndarray, bands: tuple[int, ...]) -> Iterator[tuple[int, np.ndarray]]:
+    """``(s, B_s X)`` for the increasing ``bands``, :math:`B_s X = P^s X - 2 P^{s+1} X + P^{s+2} X`.
+
+    One chain of powers :math:`P^j X`, ``j`` = 0 .. max(bands) + 2 (three kept at a time): 66
+    sparse products for the bands 0 .. 64 of the detail spectrum, where
+    :math:`(I - P)((I - P) P^s X)` took two more per band (80). For zero-mean probes (no offset to
+    cancel: the rounding is that of the powers themselves).
+    """
+    bands = sorted(set(int(b) for b in bands))
+    window: dict[int, np.ndarray] = {}
+    Y = np.array(X, dtype=np.float64)
+    j = 0
+    for s in bands:
+        while j < s + 2:
+            if j >= s:
+                window[j] = Y
+            Y = spmm(ops.P, Y)
+            j += 1
+        window[j] = Y
+        B = window[s] - 2.0 * window[s + 1]
+        B += window[s + 2]
+        yield s, B
+        window = {k: v for k, v in window.items() if k > s}  # the next band may start at s + 1 or s + 2
 
 
 def _normal_component(R: np.ndarray, N: np.ndarray) -> np.ndarray:
@@ -190,7 +220,7 @@ def _probe_medians(ops: Operators, N: np.ndarray, Z: np.ndarray, ok: np.ndarray,
     (weighted by ``weights`` (n,) per vertex when given)."""
     m = Z.shape[1]
     B = (Z[:, :, None] * N[:, None, :]).reshape(Z.shape[0], 3 * m)
-    R = band_residuals(ops, B)
+    R = dict(_band_chain(ops, B, BANDS))
     if weights is None:
         return np.array([np.median(_normal_component(R[s], N)[ok] ** 2) for s in BANDS])
     w = np.repeat(weights[ok], m)
@@ -256,13 +286,9 @@ def _spectrum_medians(ops: Operators, N: np.ndarray, Zs: list[np.ndarray], ok: n
         Z = np.concatenate(chunk, axis=1)
         Y = (Z[:, :, None] * N[:, None, :]).reshape(Z.shape[0], 3 * Z.shape[1])
         w = None if weights is None else np.repeat(weights[ok], m)
-        done = 0
-        for j, s in enumerate(bands):
-            while done < s:
-                Y = spmm(ops.P, Y)
-                done += 1
-            A = Y - spmm(ops.P, Y)
-            r = _normal_component(A - spmm(ops.P, A), N)[ok]  # (k, m * len(chunk))
+        for j, (s, B) in enumerate(_band_chain(ops, Y, bands)):
+            r = _normal_component(B, N)[ok]  # (k, m * len(chunk))
+            del B
             for g in range(len(chunk)):
                 x = r[:, g * m:(g + 1) * m] ** 2
                 out[start + g, j] = np.median(x) if w is None else _weighted_median(x.ravel(), w)
@@ -270,8 +296,8 @@ def _spectrum_medians(ops: Operators, N: np.ndarray, Zs: list[np.ndarray], ok: n
 
 
 def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: bool = False,
-                         sample: int | None = None, spectrum: tuple[tuple[int, ...], tuple[float, ...]] | None = None
-                         ) -> NoiseModel:
+                         sample: int | None = None, spectrum: tuple[tuple[int, ...], tuple[float, ...]] | None = None,
+                         release: bool = True) -> NoiseModel:
     """Estimate the noise level and correlation length of a noisy mesh, without the clean mesh.
 
     See the module docstring for the model and the estimate.
@@ -312,6 +338,17 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
         each correlation length). :func:`meshdenoise.tuning.detail.separate_detail` fits it; the
         default asks for both at once so that the probes are coloured once. ``info["smooth"]`` is
         always the smoothed mesh (n, 3) the normals come from.
+    release : bool
+        When the noise reads correlated, forget the averaging runs this call added to the tuning
+        memo (:data:`meshdenoise.tuning.memo.MEMO`): :func:`estimate_noise`'s SURE smoothing with
+        white probes, which no rule under a correlated model reads (their probes are coloured, so
+        their runs are others). Each holds an ``(n, 7)`` state, the ``(n, 4)`` probes, a copy of
+        ``V`` and the averaging matrix ``P`` it steps with: about 75 MB at 400k vertices. With
+        independent noise they are kept: the rules that follow (``filtering``, the Sobolev start
+        guess, ``two_stage``'s guard) read the same runs. What stays by design: the vertex
+        matrices on the cached topology (:func:`~meshdenoise.operators.get_operators`; the rules
+        need them, :meth:`~meshdenoise.operators.Operators.drop_matrices` frees them) and a
+        correlated model's smoothed mesh.
 
     Returns
     -------
@@ -332,6 +369,8 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
     """
     if isinstance(refine, (bool, np.bool_)) or not isinstance(refine, (int, np.integer)) or refine < 1:
         raise ValueError(f"estimate_noise_model: parameter 'refine' must be an int >= 1, got {refine!r}")
+    if not isinstance(release, (bool, np.bool_)):
+        raise TypeError(f"estimate_noise_model: parameter 'release' must be True or False, got {release!r}")
     if sample is None:
         sample = FIT_SAMPLE
     if isinstance(sample, (bool, np.bool_)) or not isinstance(sample, (int, np.integer)) or sample < 1:
@@ -343,13 +382,31 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
         if not bands_s or list(bands_s) != sorted(set(bands_s)) or bands_s[0] < 0 or not ells_s or min(ells_s) < 0:
             raise ValueError(f"estimate_noise_model: parameter 'spectrum' = {spectrum!r} must be (increasing bands >= 0, "
                              "correlation lengths >= 0)")
+    ops = get_operators(F, V.shape[0])
+    before = set(MEMO)
+    out = _estimate(V, F, ops, int(refine), int(seed), details, int(sample), None if spectrum is None else (bands_s, ells_s))
+    model = out[0] if details else out
+    if release and model.correlated:
+        # the averaging runs of estimate_noise (white probes, in the tuning memo): the rules under a correlated model
+        # colour their probes, so they read other runs; these would stay until evicted (at 400k vertices about 75 MB:
+        # an (n, 7) state, the (n, 4) probes, a copy of V, and the averaging matrix P they step with)
+        for key in set(MEMO) - before:
+            if isinstance(key, tuple) and key[:1] == ("path",):
+                MEMO.discard(key)
+    return out
+
+
+def _estimate(V: np.ndarray, F: np.ndarray, ops: Operators, refine: int, seed: int, details: bool, sample: int,
+              spectrum: tuple[tuple[int, ...], tuple[float, ...]] | None) -> Any:
+    """:func:`estimate_noise_model` on checked arguments (``ops`` the cached topology of ``F``)."""
+    if spectrum is not None:
+        bands_s, ells_s = spectrum
     rho0, smooth = estimate_noise_and_smooth(V, F, int(refine))
     info: dict[str, Any] = {"rho_white": rho0, "smooth": smooth}
     if rho0 == 0:
         model = NoiseModel(0.0)
         info["reason"] = "independent: no noise found (estimate_noise reads 0)"
         return (model, info) if details else model
-    ops = get_operators(F, V.shape[0])
     N = vertex_normals(smooth, F)
     ok = ~ops.isolated & (np.linalg.norm(N, axis=1) > 0)
     R = band_residuals(ops, V)
