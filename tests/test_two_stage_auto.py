@@ -494,3 +494,24 @@ def test_fine_run_is_the_median_best_of_many_light_iterations_on_the_synthetic_c
         if m < medians[k - 1]:
             k = j
     assert got["iterations"] == k
+
+
+def test_rules_second_sigma_r_stage_stays_next_to_the_best_so_far_and_the_oracles_does_not():
+    """A score whose best sigma_r moves once the normal-filtering count is 20: with the span of 1 the second
+    sigma_r stage tries only the neighbours of the best so far (0.25, 0.3, 0.35 around 0.3), the oracle's all five."""
+    def score(params):
+        target = 0.3 if params["normal_iterations"] != 20 else 0.35
+        return abs(params["sigma_r"] - target) + abs(params["normal_iterations"] - 20) / 100 + params["vertex_iterations"] / 1000
+
+    for span, tried in ((ts.TWO_STAGE_REVISIT_SPAN, {0.25, 0.3, 0.35}), (None, set(ts.TWO_STAGE_SIGMA_R))):
+        seen = []
+
+        def path(params):
+            seen.append(dict(params))
+            return ts.Point(3, 0.0, 0.0, np.zeros((1, 3)), score(params))
+
+        chosen, _ = ts._staged_search(path, ts._search_grid({}), span)
+        assert chosen["sigma_r"] == 0.35 and chosen["normal_iterations"] == 20
+        second = {p["sigma_r"] for p in seen if p["normal_iterations"] == 20 and p["vertex_iterations"] == 20}
+        assert second == tried
+    assert ts.TWO_STAGE_REVISIT_SPAN == 1
