@@ -357,3 +357,18 @@ def test_noise_model_under_correlated_noise_leaves_no_averaging_run_behind(ell):
         assert abs(held[True] - held[False]) < 65536, held
     with pytest.raises(TypeError, match="release"):
         estimate_noise_model((Vn, F), release="yes")
+
+
+def test_heat_krylov_on_a_tiny_mesh_exhausts_its_space_exactly_and_keeps_zero_columns_zero():
+    from meshdenoise.noise import HeatKrylov
+
+    V, F = icosphere(0)  # 12 vertices: the Krylov space of a column is at most 12-dimensional
+    Z = np.random.default_rng(4).standard_normal((12, 3))
+    Z[:, 1] = 0.0
+    family = HeatKrylov(V, F, Z, tol=1e-8)  # a float64 basis (float32 from tol 1e-6: 6e-8 of rounding)
+    for length in (3.0, 0.7):
+        Y = family(length)
+        ref = _dense_heat(V, F, length, Z)
+        np.testing.assert_allclose(Y, ref, rtol=0, atol=1e-11 * np.abs(ref).max())
+        assert np.all(Y[:, 1] == 0)
+    assert family.exhausted and family.steps <= 12 and family.fallbacks == 0
