@@ -428,7 +428,7 @@ class SampledRegion:
         W = ops.W
         rng = np.random.default_rng(seed)
         used = np.zeros(n, dtype=bool)
-        used[np.unique(F)] = True
+        used[np.asarray(F).ravel()] = True  # the same mask as np.unique(F), without its sort (0.4 s at 1.6M)
         inside = np.zeros(n, dtype=bool)
         inside[rng.choice(np.flatnonzero(used), size=min(patches, int(used.sum())), replace=False)] = True
         while inside.sum() < size:  # one ring per pass; a new seed when every ball has filled its component
