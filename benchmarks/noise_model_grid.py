@@ -46,8 +46,8 @@ from tables import write_table  # noqa: E402
 import meshdenoise.default as default  # noqa: E402
 from meshdenoise.data import data_file, sample_mesh  # noqa: E402
 from meshdenoise.io import load_arrays  # noqa: E402
-from meshdenoise.metrics import normal_error_deg  # noqa: E402
-from meshdenoise.noise import add_scanner_noise, mean_edge_length  # noqa: E402
+from meshdenoise.metrics import normal_error_deg, snr  # noqa: E402
+from meshdenoise.noise import add_normal_noise, add_scanner_noise, mean_edge_length  # noqa: E402
 from meshdenoise.shapes import icosphere  # noqa: E402
 from meshdenoise.tuning.covariance import estimate_noise_model  # noqa: E402
 from meshdenoise.tuning.detail import separate_detail  # noqa: E402
@@ -100,12 +100,16 @@ def estimate_row(name: str, V: np.ndarray, F: np.ndarray, sigma: float | None, e
     t = time.perf_counter()
     v = separate_detail((V, F))
     t_detail = time.perf_counter() - t
-    policy = default.noise_policy(band, v, h)[0] if band.correlated else band  # the default's model (whole-mesh fit)
+    t = time.perf_counter()
+    policy, _, _, decided, _ = default.default_noise(V, F, h)  # the default's own noise step, measured
+    t_policy = time.perf_counter() - t
     return {"mesh": name, "n": V.shape[0], "sigma": sigma, "ell": ell,
             "band_rho": band.rho / h, "band_ell": band.correlation_length,
             "verdict": v.verdict, "rho": v.model.rho / h, "rho_ell": v.model.correlation_length,
+            "correlated": v.correlated, "misfit": v.misfit, "misfit_white": v.misfit_white,
             "low": v.rho_range[0] / h, "high": v.rho_range[1] / h, "joint": v.rho_joint / h, "joint_ell": v.ell_joint,
-            "t_band": t_band, "t_detail": t_detail, "policy": policy.rho / h, "policy_ell": policy.correlation_length}
+            "t_band": t_band, "t_detail": t_detail, "t_policy": t_policy, "decided": decided,
+            "policy": policy.rho / h, "policy_ell": policy.correlation_length}
 
 
 def ratio(rho: float, sigma: float | None) -> str:
@@ -114,16 +118,19 @@ def ratio(rho: float, sigma: float | None) -> str:
 
 def grid_table(rows: list[dict]) -> list[str]:
     out = ["| mesh | sigma/h | l | band only: rho/h @ l | ratio | detail fit: verdict | rho/h @ l | ratio | allowed rho/h | "
-           "best joint rho/h @ l | default (policy): rho/h @ l | ratio | s (band, detail) |",
-           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+           "best joint rho/h @ l | misfit: independent, best (test) | default (policy): verdict, rho/h @ l | ratio | "
+           "s (band, detail, default's noise step) |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         sig = "as is" if r["sigma"] is None else f"{r['sigma']:g}"
         ell = "" if r["ell"] is None else f"{r['ell']:g}"
         out.append(f"| {r['mesh']} | {sig} | {ell} | {r['band_rho']:.3f} @ {r['band_ell']:.2f} | "
                    f"{ratio(r['band_rho'], r['sigma'])} | {r['verdict']} | {r['rho']:.3f} @ {r['rho_ell']:.2f} | "
                    f"{ratio(r['rho'], r['sigma'])} | {r['low']:.3f} to {r['high']:.3f} | "
-                   f"{r['joint']:.3f} @ {r['joint_ell']:.1f} | {r['policy']:.3f} @ {r['policy_ell']:.2f} | "
-                   f"{ratio(r['policy'], r['sigma'])} | {r['t_band']:.1f}, {r['t_detail']:.1f} |")
+                   f"{r['joint']:.3f} @ {r['joint_ell']:.1f} | {r['misfit_white']:.3f}, {r['misfit']:.3f} "
+                   f"({'correlated' if r['correlated'] else 'no'}) | {r['decided']}, "
+                   f"{r['policy']:.3f} @ {r['policy_ell']:.2f} | "
+                   f"{ratio(r['policy'], r['sigma'])} | {r['t_band']:.1f}, {r['t_detail']:.1f}, {r['t_policy']:.1f} |")
     return out
 
 
@@ -193,9 +200,102 @@ def default_table(rows: list[dict]) -> list[str]:
     return out
 
 
+PEER_ROWS = ["Bunny0.2/Noisy", "Fandisk0.3/Noisy", "Block0.4/Noisy", "elephant rho=0.2", "nefertiti rho=0.2"]
+
+
+def peer_pair(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The peers/quality benchmarks' independent-noise rows: (clean V, noisy V, F)."""
+    if name.endswith("/Noisy"):
+        bench = name.split("/")[0]
+        V0, F = load_arrays(data_file(f"benchmark/{bench}/Original.obj"))
+        V, F2 = load_arrays(data_file(f"benchmark/{bench}/Noisy.obj"))
+        if not np.array_equal(F, F2):
+            raise SystemExit(f"{name}: the noisy mesh's faces are not the original's")
+        return V0, V, F
+    mesh, rho = name.split(" rho=")
+    V0, F = load_arrays(data_file("elephant-50kv.off" if mesh == "elephant" else "nefertiti.off"))
+    return V0, add_normal_noise((V0, F), float(rho), seed=0)[0], F  # the quality table's rows (seed 0)
+
+
+def old_default_noise(V: np.ndarray, F: np.ndarray, h: float):
+    """The default's noise step before the detail fit's correlation test: a reading of independent noise is kept."""
+    band, info = estimate_noise_model((V, F), details=True, spectrum=(default.DETAIL_BANDS, default.DETAIL_LENGTHS))
+    if not band.correlated:
+        return band, "the noise is " + info["reason"], [], "independent", (float("nan"), float("nan"))
+    verdict = separate_detail((V, F), smooth=info["smooth"], rho_white=info["rho_white"], spectrum=info.get("spectrum"))
+    model, reason, caveats = default.noise_policy(band, verdict, h, info.get("reason", ""))
+    return model, reason, caveats, verdict.verdict, verdict.rho_range
+
+
+def effect_rows(meshes: dict, names: list[str], sigmas: list[float], lengths: list[float], seed: int,
+                peers: bool) -> list[dict]:
+    """The default before (``old_default_noise``) and with the detail fit's correlation test, against the clean mesh."""
+    cases = [(name, s, l) for name in names for s in sigmas for l in lengths] + (
+        [(p, None, None) for p in PEER_ROWS] if peers else [])
+    rows = []
+    for name, sigma, ell in cases:
+        if sigma is None:
+            V0, V, F = peer_pair(name)
+        else:
+            if name not in meshes:
+                meshes[name] = load(name)
+            V0, F = meshes[name]
+            V = noisy(V0, F, sigma, ell, seed)
+        h = mean_edge_length(V, F)
+        row = {"mesh": name, "n": V.shape[0], "sigma": sigma, "ell": ell, "input_err": normal_error_deg((V0, F), (V, F)),
+               "input_snr": snr(V0, V)}
+        models = {}
+        for tag, fn in (("before", old_default_noise), ("after", default.default_noise)):
+            t = time.perf_counter()
+            model, _, _, decided, _ = fn(V, F, h)
+            models[tag] = model
+            row[tag] = {"noise_s": time.perf_counter() - t, "rho": model.rho / h, "ell": model.correlation_length,
+                        "decided": decided}
+        same = (models["before"].rho == models["after"].rho
+                and models["before"].correlation_length == models["after"].correlation_length)
+        original = default.default_noise
+        for tag, fn in (("after", None), ("before", old_default_noise)):
+            if tag == "before" and same:  # the same model, the same (deterministic) result
+                row["before"].update({k: row["after"][k] for k in ("err", "snr", "method", "choice_s")})
+                continue
+            if fn is not None:
+                default.default_noise = fn
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    (Vd, _), choice = default.denoise((V.copy(), F), return_params=True)
+            finally:
+                default.default_noise = original
+            row[tag].update({"err": normal_error_deg((V0, F), (Vd, F)), "snr": snr(V0, Vd), "method": choice.method,
+                             "choice_s": choice.seconds})
+        row["same"] = same
+        rows.append(row)
+        print(effect_table([row])[-1], flush=True)
+    return rows
+
+
+def effect_table(rows: list[dict]) -> list[str]:
+    out = ["| mesh | vertices | sigma/h @ l | input: error (deg), SNR (dB) | before: noise/h @ l | error | SNR | "
+           "after: verdict, noise/h @ l | error | SNR | method (before, after) | noise step s (before, after) | "
+           "choice s (after) |",
+           "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        what = "own noise" if r["sigma"] is None else f"{r['sigma']:g} @ {r['ell']:g}"
+        b, a = r["before"], r["after"]
+        out.append(f"| {r['mesh']} | {r['n']:,} | {what} | {r['input_err']:.2f}, {r['input_snr']:.2f} | "
+                   f"{b['rho']:.3f} @ {b['ell']:.2f} | {b['err']:.2f} | {b['snr']:.2f} | "
+                   f"{a['decided']}, {a['rho']:.3f} @ {a['ell']:.2f}{' (same)' if r['same'] else ''} | {a['err']:.2f} | "
+                   f"{a['snr']:.2f} | {b['method']}, {a['method']} | {b['noise_s']:.1f}, {a['noise_s']:.1f} | "
+                   f"{a['choice_s']:.1f} |")
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--part", nargs="+", default=["grid", "default"], choices=["grid", "default"])
+    ap.add_argument("--part", nargs="+", default=["grid", "default"], choices=["grid", "default", "effect"])
+    ap.add_argument("--effect-lengths", nargs="+", type=float, default=[0.0, 1.0],
+                    help="effect: the correlation lengths of its rows (with --meshes and --sigmas)")
+    ap.add_argument("--no-peers", action="store_true", help="effect: skip the peers/quality independent-noise rows")
     ap.add_argument("--meshes", nargs="+", default=GRID_MESHES)
     ap.add_argument("--sigmas", nargs="+", type=float, default=[0.1, 0.25, 0.5, 1.0])
     ap.add_argument("--lengths", nargs="+", type=float, default=[0.0, 1.0, 2.0, 3.0, 4.0])
@@ -233,6 +333,14 @@ def main(argv: list[str] | None = None) -> None:
                   "verdict: the detail fit's (independent: the fine bands read independent noise, no fit); "
                   "s: seconds of each denoise call (under load).", ""]
         lines += default_table(rows) + [""]
+    if "effect" in args.part:
+        rows = effect_rows(meshes, args.meshes, args.sigmas, args.effect_lengths, args.seed, not args.no_peers)
+        lines += ["## The default's result: before and with the detail fit's correlation test", "",
+                  "before: a reading of independent noise by the fine bands is kept (the policy before the test); "
+                  "after: the policy now. error: mean face-normal error against the clean mesh (deg); SNR against "
+                  "the clean mesh (dB); (same): the same noise model, so the same result (run once); noise step: "
+                  "seconds of the default's noise step; choice: `choose_default`'s seconds (under load).", ""]
+        lines += effect_table(rows) + [""]
     lines.append(f"Total {time.perf_counter() - start:.0f} s; load average {load_before:.1f} at the start, "
                  f"{os.getloadavg()[0]:.1f} at the end (2 cores shared).")
     print(write_table(Path(args.out) if args.out else None, lines))  # atomic: never half-written

@@ -831,9 +831,11 @@ def noise_policy(band: NoiseModel, verdict: DetailVerdict, h: float, band_reason
     """The noise model the default uses, from the fine bands' reading and the detail fit's verdict.
 
     - the fine bands read independent noise (``band``, :func:`estimate_noise_model`, whose
-      significance test rejected a correlation): ``band``, whatever the verdict (the detail fit
-      has no such test: on a 602-vertex box with independent noise it reads "noise" of 0.69 h
-      over 2.3);
+      significance test rejected a correlation): ``band``, unless the detail fit's own correlation
+      test (:attr:`DetailVerdict.correlated`, :func:`~meshdenoise.tuning.detail.correlation_test`)
+      finds correlated noise and its verdict is ``"noise"``: then the detail fit's model (noise
+      correlated over about one edge length is read as independent by the fine bands, at 0.66 to
+      0.7 of its level: icosphere 0.25 h at l = 1 reads 0.164 h, the detail fit 0.233 h at 1.0);
     - they read correlated noise, and the verdict is ``"noise"`` or ``"detail"``: the detail fit's
       model (:attr:`DetailVerdict.model`: its best joint level and correlation length, or
       independent noise at ``estimate_noise``'s level);
@@ -872,6 +874,16 @@ def noise_policy(band: NoiseModel, verdict: DetailVerdict, h: float, band_reason
 
     if not band.correlated:
         why = band_reason.split(": ", 1)[-1] if band_reason else "the fine bands read no correlation"
+        if verdict.correlated and verdict.verdict == "noise" and verdict.model.correlated:
+            model = verdict.model
+            return model, (f"{said(model)}: the fine bands read independent noise ({why}), but the band spectrum "
+                           f"is explained better with noise correlated over {model.correlation_length:.3g} edge lengths "
+                           f"(relative misfit {verdict.misfit_white:.3g} independent, {verdict.misfit:.3g} correlated): "
+                           f"{verdict.reason}"), [
+                f"the fine bands alone read independent noise of {band.rho / e:.3g} mean edge lengths; the band "
+                f"spectrum reads noise correlated over {model.correlation_length:.3g} edge lengths ({allowed}); "
+                f"if the mesh may already be clean, look at the change (meshdenoise render IN OUT); {OVERRIDE} "
+                "(docs/noise-vs-detail.md)"]
         return band, f"{said(band)}: {why} (surface detail or noise: {verdict.verdict}; {allowed})", []
     fine = (f"the fine bands read {band.rho / e:.3g} mean edge lengths correlated over "
             f"{band.correlation_length:.3g}")
@@ -906,7 +918,11 @@ def default_noise(V: np.ndarray, F: np.ndarray, h: float) -> tuple[NoiseModel, s
     level and correlation length; when it reads correlated noise it also returns the band spectrum
     of the same coloured probes and smoothed mesh, which
     :func:`~meshdenoise.tuning.detail.separate_detail` fits (no second smoothing, no second
-    colouring), and :func:`noise_policy` decides.
+    colouring), and :func:`noise_policy` decides. When it reads independent noise but its own fit
+    had found a correlation length of at least its ``ELL_MIN`` (0.75 edge lengths), which its
+    significance test rejected, the detail fit is run as well (on the whole mesh, with the same
+    smoothed mesh) and its correlation test decides (:func:`noise_policy`); below that length
+    nothing more is done (independent noise costs nothing more).
 
     Parameters
     ----------
@@ -918,12 +934,22 @@ def default_noise(V: np.ndarray, F: np.ndarray, h: float) -> tuple[NoiseModel, s
     Returns
     -------
     (NoiseModel, str, list of str, str, (float, float))
-        The model, the reason, caveats, the verdict (``"independent"`` when the fine bands read
-        independent noise: no detail fit) and the allowed range of levels (NaN when not fitted).
+        The model, the reason, caveats, the verdict (``"independent"`` when the fine bands' reading
+        of independent noise is kept; the detail fit's otherwise) and the allowed range of levels
+        (NaN when the fine bands' independent reading is kept).
     """
+    from .tuning.covariance import ELL_MIN as BAND_ELL_MIN
+
     band, info = estimate_noise_model((V, F), details=True, spectrum=(DETAIL_BANDS, DETAIL_LENGTHS))
+    nan = (float("nan"), float("nan"))
     if not band.correlated:
-        return band, "the noise is " + info["reason"], [], "independent", (float("nan"), float("nan"))
+        if float(info.get("ell_fit", 0.0)) < BAND_ELL_MIN:  # no correlation length to test: nothing more
+            return band, "the noise is " + info["reason"], [], "independent", nan
+        verdict = separate_detail((V, F), smooth=info["smooth"], rho_white=info["rho_white"])
+        model, reason, caveats = noise_policy(band, verdict, h, info.get("reason", ""))
+        if model is band:
+            return band, "the noise is " + info["reason"], [], "independent", nan
+        return model, reason, caveats, verdict.verdict, verdict.rho_range
     verdict = separate_detail((V, F), smooth=info["smooth"], rho_white=info["rho_white"], spectrum=info.get("spectrum"))
     model, reason, caveats = noise_policy(band, verdict, h, info.get("reason", ""))
     return model, reason, caveats, verdict.verdict, verdict.rho_range
