@@ -164,3 +164,21 @@ def test_the_benchmarks_own_independent_noise_stays_as_it_was():
     assert not v.correlated and v.misfit_white < 1.2 * v.misfit and v.misfit_white - v.misfit < CORRELATION_GAIN / 4
     model, _, _, decided, _ = default.default_noise(V, F, h)
     assert decided == "independent" and model.rho == band.rho and model.correlation_length == 0.0
+
+
+def test_a_small_box_with_independent_noise_is_kept_by_the_count_of_correlation_areas():
+    """box(10), 488 vertices, 0.3 h of independent noise: the fine bands' fit reaches 1.7 edge lengths (rejected); the
+    detail fit's best is 0.95 h at 1.6 with a misfit 1.7 times smaller than independent noise's (its power-law surface
+    does not fit a box's flat faces and sharp edges), but 488 vertices hold fewer than 100 areas pi 1.6^2 (804)."""
+    from meshdenoise.shapes import box
+
+    V, F = box(10)
+    h = mean_edge_length(V, F)
+    Vn = add_scanner_noise((V, F), 0.3 * h, seed=0)[0]
+    band, info = estimate_noise_model((Vn, F), details=True)
+    assert not band.correlated and info["ell_fit"] >= 0.75
+    v = separate_detail((Vn, F), smooth=info["smooth"], rho_white=info["rho_white"])
+    assert V.shape[0] < CORRELATION_PATCHES * math.pi * v.ell_joint ** 2
+    assert correlation_test(v.misfit, v.misfit_white, v.ell_joint, 10 ** 6) and not v.correlated  # the count decides
+    model, _, caveats, decided, _ = default.default_noise(Vn, F, h)
+    assert decided == "independent" and model.rho == band.rho and caveats == []
