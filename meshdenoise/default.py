@@ -920,9 +920,10 @@ def default_noise(V: np.ndarray, F: np.ndarray, h: float) -> tuple[NoiseModel, s
     :func:`~meshdenoise.tuning.detail.separate_detail` fits (no second smoothing, no second
     colouring), and :func:`noise_policy` decides. When it reads independent noise but its own fit
     had found a correlation length of at least its ``ELL_MIN`` (0.75 edge lengths), which its
-    significance test rejected, the detail fit is run as well (on the whole mesh, with the same
-    smoothed mesh) and its correlation test decides (:func:`noise_policy`); below that length
-    nothing more is done (independent noise costs nothing more).
+    significance test rejected, the detail fit is run as well (with the same smoothed mesh; its
+    probes read on a sampled region above the noise model's ``FIT_SAMPLE`` vertices, as the
+    noise model reads its own) and its correlation test decides (:func:`noise_policy`); below
+    that length nothing more is done (independent noise costs nothing more).
 
     Parameters
     ----------
@@ -939,13 +940,14 @@ def default_noise(V: np.ndarray, F: np.ndarray, h: float) -> tuple[NoiseModel, s
         (NaN when the fine bands' independent reading is kept).
     """
     from .tuning.covariance import ELL_MIN as BAND_ELL_MIN
+    from .tuning.covariance import FIT_SAMPLE
 
     band, info = estimate_noise_model((V, F), details=True, spectrum=(DETAIL_BANDS, DETAIL_LENGTHS))
     nan = (float("nan"), float("nan"))
     if not band.correlated:
         if float(info.get("ell_fit", 0.0)) < BAND_ELL_MIN:  # no correlation length to test: nothing more
             return band, "the noise is " + info["reason"], [], "independent", nan
-        verdict = separate_detail((V, F), smooth=info["smooth"], rho_white=info["rho_white"])
+        verdict = separate_detail((V, F), smooth=info["smooth"], rho_white=info["rho_white"], sample=FIT_SAMPLE)
         model, reason, caveats = noise_policy(band, verdict, h, info.get("reason", ""))
         if model is band:
             return band, "the noise is " + info["reason"], [], "independent", nan

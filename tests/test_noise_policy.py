@@ -182,3 +182,29 @@ def test_a_small_box_with_independent_noise_is_kept_by_the_count_of_correlation_
     assert correlation_test(v.misfit, v.misfit_white, v.ell_joint, 10 ** 6) and not v.correlated  # the count decides
     model, _, caveats, decided, _ = default.default_noise(Vn, F, h)
     assert decided == "independent" and model.rho == band.rho and caveats == []
+
+
+def test_the_probe_spectra_read_on_a_sampled_region_are_the_whole_meshs_within_sampling():
+    """region_probe_spectra (the default's detail fit above 30,000 vertices) against probe_spectra on the whole mesh,
+    and the detail fit's test with it."""
+    from meshdenoise.geometry import vertex_normals
+    from meshdenoise.operators import get_operators
+    from meshdenoise.tuning.detail import ELL_GRID, probe_spectra, region_probe_spectra
+    from meshdenoise.tuning.noise_level import estimate_noise_and_smooth
+
+    V, F = icosphere(4)  # 2,562 vertices
+    h = mean_edge_length(V, F)
+    Vn = add_scanner_noise((V, F), 0.3 * h, correlation_length=1.5, seed=2)[0]
+    rho_white, smooth = estimate_noise_and_smooth(Vn, F, 2)
+    N = vertex_normals(smooth, F)
+    ok = ~get_operators(F, V.shape[0]).isolated
+    assert region_probe_spectra(smooth, F, N, ok, 3000) is None  # small enough: read whole
+    part = region_probe_spectra(smooth, F, N, ok, 2400)
+    whole = probe_spectra(smooth, F, N, ELL_GRID, BANDS, ok)
+    assert part.shape == whole.shape == (len(ELL_GRID), len(BANDS))
+    assert np.max(np.abs(np.log10(part / whole))) < 0.15  # as the noise model's own region (tests/test_detail.py)
+    a = separate_detail((Vn, F), smooth=smooth, rho_white=rho_white, sample=2400)
+    b = separate_detail((Vn, F), smooth=smooth, rho_white=rho_white)
+    assert a.model.rho == pytest.approx(b.model.rho, rel=0.1) and a.correlated == b.correlated
+    with pytest.raises(ValueError, match="sample"):
+        separate_detail((Vn, F), sample=0)

@@ -67,7 +67,7 @@ from .covariance import NoiseModel
 from .noise_level import estimate_noise_and_smooth, mean_edge_length
 
 __all__ = ["DetailVerdict", "separate_detail", "band_spectrum", "probe_spectra", "fit_spectrum", "misfit_profile",
-           "interpolate_spectra", "correlation_test", "BANDS", "ELL_GRID", "ELL_FINE", "BETA_GRID"]
+           "interpolate_spectra", "correlation_test", "region_probe_spectra", "BANDS", "ELL_GRID", "ELL_FINE", "BETA_GRID"]
 
 BANDS = (0, 1, 2, 4, 8, 16, 32, 64)  # s of (I - P)^2 P^s: the fine bands and the coarse ones the surface dominates
 FINE = (0, 1, 2, 4)  # the fine bands (estimate_noise_model's)
@@ -234,6 +234,56 @@ def probe_spectra(smooth: np.ndarray, F: np.ndarray, N: np.ndarray, ells: tuple[
     return out
 
 
+def region_probe_spectra(smooth: np.ndarray, F: np.ndarray, N: np.ndarray, ok: np.ndarray, sample: int,
+                         ells: tuple[float, ...] = ELL_GRID, bands: tuple[int, ...] = BANDS,
+                         seed: int = 0) -> np.ndarray | None:
+    """:func:`probe_spectra` read on a sampled region of about ``sample`` vertices, as the noise model reads its own.
+
+    The region, the probes and their weights are
+    :func:`~meshdenoise.tuning.covariance.estimate_noise_model`'s with ``sample`` (a
+    :class:`~meshdenoise.tuning.region.SampledRegion` of ``FIT_PATCHES`` balls, vertices within
+    ``FIT_MARGIN`` rings of a cut left out, ``FIT_SAMPLE_PROBES`` probes coloured on the region
+    to ``FIT_TOL``, rescaled to the whole mesh's mean square by ring distance to the mesh's own
+    border, medians weighted by that distance so that each counts as in the whole mesh): the
+    cost no longer grows with the mesh. None when the mesh has at most ``sample`` vertices (read
+    it whole).
+
+    Returns
+    -------
+    ndarray, shape (len(ells), len(bands)), or None
+    """
+    from . import covariance as cov
+    from .region import SampledRegion
+
+    n = smooth.shape[0]
+    ops = get_operators(F, n)
+    region = SampledRegion(F, ops, int(sample), cov.FIT_PATCHES, cov.FIT_MARGIN, seed)
+    if region.whole:
+        return None
+    Vr, Fr = smooth[region.vertices], region.F
+    opsr = cov.Operators(Fr, region.vertices.size)
+    Nr = N[region.vertices]
+    inner = region.inner & ~opsr.isolated
+    okr = ok[region.vertices] & inner
+    strata = cov._border_strata(ops)
+    share_all = np.bincount(strata[~ops.isolated], minlength=cov.FIT_BORDER_RINGS + 2) / ops.n
+    share_ok = np.bincount(strata[ok], minlength=cov.FIT_BORDER_RINGS + 2) / max(int(ok.sum()), 1)
+    sr = strata[region.vertices]
+    nearest = cov._nearest_present(np.bincount(sr[okr], minlength=share_ok.size) > 0)
+    share_all = np.bincount(nearest, weights=share_all, minlength=share_all.size)
+    share_ok = np.bincount(nearest, weights=share_ok, minlength=share_ok.size)
+    weights = (share_ok / np.maximum(np.bincount(sr[okr], minlength=share_ok.size), 1))[sr]
+    xi = np.random.default_rng(seed).standard_normal((Vr.shape[0], cov.FIT_SAMPLE_PROBES))
+    geometry = (cov.noise_mean_edge_length(smooth, F),) + tuple(heat_geometry(Vr, Fr)[1:])
+    count = np.maximum(np.bincount(sr[inner], minlength=share_all.size), 1)
+    Zs = []
+    for ell in ells:
+        Z = xi if ell == 0 else HeatFilter(Vr, Fr, diffusion_length(ell), geometry)(xi, tol=cov.FIT_TOL)
+        msq = np.bincount(sr[inner], weights=np.mean(Z[inner] ** 2, axis=1), minlength=share_all.size) / count
+        Zs.append(Z / math.sqrt(float(np.sum(share_all * msq))))
+    return cov._spectrum_medians(opsr, Nr, Zs, okr, weights, tuple(bands))
+
+
 def interpolate_spectra(p: np.ndarray, ells: tuple[float, ...], fine: tuple[float, ...]) -> np.ndarray:
     """:math:`p_s(\\ell)` on the ``fine`` lengths: :math:`\\log p_s` interpolated linearly in :math:`\\ell` (g, b) -> (f, b)."""
     logp = np.log(np.asarray(p, dtype=np.float64))
@@ -385,7 +435,7 @@ def _fine_band_fit(o: np.ndarray, p: np.ndarray, ells: tuple[float, ...], bands:
 
 def separate_detail(mesh: Any, *, refine: int = 2, seed: int = 0, conservative: bool = True,
                     smooth: np.ndarray | None = None, rho_white: float | None = None,
-                    spectrum: dict | None = None) -> DetailVerdict:
+                    spectrum: dict | None = None, sample: int | None = None) -> DetailVerdict:
     """Tell the surface's own detail from correlated noise by the band spectrum, and give the noise model to use.
 
     See the module docstring for the model, the fit and the verdict.
@@ -409,7 +459,12 @@ def separate_detail(mesh: Any, *, refine: int = 2, seed: int = 0, conservative: 
         The observed and probe spectra already read, with ``smooth`` and ``rho_white``:
         ``info["spectrum"]`` of :func:`~meshdenoise.tuning.covariance.estimate_noise_model` called
         with ``spectrum=(BANDS, ELL_GRID)`` (on a sampled region above its ``sample`` vertices,
-        with the probes its own fit coloured). Otherwise both are read here on the whole mesh.
+        with the probes its own fit coloured). Otherwise both are read here on the whole mesh
+        (the probes on a sampled region with ``sample``).
+    sample : int, optional
+        Without ``spectrum``: above this many vertices the probes' spectra are read on a sampled
+        region of about this size (:func:`region_probe_spectra`; the observed spectrum is still the
+        whole mesh's). Default: the whole mesh.
 
     Returns
     -------
@@ -427,6 +482,9 @@ def separate_detail(mesh: Any, *, refine: int = 2, seed: int = 0, conservative: 
     """
     if isinstance(refine, (bool, np.bool_)) or not isinstance(refine, (int, np.integer)) or refine < 1:
         raise ValueError(f"separate_detail: parameter 'refine' must be an int >= 1, got {refine!r}")
+    if sample is not None and (isinstance(sample, (bool, np.bool_)) or not isinstance(sample, (int, np.integer))
+                               or sample < 1):
+        raise ValueError(f"separate_detail: parameter 'sample' must be an int >= 1, got {sample!r}")
     data = read_mesh(mesh)
     V, F = data.V, data.F
     ops = get_operators(F, V.shape[0])
@@ -455,8 +513,12 @@ def separate_detail(mesh: Any, *, refine: int = 2, seed: int = 0, conservative: 
         o = band_spectrum(V, F, N, BANDS, ok)
     if not np.all(o > 0):
         return plain("a band-pass residual is zero (no energy to call noise): no band fit, independent noise assumed")
-    p = (np.asarray(spectrum["probes"], dtype=np.float64) if spectrum is not None else
-         probe_spectra(smooth, F, N, ELL_GRID, BANDS, ok, PROBES, seed))
+    if spectrum is not None:
+        p = np.asarray(spectrum["probes"], dtype=np.float64)
+    else:
+        p = None if sample is None else region_probe_spectra(smooth, F, N, ok, sample, ELL_GRID, BANDS, seed)
+        if p is None:
+            p = probe_spectra(smooth, F, N, ELL_GRID, BANDS, ok, PROBES, seed)
     if not np.all(p > 0):
         return plain("a probe's band-pass residual is zero: no band fit, independent noise assumed", "ambiguous")
     rho2_band, ell_band = _fine_band_fit(o, p, ELL_GRID, BANDS)
