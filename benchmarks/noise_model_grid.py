@@ -2,8 +2,9 @@
 
 Usage::
 
-    python benchmarks/noise_model_grid.py [--part grid default] [--meshes icosphere elephant bunny Bunny0.2 Fandisk0.3 face]
+    python benchmarks/noise_model_grid.py [--part grid default effect] [--meshes icosphere elephant bunny Bunny0.2 Fandisk0.3 face]
                                           [--sigmas 0.1 0.25 0.5 1] [--lengths 0 1 2 3 4] [--seed 1] [--no-as-is]
+                                          [--effect-lengths 0 1] [--no-peers]
                                           [--out benchmarks/results/noise-model-grid.md]
 
 **grid**: every mesh clean (sigma 0) and with :func:`meshdenoise.add_scanner_noise` along the
@@ -14,15 +15,22 @@ benchmark's Bunny0.2/Original and Fandisk0.3/Original, and face000 smoothed
 (``sobolev_bilaplacian`` mu = 30, boundary pinned; ``benchmarks/correlated.py``). Columns: the
 band-only estimate (:func:`estimate_noise_model`, what the default used before the detail fit),
 the detail fit on the whole mesh (:func:`meshdenoise.tuning.detail.separate_detail`: its verdict
-and its own model), and the default's model (:func:`meshdenoise.default.noise_policy` of the two;
-the default itself reads the spectrum on the noise model's sampled region above 30,000
-vertices), each as rho/h at l, and rho / sigma.
+and its own model, and its correlation test: the best misfit with independent noise, the best
+overall, the answer), and the default's model, measured (:func:`meshdenoise.default.default_noise`
+itself, with its verdict), each as rho/h at l, and rho / sigma.
 
 **default**: ``meshdenoise.denoise(mesh)`` (the default) on the clean meshes, on face000 and on
 four noisy rows, once with the noise model of before (``meshdenoise.default.default_noise``
 replaced by the band-only estimate) and once as it is (the policy). Columns: mean face-normal
 change from the input (deg), rms move (h), whether the not-smoothing warning was raised, and on
 noisy rows the mean normal error against the clean mesh (deg) of the input and of both outputs.
+
+**effect**: ``meshdenoise.denoise(mesh)`` against the clean mesh (mean normal error, SNR) on
+``--meshes`` x ``--sigmas`` x ``--effect-lengths`` and the peers/quality benchmarks'
+independent-noise meshes (:data:`PEER_ROWS`, unless ``--no-peers``), before (the default's noise
+step keeping every reading of independent noise: :func:`old_default_noise`) and now (the detail
+fit's correlation test, :func:`meshdenoise.default.noise_policy`); the seconds of both noise steps
+and of the choice. Where both noise models are the same the (deterministic) result is computed once.
 """
 
 from __future__ import annotations
