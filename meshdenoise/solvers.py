@@ -466,6 +466,16 @@ def shifted_solver(
     )
 
 
+def _per_column(g, k: int) -> list:
+    """``g`` as a list of ``k`` callables: one callable repeated, or a sequence of ``k`` callables checked."""
+    if callable(g):
+        return [g] * k
+    gs = list(g)
+    if len(gs) != k or not all(callable(f) for f in gs):
+        raise ValueError(f"LanczosQuadrature: g must be a callable or {k} callables (one per column), got {g!r}")
+    return gs
+
+
 class LanczosQuadrature:
     r"""Gauss quadrature of :math:`b_j^T g(M)\, b_j` for a symmetric ``M``, every column ``b_j`` of ``B``, any ``g``.
 
@@ -539,14 +549,15 @@ class LanczosQuadrature:
         k = self._q.shape[1]
         alphas, betas = np.zeros((steps, k)), np.zeros((steps, k))
         W = np.empty_like(self._q)
+        tmp = np.empty_like(self._q)  # the products below written in place: the same operations, no new arrays
         for i in range(steps):
             if not self._active.any():
                 alphas, betas = alphas[:i], betas[:i]
                 break
             spmm(self.M, self._q, out=W)
             a = np.einsum("ij,ij->j", self._q, W)
-            W -= self._q * a
-            W -= self._q_prev * self._beta_prev
+            W -= np.multiply(self._q, a, out=tmp)
+            W -= np.multiply(self._q_prev, self._beta_prev, out=tmp)
             b = np.sqrt(np.einsum("ij,ij->j", W, W))
             a[~self._active] = 0.0
             alphas[i] = a
@@ -555,7 +566,8 @@ class LanczosQuadrature:
             b[~self._active] = 0.0
             betas[i] = b
             inv = np.divide(1.0, b, out=np.zeros(k), where=self._active)
-            self._q_prev, self._q = self._q, W * inv
+            q_next = np.multiply(W, inv, out=self._q_prev)  # q_prev is not needed any more: its buffer takes q_next
+            self._q_prev, self._q = self._q, q_next
             self._beta_prev = b
         self._alpha = np.vstack([self._alpha, alphas])
         self._beta = np.vstack([self._beta, betas])
@@ -614,19 +626,21 @@ class LanczosQuadrature:
         theta, U = eigh_tridiagonal(self._alpha[:k, j], self._beta[: k - 1, j])
         return math.sqrt(self.norms2[j]) * (U @ (g(theta) * U[0]))
 
-    def _converged_coefficients(self, g: Callable[[np.ndarray], np.ndarray], rtol: float,
-                                check: int) -> list[np.ndarray] | None:
+    def _converged_coefficients(self, g, rtol: float, check: int,
+                                columns=None) -> list[np.ndarray] | None:
         """Every column's coefficients :meth:`_coefficients`, the run extended until none of the active
         columns' changes by more than ``rtol`` (relative, in norm) over the last ``check`` steps; ``None``
-        if :attr:`max_steps` is reached first."""
-        kcols = self._q.shape[1]
+        if :attr:`max_steps` is reached first. ``columns`` (default all): those columns only, in that
+        order; ``g`` a callable, or one callable per column of ``columns``."""
+        cols = list(range(self._q.shape[1])) if columns is None else [int(j) for j in columns]
+        gs = _per_column(g, len(cols))
         if self.steps < check:
             self.extend(check - self.steps)
         while True:
             k = self.steps
             ok = True
             coef = []
-            for j in range(kcols):
+            for g, j in zip(gs, cols):
                 now = self._coefficients(g, j, k)
                 before = self._coefficients(g, j, k - check)
                 diff = now.copy()
@@ -640,7 +654,7 @@ class LanczosQuadrature:
                 return None
             self.extend(min(check, self.max_steps - k))
 
-    def apply(self, g: Callable[[np.ndarray], np.ndarray], *, rtol: float = 1e-10, check: int = 10) -> np.ndarray | None:
+    def apply(self, g, *, rtol: float = 1e-10, check: int = 10, columns=None) -> np.ndarray | None:
         """:math:`g(M)\\, B` (n, k) by the Lanczos approximation :math:`\\|b\\| Q_k\\, g(T_k)\\, e_1`, per column.
 
         The coefficients in the Lanczos basis are extended until they change by at most
@@ -648,26 +662,36 @@ class LanczosQuadrature:
         :attr:`max_steps` is reached first); then a second pass regenerates the basis
         vectors from the stored recurrence (nothing of size ``n x steps`` is kept) and sums
         them. Two passes of sparse products, no factorisation.
+
+        ``columns`` (sequence of int, optional): only those columns of ``B``, in that order (the
+        result is ``(n, len(columns))``; the second pass runs on them alone), e.g. the
+        coordinates' columns of a run that also holds trace probes. ``g``: one callable for
+        every column, or a sequence of callables, one per column (of ``columns``): each column's
+        recurrence is its own, so one run serves several functions (several weights ``mu``).
         """
-        kcols = self._q.shape[1]
-        coef = self._converged_coefficients(g, rtol, check)
+        cols = list(range(self._q.shape[1])) if columns is None else [int(j) for j in columns]
+        kcols = len(cols)
+        coef = self._converged_coefficients(g, rtol, check, None if columns is None else cols)
         if coef is None:
             return None
-        inv = np.divide(1.0, np.sqrt(self.norms2), out=np.zeros(kcols), where=self.norms2 > 0)
-        q_prev, q = np.zeros_like(self._B), self._B * inv
+        B = self._B if columns is None else np.ascontiguousarray(self._B[:, cols])
+        norms2 = self.norms2[cols]
+        alpha, beta = (self._alpha, self._beta) if columns is None else (self._alpha[:, cols], self._beta[:, cols])
+        inv = np.divide(1.0, np.sqrt(norms2), out=np.zeros(kcols), where=norms2 > 0)
+        q_prev, q = np.zeros_like(B), B * inv
         beta_prev = np.zeros(kcols)
-        out = np.zeros_like(self._B)
+        out = np.zeros_like(B)
         W = np.empty_like(q)
+        tmp = np.empty_like(q)  # in place, the same operations as q * y etc.: no new array per step
         for i in range(max(c.size for c in coef) if coef else 0):
             y = np.array([c[i] if i < c.size else 0.0 for c in coef])
-            out += q * y
+            out += np.multiply(q, y, out=tmp)
             spmm(self.M, q, out=W)
-            W -= q * self._alpha[i]
-            W -= q_prev * beta_prev
-            b = self._beta[i]
+            W -= np.multiply(q, alpha[i], out=tmp)
+            W -= np.multiply(q_prev, beta_prev, out=tmp)
+            b = beta[i]
             inv = np.divide(1.0, b, out=np.zeros(kcols), where=b > 0)
-            q_prev, q = q, W * inv
-            W = np.empty_like(q)
+            q_prev, q = q, np.multiply(W, inv, out=q_prev)
             beta_prev = b
         return out
 
@@ -694,7 +718,10 @@ def lanczos_shifted(ops: Operators, X: np.ndarray, mu: float, order: int, tol: f
     ----------
     ops : Operators
     X : ndarray, shape (n,) or (n, k)
-    mu : float, > 0
+    mu : float, > 0, or ndarray, shape (k,), > 0
+        The weight; or one weight per column of ``X`` (n, k): every column from one Lanczos run
+        (each column's recurrence is its own, so this equals ``k`` separate calls up to rounding,
+        at the cost of one run with ``k`` columns).
     order : int, >= 1
     tol : float in (0, 1)
     max_steps : int, >= 1
@@ -715,18 +742,28 @@ def lanczos_shifted(ops: Operators, X: np.ndarray, mu: float, order: int, tol: f
     >>> bool(np.allclose(A @ Y, V, atol=1e-9))
     True
     """
-    if not (isinstance(mu, (int, float, np.integer, np.floating)) and mu > 0 and np.isfinite(mu)):
-        raise ValueError(f"lanczos_shifted: mu must be a finite number > 0, got {mu!r}")
+    per_column = not isinstance(mu, (int, float, np.integer, np.floating))
+    X = np.asarray(X, dtype=np.float64)
+    X2 = X.reshape(X.shape[0], -1)
+    try:
+        mus = np.atleast_1d(np.asarray(mu, dtype=np.float64)) if per_column else np.array([mu], dtype=np.float64)
+    except (TypeError, ValueError):
+        mus = np.array([np.nan])
+    if (per_column and (mus.ndim != 1 or mus.size != X2.shape[1])) or not np.all((mus > 0) & np.isfinite(mus)):
+        raise ValueError(f"lanczos_shifted: mu must be a finite number > 0 (or one per column of X), got {mu!r}")
     if isinstance(order, (bool, np.bool_)) or not isinstance(order, (int, np.integer)) or order < 1:
         raise ValueError(f"lanczos_shifted: order must be an int >= 1, got {order!r}")
     if not (isinstance(tol, (float, int)) and 0 < tol < 1):
         raise ValueError(f"lanczos_shifted: tol must be a number in (0, 1), got {tol!r}")
-    X = np.asarray(X, dtype=np.float64)
-    X2 = X.reshape(X.shape[0], -1)
     c = X2
     for _ in range(int(order)):
         c = spmm(ops.L, np.ascontiguousarray(c))
-    mu, p = float(mu), int(order)
+    p = int(order)
+    if per_column:  # one run: each column's recurrence is its own, its function its own weight's
+        g = [lambda t, m=float(m): 1.0 / (1.0 + m * np.maximum(t, 0.0) ** p) for m in mus]
+        Y = LanczosQuadrature(ops.L, c, max_steps=max_steps).apply(g, rtol=tol)
+        return None if Y is None else (X2 - mus[None, :] * Y).reshape(X.shape)
+    mu = float(mu)
     Y = LanczosQuadrature(ops.L, c, max_steps=max_steps).apply(
         lambda t: 1.0 / (1.0 + mu * np.maximum(t, 0.0) ** p), rtol=tol)
     if Y is None:

@@ -1,0 +1,132 @@
+"""sobolev_axes at scan size (session 10): one Lanczos run for the three axes, the search's own run for its coordinates,
+and the Lanczos recurrences written in place (the same numbers as before)."""
+
+import numpy as np
+import pytest
+
+from meshdenoise import add_normal_noise, apply_filter
+from meshdenoise.operators import Operators, clear_cache, get_operators
+from meshdenoise.shapes import grid, icosphere, torus
+from meshdenoise.solvers import LanczosQuadrature, LanczosRows, lanczos_shifted
+from meshdenoise.tuning.risk import probe_block
+from meshdenoise.tuning.search import quadrature_coordinates, shifted_quadrature
+
+
+def _dense_function(L: np.ndarray, g, B: np.ndarray) -> np.ndarray:
+    lam, U = np.linalg.eigh(L)
+    return (U * g(lam)) @ (U.T @ B)
+
+
+def test_apply_on_chosen_columns_with_one_function_per_column_equals_the_dense_functions():
+    V, F = torus(16, 10)
+    V = V + 0.02 * np.random.default_rng(0).standard_normal(V.shape)
+    ops = Operators(F, len(V))
+    L = ops.L.toarray()
+    B = np.hstack([L @ V, np.random.default_rng(1).standard_normal((ops.n, 3))])
+    gs = [lambda t: 1.0 / (1.0 + 0.5 * t**3), lambda t: np.exp(-0.3 * t)]
+    q = LanczosQuadrature(ops.L, B)
+    Y = q.apply(gs, rtol=1e-12, columns=[4, 1])  # order kept: column 4 with gs[0], column 1 with gs[1]
+    assert Y.shape == (ops.n, 2)
+    scale = np.abs(B).max()
+    np.testing.assert_allclose(Y[:, 0], _dense_function(L, gs[0], B[:, 4]), atol=1e-10 * scale)
+    np.testing.assert_allclose(Y[:, 1], _dense_function(L, gs[1], B[:, 1]), atol=1e-10 * scale)
+    with pytest.raises(ValueError, match="one per column"):
+        q.apply(gs, columns=[0, 1, 2])
+
+
+@pytest.mark.parametrize("order", [2, 3])
+def test_lanczos_shifted_with_a_weight_per_column_equals_the_dense_solves(order):
+    V, F = grid(9, 7)  # open: a border and a zero eigenvalue
+    V = V + 0.05 * np.random.default_rng(0).standard_normal(V.shape)
+    ops = get_operators(F, len(V))
+    L = ops.L.toarray()
+    mus = np.array([0.2, 3.0, 40.0])
+    Y = lanczos_shifted(ops, V, mus, order, tol=1e-13)
+    for d in range(3):
+        expected = np.linalg.solve(np.eye(ops.n) + mus[d] * np.linalg.matrix_power(L, order), V[:, d])
+        np.testing.assert_allclose(Y[:, d], expected, atol=1e-10)
+    with pytest.raises(ValueError, match="one per column"):
+        lanczos_shifted(ops, V, mus[:2], order)
+    with pytest.raises(ValueError, match="mu"):
+        lanczos_shifted(ops, V, np.array([1.0, -1.0, 1.0]), order)
+    assert lanczos_shifted(ops, V, np.array([1e6, 1e6, 1e6]), order, max_steps=3) is None
+
+
+def test_quadrature_coordinates_are_the_solve_of_the_search_s_own_run():
+    V, F = icosphere(3)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
+    ops = Operators(F, len(Vn))
+    Z, s = probe_block(ops.n, False, n_probes=4)
+    evaluate = shifted_quadrature(Vn, ops, 2, Z, s)
+    for mu in (0.05, 1.5):
+        evaluate(mu)  # the search's candidates run the recurrence first
+        X = quadrature_coordinates(Vn, evaluate.quadrature, 2, mu)
+        A = np.eye(ops.n) + mu * np.linalg.matrix_power(ops.L.toarray(), 2)
+        np.testing.assert_allclose(X, np.linalg.solve(A, Vn), atol=1e-10)
+
+
+def _reference_extend(M, B, steps):
+    """The recurrence as written before session 10 (a new array per product), for the bit-for-bit comparison."""
+    n, k = B.shape
+    norms2 = np.einsum("ij,ij->j", B, B)
+    scale = float(abs(M).sum(axis=1).max())
+    q = B * np.divide(1.0, np.sqrt(norms2), out=np.zeros(k), where=norms2 > 0)
+    q_prev, beta_prev, active = np.zeros_like(q), np.zeros(k), norms2 > 0
+    alphas, betas = [], []
+    W = np.empty_like(q)
+    for _ in range(steps):
+        W[:] = M @ q
+        a = np.einsum("ij,ij->j", q, W)
+        W -= q * a
+        W -= q_prev * beta_prev
+        b = np.sqrt(np.einsum("ij,ij->j", W, W))
+        a[~active] = 0.0
+        alphas.append(a)
+        active &= b > 1e-13 * scale
+        b[~active] = 0.0
+        betas.append(b)
+        inv = np.divide(1.0, b, out=np.zeros(k), where=active)
+        q_prev, q = q, W * inv
+        beta_prev = b
+    return np.array(alphas), np.array(betas)
+
+
+def test_lanczos_recurrence_in_place_gives_the_same_numbers_bit_for_bit():
+    V, F = torus(30, 16)
+    V = V + 0.01 * np.random.default_rng(0).standard_normal(V.shape)
+    ops = Operators(F, len(V))
+    B = np.hstack([ops.L @ V, np.random.default_rng(1).standard_normal((ops.n, 4))])
+    a_ref, b_ref = _reference_extend(ops.L, B, 45)
+    q = LanczosQuadrature(ops.L, B)
+    q.extend(20)
+    q.extend(25)  # extended in two calls: the buffers carry over
+    assert np.array_equal(q._alpha, a_ref) and np.array_equal(q._beta, b_ref)
+    rows = LanczosRows(ops.L, B, np.arange(0, ops.n, 5))
+    rows.extend(45)
+    assert np.array_equal(rows._alpha, a_ref) and np.array_equal(rows._beta, b_ref)
+
+
+def test_sobolev_axes_large_path_uses_one_run_and_equals_the_factor_filter(monkeypatch):
+    """The three axes in one lanczos_shifted call (weights per column), equal to the factor path; an axis with
+    mu = 0 is left as is."""
+    import meshdenoise.plugins.sobolev_axes as ax
+
+    V, F = icosphere(3)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
+    params = dict(mu1=0.3, mu2=0.0, mu3=4.0, order=3, frame_steps=2)
+    clear_cache()
+    before = apply_filter("sobolev_axes", (Vn, F), **params)[0]
+    calls = []
+    real = ax.lanczos_shifted
+
+    def spy(ops, X, mu, order, **kw):
+        calls.append(np.atleast_1d(mu).tolist())
+        return real(ops, X, mu, order, **kw)
+
+    monkeypatch.setattr(ax, "AXES_SCALE_MIN_VERTICES", 0)
+    monkeypatch.setattr(ax, "lanczos_shifted", spy)
+    monkeypatch.setattr(ax, "shifted_solver", lambda *a, **k: pytest.fail("a factor was built"))
+    clear_cache()
+    after = apply_filter("sobolev_axes", (Vn, F), **params)[0]
+    assert calls == [[0.3, 4.0]]
+    np.testing.assert_allclose(after, before, atol=1e-11)
