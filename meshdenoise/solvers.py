@@ -24,7 +24,7 @@ from .operators import Operators, mask_key, spmm, trim_cache
 
 __all__ = [
     "DirichletSystem", "SPDSolver", "CGSolver", "block_cg", "cached_solver", "laplacian_power", "shifted_solver",
-    "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows",
+    "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "FILTER_LANCZOS_TOL",
 ]
 
 FACTORS_PER_FAMILY = 4  # a parameter sweep keeps only the last few factorisations of each filter
@@ -627,11 +627,16 @@ class LanczosQuadrature:
         return math.sqrt(self.norms2[j]) * (U @ (g(theta) * U[0]))
 
     def _converged_coefficients(self, g, rtol: float, check: int,
-                                columns=None) -> list[np.ndarray] | None:
+                                columns=None, growth: float = 0.0) -> list[np.ndarray] | None:
         """Every column's coefficients :meth:`_coefficients`, the run extended until none of the active
         columns' changes by more than ``rtol`` (relative, in norm) over the last ``check`` steps; ``None``
         if :attr:`max_steps` is reached first. ``columns`` (default all): those columns only, in that
-        order; ``g`` a callable, or one callable per column of ``columns``."""
+        order; ``g`` a callable, or one callable per column of ``columns``. ``growth`` > 0: after a
+        failed test the run is extended by ``max(check, growth x steps)`` steps instead of ``check`` (the
+        test itself is the same): each test solves tridiagonal eigenproblems of the run's size (time
+        about ``k^2``), so tests every ``check`` steps cost about ``k^3 / (3 check)`` in all (0.8 s per
+        test at 1,200 steps: minutes), tests at geometrically growing sizes a few ``k^2``, for at most
+        a share ``growth`` more steps than the old schedule would run."""
         cols = list(range(self._q.shape[1])) if columns is None else [int(j) for j in columns]
         gs = _per_column(g, len(cols))
         if self.steps < check:
@@ -652,9 +657,10 @@ class LanczosQuadrature:
                 return coef
             if k >= self.max_steps:
                 return None
-            self.extend(min(check, self.max_steps - k))
+            self.extend(min(max(check, int(growth * k)), self.max_steps - k))
 
-    def apply(self, g, *, rtol: float = 1e-10, check: int = 10, columns=None) -> np.ndarray | None:
+    def apply(self, g, *, rtol: float = 1e-10, check: int = 10, columns=None,
+              growth: float = 0.0) -> np.ndarray | None:
         """:math:`g(M)\\, B` (n, k) by the Lanczos approximation :math:`\\|b\\| Q_k\\, g(T_k)\\, e_1`, per column.
 
         The coefficients in the Lanczos basis are extended until they change by at most
@@ -668,10 +674,11 @@ class LanczosQuadrature:
         coordinates' columns of a run that also holds trace probes. ``g``: one callable for
         every column, or a sequence of callables, one per column (of ``columns``): each column's
         recurrence is its own, so one run serves several functions (several weights ``mu``).
+        ``growth``: the spacing of the convergence tests (:meth:`_converged_coefficients`).
         """
         cols = list(range(self._q.shape[1])) if columns is None else [int(j) for j in columns]
         kcols = len(cols)
-        coef = self._converged_coefficients(g, rtol, check, None if columns is None else cols)
+        coef = self._converged_coefficients(g, rtol, check, None if columns is None else cols, growth)
         if coef is None:
             return None
         B = self._B if columns is None else np.ascontiguousarray(self._B[:, cols])
@@ -697,10 +704,14 @@ class LanczosQuadrature:
 
 
 LANCZOS_SHIFTED_MAX_STEPS = 2000  # lanczos_shifted gives up (returns None) after this many steps
+FILTER_LANCZOS_TOL = 1e-10  # the factor-free filters' lanczos_shifted tolerance: over 10 steps the coefficients' change
+# levels off at 3e-12 to 6e-12 of their norm (the recurrence's rounding, no reorthogonalisation) on a 51,200-vertex torus at
+# mu = 6,522, order 3, so 1e-12 was never met there and the filter fell back to a factorisation of I + mu L^3 (minutes);
+# 1e-10 of the correction mu f(L) L^p X (noise-sized) is far below anything a filter result shows
 
 
 def lanczos_shifted(ops: Operators, X: np.ndarray, mu: float, order: int, tol: float = 1e-10,
-                    max_steps: int = LANCZOS_SHIFTED_MAX_STEPS) -> np.ndarray | None:
+                    max_steps: int = LANCZOS_SHIFTED_MAX_STEPS, growth: float = 0.0) -> np.ndarray | None:
     """:math:`(I + \\mu L^p)^{-1} X` by two Lanczos passes on ``L``, no factorisation, no pinned rows.
 
     .. math:: (I + \\mu L^p)^{-1} X = X - \\mu\\, f(L)\\, L^p X, \\qquad f(t) = \\frac{1}{1 + \\mu t^p},
@@ -725,6 +736,8 @@ def lanczos_shifted(ops: Operators, X: np.ndarray, mu: float, order: int, tol: f
     order : int, >= 1
     tol : float in (0, 1)
     max_steps : int, >= 1
+    growth : float, >= 0
+        Spacing of the convergence tests (:meth:`LanczosQuadrature.apply`): 0 tests every 10 steps.
 
     Returns
     -------
@@ -761,11 +774,11 @@ def lanczos_shifted(ops: Operators, X: np.ndarray, mu: float, order: int, tol: f
     p = int(order)
     if per_column:  # one run: each column's recurrence is its own, its function its own weight's
         g = [lambda t, m=float(m): 1.0 / (1.0 + m * np.maximum(t, 0.0) ** p) for m in mus]
-        Y = LanczosQuadrature(ops.L, c, max_steps=max_steps).apply(g, rtol=tol)
+        Y = LanczosQuadrature(ops.L, c, max_steps=max_steps).apply(g, rtol=tol, growth=growth)
         return None if Y is None else (X2 - mus[None, :] * Y).reshape(X.shape)
     mu = float(mu)
     Y = LanczosQuadrature(ops.L, c, max_steps=max_steps).apply(
-        lambda t: 1.0 / (1.0 + mu * np.maximum(t, 0.0) ** p), rtol=tol)
+        lambda t: 1.0 / (1.0 + mu * np.maximum(t, 0.0) ** p), rtol=tol, growth=growth)
     if Y is None:
         return None
     return (X2 - mu * Y).reshape(X.shape)
@@ -812,10 +825,10 @@ class LanczosRows(LanczosQuadrature):
                 break
 
     def rows_apply(self, g: Callable[[np.ndarray], np.ndarray], *, rtol: float = 1e-10,
-                   check: int = 10) -> np.ndarray | None:
+                   check: int = 10, growth: float = 0.0) -> np.ndarray | None:
         """:math:`(g(M) B)` at :attr:`rows`, shape (r, k); converged as :meth:`LanczosQuadrature.apply`, else ``None``."""
         kcols = self._q.shape[1]
-        coef = self._converged_coefficients(g, rtol, check)
+        coef = self._converged_coefficients(g, rtol, check, growth=growth)
         if coef is None:
             return None
         out = np.zeros((self.rows.size, kcols))

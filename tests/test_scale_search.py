@@ -348,7 +348,6 @@ def test_sobolev_normal_region_search_runs_on_a_cut_region_with_the_whole_mesh_t
         return real_rule(ctx, mask, **kw)
 
     monkeypatch.setattr(sn, "choose_sobolev_normal_whole", spy)
-    monkeypatch.setattr(sn, "shifted_reach", lambda mu, p: 0)  # no second cut here (next test)
     params, risk = choose_parameters((Vn, F), "sobolev_normal", noise=rho, return_risk=True)
     assert len(cut) == 1 and not cut[0].whole and 4864 <= cut[0].vertices.size < len(V)
     (ctx, mask, kw), = scored

@@ -10,7 +10,7 @@ from ..geometry import vertex_normals
 from ..operators import Operators
 from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
 from ..operators import spmm
-from ..solvers import LanczosQuadrature, lanczos_shifted, shifted_solver
+from ..solvers import FILTER_LANCZOS_TOL, LanczosQuadrature, lanczos_shifted, shifted_solver
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
 from ..tuning.noise_level import fourth_difference, mean_edge_length, normal_trust
@@ -295,7 +295,7 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps):
     done = set()
     if lanczos:  # the axes in one Lanczos run, each column its own weight (a 100k factor of I + mu L^3: 20 s)
         Y = lanczos_shifted(ops, np.ascontiguousarray(C[:, lanczos]), np.array([mus[d] for d in lanczos], dtype=float),
-                            order, tol=1e-12)
+                            order, tol=FILTER_LANCZOS_TOL, growth=0.25)
         if Y is not None:
             out[:, lanczos] = Y
             done.update(lanczos)

@@ -1,0 +1,79 @@
+"""sobolev_normal's region search without the reach loop (session 10): one cut, its outer rings held at the whole
+mesh's result, against the whole-mesh rule on a torus whose best weight is large (where a free border loses dB)."""
+
+import numpy as np
+import pytest
+
+from meshdenoise import add_normal_noise, apply_filter, choose_parameters, snr
+from meshdenoise.shapes import torus
+
+
+def _torus_case():
+    V, F = torus(100, 60)  # 6,000 vertices; at 0.4 edge lengths of noise the whole mesh's best weight is about 80 (order 3)
+    rho = 0.4 * float(np.linalg.norm(V[F[:, 0]] - V[F[:, 1]], axis=1).mean())
+    Vn, _ = add_normal_noise((V, F), rho, seed=0)
+    return V, Vn, F, rho
+
+
+def _forced_region(monkeypatch, pin=None):
+    import meshdenoise.plugins.sobolev_normal as sn
+    import meshdenoise.tuning.region as region
+    import meshdenoise.tuning.search as search
+
+    monkeypatch.setattr(search, "REGION_MIN_VERTICES", 1000)
+    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_REGION", 2000)  # grown by region_shape to 2 x 19 x 8^2 = 2432
+    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_PATCHES", 2)
+    if pin is not None:
+        monkeypatch.setattr(sn, "SOBOLEV_NORMAL_PIN", pin)
+    cuts = []
+    real = region.SampledRegion
+    monkeypatch.setattr(region, "SampledRegion", lambda *a, **k: cuts.append(real(*a, **k)) or cuts[-1])
+    return cuts
+
+
+def test_region_choice_is_within_0_2_db_of_the_whole_mesh_rule_and_a_free_border_is_not(monkeypatch):
+    """One cut (no second, wider one), held on its outer rings: within 0.2 dB of the whole-mesh rule's SNR. The same
+    region with a free border (nothing held) loses several dB: the comparison can fail."""
+    V, Vn, F, rho = _torus_case()
+    whole = choose_parameters((Vn, F), "sobolev_normal", noise=rho)  # 6,000 < REGION_MIN_VERTICES: the whole mesh
+    whole_snr = snr(V, apply_filter("sobolev_normal", (Vn, F), **whole)[0])
+    assert whole["order"] == 3 and whole["mu"] > 30  # strong smoothing: where a cut pulls the choice down
+
+    cuts = _forced_region(monkeypatch)
+    held = choose_parameters((Vn, F), "sobolev_normal", noise=rho)
+    assert len(cuts) == 1 and not cuts[0].whole and cuts[0].vertices.size < 0.5 * len(V)
+    held_snr = snr(V, apply_filter("sobolev_normal", (Vn, F), **held)[0])
+    assert held_snr >= whole_snr - 0.2
+
+    monkeypatch.undo()
+    cuts = _forced_region(monkeypatch, pin=0)  # pin = 0: the cut left a free border
+    free = choose_parameters((Vn, F), "sobolev_normal", noise=rho)
+    assert len(cuts) == 1
+    free_snr = snr(V, apply_filter("sobolev_normal", (Vn, F), **free)[0])
+    assert free_snr < whole_snr - 1.0
+
+
+def test_lanczos_shifted_with_spaced_tests_converges_where_the_old_schedule_costs_more(monkeypatch):
+    """growth > 0 tests convergence at geometrically spaced sizes: the same result within the tolerance, the tests'
+    eigenproblems less than half the cost."""
+    from meshdenoise.operators import get_operators
+    from meshdenoise.solvers import LanczosQuadrature, lanczos_shifted
+
+    V, Vn, F, rho = _torus_case()
+    ops = get_operators(F, len(V))
+    tests = []
+    real = LanczosQuadrature._coefficients
+
+    def count(self, g, j, k):
+        tests.append(k)
+        return real(self, g, j, k)
+
+    monkeypatch.setattr(LanczosQuadrature, "_coefficients", count)
+    every = lanczos_shifted(ops, Vn, 1e4, 3, tol=1e-10)  # a strong weight: a couple of hundred steps
+    cost_every = sum(k * k for k in tests)  # each test's tridiagonal eigenproblems take time ~ k^2
+    tests.clear()
+    spaced = lanczos_shifted(ops, Vn, 1e4, 3, tol=1e-10, growth=0.25)
+    assert sum(k * k for k in tests) < 0.5 * cost_every
+    np.testing.assert_allclose(spaced, every, atol=1e-9 * rho)
+    with pytest.raises(ValueError, match="mu"):
+        lanczos_shifted(ops, Vn, "strong", 3)
