@@ -466,16 +466,6 @@ def shifted_solver(
     )
 
 
-def _per_column(g, k: int) -> list:
-    """``g`` as a list of ``k`` callables: one callable repeated, or a sequence of ``k`` callables checked."""
-    if callable(g):
-        return [g] * k
-    gs = list(g)
-    if len(gs) != k or not all(callable(f) for f in gs):
-        raise ValueError(f"LanczosQuadrature: g must be a callable or {k} callables (one per column), got {g!r}")
-    return gs
-
-
 class LanczosQuadrature:
     r"""Gauss quadrature of :math:`b_j^T g(M)\, b_j` for a symmetric ``M``, every column ``b_j`` of ``B``, any ``g``.
 
@@ -626,26 +616,25 @@ class LanczosQuadrature:
         theta, U = eigh_tridiagonal(self._alpha[:k, j], self._beta[: k - 1, j])
         return math.sqrt(self.norms2[j]) * (U @ (g(theta) * U[0]))
 
-    def _converged_coefficients(self, g, rtol: float, check: int,
+    def _converged_coefficients(self, g: Callable[[np.ndarray], np.ndarray], rtol: float, check: int,
                                 columns=None, growth: float = 0.0) -> list[np.ndarray] | None:
         """Every column's coefficients :meth:`_coefficients`, the run extended until none of the active
         columns' changes by more than ``rtol`` (relative, in norm) over the last ``check`` steps; ``None``
         if :attr:`max_steps` is reached first. ``columns`` (default all): those columns only, in that
-        order; ``g`` a callable, or one callable per column of ``columns``. ``growth`` > 0: after a
+        order. ``growth`` > 0: after a
         failed test the run is extended by ``max(check, growth x steps)`` steps instead of ``check`` (the
         test itself is the same): each test solves tridiagonal eigenproblems of the run's size (time
         about ``k^2``), so tests every ``check`` steps cost about ``k^3 / (3 check)`` in all (0.8 s per
         test at 1,200 steps: minutes), tests at geometrically growing sizes a few ``k^2``, for at most
         a share ``growth`` more steps than the old schedule would run."""
         cols = list(range(self._q.shape[1])) if columns is None else [int(j) for j in columns]
-        gs = _per_column(g, len(cols))
         if self.steps < check:
             self.extend(check - self.steps)
         while True:
             k = self.steps
             ok = True
             coef = []
-            for g, j in zip(gs, cols):
+            for j in cols:
                 now = self._coefficients(g, j, k)
                 before = self._coefficients(g, j, k - check)
                 diff = now.copy()
@@ -659,7 +648,7 @@ class LanczosQuadrature:
                 return None
             self.extend(min(max(check, int(growth * k)), self.max_steps - k))
 
-    def apply(self, g, *, rtol: float = 1e-10, check: int = 10, columns=None,
+    def apply(self, g: Callable[[np.ndarray], np.ndarray], *, rtol: float = 1e-10, check: int = 10, columns=None,
               growth: float = 0.0) -> np.ndarray | None:
         """:math:`g(M)\\, B` (n, k) by the Lanczos approximation :math:`\\|b\\| Q_k\\, g(T_k)\\, e_1`, per column.
 
@@ -671,9 +660,7 @@ class LanczosQuadrature:
 
         ``columns`` (sequence of int, optional): only those columns of ``B``, in that order (the
         result is ``(n, len(columns))``; the second pass runs on them alone), e.g. the
-        coordinates' columns of a run that also holds trace probes. ``g``: one callable for
-        every column, or a sequence of callables, one per column (of ``columns``): each column's
-        recurrence is its own, so one run serves several functions (several weights ``mu``).
+        coordinates' columns of a run that also holds trace probes.
         ``growth``: the spacing of the convergence tests (:meth:`_converged_coefficients`).
         """
         cols = list(range(self._q.shape[1])) if columns is None else [int(j) for j in columns]
@@ -729,10 +716,7 @@ def lanczos_shifted(ops: Operators, X: np.ndarray, mu: float, order: int, tol: f
     ----------
     ops : Operators
     X : ndarray, shape (n,) or (n, k)
-    mu : float, > 0, or ndarray, shape (k,), > 0
-        The weight; or one weight per column of ``X`` (n, k): every column from one Lanczos run
-        (each column's recurrence is its own, so this equals ``k`` separate calls up to rounding,
-        at the cost of one run with ``k`` columns).
+    mu : float, > 0
     order : int, >= 1
     tol : float in (0, 1)
     max_steps : int, >= 1
@@ -755,27 +739,18 @@ def lanczos_shifted(ops: Operators, X: np.ndarray, mu: float, order: int, tol: f
     >>> bool(np.allclose(A @ Y, V, atol=1e-9))
     True
     """
-    per_column = not isinstance(mu, (int, float, np.integer, np.floating))
-    X = np.asarray(X, dtype=np.float64)
-    X2 = X.reshape(X.shape[0], -1)
-    try:
-        mus = np.atleast_1d(np.asarray(mu, dtype=np.float64)) if per_column else np.array([mu], dtype=np.float64)
-    except (TypeError, ValueError):
-        mus = np.array([np.nan])
-    if (per_column and (mus.ndim != 1 or mus.size != X2.shape[1])) or not np.all((mus > 0) & np.isfinite(mus)):
-        raise ValueError(f"lanczos_shifted: mu must be a finite number > 0 (or one per column of X), got {mu!r}")
+    if not (isinstance(mu, (int, float, np.integer, np.floating)) and mu > 0 and np.isfinite(mu)):
+        raise ValueError(f"lanczos_shifted: mu must be a finite number > 0, got {mu!r}")
     if isinstance(order, (bool, np.bool_)) or not isinstance(order, (int, np.integer)) or order < 1:
         raise ValueError(f"lanczos_shifted: order must be an int >= 1, got {order!r}")
     if not (isinstance(tol, (float, int)) and 0 < tol < 1):
         raise ValueError(f"lanczos_shifted: tol must be a number in (0, 1), got {tol!r}")
+    X = np.asarray(X, dtype=np.float64)
+    X2 = X.reshape(X.shape[0], -1)
     c = X2
     for _ in range(int(order)):
         c = spmm(ops.L, np.ascontiguousarray(c))
     p = int(order)
-    if per_column:  # one run: each column's recurrence is its own, its function its own weight's
-        g = [lambda t, m=float(m): 1.0 / (1.0 + m * np.maximum(t, 0.0) ** p) for m in mus]
-        Y = LanczosQuadrature(ops.L, c, max_steps=max_steps).apply(g, rtol=tol, growth=growth)
-        return None if Y is None else (X2 - mus[None, :] * Y).reshape(X.shape)
     mu = float(mu)
     Y = LanczosQuadrature(ops.L, c, max_steps=max_steps).apply(
         lambda t: 1.0 / (1.0 + mu * np.maximum(t, 0.0) ** p), rtol=tol, growth=growth)

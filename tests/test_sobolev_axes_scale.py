@@ -17,39 +17,21 @@ def _dense_function(L: np.ndarray, g, B: np.ndarray) -> np.ndarray:
     return (U * g(lam)) @ (U.T @ B)
 
 
-def test_apply_on_chosen_columns_with_one_function_per_column_equals_the_dense_functions():
+def test_apply_on_chosen_columns_equals_the_dense_function():
     V, F = torus(16, 10)
     V = V + 0.02 * np.random.default_rng(0).standard_normal(V.shape)
     ops = Operators(F, len(V))
     L = ops.L.toarray()
     B = np.hstack([L @ V, np.random.default_rng(1).standard_normal((ops.n, 3))])
-    gs = [lambda t: 1.0 / (1.0 + 0.5 * t**3), lambda t: np.exp(-0.3 * t)]
+    g = lambda t: 1.0 / (1.0 + 0.5 * t**3)  # noqa: E731
     q = LanczosQuadrature(ops.L, B)
-    Y = q.apply(gs, rtol=1e-12, columns=[4, 1])  # order kept: column 4 with gs[0], column 1 with gs[1]
+    q.extend(5)  # a run already under way (as a search's): apply extends it as needed
+    Y = q.apply(g, rtol=1e-12, columns=[4, 1])  # in that order
     assert Y.shape == (ops.n, 2)
-    scale = np.abs(B).max()
-    np.testing.assert_allclose(Y[:, 0], _dense_function(L, gs[0], B[:, 4]), atol=1e-10 * scale)
-    np.testing.assert_allclose(Y[:, 1], _dense_function(L, gs[1], B[:, 1]), atol=1e-10 * scale)
-    with pytest.raises(ValueError, match="one per column"):
-        q.apply(gs, columns=[0, 1, 2])
-
-
-@pytest.mark.parametrize("order", [2, 3])
-def test_lanczos_shifted_with_a_weight_per_column_equals_the_dense_solves(order):
-    V, F = grid(9, 7)  # open: a border and a zero eigenvalue
-    V = V + 0.05 * np.random.default_rng(0).standard_normal(V.shape)
-    ops = get_operators(F, len(V))
-    L = ops.L.toarray()
-    mus = np.array([0.2, 3.0, 40.0])
-    Y = lanczos_shifted(ops, V, mus, order, tol=1e-13)
-    for d in range(3):
-        expected = np.linalg.solve(np.eye(ops.n) + mus[d] * np.linalg.matrix_power(L, order), V[:, d])
-        np.testing.assert_allclose(Y[:, d], expected, atol=1e-10)
-    with pytest.raises(ValueError, match="one per column"):
-        lanczos_shifted(ops, V, mus[:2], order)
-    with pytest.raises(ValueError, match="mu"):
-        lanczos_shifted(ops, V, np.array([1.0, -1.0, 1.0]), order)
-    assert lanczos_shifted(ops, V, np.array([1e6, 1e6, 1e6]), order, max_steps=3) is None
+    expected = _dense_function(L, g, B[:, [4, 1]])
+    np.testing.assert_allclose(Y, expected, atol=1e-10 * np.abs(B).max())
+    full = q.apply(g, rtol=1e-12)  # every column: the chosen ones are the same columns of it
+    np.testing.assert_allclose(Y, full[:, [4, 1]], rtol=0, atol=1e-12 * np.abs(B).max())
 
 
 def test_quadrature_coordinates_are_the_solve_of_the_search_s_own_run():
@@ -107,8 +89,7 @@ def test_lanczos_recurrence_in_place_gives_the_same_numbers_bit_for_bit():
 
 
 def test_sobolev_axes_large_path_uses_one_run_and_equals_the_factor_filter(monkeypatch):
-    """The three axes in one lanczos_shifted call (weights per column), equal to the factor path; an axis with
-    mu = 0 is left as is."""
+    """One factor-free solve per axis with a weight, at FILTER_LANCZOS_TOL, equal to the factor path."""
     import meshdenoise.plugins.sobolev_axes as ax
 
     V, F = icosphere(3)
@@ -120,7 +101,7 @@ def test_sobolev_axes_large_path_uses_one_run_and_equals_the_factor_filter(monke
     real = ax.lanczos_shifted
 
     def spy(ops, X, mu, order, **kw):
-        calls.append(np.atleast_1d(mu).tolist())
+        calls.append((float(mu), kw["tol"]))
         return real(ops, X, mu, order, **kw)
 
     monkeypatch.setattr(ax, "AXES_SCALE_MIN_VERTICES", 0)
@@ -128,5 +109,5 @@ def test_sobolev_axes_large_path_uses_one_run_and_equals_the_factor_filter(monke
     monkeypatch.setattr(ax, "shifted_solver", lambda *a, **k: pytest.fail("a factor was built"))
     clear_cache()
     after = apply_filter("sobolev_axes", (Vn, F), **params)[0]
-    assert calls == [[0.3, 4.0]]
+    assert calls == [(0.3, 1e-10), (4.0, 1e-10)]  # an axis with mu = 0 is not solved
     np.testing.assert_allclose(after, before, atol=1e-11)

@@ -288,18 +288,14 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps):
     E, _ = normal_frame(X, F, ops, frame_steps)
     C = X @ E
     out = np.empty_like(C)
-    mus = (mu1, mu2, mu3)
     factor_free = ops.n >= AXES_SCALE_MIN_VERTICES and (pinned is None or not pinned.any())
-    stored = ops.cache.get(f"shifted-p{order}-cholesky", {})
-    lanczos = [d for d in range(3) if mus[d] != 0 and factor_free and (float(mus[d]), None) not in stored]
-    done = set()
-    if lanczos:  # the axes in one Lanczos run, each column its own weight (a 100k factor of I + mu L^3: 20 s)
-        Y = lanczos_shifted(ops, np.ascontiguousarray(C[:, lanczos]), np.array([mus[d] for d in lanczos], dtype=float),
-                            order, tol=FILTER_LANCZOS_TOL, growth=0.25)
-        if Y is not None:
-            out[:, lanczos] = Y
-            done.update(lanczos)
-    for d, mu in enumerate(mus):
-        if d not in done:
-            out[:, d] = C[:, d] if mu == 0 else shifted_solver(ops, mu, order, pinned).solve(C[:, d])
+    for d, mu in enumerate((mu1, mu2, mu3)):
+        y = None
+        if mu != 0 and factor_free and (float(mu), None) not in ops.cache.get(f"shifted-p{order}-cholesky", {}):
+            # a 100k factor of I + mu L^3: 20 s. One column per run: at 400k three one-column runs took 2.2 CPU s,
+            # one three-column run 3.0 (numpy's passes over (n, 3) blocks, measured in session 10)
+            y = lanczos_shifted(ops, C[:, d], mu, order, tol=FILTER_LANCZOS_TOL, growth=0.25)
+        if y is None:
+            y = C[:, d] if mu == 0 else shifted_solver(ops, mu, order, pinned).solve(C[:, d])
+        out[:, d] = y
     return out @ E.T
