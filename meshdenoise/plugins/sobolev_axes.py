@@ -137,24 +137,30 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
     large = n >= AXES_SCALE_MIN_VERTICES and Yf is None
     Z, s = probe_block(n, ctx.exact, n_probes=probe_count(n)) if large else probe_block(n, ctx.exact)
     m = Z.shape[1]
-    Q = np.hstack([Z * np.sqrt(c[:, [d]]) for d in range(3)])
+    def probes(d: int) -> np.ndarray:  # axis d's probes z * sqrt(c_d), (n, m): made when needed, not held
+        return np.ascontiguousarray(Z * np.sqrt(c[:, [d]]))
+
     held = [f"mu{d + 1}" in ctx.given for d in range(3)]
     evaluated: dict[float, list[float]] = {}  # log10 mu -> per-axis score
-    key = digest(ctx.ops.F, order, np.hstack([Xf, Q]))
+    keys: list[str] = []  # the factor path's memo key (topology, order, right-hand sides), hashed on first use
     quad = None
-    if large:  # every candidate's terms from one Lanczos run on L (as search.shifted_quadrature)
+    if large:  # every candidate's terms from Lanczos runs on L (as search.shifted_quadrature)
         hp = Xf
         for _ in range(order):
             hp = spmm(ctx.ops.L, np.ascontiguousarray(hp))
-        quad = LanczosQuadrature(ctx.ops.L, np.hstack([hp, Q]), max_steps=600)
+        # one run for the residuals' columns and one per axis's probes, each extended as far as its own columns need:
+        # a step's work arrays are then (n, m), not (n, 3 + 3m) (at 1.6M vertices 2 x 11 columns = 280 MB less)
+        quad = [LanczosQuadrature(ctx.ops.L, hp, max_steps=600)] + [
+            LanczosQuadrature(ctx.ops.L, probes(d), max_steps=600) for d in range(3)]
 
     def by_quadrature(mu: float) -> list | None:
         """Per-axis SURE: :math:`\\|H x_d - x_d\\|^2 = c_d^T \\mu^2 (I + \\mu L^p)^{-2} c_d`, :math:`c_d = L^p x_d`,
-        and the weighted traces :math:`q^T (I + \\mu L^p)^{-1} q`, Gauss quadrature on the same Lanczos run."""
-        r = quad.evaluate(lambda x: mu**2 / (1.0 + mu * np.maximum(x, 0.0) ** order) ** 2, range(3))
-        q = quad.evaluate(lambda x: 1.0 / (1.0 + mu * np.maximum(x, 0.0) ** order), range(3, 3 + 3 * m))
-        if r is None or q is None:
+        and the weighted traces :math:`q^T (I + \\mu L^p)^{-1} q`, Gauss quadrature on the Lanczos runs."""
+        r = quad[0].evaluate(lambda x: mu**2 / (1.0 + mu * np.maximum(x, 0.0) ** order) ** 2)
+        parts = [run.evaluate(lambda x: 1.0 / (1.0 + mu * np.maximum(x, 0.0) ** order)) for run in quad[1:]]
+        if r is None or any(part is None for part in parts):
             return None
+        q = np.concatenate(parts)
         return [float(r[d]) - ctx.rho**2 * float(c[:, d].sum()) + 2 * ctx.rho**2 * s * float(q[d * m:(d + 1) * m].sum())
                 for d in range(3)]
 
@@ -166,7 +172,10 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
                 evaluated[t] = scores
         if t not in evaluated:
             mu = 10.0**t
-            out = solve_shifted(ctx.ops, order, mu, np.hstack([Xf, Q]), key)
+            Q = np.hstack([probes(d) for d in range(3)])
+            if not keys:
+                keys.append(digest(ctx.ops.F, order, np.hstack([Xf, Q])))
+            out = solve_shifted(ctx.ops, order, mu, np.hstack([Xf, Q]), keys[0])
             scores = []
             for d in range(3):
                 y = out[:, d]
