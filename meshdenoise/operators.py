@@ -298,7 +298,22 @@ class Operators:
         """
         if self.n == 0:
             return np.zeros(0, dtype=np.int64)
+        if self.in_locality_order:
+            return np.arange(self.n, dtype=np.int64)
         return np.asarray(reverse_cuthill_mckee(self.W, symmetric_mode=True), dtype=np.int64)
+
+    @cached_property
+    def in_locality_order(self) -> bool:
+        """Whether the vertices are already in a cache-friendly order (then :attr:`locality_order` is the identity).
+
+        True for a large mesh whose face sides rarely join far rows
+        (:func:`meshdenoise.locality.far_side_fraction`): a range scan listed row by row, or a
+        mesh :mod:`meshdenoise.locality` relabelled. Small meshes (below
+        :data:`meshdenoise.locality.LOCALITY_MIN_VERTICES`) keep reverse Cuthill-McKee.
+        """
+        from .locality import FAR_SIDES_MAX, LOCALITY_MIN_VERTICES, far_side_fraction
+
+        return self.n >= LOCALITY_MIN_VERTICES and far_side_fraction(self.F) <= FAR_SIDES_MAX
 
     def permuted(self, A: sp.csr_matrix, name: str) -> sp.csr_matrix:
         """``A[order][:, order]`` for :attr:`locality_order`, sorted CSR, cached under ``name``."""
@@ -407,8 +422,9 @@ def spmm(
     n, k = A.shape[0], X2.shape[1]
     if X2.shape[0] != A.shape[1]:
         raise ValueError(f"spmm: A is {A.shape[0]} x {A.shape[1]} but X has {X2.shape[0]} rows")
-    if out is None:
-        out = np.zeros((n, k))
+    fresh = out is None
+    if fresh:
+        out = np.zeros((n, k))  # zero pages already: no second pass to clear them
     elif out.shape[0] != n or out.size != n * k or out.dtype != np.float64 or not out.flags.c_contiguous:
         raise ValueError(f"spmm: out must be a C-contiguous float64 array of shape ({n}, {k}), got {out.shape}")
     Y = out.reshape(n, k)
@@ -424,7 +440,7 @@ def spmm(
         else:
             Y[...] = A @ X2
         return out.ravel() if squeeze else out
-    if not accumulate:
+    if not accumulate and not fresh:
         Y.fill(0.0)  # the kernel adds into its output
     if threads is None:
         threads = spmm_threads() if A.nnz * k >= 3 * _THREADED_NNZ else 1  # work, not only non-zeros
@@ -515,5 +531,8 @@ def trim_cache() -> None:
 
 
 def clear_cache() -> None:
-    """Forget every cached topology (operators and factorisations)."""
+    """Forget every cached topology (operators and factorisations) and the kept vertex relabelling."""
+    from .locality import clear
+
     _cache.clear()
+    clear()

@@ -303,6 +303,7 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
     from .adapters import read_mesh
     from .arrays import MeshValidationError
     from .constraints import fixed_mask, restore_volume
+    from .locality import relabelling
     from .operators import Operators, get_operators
 
     options = {k: kwargs.pop(k) for k in list(kwargs) if k in COMMON_OPTIONS}
@@ -313,8 +314,10 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
     data = read_mesh(mesh)
     V, F = data.V, data.F
     ops = options.get("operators")
+    relabel = None
     if ops is None:
         ops = get_operators(F, V.shape[0])
+        relabel = relabelling(F, V.shape[0])  # a large mesh in a cache-hostile order: filter relabelled vertices
     elif not isinstance(ops, Operators) or ops.n != V.shape[0] or not np.array_equal(ops.F, F):
         raise ValueError(f"filter '{spec.name}': operators= was built for another topology than this mesh")
     boundary_motion = options.get("boundary_motion", "free")
@@ -325,7 +328,11 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
         )
     pinned = fixed_mask(ops, options.get("pinned"), options.get("region"), data)
     try:
-        V_out = run_core(spec, V, ops, values, pinned=pinned, boundary_motion=boundary_motion)
+        if relabel is None:
+            V_out = run_core(spec, V, ops, values, pinned=pinned, boundary_motion=boundary_motion)
+        else:
+            V_out = relabel.restore(run_core(spec, relabel.vertices(V), get_operators(relabel.faces, V.shape[0]),
+                                             values, pinned=relabel.mask(pinned), boundary_motion=boundary_motion))
     except MeshValidationError:
         raise
     except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:

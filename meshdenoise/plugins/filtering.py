@@ -8,6 +8,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..gpu import BACKENDS, Backend, get_backend
+from ..locality import LOCALITY_MIN_VERTICES
 from ..operators import Operators, gather_rows
 from ..registry import MAX_ITERATIONS, AutoRule, Param, register
 from ..tuning.context import TuningContext
@@ -91,7 +92,6 @@ def averaging_operator(
     return ops.with_pinned_rows(A, pinned, name)
 
 
-LOCALITY_MIN_VERTICES = 1 << 16  # below this X fits in cache and relabelling cannot pay
 LOCALITY_MIN_STEPS = 16  # the first relabelling costs about 15 products at 1.6M vertices
 
 
@@ -101,7 +101,7 @@ def use_locality_order(ops: Operators, steps: int) -> bool:
     Yes for large meshes when the order is already computed or the run is long enough
     to repay computing it.
     """
-    if ops.n < LOCALITY_MIN_VERTICES:
+    if ops.n < LOCALITY_MIN_VERTICES or ops.in_locality_order:
         return False
     return "locality_order" in ops.__dict__ or steps >= LOCALITY_MIN_STEPS
 

@@ -15,6 +15,7 @@ from typing import Any
 import numpy as np
 
 from ..adapters import read_mesh
+from ..locality import Relabelling, relabelling
 from ..operators import get_operators
 from ..progress import stage
 from ..registry import get_filter, list_filters
@@ -121,6 +122,9 @@ def choose_parameters(
     spec.resolve(given, where=f"choose_parameters(method='{method}')")  # names/types/ranges of held values
     data = read_mesh(mesh)
     V, F = data.V, data.F
+    relabel = relabelling(F, V.shape[0])  # a large mesh in a cache-hostile order: choose on relabelled vertices
+    if relabel is not None:
+        V, F_in, F = relabel.vertices(V), F, relabel.faces
     ops = get_operators(F, V.shape[0])
     if correlation_length is not None:
         if isinstance(correlation_length, (bool, np.bool_)) or not isinstance(
@@ -134,7 +138,7 @@ def choose_parameters(
         if correlation_length is not None:
             raise ValueError("choose_parameters: noise= is a NoiseModel, which holds its correlation length; "
                              "do not give correlation_length= too")
-        model, rho = noise, noise.rho
+        model, rho = (noise if relabel is None else relabelled_model(noise, F_in, relabel)), noise.rho
     elif noise is None:
         if criterion != "gcv":
             model = estimate_noise_model((V, F))
@@ -155,6 +159,8 @@ def choose_parameters(
         Y = coordinates(reference)
         if Y.shape != V.shape:
             raise ValueError(f"choose_parameters: reference has {Y.shape[0]} vertices, the mesh {V.shape[0]}")
+        if relabel is not None:
+            Y = relabel.vertices(Y)
     ctx = TuningContext(V, F, ops, rho, Criterion(criterion, Y), exact_trace, dict(given), model)
     with stage(f"choosing {method}'s parameters"), noise_colouring(model):
         chosen, point = spec.auto.choose(ctx)
@@ -199,6 +205,13 @@ def given_noise_model(mesh: Any, rho: float, correlation_length: float = 0.0) ->
             raise ValueError(f"given_noise_model: parameter {name!r} = {value!r} is out of range: {name} >= 0")
     data = read_mesh(mesh)
     return _with_length(float(rho), float(correlation_length), data.V, get_operators(data.F, data.V.shape[0]))
+
+
+def relabelled_model(model: NoiseModel, F: np.ndarray, relabel: Relabelling) -> NoiseModel:
+    """``model`` in the labels of ``relabel`` when it holds the mesh ``F`` (a correlated model), else itself."""
+    if model.V is None or model.F is None or model.F.shape != F.shape or not np.array_equal(model.F, F):
+        return model
+    return NoiseModel(model.rho, model.correlation_length, relabel.vertices(model.V), relabel.faces)
 
 
 def _with_length(rho: float, ell: float, V: np.ndarray, ops: Any) -> NoiseModel:

@@ -1,0 +1,174 @@
+"""Relabelling a large mesh's vertices so that neighbours sit close in memory.
+
+Every sparse product here gathers the rows of a coordinate (or probe) block at the
+neighbours of each vertex. Meshes made by subdivision, or stitched and merged from
+several scans, list a vertex far from its neighbours (the Loop-subdivided scale benchmark
+mesh: 80 % of the face sides join vertices more than 16,384 rows apart), so at a million
+vertices the products wait on cache misses. A real range scan, listed row by row, does not.
+
+:func:`relabelling` decides from the faces alone whether a mesh needs it and returns a
+:class:`Relabelling` (reverse Cuthill-McKee of the edge graph: bandwidth-reducing, so
+neighbours are near each other in the new order). The choice of parameters and the filters
+run on the relabelled arrays (:func:`meshdenoise.tuning.choose.choose_parameters`,
+:func:`meshdenoise.default.choose_default`, the filter adapter) and give the result back
+in the caller's labels: the same computation on relabelled vertices. Deterministic filters
+give the same coordinates up to rounding (row sums in another order); the automatic
+choices draw their random probes and regions per vertex index, so they see other draws
+of the same distributions.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = ["Relabelling", "relabelling", "far_side_fraction", "clear", "LOCALITY_MIN_VERTICES", "FAR_ROWS",
+           "FAR_SIDES_MAX"]
+
+LOCALITY_MIN_VERTICES = 1 << 16  # below this the coordinates fit in cache and relabelling cannot pay
+FAR_ROWS = 1 << 14  # a face side joining rows further apart than this misses the cache (16k rows = 384 KB of x, y, z)
+FAR_SIDES_MAX = 0.05  # relabel when more face sides than this are far: a row-by-row range scan has about none
+
+_lock = threading.Lock()
+_last: tuple[tuple, "Relabelling | None"] | None = None  # one entry: the choice and the filter of one call share it
+
+
+@dataclass(frozen=True, eq=False)
+class Relabelling:
+    """A vertex order with neighbours close in memory, and the faces in that order.
+
+    Attributes
+    ----------
+    order : ndarray, shape (n,), int64
+        New label -> old label: new vertex ``k`` is old vertex ``order[k]``.
+    inverse : ndarray, shape (n,), int64
+        Old label -> new label.
+    faces : ndarray, shape (m, 3), int64
+        The faces in new labels, rows sorted by their smallest vertex (so loops over faces
+        also walk memory in order).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> r = Relabelling.from_order(np.array([2, 0, 1]), np.array([[0, 1, 2]]))
+    >>> V = np.array([[0.0, 0, 0], [1, 0, 0], [2, 0, 0]])
+    >>> r.vertices(V)[:, 0], r.faces.tolist()
+    (array([2., 0., 1.]), [[1, 2, 0]])
+    >>> bool((r.restore(r.vertices(V)) == V).all())
+    True
+    """
+
+    order: np.ndarray
+    inverse: np.ndarray
+    faces: np.ndarray
+
+    @classmethod
+    def from_order(cls, order: np.ndarray, F: np.ndarray) -> "Relabelling":
+        """The relabelling to ``order`` (new -> old, a permutation of ``range(n)``) of faces ``F``."""
+        order = np.asarray(order, dtype=np.int64)
+        inverse = np.empty_like(order)
+        inverse[order] = np.arange(order.size, dtype=np.int64)
+        G = inverse[np.asarray(F, dtype=np.int64)]
+        G = G[np.argsort(G.min(axis=1), kind="stable")] if len(G) else G.reshape(0, 3)
+        for a in (order, inverse, G):
+            a.flags.writeable = False
+        return cls(order, inverse, np.ascontiguousarray(G))
+
+    @property
+    def n(self) -> int:
+        return int(self.order.size)
+
+    def vertices(self, X: np.ndarray) -> np.ndarray:
+        """Per-vertex rows ``X`` (n, ...) in the new labels: ``X[order]``, a new array."""
+        from .operators import gather_rows
+
+        X = np.asarray(X)
+        if X.shape[0] != self.n:
+            raise ValueError(f"Relabelling: {X.shape[0]} rows for a relabelling of {self.n} vertices")
+        if X.dtype == np.float64 and X.ndim == 2:
+            return gather_rows(X, self.order)
+        return X[self.order]
+
+    def mask(self, m: np.ndarray | None) -> np.ndarray | None:
+        """A per-vertex mask (n,) in the new labels (``None`` stays ``None``)."""
+        return None if m is None else np.asarray(m)[self.order]
+
+    def restore(self, Y: np.ndarray) -> np.ndarray:
+        """Per-vertex rows computed in the new labels, back in the old ones: ``Z[order] = Y``."""
+        from .operators import gather_rows
+
+        Y = np.asarray(Y)
+        if Y.shape[0] != self.n:
+            raise ValueError(f"Relabelling: {Y.shape[0]} rows for a relabelling of {self.n} vertices")
+        if Y.dtype == np.float64 and Y.ndim == 2:
+            return gather_rows(Y, self.inverse)
+        return Y[self.inverse]
+
+    @property
+    def nbytes(self) -> int:
+        return int(self.order.nbytes + self.inverse.nbytes + self.faces.nbytes)
+
+
+def far_side_fraction(F: np.ndarray, far: int = FAR_ROWS) -> float:
+    """The fraction of face sides (three per face) whose two vertices are more than ``far`` rows apart.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> far_side_fraction(np.array([[0, 1, 2], [0, 1, 100000]]), far=10)
+    0.3333333333333333
+    """
+    F = np.asarray(F)
+    if len(F) == 0:
+        return 0.0
+    far_sides = 0
+    for a, b in ((0, 1), (1, 2), (2, 0)):
+        far_sides += int(np.count_nonzero(np.abs(F[:, a].astype(np.int64) - F[:, b]) > far))
+    return far_sides / (3 * len(F))
+
+
+def relabelling(F: np.ndarray, n: int) -> Relabelling | None:
+    """The :class:`Relabelling` a mesh needs, or ``None`` when it is small or already in a good order.
+
+    ``None`` below :data:`LOCALITY_MIN_VERTICES` vertices and when at most :data:`FAR_SIDES_MAX`
+    of the face sides join vertices more than :data:`FAR_ROWS` rows apart; otherwise reverse
+    Cuthill-McKee of the edge graph (:attr:`meshdenoise.operators.Operators.locality_order`).
+    The last answer is kept (one entry, :func:`clear` forgets it), so the choice of parameters
+    and the filter that follows share it.
+
+    Parameters
+    ----------
+    F : ndarray, shape (m, 3), int
+    n : int
+        Number of vertices.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> relabelling(np.array([[0, 1, 2]]), 3) is None  # small
+    True
+    """
+    global _last
+    if n < LOCALITY_MIN_VERTICES or far_side_fraction(F) <= FAR_SIDES_MAX:
+        return None
+    from .operators import Operators, topology_key
+
+    key = topology_key(F, n)
+    with _lock:
+        if _last is not None and _last[0] == key:
+            return _last[1]
+    ops = Operators(F, n)  # not the cached one: its W on the old labels is dropped at once
+    result = Relabelling.from_order(ops.locality_order, ops.F)
+    del ops
+    with _lock:
+        _last = (key, result)
+    return result
+
+
+def clear() -> None:
+    """Forget the kept relabelling."""
+    global _last
+    with _lock:
+        _last = None
