@@ -108,7 +108,9 @@ def mean_edge_length(V: np.ndarray, F: np.ndarray) -> float:
     e = get_operators(F, V.shape[0]).edges
     if e.shape[0] == 0:
         raise ValueError("the mesh has no edges, so no mean edge length")
-    return float(np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1).mean())
+    from .tuning.noise_kernels import edge_lengths  # np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1), no gathers
+
+    return float(edge_lengths(V, e).mean())
 
 
 def heat_filtered_noise(

@@ -53,12 +53,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..adapters import read_mesh
-from ..geometry import vertex_normals
 from ..noise import HeatFilter, HeatKrylov, diffusion_length, heat_geometry
 from ..noise import mean_edge_length as noise_mean_edge_length
 from ..operators import Operators, get_operators, spmm
 from .memo import MEMO, digest
-from .noise_level import estimate_noise_and_smooth
+from .noise_level import smoothed_estimate
 from .region import SampledRegion, ring_distance
 
 __all__ = ["NoiseModel", "estimate_noise_model", "band_residuals", "BANDS", "ELL_MIN", "ELL_MAX", "ELL_GRID", "FIT_PROBES",
@@ -401,13 +400,14 @@ def _estimate(V: np.ndarray, F: np.ndarray, ops: Operators, refine: int, seed: i
     """:func:`estimate_noise_model` on checked arguments (``ops`` the cached topology of ``F``)."""
     if spectrum is not None:
         bands_s, ells_s = spectrum
-    rho0, smooth = estimate_noise_and_smooth(V, F, int(refine))
+    found = smoothed_estimate(V, F, int(refine))  # the level, the smoothed mesh, its normals and mean edge length
+    rho0, smooth = found.rho, found.smooth
     info: dict[str, Any] = {"rho_white": rho0, "smooth": smooth}
     if rho0 == 0:
         model = NoiseModel(0.0)
         info["reason"] = "independent: no noise found (estimate_noise reads 0)"
         return (model, info) if details else model
-    N = vertex_normals(smooth, F)
+    N = found.normals  # vertex_normals(smooth, F), computed by the estimate
     ok = ~ops.isolated & (np.linalg.norm(N, axis=1) > 0)
     R = band_residuals(ops, V)
     residual = {s: _normal_component(R[s], N) for s in BANDS}
@@ -454,7 +454,7 @@ def _estimate(V: np.ndarray, F: np.ndarray, ops: Operators, refine: int, seed: i
     scale = None
     geometry = heat_geometry(Vr, Fr)
     if not region.whole:  # lengths in the whole mesh's mean edge length (a scan's sampling varies over it)
-        geometry = (noise_mean_edge_length(smooth, F),) + tuple(geometry[1:])
+        geometry = (found.edge_length,) + tuple(geometry[1:])  # noise.mean_edge_length(smooth, F), same sum
     full = np.array(ELL_GRID)
     logr = np.empty((full.size, len(BANDS)))
     used = 0

@@ -23,23 +23,39 @@ MEMO_BYTES = 256 << 20
 MEMO = ByteLRU(MEMO_BYTES)
 
 
+def _feed(h: Any, a: np.ndarray) -> None:
+    """Shape, dtype and the bytes of ``a`` into the hash ``h``, read in place (no copy of a contiguous array)."""
+    a = np.ascontiguousarray(a)
+    h.update(f"{a.shape}{a.dtype.str}".encode())
+    h.update(a.reshape(-1).view(np.uint8) if a.size else b"")
+
+
 def digest(*parts: Any) -> str:
-    """A content hash of arrays, sparse matrices and plain values (their ``repr``).
+    """A content hash (SHA-256) of arrays, sparse matrices and plain values (their ``repr``).
+
+    Every byte of every array counts, read in place: at scan size the memo keys hash the faces,
+    the coordinates and the probes (170 MB at 1.6M vertices), and a copy of each (``tobytes``) plus
+    BLAKE2b, 1.2 GB/s here, took 0.3 s per key where SHA-256 (the processor's own instructions,
+    2 GB/s here) in place takes 0.08 s. No sampling: two inputs differing in one value are two keys.
 
     Examples
     --------
     >>> import numpy as np
     >>> digest(np.zeros(3), 1.5) == digest(np.zeros(3), 1.5) != digest(np.ones(3), 1.5)
     True
+    >>> digest(np.zeros(3)) != digest(np.zeros(3, dtype=np.int64)) != digest(np.zeros((3, 1)))
+    True
     """
-    h = hashlib.blake2b(digest_size=16)
+    h = hashlib.sha256()
     for part in parts:
         if sp.issparse(part):
             part = sp.csr_matrix(part)
+            h.update(b"csr" + repr(part.shape).encode())
             for a in (part.indptr, part.indices, part.data):
-                h.update(np.ascontiguousarray(a).tobytes())
+                _feed(h, a)
         elif isinstance(part, np.ndarray):
-            h.update(str(part.shape).encode() + np.ascontiguousarray(part).tobytes())
+            _feed(h, part)
         else:
             h.update(repr(part).encode())
-    return h.hexdigest()
+        h.update(b"|")  # parts apart: (a, b) and (ab,) are two keys
+    return h.hexdigest()[:32]
