@@ -161,3 +161,18 @@ def test_memo_digest_reads_every_value_and_the_type():
     assert digest(X.view(np.int64), 0.25) != key  # same bytes, another type
     A = sp.random(50, 50, density=0.1, format="csr", random_state=0)
     assert digest(A) == digest(A.tocoo()) != digest(A * 2.0)
+
+
+def test_the_noise_model_hands_its_operators_to_the_estimate(monkeypatch):
+    """estimate_noise_model passes its operators down: the faces are hashed once (get_operators), not per step."""
+    from meshdenoise.tuning import covariance
+
+    V, F = icosphere(3)
+    Vn = add_normal_noise((V, F), 0.01, seed=0)[0]
+    want = covariance.estimate_noise_model((Vn, F))
+    calls = []
+    real = covariance.smoothed_estimate
+    monkeypatch.setattr(covariance, "smoothed_estimate", lambda *a, **k: calls.append(a) or real(*a, **k))
+    got = covariance.estimate_noise_model((Vn, F))
+    assert len(calls) == 1 and isinstance(calls[0][3], Operators) and calls[0][3] is get_operators(F, V.shape[0])
+    assert got.rho == want.rho and got.correlation_length == want.correlation_length

@@ -400,7 +400,7 @@ def _estimate(V: np.ndarray, F: np.ndarray, ops: Operators, refine: int, seed: i
     """:func:`estimate_noise_model` on checked arguments (``ops`` the cached topology of ``F``)."""
     if spectrum is not None:
         bands_s, ells_s = spectrum
-    found = smoothed_estimate(V, F, int(refine))  # the level, the smoothed mesh, its normals and mean edge length
+    found = smoothed_estimate(V, F, int(refine), ops)  # the level, the smoothed mesh, its normals and mean edge length
     rho0, smooth = found.rho, found.smooth
     info: dict[str, Any] = {"rho_white": rho0, "smooth": smooth}
     if rho0 == 0:

@@ -235,15 +235,16 @@ class SmoothedEstimate(NamedTuple):
     edge_length: float
 
 
-def smoothed_estimate(V: np.ndarray, F: np.ndarray, refine: int = 2) -> SmoothedEstimate:
+def smoothed_estimate(V: np.ndarray, F: np.ndarray, refine: int = 2, ops: Operators | None = None) -> SmoothedEstimate:
     """:func:`estimate_noise_and_smooth` with the last normals and mean edge length (:class:`SmoothedEstimate`).
 
     The fourth difference ``B`` is made once and used once: its product with the coordinates
     :math:`BX` (the same in every round, and in both estimates) and its squared entries
     (:math:`B \\circ B`, squared in place: the estimate needs no more of ``B``) are kept for the
-    ``refine`` rounds of normals. The same numbers as computing each from ``B`` anew.
+    ``refine`` rounds of normals. The same numbers as computing each from ``B`` anew. ``ops``: the
+    operators of ``F`` if the caller has them (:func:`~meshdenoise.operators.get_operators` hashes the faces).
     """
-    ops = get_operators(F, V.shape[0])
+    ops = get_operators(F, V.shape[0]) if ops is None else ops
     B = fourth_difference(ops)  # made once here, dropped on return (fourth_difference)
     BV = spmm(B, np.asarray(V, dtype=np.float64))
     B.data *= B.data  # B o B from here on (the same numbers as _squared(B)); B itself is not needed again
