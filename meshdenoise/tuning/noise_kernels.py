@@ -91,17 +91,17 @@ def _index_dtype(size: int) -> type:
 def _i_minus(P: sp.csr_matrix, index_dtype: type) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``I - P`` as scipy's ``csr_minus_csr`` makes it (sorted rows, zeros dropped), on every thread: (indptr, indices, data)."""
     n = P.shape[0]
-    indptr = P.indptr.astype(np.int64)
-    indices = P.indices.astype(np.int64)
+    indptr = P.indptr.astype(index_dtype, copy=False)  # P's own index arrays (int32 below 2^31 entries): no copy
+    indices = P.indices.astype(index_dtype, copy=False)
     data = np.ascontiguousarray(P.data, dtype=np.float64)
-    counts = np.zeros(n, dtype=np.int64)
+    counts = np.zeros(n, dtype=index_dtype)
     _i_minus_counts(indptr, indices, data, counts)
-    Ap = np.zeros(n + 1, dtype=np.int64)
+    Ap = np.zeros(n + 1, dtype=index_dtype)
     np.cumsum(counts, out=Ap[1:])
-    Aj = np.empty(int(Ap[-1]), dtype=np.int64)
+    Aj = np.empty(int(Ap[-1]), dtype=index_dtype)
     Ax = np.empty(int(Ap[-1]))
     _i_minus_fill(indptr, indices, data, Ap, Aj, Ax)
-    return Ap.astype(index_dtype), Aj.astype(index_dtype), Ax
+    return Ap, Aj, Ax
 
 
 _matmat_ok: bool | None = None  # scipy's private csr_matmat and csr_matmat_maxnnz: checked once against A @ A
