@@ -41,6 +41,12 @@ def _meshes():
 CASES = list(_meshes())
 
 
+@pytest.fixture(autouse=True)
+def kernels_on_small_meshes(monkeypatch):
+    """The compiled paths on these small meshes (they run from KERNEL_MIN_VERTICES vertices otherwise)."""
+    monkeypatch.setattr(nk, "KERNEL_MIN_VERTICES", 0)
+
+
 def _scipy_fourth_difference(P):
     A = sp.identity(P.shape[0], format="csr") - P
     return sp.csr_matrix(A @ A)
@@ -176,3 +182,33 @@ def test_the_noise_model_hands_its_operators_to_the_estimate(monkeypatch):
     got = covariance.estimate_noise_model((Vn, F))
     assert len(calls) == 1 and isinstance(calls[0][3], Operators) and calls[0][3] is get_operators(F, V.shape[0])
     assert got.rho == want.rho and got.correlation_length == want.correlation_length
+
+
+def test_small_meshes_take_the_numpy_code_and_large_ones_the_kernels(monkeypatch):
+    """Below KERNEL_MIN_VERTICES the numpy/scipy code itself runs (no compiled code loaded for a small mesh)."""
+    V, F = icosphere(3)
+    e = Operators(F, V.shape[0]).edges
+    P = Operators(F, V.shape[0]).P
+    called = []
+
+    class Ran(Exception):
+        pass
+
+    def stub(name):
+        def run(*args):
+            called.append(name)
+            raise Ran(name)  # stop there: the code after a kernel expects its output
+        return run
+
+    for name in ("_unit_face_normals", "_edge_lengths", "_i_minus_counts"):
+        monkeypatch.setattr(nk, name, stub(name))
+    monkeypatch.setattr(nk, "KERNEL_MIN_VERTICES", V.shape[0] + 1)
+    assert np.array_equal(nk.vertex_normals(V, F), numpy_vertex_normals(V, F))
+    assert np.array_equal(nk.edge_lengths(V, e), np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1))
+    assert np.array_equal(nk.fourth_difference_csr(P).toarray(), _scipy_fourth_difference(P).toarray())
+    assert called == []
+    monkeypatch.setattr(nk, "KERNEL_MIN_VERTICES", V.shape[0])
+    for f in (lambda: nk.vertex_normals(V, F), lambda: nk.edge_lengths(V, e), lambda: nk.fourth_difference_csr(P)):
+        with pytest.raises(Ran):
+            f()
+    assert called == ["_unit_face_normals", "_edge_lengths", "_i_minus_counts"]

@@ -28,7 +28,10 @@ import scipy.sparse as sp
 from .. import kernels as _kernels  # the threading layer and OpenMP settings of the project's kernels
 from ..kernels import njit, numba, prange
 
-__all__ = ["fourth_difference_csr", "vertex_normals", "edge_lengths"]
+__all__ = ["fourth_difference_csr", "vertex_normals", "edge_lengths", "KERNEL_MIN_VERTICES"]
+
+KERNEL_MIN_VERTICES = 1 << 16  # below this the numpy/scipy code runs (the same numbers): loading the compiled code
+# costs about 0.2 s once per process, more than the kernels save on a small mesh
 
 
 # --------------------------------------------------------------------------- (I - P)^2
@@ -127,6 +130,8 @@ def _check_matmat() -> bool:
 def fourth_difference_csr(P: sp.csr_matrix, threads: int | None = None) -> sp.csr_matrix:
     """:math:`(I - P)^2` for a CSR ``P`` (n, n) with sorted, unique column indices: scipy's result, bit for bit.
 
+    Below :data:`KERNEL_MIN_VERTICES` rows scipy's own one-threaded product (the same numbers).
+
     The same as ``sp.csr_matrix((sp.identity(n, format="csr") - P) @ (sp.identity(n, format="csr") - P))``:
     scipy's own kernel (``csr_matmat``, which releases the GIL) on ``threads`` blocks of rows
     (default :func:`meshdenoise.operators.spmm_threads`; a row of the product depends on that row of
@@ -137,7 +142,7 @@ def fourth_difference_csr(P: sp.csr_matrix, threads: int | None = None) -> sp.cs
     from ..operators import spmm_threads
 
     n = P.shape[0]
-    if P.shape != (n, n) or n == 0 or not P.has_canonical_format or not _check_matmat():
+    if P.shape != (n, n) or n < max(KERNEL_MIN_VERTICES, 1) or not P.has_canonical_format or not _check_matmat():
         A = sp.identity(n, format="csr") - sp.csr_matrix(P)
         return sp.csr_matrix(A @ A)
     from concurrent.futures import ThreadPoolExecutor
@@ -243,13 +248,19 @@ def _normalise_rows(X):  # pragma: no cover - compiled
 
 
 def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """:func:`meshdenoise.geometry.vertex_normals` bit for bit: ``V`` (n, 3) float, ``F`` (m, 3) int in 0 .. n-1 -> (n, 3)."""
+    """:func:`meshdenoise.geometry.vertex_normals` bit for bit: ``V`` (n, 3) float, ``F`` (m, 3) int in 0 .. n-1 -> (n, 3).
+
+    Below :data:`KERNEL_MIN_VERTICES` vertices that function itself."""
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
     if V.ndim != 2 or V.shape[1] != 3 or F.ndim != 2 or F.shape[1] != 3:
         raise ValueError(f"vertex_normals: V must be (n, 3) and F (m, 3), got {V.shape} and {F.shape}")
     if F.size and (F.min() < 0 or F.max() >= V.shape[0]):
         raise ValueError(f"vertex_normals: face indices must lie in 0 .. {V.shape[0] - 1}, got {F.min()} .. {F.max()}")
+    if V.shape[0] < KERNEL_MIN_VERTICES:
+        from ..geometry import vertex_normals as numpy_vertex_normals
+
+        return numpy_vertex_normals(V, F)
     _kernels.set_threads()
     normals = np.empty((F.shape[0], 3))
     _unit_face_normals(V, F, normals)
@@ -272,11 +283,15 @@ def _edge_lengths(X, e, out):  # pragma: no cover - compiled
 
 
 def edge_lengths(X: np.ndarray, e: np.ndarray) -> np.ndarray:
-    """``np.linalg.norm(X[e[:, 0]] - X[e[:, 1]], axis=1)`` bit for bit: ``X`` (n, 3), ``e`` (k, 2) int -> (k,)."""
+    """``np.linalg.norm(X[e[:, 0]] - X[e[:, 1]], axis=1)`` bit for bit: ``X`` (n, 3), ``e`` (k, 2) int -> (k,).
+
+    Below :data:`KERNEL_MIN_VERTICES` vertices that expression itself."""
     X = np.ascontiguousarray(X, dtype=np.float64)
     e = np.ascontiguousarray(e, dtype=np.int64)
     if e.size and (e.min() < 0 or e.max() >= X.shape[0]):
         raise ValueError(f"edge_lengths: edge indices must lie in 0 .. {X.shape[0] - 1}, got {e.min()} .. {e.max()}")
+    if X.shape[0] < KERNEL_MIN_VERTICES:
+        return np.linalg.norm(X[e[:, 0]] - X[e[:, 1]], axis=1)
     _kernels.set_threads()
     out = np.empty(e.shape[0])
     _edge_lengths(X, e, out)
