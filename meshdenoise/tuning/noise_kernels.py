@@ -152,10 +152,8 @@ def fourth_difference_csr(P: sp.csr_matrix, threads: int | None = None) -> sp.cs
     idx = _index_dtype(max(n + 1, P.nnz + n))
     Ap, Aj, Ax = _i_minus(P, idx)
     threads = max(1, min(spmm_threads() if threads is None else int(threads), n))
-    # row blocks of about equal work: for each row, the entries of the rows its own entries point to
-    row_len = np.diff(Ap).astype(np.int64)
-    work = np.concatenate([[0], np.cumsum(row_len[Aj])])[Ap]
-    bounds = np.searchsorted(work, np.linspace(0, work[-1], threads + 1)).astype(np.int64)
+    # row blocks of about equal numbers of entries of I - P (a mesh's rows cost about alike)
+    bounds = np.searchsorted(Ap, np.linspace(0, int(Ap[-1]), threads + 1)).astype(np.int64)
     bounds[0], bounds[-1] = 0, n
     bounds = np.unique(bounds)
 
