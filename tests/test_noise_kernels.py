@@ -212,3 +212,22 @@ def test_small_meshes_take_the_numpy_code_and_large_ones_the_kernels(monkeypatch
         with pytest.raises(Ran):
             f()
     assert called == ["_unit_face_normals", "_edge_lengths", "_i_minus_counts"]
+
+
+def test_the_estimates_averaging_rounds_are_sure_smoothed_and_share_its_memoised_curve():
+    from meshdenoise.tuning.memo import MEMO
+
+    V, F = icosphere(4)
+    Vn = add_normal_noise((V, F), 0.02, seed=11)[0]
+    ops = get_operators(F, V.shape[0])
+    MEMO.clear()
+    smoother = nl._AveragingSmoother(Vn, ops)
+    steps = []
+    for rho in (0.01, 0.02, 0.02, 0.03):  # best step counts 0, 2, 2, 1: up, equal, then down (recomputed from V)
+        X = smoother(rho)
+        steps.append(smoother.k)
+        keys = set(MEMO)
+        want = sure_smoothed(Vn, ops, rho)
+        assert set(MEMO) == keys  # sure_smoothed found the estimate's curve: one run for both
+        assert want.value == smoother.k and np.array_equal(X, want.X)
+    assert steps[0] < steps[1] == steps[2] > steps[3] > 0, steps

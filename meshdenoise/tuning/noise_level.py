@@ -17,7 +17,7 @@ from ..arrays import MeshValidationError
 from ..operators import Operators, get_operators, spmm
 from .noise_kernels import edge_lengths, fourth_difference_csr, vertex_normals
 from .risk import colour_probes
-from .search import sure_smoothed
+from .search import averaging_step, best_on_curve, path_curve
 
 __all__ = ["estimate_noise", "estimate_noise_and_smooth", "smoothed_estimate", "SmoothedEstimate", "fourth_difference", "mean_edge_length", "normal_trust", "normal_spread", "WINSOR_K", "MAD"]
 
@@ -251,10 +251,12 @@ def smoothed_estimate(V: np.ndarray, F: np.ndarray, refine: int = 2, ops: Operat
     rho_e = _energy_scale(BV, np.asarray(B.sum(axis=1)).ravel(), ops)
     rho = rho_e
     smooth, N, h = V, None, float("nan")
+    smoother = None
     for _ in range(int(refine)):
         if rho == 0:
             return SmoothedEstimate(0.0, V, None, float("nan"))
-        smooth = sure_smoothed(V, ops, rho).X
+        smoother = smoother or _AveragingSmoother(V, ops)
+        smooth = smoother(rho)
         N = vertex_normals(smooth, F)
         rho_n, rho_w, excess = _normal_scale(BV, B, N, ops)
         h = mean_edge_length(smooth, ops)
@@ -263,6 +265,35 @@ def smoothed_estimate(V: np.ndarray, F: np.ndarray, refine: int = 2, ops: Operat
         w = normal_trust(rho_e, h)
         rho = float(np.exp((1 - w) * np.log(max(rho_n, 1e-300)) + w * np.log(rho_e)))
     return SmoothedEstimate(rho, smooth, N, h)
+
+
+class _AveragingSmoother:
+    """``sure_smoothed(V, ops, rho).X`` for the estimate's rounds: one curve, coordinates carried from round to round.
+
+    :func:`~meshdenoise.tuning.search.sure_smoothed` looks its memoised averaging curve up for
+    every call (a digest of the faces, coordinates and probes, 170 MB at 1.6M vertices) and
+    recomputes the best step's coordinates from ``V``; here the curve is looked up once (the same
+    memo entry, which the rules after the estimate read) and a later round whose best step ``k``
+    is at or past the last one's continues from its coordinates (the same steps on the same
+    numbers: the same coordinates, tests/test_noise_kernels.py).
+    """
+
+    def __init__(self, V: np.ndarray, ops: Operators):
+        self.ops = ops
+        self.curve = path_curve(V, ops, averaging_step(ops.P, 1.0), ("P", 1.0))  # sure_smoothed's curve and key
+        self.k, self.X = -1, None
+
+    def __call__(self, rho: float) -> np.ndarray:
+        k = int(best_on_curve(self.curve, self.ops.n, rho, "sure", coordinates=False).value)
+        if self.X is None or k < self.k:
+            X = self.curve.coordinates(k)
+        else:
+            X = self.X
+            for _ in range(k - self.k):
+                X = self.curve.step(X)
+            X = np.array(X, dtype=np.float64)  # a copy, as PathCurve.coordinates returns
+        self.k, self.X = k, X
+        return X
 
 
 def normal_trust(rho: float, h: float) -> float:
