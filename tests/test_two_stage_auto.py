@@ -515,3 +515,34 @@ def test_rules_second_sigma_r_stage_stays_next_to_the_best_so_far_and_the_oracle
         second = {p["sigma_r"] for p in seen if p["normal_iterations"] == 20 and p["vertex_iterations"] == 20}
         assert second == tried
     assert ts.TWO_STAGE_REVISIT_SPAN == 1
+
+
+def test_correlated_fields_on_a_grown_region_equal_the_whole_meshs_colouring_at_the_model_scale(monkeypatch):
+    """Where the region is small next to the mesh the fields are coloured on the region grown by some rings (session
+    11): at the region's vertices they must be the whole mesh's heat-filtered draws (HeatFilter written out here on
+    the whole mesh, tight tolerance), each column scaled so that its mean square over the grown core is the
+    model's there (from the model's coloured averaging probes), up to the sampling of that scale; and growing
+    it by 2 rings only must break the agreement (the outside is held at 0)."""
+    from meshdenoise.noise import HeatFilter, diffusion_length
+    from meshdenoise.tuning import given_noise_model
+
+    V, F = icosphere(5)  # 10,242 vertices
+    n = V.shape[0]
+    Vn = add_normal_noise((V, F), 0.005, seed=1)[0]
+    model = given_noise_model((Vn, F), 0.005, 2.0)
+    ops = get_operators(F, n)
+    ctx = TuningContext(Vn, F, ops, 0.005, "sure", None, {}, model)
+    region = ts.SampledRegion(F, ops, 600, 2, 2)
+    got = ts.correlated_fields(ctx, region.vertices, 3)
+    C = HeatFilter(model.V, model.F, diffusion_length(2.0))
+    white = ts._white_fields(n, 3)
+    want = np.column_stack([C(white[:, j, None], tol=1e-12)[:, 0] for j in range(4)])[region.vertices]
+    factor = np.sum(got * want, axis=0) / np.sum(want * want, axis=0)  # the per-column scale
+    np.testing.assert_allclose(got, want * factor, rtol=0, atol=1e-3 * np.abs(got).max())
+    whole = np.sqrt(n / np.sum(np.column_stack([C(white[:, j, None], tol=1e-12)[:, 0] for j in range(4)]) ** 2,
+                                axis=0))
+    np.testing.assert_allclose(factor, whole, rtol=0.06)  # the whole mesh's scale, to the sampling of the energy
+    monkeypatch.setattr(ts, "TWO_STAGE_COLOUR_RINGS", (0.0, 2))  # grown by 2 rings only
+    cut = ts.correlated_fields(ctx, region.vertices, 3)
+    f2 = np.sum(cut * want, axis=0) / np.sum(want * want, axis=0)
+    assert np.abs(cut - want * f2).max() > 1e-2 * np.abs(got).max()

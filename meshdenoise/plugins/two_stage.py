@@ -380,25 +380,78 @@ def sure_probe(N: np.ndarray, seed: int = 0) -> np.ndarray:
     return z[:, None] * N
 
 
+TWO_STAGE_COLOUR_RINGS = (4.0, 4)  # correlated_fields colours on the region grown by a * (diffusion length) + b rings ...
+TWO_STAGE_COLOUR_SHARE = 0.5  # ... when that is at most this share of the mesh (else on the whole mesh)
+
+
+def _white_fields(n: int, probes: int) -> np.ndarray:
+    """The rule's white draws (n, 1 + probes): column 0 standard normal (seed 0), column ``1 + p`` Rademacher (seed ``p``)."""
+    white = np.empty((n, 1 + probes))
+    white[:, 0] = np.random.default_rng(0).standard_normal(n)
+    for p in range(probes):
+        white[:, 1 + p] = np.random.default_rng(p).choice([-1.0, 1.0], size=n)
+    return white
+
+
 def correlated_fields(ctx: TuningContext, vertices: np.ndarray, probes: int) -> np.ndarray:
     """The rule's noise fields under correlated noise, coloured in one block and restricted to ``vertices`` (k,): (k, 1 + probes).
 
     Column 0: the synthetic copy's noise, white :math:`\\mathcal N(0, 1)` (seed 0); columns
     ``1 + p``: the guard's probes, Rademacher (seed ``p``), each drawn on the whole mesh (n
-    values) and coloured by ``ctx.colour`` (one block solve for all the columns). Each column is
-    then scaled to mean square 1 per vertex over the mesh, as if coloured alone
-    (``ctx.colour(z[:, None], 1.0)`` normalises its one column so); the block's own
-    normalisation is the mean over the columns only.
+    values) and coloured by the noise model's heat filter :math:`C` (one block solve for all the
+    columns), then scaled to mean square 1 per vertex.
+
+    Only ``vertices`` are read, and :math:`C` is local (its kernel, ``HEAT_STEPS`` implicit heat
+    steps over the model's diffusion length :math:`L`, falls off faster than exponentially), so the
+    block is solved on ``vertices`` grown by :math:`\\lceil a L \\rceil + b` rings
+    (``TWO_STAGE_COLOUR_RINGS``): the same system matrix, mass and white-noise scale as the whole
+    mesh's filter on those rows, the outside held at 0. At the region's vertices this is the whole
+    mesh's colouring to the solver's tolerance (bunny scanner, 14 rings: 1.3e-3 of the unit scale,
+    the tolerance's own level; docs/automatic-parameters.md, session 11). Each column is scaled to mean
+    square 1 over the vertices within half those rings of ``vertices`` (the whole mesh's realised energy
+    is not known there: the two scales differ by the sampling of a correlated field's energy, 1-4 %).
+    When the grown region exceeds ``TWO_STAGE_COLOUR_SHARE`` of the mesh, the whole mesh is coloured
+    (``ctx.colour``) and each column scaled to mean square 1 over the mesh.
     """
+    from ..noise import HEAT_STEPS, diffusion_length
+    from ..solvers import CGSolver
+    from ..tuning.covariance import COLOUR_TOL
+
     n = ctx.n
-    white = np.empty((n, 1 + probes))
-    white[:, 0] = np.random.default_rng(0).standard_normal(n)
-    for p in range(probes):
-        white[:, 1 + p] = np.random.default_rng(p).choice([-1.0, 1.0], size=n)
-    coloured = ctx.colour(white, 1.0 / white.shape[1])
-    energy = np.sum(coloured**2, axis=0)
-    scale = np.sqrt(n / np.where(energy > 0, energy, 1.0))
-    return coloured[vertices] * scale
+    white = _white_fields(n, probes)
+    rings = int(np.ceil(TWO_STAGE_COLOUR_RINGS[0] * diffusion_length(ctx.correlation_length))) + TWO_STAGE_COLOUR_RINGS[1]
+    inside = np.zeros(n, dtype=bool)
+    inside[vertices] = True
+    core = None
+    for r in range(rings):
+        inside = inside | (ctx.ops.W @ inside.astype(np.float64) > 0)
+        if r + 1 == rings // 2:
+            core = inside.copy()
+        if inside.sum() > TWO_STAGE_COLOUR_SHARE * n:
+            break
+    if inside.sum() > TWO_STAGE_COLOUR_SHARE * n or core is None:  # the whole mesh
+        coloured = ctx.colour(white, 1.0 / white.shape[1])
+        energy = np.sum(coloured**2, axis=0)
+        scale = np.sqrt(n / np.where(energy > 0, energy, 1.0))
+        return coloured[vertices] * scale
+    rows = np.flatnonzero(inside)
+    filt = ctx.noise.filter()  # the model's heat filter on the whole mesh (built once per model)
+    solver = CGSolver(filt.solver.A[rows][:, rows])
+    mass = filt.mass[rows, None]
+    u = white[rows] * filt.scale[rows, None]
+    for _ in range(HEAT_STEPS):  # as HeatFilter.__call__, on the grown region's rows
+        u = solver.solve(mass * u, tol=COLOUR_TOL, x0=u)
+    # the model's mean square per vertex over the core (1 over the whole mesh; it varies with the mesh's density),
+    # read off the averaging curve's coloured probes, which the rule's guard colours anyway (ctx.smoothed)
+    from ..tuning.risk import probe_block
+    from ..tuning.search import probe_count
+
+    Z, s = probe_block(n, ctx.exact, n_probes=probe_count(n), colour=ctx.noise)
+    target = s * float(np.sum(Z[core] ** 2)) / int(core.sum())
+    kept = core[rows]
+    energy = np.sum(u[kept] ** 2, axis=0)
+    scale = np.sqrt(target * int(kept.sum()) / np.where(energy > 0, energy, 1.0))
+    return u[np.searchsorted(rows, vertices)] * scale
 
 
 class SampledRegion:
