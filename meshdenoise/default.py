@@ -990,6 +990,8 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
     if relabel is not None:
         V, F_in, F = relabel.vertices(V), F, relabel.faces
     ops = get_operators(F, V.shape[0])
+    if relabel is not None:
+        F = ops.F  # int64, as read_mesh gives (the relabelling's own faces are int32)
     h = mean_edge_length(V, ops)
     with stage("estimating the noise"):
         if noise is None:

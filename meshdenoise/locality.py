@@ -41,11 +41,11 @@ class Relabelling:
 
     Attributes
     ----------
-    order : ndarray, shape (n,), int64
+    order : ndarray, shape (n,), int32 (int64 from 2^31 vertices)
         New label -> old label: new vertex ``k`` is old vertex ``order[k]``.
-    inverse : ndarray, shape (n,), int64
+    inverse : ndarray, shape (n,), same type
         Old label -> new label.
-    faces : ndarray, shape (m, 3), int64
+    faces : ndarray, shape (m, 3), same type
         The faces in new labels, rows sorted by their smallest vertex (so loops over faces
         also walk memory in order).
 
@@ -67,10 +67,11 @@ class Relabelling:
     @classmethod
     def from_order(cls, order: np.ndarray, F: np.ndarray) -> "Relabelling":
         """The relabelling to ``order`` (new -> old, a permutation of ``range(n)``) of faces ``F``."""
-        order = np.asarray(order, dtype=np.int64)
+        index = np.int32 if order.size < 2**31 - 1 else np.int64  # half the bytes of int64 at scan size
+        order = np.asarray(order, dtype=index)
         inverse = np.empty_like(order)
-        inverse[order] = np.arange(order.size, dtype=np.int64)
-        G = inverse[np.asarray(F, dtype=np.int64)]
+        inverse[order] = np.arange(order.size, dtype=index)
+        G = inverse[np.asarray(F)]
         G = G[np.argsort(G.min(axis=1), kind="stable")] if len(G) else G.reshape(0, 3)
         for a in (order, inverse, G):
             a.flags.writeable = False

@@ -316,8 +316,10 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
     ops = options.get("operators")
     relabel = None
     if ops is None:
-        ops = get_operators(F, V.shape[0])
         relabel = relabelling(F, V.shape[0])  # a large mesh in a cache-hostile order: filter relabelled vertices
+        # the caller's labels need operators only to read pinned / region (e.g. "boundary"); else none are built
+        needs_own = relabel is None or options.get("pinned") is not None or options.get("region") is not None
+        ops = get_operators(F, V.shape[0]) if needs_own else None
     elif not isinstance(ops, Operators) or ops.n != V.shape[0] or not np.array_equal(ops.F, F):
         raise ValueError(f"filter '{spec.name}': operators= was built for another topology than this mesh")
     boundary_motion = options.get("boundary_motion", "free")
@@ -326,7 +328,7 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
             f"filter '{spec.name}': parameter 'boundary_motion' = {boundary_motion!r} is not one of "
             + ", ".join(map(repr, BOUNDARY_MOTIONS))
         )
-    pinned = fixed_mask(ops, options.get("pinned"), options.get("region"), data)
+    pinned = None if ops is None else fixed_mask(ops, options.get("pinned"), options.get("region"), data)
     try:
         if relabel is None:
             V_out = run_core(spec, V, ops, values, pinned=pinned, boundary_motion=boundary_motion)

@@ -546,3 +546,24 @@ def test_correlated_fields_on_a_grown_region_equal_the_whole_meshs_colouring_at_
     cut = ts.correlated_fields(ctx, region.vertices, 3)
     f2 = np.sum(cut * want, axis=0) / np.sum(want * want, axis=0)
     assert np.abs(cut - want * f2).max() > 1e-2 * np.abs(got).max()
+
+
+@pytest.mark.parametrize("large_from, expected", [(10_000, 24), (20_000, 6)])
+def test_large_meshes_sample_the_rule_region_in_more_balls(monkeypatch, large_from, expected):
+    """From TWO_STAGE_PATCHES_LARGE's size the rule's region is grown from more, smaller balls."""
+    V, F = icosphere(5)  # 10,242 vertices: more than the region's 3000
+    Vn, _ = add_normal_noise((V, F), rho=0.01, seed=0)
+    seen = []
+
+    class Stop(Exception):
+        pass
+
+    def spy(F, ops, size, patches, margin, seed=0):
+        seen.append((size, patches))
+        raise Stop
+
+    monkeypatch.setattr(ts, "TWO_STAGE_PATCHES_LARGE", (large_from, 24))
+    monkeypatch.setattr(ts, "SampledRegion", spy)
+    with pytest.raises(Stop):
+        choose_parameters((Vn, F), "two_stage", noise=0.01)
+    assert seen == [(ts.TWO_STAGE_SAMPLE, expected)]

@@ -126,6 +126,8 @@ def choose_parameters(
     if relabel is not None:
         V, F_in, F = relabel.vertices(V), F, relabel.faces
     ops = get_operators(F, V.shape[0])
+    if relabel is not None:
+        F = ops.F  # int64, as read_mesh gives (the relabelling's own faces are int32)
     if correlation_length is not None:
         if isinstance(correlation_length, (bool, np.bool_)) or not isinstance(
                 correlation_length, (int, float, np.integer, np.floating)):
