@@ -79,6 +79,18 @@ def unit_into(out, i, s0, s1, s2):  # pragma: no cover - compiled
     return norm
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def face_cross(X, a, b, c):  # pragma: no cover - compiled
+    """``cross(X[b] - X[a], X[c] - X[a])`` as three floats, numpy's ``cross`` arithmetic."""
+    u0 = X[b, 0] - X[a, 0]
+    u1 = X[b, 1] - X[a, 1]
+    u2 = X[b, 2] - X[a, 2]
+    v0 = X[c, 0] - X[a, 0]
+    v1 = X[c, 1] - X[a, 1]
+    v2 = X[c, 2] - X[a, 2]
+    return u1 * v2 - u2 * v1, u2 * v0 - u0 * v2, u0 * v1 - u1 * v0
+
+
 # --------------------------------------------------------------------------- face geometry
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def face_geometry(X, F, N, A, C):  # pragma: no cover - compiled
@@ -90,15 +102,7 @@ def face_geometry(X, F, N, A, C):  # pragma: no cover - compiled
     m = F.shape[0]
     for f in prange(m):
         a, b, c = F[f, 0], F[f, 1], F[f, 2]
-        u0 = X[b, 0] - X[a, 0]
-        u1 = X[b, 1] - X[a, 1]
-        u2 = X[b, 2] - X[a, 2]
-        v0 = X[c, 0] - X[a, 0]
-        v1 = X[c, 1] - X[a, 1]
-        v2 = X[c, 2] - X[a, 2]
-        n0 = u1 * v2 - u2 * v1
-        n1 = u2 * v0 - u0 * v2
-        n2 = u0 * v1 - u1 * v0
+        n0, n1, n2 = face_cross(X, a, b, c)
         A[f] = 0.5 * unit_into(N, f, n0, n1, n2)
         for d in range(3):
             C[f, d] = (X[a, d] + X[b, d] + X[c, d]) / 3.0

@@ -198,25 +198,8 @@ def fourth_difference_csr(P: sp.csr_matrix, threads: int | None = None) -> sp.cs
 def _unit_face_normals(V, F, out):  # pragma: no cover - compiled
     """:func:`meshdenoise.geometry.face_normals`: ``cross_rows(V[b] - V[a], V[c] - V[a])`` divided by its norm."""
     for f in prange(F.shape[0]):
-        a, b, c = F[f, 0], F[f, 1], F[f, 2]
-        u0 = V[b, 0] - V[a, 0]
-        u1 = V[b, 1] - V[a, 1]
-        u2 = V[b, 2] - V[a, 2]
-        v0 = V[c, 0] - V[a, 0]
-        v1 = V[c, 1] - V[a, 1]
-        v2 = V[c, 2] - V[a, 2]
-        n0 = u1 * v2 - u2 * v1
-        n1 = u2 * v0 - u0 * v2
-        n2 = u0 * v1 - u1 * v0
-        norm = np.sqrt((n0 * n0 + n1 * n1) + n2 * n2)
-        if norm > 0:
-            out[f, 0] = n0 / norm
-            out[f, 1] = n1 / norm
-            out[f, 2] = n2 / norm
-        else:
-            out[f, 0] = 0.0
-            out[f, 1] = 0.0
-            out[f, 2] = 0.0
+        n0, n1, n2 = _kernels.face_cross(V, F[f, 0], F[f, 1], F[f, 2])
+        _kernels.unit_into(out, f, n0, n1, n2)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
