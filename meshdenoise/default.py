@@ -57,6 +57,7 @@ from .progress import stage
 from .registry import COMMON_OPTIONS, FilterSpec, ParameterError, apply_filter, get_filter, run_core
 from .tuning.choose import choose_parameters, relabelled_model
 from .tuning.covariance import NoiseModel, estimate_noise_model
+from .tuning.memo import release_before_filter
 from .tuning.detail import BANDS as DETAIL_BANDS
 from .tuning.detail import ELL_GRID as DETAIL_LENGTHS
 from .tuning.detail import DetailVerdict, separate_detail
@@ -1152,6 +1153,7 @@ def denoise(
             log.info("denoise(%s): automatic parameters %s", method, chosen)
         else:
             chosen = dict(params)
+    release_before_filter()
     before = read_mesh(mesh).V.copy() if choice is not None else None
     with stage(f"running {method}"):
         out = apply_filter(method, mesh, **chosen, **options)

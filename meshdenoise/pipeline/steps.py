@@ -602,6 +602,7 @@ def _run_ours(step: Step, ctx: RunContext) -> None:
             options[key] = _vertex_option(options[key], state, key)
     if step.options.get("parameters") == "auto":
         from ..auto import choose_parameters  # written separately; imported only when used
+        from ..tuning.memo import release_before_filter
 
         given_noise = step.options.get("noise")
         noise = given_noise.model(state.V, state.F) if given_noise is not None else None
@@ -612,6 +613,7 @@ def _run_ours(step: Step, ctx: RunContext) -> None:
             ctx.row[f"auto.{step.name}.{k}"] = v
         if ctx.echo:
             ctx.echo(f"{ctx.input_path.name}: {step.name} parameters chosen automatically: {params}")
+        release_before_filter()
     with stage(f"running {step.name}"):
         V, _ = spec.public(state.arrays(), **params, **options)
     ctx.state = state.with_vertices(V)
@@ -622,6 +624,7 @@ def _run_default(step: Step, ctx: RunContext) -> None:
     import warnings
 
     from ..default import choose_default, run_post_step, warn_if_not_smoothing
+    from ..tuning.memo import release_before_filter
 
     state = ctx.state
     options = dict(step.options)
@@ -634,6 +637,7 @@ def _run_default(step: Step, ctx: RunContext) -> None:
     if ctx.echo:  # the choice is said before the filter runs
         for line in choice.lines():
             ctx.echo(f"{ctx.input_path.name}: {line}")
+    release_before_filter()
     with stage(f"running {choice.method}"):
         V, _ = get_filter(choice.method).public(state.arrays(), **choice.params, **options)
     V, _ = run_post_step(choice, (V, state.F), **options)  # Taubin steps after a smooth prior (none otherwise)

@@ -17,10 +17,22 @@ import scipy.sparse as sp
 
 from ..cache import ByteLRU
 
-__all__ = ["MEMO", "MEMO_BYTES", "digest"]
+__all__ = ["MEMO", "MEMO_BYTES", "digest", "release_before_filter"]
 
 MEMO_BYTES = 256 << 20
 MEMO = ByteLRU(MEMO_BYTES)
+
+
+def release_before_filter() -> None:
+    """Empty the memo between a choice and the filter run it chose (``denoise``, the CLI, pipelines).
+
+    No filter reads the memo, and the input's entries are useless once the filter has
+    moved the vertices; at scan size they are the largest thing left from the choice (a
+    1.6M-vertex averaging curve: the coordinates, 10 probes and their state, 255 MB) and
+    would sit beside the filter's own buffers at its peak. :func:`choose_parameters` alone
+    keeps them, for a second search on the same mesh (a benchmark's oracle).
+    """
+    MEMO.clear()
 
 
 def _feed(h: Any, a: np.ndarray) -> None:
