@@ -137,3 +137,34 @@ def test_every_filter_docstring_says_how_to_choose_its_main_parameter_for_a_scan
                if not ("for a scan" in (spec.public.__doc__ or "") and "mean edge lengths" in spec.public.__doc__
                        and "parameter-scale.md" in spec.public.__doc__)]
     assert missing == []
+
+
+def test_denoise_and_the_denoise_step_empty_the_tuning_memo_before_their_filter(tmp_path, monkeypatch):
+    """A choice's memo entries (255 MB at 1.6M vertices) must not sit beside the filter's buffers."""
+    from click.testing import CliRunner
+
+    from meshdenoise import registry
+    from meshdenoise.cli import cli
+    from meshdenoise.io import save_mesh
+    from meshdenoise.shapes import icosphere
+    from meshdenoise.tuning.memo import MEMO
+
+    V, F = icosphere(2)
+    Vn, _ = meshdenoise.add_normal_noise((V, F), rho=0.02, seed=0)
+    seen = []
+    run = registry._run_filter
+    monkeypatch.setattr(registry, "_run_filter", lambda *a: (seen.append(len(MEMO)), run(*a))[1])
+    clear_caches()
+    meshdenoise.choose_parameters((Vn, F), "sobolev")
+    assert len(MEMO) > 0  # the choice alone keeps its entries (a benchmark's oracle reuses them)
+    meshdenoise.denoise((Vn, F), "sobolev")
+    assert seen == [0]  # ... but denoise's filter starts with none
+    seen.clear()
+    meshdenoise.denoise((Vn, F))  # the default: its choice, then its filter
+    assert seen and seen[-1] == 0  # the filter, after the choice (which may run filters itself)
+    save_mesh(tmp_path / "in.ply", Vn, F)
+    for how in ([], ["--method", "heat", "--auto"]):  # the pipeline's two steps: the default, a filter's own rule
+        seen.clear()
+        result = CliRunner().invoke(cli, ["denoise", *how, str(tmp_path / "in.ply"), str(tmp_path / "out.ply")])
+        assert result.exit_code == 0, result.output
+        assert seen and seen[-1] == 0  # the filter, after the choice (which may run filters itself)
