@@ -18,6 +18,7 @@ __all__ = [
     "face_normals",
     "face_areas",
     "vertex_normals",
+    "numpy_vertex_normals",
     "area_normals",
     "coherent_normals",
     "coherent_normals_derivative",
@@ -123,7 +124,23 @@ def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     >>> vertex_normals(V, np.array([[0, 1, 2]]))[[0, 3]]
     array([[0., 0., 1.],
            [0., 0., 0.]])
+
+    From 65,536 vertices the compiled kernel
+    :func:`meshdenoise.tuning.noise_kernels.vertex_normals` computes the same numbers, bit for
+    bit, without nine ``(m,)`` temporaries (0.7 -> 0.1 s at 1.6M vertices);
+    :func:`numpy_vertex_normals` is the numpy computation at every size.
     """
+    from .tuning.noise_kernels import KERNEL_MIN_VERTICES
+
+    if np.shape(V)[0] >= KERNEL_MIN_VERTICES:
+        from .tuning.noise_kernels import vertex_normals as compiled_vertex_normals
+
+        return compiled_vertex_normals(V, F)
+    return numpy_vertex_normals(V, F)
+
+
+def numpy_vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """:func:`vertex_normals` by numpy at every size: the reference the compiled kernel is tested against."""
     return _normalize_rows(_scatter_faces_to_vertices(face_normals(V, F), F, V.shape[0]))
 
 

@@ -11,7 +11,7 @@ import pytest
 import scipy.sparse as sp
 
 from meshdenoise import add_normal_noise
-from meshdenoise.geometry import vertex_normals as numpy_vertex_normals
+from meshdenoise.geometry import numpy_vertex_normals
 from meshdenoise.noise import add_scanner_noise
 from meshdenoise.operators import Operators, get_operators, spmm
 from meshdenoise.shapes import grid, icosphere, torus
@@ -231,3 +231,18 @@ def test_the_estimates_averaging_rounds_are_sure_smoothed_and_share_its_memoised
         assert set(MEMO) == keys  # sure_smoothed found the estimate's curve: one run for both
         assert want.value == smoother.k and np.array_equal(X, want.X)
     assert steps[0] < steps[1] == steps[2] > steps[3] > 0, steps
+
+
+def test_geometry_vertex_normals_take_the_compiled_kernel_from_its_threshold(monkeypatch):
+    """``geometry.vertex_normals`` is the compiled kernel from KERNEL_MIN_VERTICES on: same numbers as numpy's."""
+    from meshdenoise.geometry import vertex_normals
+
+    V, F = icosphere(3)
+    V = V + 0.01 * np.random.default_rng(0).standard_normal(V.shape)
+    calls = []
+    kernel = nk._unit_face_normals
+    monkeypatch.setattr(nk, "_unit_face_normals", lambda *a: (calls.append(1), kernel(*a))[1])
+    monkeypatch.setattr(nk, "KERNEL_MIN_VERTICES", V.shape[0] + 1)
+    assert np.array_equal(vertex_normals(V, F), numpy_vertex_normals(V, F)) and calls == []
+    monkeypatch.setattr(nk, "KERNEL_MIN_VERTICES", V.shape[0])
+    assert np.array_equal(vertex_normals(V, F), numpy_vertex_normals(V, F)) and calls == [1]

@@ -239,7 +239,7 @@ def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     if F.size and (F.min() < 0 or F.max() >= V.shape[0]):
         raise ValueError(f"vertex_normals: face indices must lie in 0 .. {V.shape[0] - 1}, got {F.min()} .. {F.max()}")
     if V.shape[0] < KERNEL_MIN_VERTICES:
-        from ..geometry import vertex_normals as numpy_vertex_normals
+        from ..geometry import numpy_vertex_normals
 
         return numpy_vertex_normals(V, F)
     _kernels.set_threads()
