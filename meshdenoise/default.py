@@ -1144,6 +1144,7 @@ def denoise(
                             "with no method the default chooses the filter and its parameters")
         choice = choose_default(mesh, noise=noise, boundary_motion=boundary_motion)
         method, chosen = choice.method, dict(choice.params)
+        release_before_filter()  # the choice's memo entries are dead weight beside the filter
     else:
         if not isinstance(method, str):
             raise TypeError(f"denoise: method must be a filter name (str) or None, got {method!r}")
@@ -1151,9 +1152,9 @@ def denoise(
         if spec.auto is not None and set(spec.auto.tunes) - set(params):
             chosen = choose_parameters(mesh, method, noise=noise, **params)
             log.info("denoise(%s): automatic parameters %s", method, chosen)
+            release_before_filter()  # the choice's memo entries are dead weight beside the filter
         else:
             chosen = dict(params)
-    release_before_filter()
     before = read_mesh(mesh).V.copy() if choice is not None else None
     with stage(f"running {method}"):
         out = apply_filter(method, mesh, **chosen, **options)

@@ -168,3 +168,18 @@ def test_denoise_and_the_denoise_step_empty_the_tuning_memo_before_their_filter(
         result = CliRunner().invoke(cli, ["denoise", *how, str(tmp_path / "in.ply"), str(tmp_path / "out.ply")])
         assert result.exit_code == 0, result.output
         assert seen and seen[-1] == 0  # the filter, after the choice (which may run filters itself)
+
+
+def test_denoise_with_every_parameter_given_keeps_the_tuning_memo():
+    """No choice in the call, nothing released: a caller's earlier search stays reusable."""
+    from meshdenoise.shapes import icosphere
+    from meshdenoise.tuning.memo import MEMO
+
+    V, F = icosphere(2)
+    Vn, _ = meshdenoise.add_normal_noise((V, F), rho=0.02, seed=0)
+    clear_caches()
+    mu = meshdenoise.choose_parameters((Vn, F), "sobolev")["mu"]
+    kept = set(MEMO)
+    assert kept
+    meshdenoise.denoise((Vn, F), "sobolev", mu=mu)
+    assert set(MEMO) == kept
