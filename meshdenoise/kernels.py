@@ -354,13 +354,94 @@ def _merge3_fill(F, vf_ptr, vf, indptr, indices):  # pragma: no cover - compiled
         _merge3(F, vf_ptr, vf, f, indices[indptr[f] : indptr[f + 1]], True)
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def _counting_sort(groups, ptr, members):  # pragma: no cover - compiled
+    """``members[ptr[g]:ptr[g + 1]]`` = the positions ``t`` with ``groups[t] == g``, increasing (``ptr`` given)."""
+    at = ptr[:-1].copy()
+    for t in range(groups.shape[0]):
+        g = groups[t]
+        members[at[g]] = t
+        at[g] += 1
+
+
 def _csr_of_groups(groups: np.ndarray, size: int, index_dtype) -> tuple[np.ndarray, np.ndarray]:
-    """Rows ``0..size-1`` listing the positions ``t`` with ``groups[t] == row``, in increasing ``t``."""
+    """Rows ``0..size-1`` listing the positions ``t`` with ``groups[t] == row``, in increasing ``t``.
+
+    ``members`` is ``np.argsort(groups, kind="stable")``, by a counting sort (one pass; the
+    stable argsort of 9.6M corners took about a second at 1.6M vertices).
+    """
     counts = np.bincount(groups, minlength=size)
     ptr = np.zeros(size + 1, dtype=np.int64)
     np.cumsum(counts, out=ptr[1:])
-    members = np.argsort(groups, kind="stable").astype(index_dtype)
+    members = np.empty(groups.shape[0], dtype=index_dtype)
+    _counting_sort(np.ascontiguousarray(groups), ptr, members)
     return ptr, members
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _side_order(F, n, ptr, order, other):  # pragma: no cover - compiled
+    """Face sides ``3 f + k`` sorted by (smaller, larger) endpoint, stably: a counting sort by the smaller
+    endpoint (rows ``ptr``), then an insertion sort of each row by the larger one (``other``)."""
+    at = ptr[:-1].copy()
+    for f in range(F.shape[0]):
+        for k in range(3):
+            a = F[f, k]
+            b = F[f, (k + 1) % 3]
+            lo, hi = (a, b) if a < b else (b, a)
+            order[at[lo]] = 3 * f + k
+            other[at[lo]] = hi
+            at[lo] += 1
+    for v in range(n):
+        for i in range(ptr[v] + 1, ptr[v + 1]):
+            h, s = other[i], order[i]
+            j = i - 1
+            while j >= ptr[v] and other[j] > h:  # strict: equal keys keep their side order
+                other[j + 1] = other[j]
+                order[j + 1] = order[j]
+                j -= 1
+            other[j + 1] = h
+            order[j + 1] = s
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _consecutive_pairs(ptr, order, other, first, second):  # pragma: no cover - compiled
+    """Faces of consecutive sorted sides of the same edge; returns how many (``first`` empty: count only)."""
+    count = 0
+    write = first.shape[0] > 0
+    for v in range(ptr.shape[0] - 1):
+        for i in range(ptr[v], ptr[v + 1] - 1):
+            if other[i] == other[i + 1]:
+                if write:
+                    first[count] = order[i] // 3
+                    second[count] = order[i + 1] // 3
+                count += 1
+    return count
+
+
+def edge_side_pairs(F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Faces sharing an edge: consecutive face sides of the same undirected edge, in (edge, side) order.
+
+    The face sides ``3 f + k`` (from ``F[f, k]`` to ``F[f, (k + 1) % 3]``) sorted stably by the
+    key ``min * n + max`` of their endpoints; each pair of consecutive sides with the same key
+    gives ``(f, g)``: each manifold edge once, an edge of ``s`` sides ``s - 1`` times. The same
+    arrays as ``np.argsort(key, kind="stable")`` and a comparison of neighbours, without the
+    sort (2 s at 1.6M vertices) and its five ``(3 m,)`` int64 temporaries.
+
+    Returns ``first``, ``second`` (E,) int64 face indices.
+    """
+    F = np.ascontiguousarray(F)
+    lo = np.minimum(F, np.roll(F, -1, axis=1)).ravel()  # side k's smaller endpoint, in side order
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(lo, minlength=n), out=ptr[1:])
+    del lo
+    order = np.empty(3 * F.shape[0], dtype=np.int64)
+    other = np.empty(3 * F.shape[0], dtype=F.dtype)
+    _side_order(F, n, ptr, order, other)
+    empty = np.empty(0, dtype=np.int64)
+    count = _consecutive_pairs(ptr, order, other, empty, empty)
+    first, second = np.empty(count, dtype=np.int64), np.empty(count, dtype=np.int64)
+    _consecutive_pairs(ptr, order, other, first, second)
+    return first, second
 
 
 def face_neighbour_lists(F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:

@@ -205,3 +205,24 @@ def test_open3d_taubin_matches_the_numpy_code(mesh):
     got = taubin((V, F), iterations=3, lam=0.33, mu=-0.34, weights="open3d", pinned=fixed)[0]
     np.testing.assert_allclose(got, old_open3d_taubin(V, F, 3, 0.33, -0.34, fixed), rtol=0, atol=1e-13)
     np.testing.assert_array_equal(got[fixed], V[fixed])
+
+
+@pytest.mark.parametrize("dtype", [np.int32, np.int64])
+def test_edge_side_pairs_are_the_stable_sorts(dtype):
+    """kernels.edge_side_pairs against the stable argsort of the sides' keys; _csr_of_groups against argsort."""
+    from meshdenoise import kernels
+
+    rng = np.random.default_rng(2)
+    n = 40
+    F = rng.integers(0, n, size=(300, 3)).astype(dtype)  # many edges of 3+ sides, degenerate faces too
+    a, b = F.ravel().astype(np.int64), F[:, [1, 2, 0]].ravel().astype(np.int64)
+    key = np.minimum(a, b) * n + np.maximum(a, b)
+    order = np.argsort(key, kind="stable")
+    same = key[order][1:] == key[order][:-1]
+    first, second = kernels.edge_side_pairs(F, n)
+    np.testing.assert_array_equal(first, order[:-1][same] // 3)
+    np.testing.assert_array_equal(second, order[1:][same] // 3)
+    groups = F.ravel()
+    ptr, members = kernels._csr_of_groups(groups, n + 5, np.int32)
+    np.testing.assert_array_equal(members, np.argsort(groups, kind="stable"))
+    np.testing.assert_array_equal(ptr, np.concatenate([[0], np.cumsum(np.bincount(groups, minlength=n + 5))]))

@@ -69,19 +69,9 @@ class FaceNeighbourhood:
             Fc[self.label] = F
             back = np.empty(m, dtype=np.int64)
             back[self.label] = np.arange(m)
-        a, b = Fc.ravel(), Fc[:, [1, 2, 0]].ravel()
-        key = np.minimum(a, b).astype(np.int64)  # int64 whatever F's integer type (int32 in two_stage's topology)
-        key *= n
-        key += np.maximum(a, b)
-        del Fc, a, b
-        order = np.argsort(key, kind="stable")
-        key = key[order]
-        same = key[1:] == key[:-1]
-        del key
+        self.edge_a, self.edge_b = kernels.edge_side_pairs(Fc, n)
+        del Fc
         edge_dtype = np.int32 if m < 2**31 - 1 else np.int64
-        self.edge_a = order[:-1][same] // 3
-        self.edge_b = order[1:][same] // 3
-        del order, same
         if back is not None:
             self.edge_a, self.edge_b = back[self.edge_a], back[self.edge_b]
         self.edge_a, self.edge_b = self.edge_a.astype(edge_dtype), self.edge_b.astype(edge_dtype)
