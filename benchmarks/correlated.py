@@ -24,6 +24,8 @@ from __future__ import annotations
 
 import argparse
 import datetime
+import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -97,6 +99,19 @@ def run_row(name: str, V0: np.ndarray, F: np.ndarray, ell: float, sigma: float, 
     return out
 
 
+def _commit() -> str:
+    """The checkout's commit (short hash, ``+dirty`` when the tree has uncommitted changes)."""
+    root = Path(__file__).resolve().parent.parent
+    try:
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
+
+
 def fmt(p: dict) -> str:
     return ", ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}" for k, v in p.items())
 
@@ -111,14 +126,19 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--out", help="markdown table to write")
     args = ap.parse_args(argv)
     t0 = time.time()
+    load0 = os.getloadavg()
     rows = []
     for name in args.meshes:
         V0, F = load(name)
         for ell in args.lengths:
             rows += run_row(name, V0, F, ell, args.sigma, args.methods, args.seed)
     wall = time.time() - t0
+    load1 = os.getloadavg()
     cmd = "python benchmarks/correlated.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    lines = [f"<!-- {cmd}", f"     {datetime.date.today()}, {wall:.0f} s wall (2 cores shared with other jobs) -->", "",
+    lines = [f"<!-- {cmd}",
+             f"     {datetime.date.today()}, {wall:.0f} s wall on 2 cores shared with other jobs; load average "
+             f"(1/5/15 min) {load0[0]:.1f}/{load0[1]:.1f}/{load0[2]:.1f} at the start, "
+             f"{load1[0]:.1f}/{load1[1]:.1f}/{load1[2]:.1f} at the end; code {_commit()} -->", "",
              "# Automatic parameters under correlated noise", "",
              f"add_scanner_noise along the normals, sigma = {args.sigma:g} mean edge lengths, seed {args.seed}. "
              "SNR in dB. *before*: SURE with estimate_noise's level, independent noise (the rule before the noise "
