@@ -127,6 +127,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     t0 = time.time()
     load0 = os.getloadavg()
+    commit = _commit()  # at the start: the code that ran
     rows = []
     for name in args.meshes:
         V0, F = load(name)
@@ -138,7 +139,7 @@ def main(argv: list[str] | None = None) -> None:
     lines = [f"<!-- {cmd}",
              f"     {datetime.date.today()}, {wall:.0f} s wall on 2 cores shared with other jobs; load average "
              f"(1/5/15 min) {load0[0]:.1f}/{load0[1]:.1f}/{load0[2]:.1f} at the start, "
-             f"{load1[0]:.1f}/{load1[1]:.1f}/{load1[2]:.1f} at the end; code {_commit()} -->", "",
+             f"{load1[0]:.1f}/{load1[1]:.1f}/{load1[2]:.1f} at the end; code {commit} -->", "",
              "# Automatic parameters under correlated noise", "",
              f"add_scanner_noise along the normals, sigma = {args.sigma:g} mean edge lengths, seed {args.seed}. "
              "SNR in dB. *before*: SURE with estimate_noise's level, independent noise (the rule before the noise "
