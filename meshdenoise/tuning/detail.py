@@ -67,7 +67,8 @@ from .noise_kernels import vertex_normals  # geometry.vertex_normals bit for bit
 from .noise_level import estimate_noise_and_smooth, mean_edge_length
 
 __all__ = ["DetailVerdict", "separate_detail", "band_spectrum", "probe_spectra", "fit_spectrum", "misfit_profile",
-           "interpolate_spectra", "correlation_test", "region_probe_spectra", "BANDS", "ELL_GRID", "ELL_FINE", "BETA_GRID"]
+           "interpolate_spectra", "correlation_test", "region_probe_spectra", "BANDS", "ELL_GRID", "ELL_FINE", "BETA_GRID",
+           "CORRELATION_SAMPLE"]
 
 BANDS = (0, 1, 2, 4, 8, 16, 32, 64)  # s of (I - P)^2 P^s: the fine bands and the coarse ones the surface dominates
 FINE = (0, 1, 2, 4)  # the fine bands (estimate_noise_model's)
@@ -88,6 +89,12 @@ CORRELATION_RATIO = 1.4
 CORRELATION_GAIN = 0.1  # ... and this much more than the best fit's (l >= ELL_MIN): calibrated, docs/noise-vs-detail.md
 CORRELATION_PATCHES = 100  # ... and the mesh holds this many correlation areas pi l^2 (estimate_noise_model's MIN_PATCHES)
 PROBES = 4  # probes per correlation length: a median over n * PROBES values
+# the correlation test's call (meshdenoise.default.default_noise, where the fine bands read independent noise): its
+# probes read on a sampled region above this many vertices (``sample=``). On every cell of
+# benchmarks/noise_model_grid.py, the peers/quality rows and the correlated table's rows the same decisions as on
+# the noise model's FIT_SAMPLE (30,000): 20 of 20 asked cells the same test answer, verdict and model taken or kept,
+# levels taken within 3.3 %; 10,000 moved a level by 16 % (benchmarks/results/noise-model-test-sample.md)
+CORRELATION_SAMPLE = 15_000
 MIN_VERTICES = 200  # fewer usable vertices than this: too few for eight bands
 
 
