@@ -18,12 +18,19 @@ Columns per filter: SNR of the automatic choice as it was before the noise model
 oracle over the same filter's parameter (``choose_parameters(..., criterion="oracle",
 reference=clean)``); ``loss`` = oracle - auto now. Also the estimate: rho / sigma and the
 correlation length read.
+
+``--policy`` adds the default's noise model (:func:`meshdenoise.default.default_noise`: the fine
+bands' reading, the detail fit's verdict and correlation test, :func:`~meshdenoise.default.noise_policy`),
+with which ``md.denoise``/``choose_default`` choose each filter's parameters
+(``choose_parameters(..., noise=model)``): its SNR, loss against the oracle, level, length and verdict.
 """
 
 from __future__ import annotations
 
 import argparse
 import datetime
+import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -68,13 +75,20 @@ def load(name: str) -> tuple[np.ndarray, np.ndarray]:
     raise SystemExit(f"--meshes: unknown mesh {name!r}; choose from elephant, bunny, face")
 
 
-def run_row(name: str, V0: np.ndarray, F: np.ndarray, ell: float, sigma: float, methods: list[str], seed: int) -> list[dict]:
+def run_row(name: str, V0: np.ndarray, F: np.ndarray, ell: float, sigma: float, methods: list[str], seed: int,
+            policy: bool = False) -> list[dict]:
     h = mean_edge_length(V0, F)
     Vn, _ = add_scanner_noise((V0, F), sigma * h, correlation_length=ell, seed=seed)
     t = time.perf_counter()
     model = estimate_noise_model((Vn, F))
     t_est = time.perf_counter() - t
     rho_white = estimate_noise((Vn, F))
+    pol = verdict = None
+    if policy:
+        from meshdenoise.default import default_noise
+
+        pol, _, _, verdict, _ = default_noise(Vn, F, mean_edge_length(Vn, F))
+        same = pol.rho == model.rho and pol.correlation_length == model.correlation_length
     out = []
     for method in methods:
         res = {"mesh": name, "n": V0.shape[0], "ell": ell, "method": method, "noisy": snr(V0, Vn),
@@ -85,16 +99,41 @@ def run_row(name: str, V0: np.ndarray, F: np.ndarray, ell: float, sigma: float, 
         p_new = choose_parameters((Vn, F), method)
         res["t_auto"] = time.perf_counter() - t
         p_orc = choose_parameters((Vn, F), method, criterion="oracle", reference=V0)
-        for key, p in (("old", p_old), ("auto", p_new), ("oracle", p_orc)):
+        runs = [("old", p_old), ("auto", p_new), ("oracle", p_orc)]
+        if pol is not None:
+            res.update(rho_pol=pol.rho / (sigma * h), ell_pol=pol.correlation_length, verdict=verdict)
+            if not same:  # the same model chooses the same parameters: no second search
+                runs.append(("pol", choose_parameters((Vn, F), method, noise=pol)))
+        for key, p in runs:
             X, _ = apply_filter(method, (Vn, F), **p)
             res[key] = snr(V0, X)
             res[key + "_params"] = p
+        if pol is not None and same:
+            res["pol"], res["pol_params"] = res["auto"], res["auto_params"]
         res["loss"] = res["oracle"] - res["auto"]
+        extra = ""
+        if pol is not None:
+            res["loss_pol"] = res["oracle"] - res["pol"]
+            extra = (f"; default's noise: {verdict}, rho/sigma {res['rho_pol']:.3f} ell {res['ell_pol']:.2f}, "
+                     f"SNR {res['pol']:.2f} (loss {res['loss_pol']:.2f}) {res['pol_params']}")
         out.append(res)
         print(f"{name} ell={ell:g} {method}: noisy {res['noisy']:.2f} old {res['old']:.2f} auto {res['auto']:.2f} "
               f"oracle {res['oracle']:.2f} (loss {res['loss']:.2f}); rho/sigma {res['rho']:.3f} "
-              f"ell_hat {res['ell_hat']:.2f}; {p_new} vs oracle {p_orc}", flush=True)
+              f"ell_hat {res['ell_hat']:.2f}; {p_new} vs oracle {p_orc}{extra}", flush=True)
     return out
+
+
+def _commit() -> str:
+    """The checkout's commit (short hash, ``+dirty`` when the tree has uncommitted changes)."""
+    root = Path(__file__).resolve().parent.parent
+    try:
+        head = subprocess.run(["git", "-C", str(root), "rev-parse", "--short", "HEAD"], capture_output=True,
+                              text=True, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(root), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown"
+    return head + ("+dirty" if dirty else "")
 
 
 def fmt(p: dict) -> str:
@@ -109,30 +148,58 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--methods", nargs="*", default=METHODS)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", help="markdown table to write")
+    ap.add_argument("--policy", action="store_true",
+                    help="also the default's noise model (default_noise: detail fit and correlation test) and its SNR")
     args = ap.parse_args(argv)
     t0 = time.time()
+    load0 = os.getloadavg()
+    commit = _commit()  # at the start: the code that ran
     rows = []
     for name in args.meshes:
         V0, F = load(name)
         for ell in args.lengths:
-            rows += run_row(name, V0, F, ell, args.sigma, args.methods, args.seed)
+            rows += run_row(name, V0, F, ell, args.sigma, args.methods, args.seed, args.policy)
     wall = time.time() - t0
+    load1 = os.getloadavg()
     cmd = "python benchmarks/correlated.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    lines = [f"<!-- {cmd}", f"     {datetime.date.today()}, {wall:.0f} s wall (2 cores shared with other jobs) -->", "",
+    lines = [f"<!-- {cmd}",
+             f"     {datetime.date.today()}, {wall:.0f} s wall on 2 cores shared with other jobs; load average "
+             f"(1/5/15 min) {load0[0]:.1f}/{load0[1]:.1f}/{load0[2]:.1f} at the start, "
+             f"{load1[0]:.1f}/{load1[1]:.1f}/{load1[2]:.1f} at the end; code {commit} -->", "",
              "# Automatic parameters under correlated noise", "",
              f"add_scanner_noise along the normals, sigma = {args.sigma:g} mean edge lengths, seed {args.seed}. "
              "SNR in dB. *before*: SURE with estimate_noise's level, independent noise (the rule before the noise "
              "model); *auto*: estimate_noise_model (level and correlation length) and coloured SURE; *oracle*: the "
              "same filter's parameter chosen against the clean mesh. rho/sigma and ell: what the estimate read.", "",
-             "| mesh | ell | filter | noisy | before | auto | oracle | oracle - auto | rho/sigma | ell read | auto params | oracle params |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             ]
+    if args.policy:
+        lines += ["*default's noise*: the noise model of `md.denoise`/`choose_default` (`default_noise`: the fine "
+                  "bands' reading, the detail fit's verdict and correlation test) given to choose_parameters; "
+                  "its level, length and verdict (*independent*: the fine bands' reading of independent noise "
+                  "kept).", ""]
+        lines += ["| mesh | ell | filter | noisy | before | auto | oracle | oracle - auto | rho/sigma | ell read "
+                  "| default's noise | its oracle - SNR | its rho/sigma @ ell (verdict) | auto params | oracle params |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+    else:
+        lines += ["| mesh | ell | filter | noisy | before | auto | oracle | oracle - auto | rho/sigma | ell read "
+                  "| auto params | oracle params |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
+        pol = (f"{r['pol']:.2f} | {r['loss_pol']:.2f} | {r['rho_pol']:.3f} @ {r['ell_pol']:.2f} ({r['verdict']}) | "
+               if args.policy else "")
         lines.append(f"| {r['mesh']} ({r['n']}) | {r['ell']:g} | {r['method']} | {r['noisy']:.2f} | {r['old']:.2f} | "
                      f"{r['auto']:.2f} | {r['oracle']:.2f} | {r['loss']:.2f} | {r['rho']:.3f} | {r['ell_hat']:.2f} | "
-                     f"{fmt(r['auto_params'])} | {fmt(r['oracle_params'])} |")
+                     f"{pol}{fmt(r['auto_params'])} | {fmt(r['oracle_params'])} |")
     losses = np.array([r["loss"] for r in rows])
     lines += ["", f"Rows within 1 dB of the oracle: {int(np.sum(losses <= 1.0))} of {len(rows)}; "
               f"worst loss {losses.max():.2f} dB; mean {losses.mean():.2f} dB."]
+    worst = [max((r for r in rows if r["ell"] == e), key=lambda r: r["loss"]) for e in args.lengths]
+    lines += ["Worst loss per correlation length: " + "; ".join(
+        f"ell {r['ell']:g}: {r['loss']:.2f} dB ({r['mesh']}, {r['method']})" for r in worst) + "."]
+    if args.policy:
+        lp = np.array([r["loss_pol"] for r in rows])
+        lines += ["", f"With the default's noise model: within 1 dB {int(np.sum(lp <= 1.0))} of {len(rows)}; "
+                  f"worst loss {lp.max():.2f} dB; mean {lp.mean():.2f} dB; the model differs from the fine bands' on "
+                  f"{sum(r['pol_params'] is not r['auto_params'] for r in rows)} rows."]
     print(write_table(Path(args.out) if args.out else None, lines))  # atomic: never half-written
 
 

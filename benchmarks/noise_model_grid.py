@@ -31,6 +31,15 @@ independent-noise meshes (:data:`PEER_ROWS`, unless ``--no-peers``), before (the
 step keeping every reading of independent noise: :func:`old_default_noise`) and now (the detail
 fit's correlation test, :func:`meshdenoise.default.noise_policy`); the seconds of both noise steps
 and of the choice. Where both noise models are the same the (deterministic) result is computed once.
+
+**test-sample**: the detail fit's correlation test where the default asks it (the fine bands read
+independent noise after their own fit reached ``ELL_MIN``), with its probes read on a sampled region
+of each of ``--test-samples`` vertices (``separate_detail(..., sample=)``; the default's is
+``FIT_SAMPLE``), on every cell of the grid (``--meshes`` x ``--sigmas`` x ``--lengths``, clean,
+and the meshes as they are), the peers/quality rows (:data:`PEER_ROWS`) and the correlated
+table's rows (``benchmarks/correlated.py``: sigma 0.3 h, l 0, 1, 2, 4, seed 0, elephant, bunny,
+face): the test's answer, the verdict, the misfits, the model the policy then takes, and the
+process CPU seconds of the fit. Cells where the test is not asked are counted, not listed.
 """
 
 from __future__ import annotations
@@ -298,9 +307,74 @@ def effect_table(rows: list[dict]) -> list[str]:
     return out
 
 
+CORRELATED_ROWS = [(name, 0.3, ell) for name in ("elephant", "bunny", "face") for ell in (0.0, 1.0, 2.0, 4.0)]
+
+
+def test_sample_rows(meshes: dict, names: list[str], sigmas: list[float], lengths: list[float], seed: int,
+                     samples: list[int], as_is: bool, peers: bool) -> tuple[list[dict], int]:
+    """The correlation test with its probes on regions of each size in ``samples``, where the default asks it."""
+    from meshdenoise.tuning.covariance import ELL_MIN as BAND_ELL_MIN
+
+    cases = [(name, s, l, seed) for name in names for s, l in [(0.0, 0.0)] + [(s, l) for s in sigmas for l in lengths]]
+    cases += [] if not as_is else [(name, None, None, None) for name in AS_IS]
+    cases += [] if not peers else [(p, None, None, "peer") for p in PEER_ROWS]
+    cases += [(name, s, l, 0) for name, s, l in CORRELATED_ROWS]
+    rows, skipped = [], 0
+    for name, sigma, ell, how in cases:
+        if how == "peer":
+            _, V, F = peer_pair(name)
+        else:
+            if name not in meshes:
+                meshes[name] = load(name)
+            V, F = meshes[name]
+            if sigma is not None:
+                V = noisy(V, F, sigma, ell, how)
+        h = mean_edge_length(V, F)
+        band, info = estimate_noise_model((V, F), details=True, spectrum=(default.DETAIL_BANDS, default.DETAIL_LENGTHS))
+        if band.correlated or float(info.get("ell_fit", 0.0)) < BAND_ELL_MIN:
+            skipped += 1
+            continue
+        row = {"mesh": name, "n": V.shape[0], "sigma": sigma, "ell": ell, "seed": how, "band": band.rho / h,
+               "ell_fit": float(info["ell_fit"]), "runs": []}
+        for size in samples:
+            t = time.process_time()
+            v = separate_detail((V, F), smooth=info["smooth"], rho_white=info["rho_white"], sample=int(size))
+            cpu = time.process_time() - t
+            model, _, _ = default.noise_policy(band, v, h, info.get("reason", ""))
+            row["runs"].append({"sample": int(size), "cpu": cpu, "correlated": v.correlated, "verdict": v.verdict,
+                                "misfit": v.misfit, "misfit_white": v.misfit_white, "ell_joint": v.ell_joint,
+                                "taken": model is not band, "rho": model.rho / h, "model_ell": model.correlation_length})
+        rows.append(row)
+        print(test_sample_table([row])[-1], flush=True)
+    return rows, skipped
+
+
+def test_sample_table(rows: list[dict]) -> list[str]:
+    sizes = [r["sample"] for r in rows[0]["runs"]] if rows else []
+    head = "| mesh | vertices | sigma/h @ l (seed) | fine bands: rho/h (fit's l) | " + " | ".join(
+        f"sample {s:,}: test (ratio, gain, l), verdict -> model rho/h @ l | CPU s" for s in sizes) + " | same decision |"
+    out = [head, "|" + "---|" * (5 + 2 * len(sizes))]
+    for r in rows:
+        what = ("as is" if r["seed"] is None else "own noise") if r["sigma"] is None else (
+            f"{r['sigma']:g} @ {r['ell']:g} ({r['seed']})")
+        cells = [r["mesh"], f"{r['n']:,}", what, f"{r['band']:.3f} ({r['ell_fit']:.2f})"]
+        for u in r["runs"]:
+            ratio_ = u["misfit_white"] / u["misfit"] if u["misfit"] > 0 else float("inf")
+            cells += [f"{'correlated' if u['correlated'] else 'no'} ({ratio_:.2f}, {u['misfit_white'] - u['misfit']:.3f}, "
+                      f"{u['ell_joint']:.1f}), {u['verdict']} -> "
+                      f"{'taken ' if u['taken'] else 'kept '}{u['rho']:.3f} @ {u['model_ell']:.2f}", f"{u['cpu']:.2f}"]
+        first = r["runs"][0]
+        same = all(u["taken"] == first["taken"] for u in r["runs"])
+        cells.append("yes" if same else "**no**")
+        out.append("| " + " | ".join(cells) + " |")
+    return out
+
+
 def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    ap.add_argument("--part", nargs="+", default=["grid", "default"], choices=["grid", "default", "effect"])
+    ap.add_argument("--part", nargs="+", default=["grid", "default"], choices=["grid", "default", "effect", "test-sample"])
+    ap.add_argument("--test-samples", nargs="+", type=int, default=[30_000, 10_000],
+                    help="test-sample: the region sizes of the detail fit's probes to compare (the first: the default's)")
     ap.add_argument("--effect-lengths", nargs="+", type=float, default=[0.0, 1.0],
                     help="effect: the correlation lengths of its rows (with --meshes and --sigmas)")
     ap.add_argument("--no-peers", action="store_true", help="effect: skip the peers/quality independent-noise rows")
@@ -349,6 +423,20 @@ def main(argv: list[str] | None = None) -> None:
                   "the clean mesh (dB); (same): the same noise model, so the same result (run once); noise step: "
                   "seconds of the default's noise step; choice: `choose_default`'s seconds (under load).", ""]
         lines += effect_table(rows) + [""]
+    if "test-sample" in args.part:
+        rows, skipped = test_sample_rows(meshes, args.meshes, args.sigmas, args.lengths, args.seed, args.test_samples,
+                                         not args.no_as_is, not args.no_peers)
+        same = sum(all(u["taken"] == r["runs"][0]["taken"] for u in r["runs"]) for r in rows)
+        cpu = [[r["runs"][k]["cpu"] for r in rows] for k in range(len(args.test_samples))]
+        lines += ["## The correlation test's probes on a smaller region", "",
+                  f"Cells where the default asks the test: {len(rows)} (not asked: {skipped}: the fine bands read "
+                  f"correlated noise, or independent noise with their own fit under ELL_MIN). The same decision "
+                  f"(the policy takes the detail fit's model or keeps the fine bands'): {same} of {len(rows)}. CPU "
+                  "seconds of the fit summed over the asked cells: " + ", ".join(
+                      f"sample {s:,}: {sum(c):.1f}" for s, c in zip(args.test_samples, cpu)) + " (under load).", "",
+                  "test: the correlation test's answer (misfit ratio independent / correlated, gain, best l); "
+                  "taken/kept: the policy takes the detail fit's model or keeps the fine bands' reading.", ""]
+        lines += test_sample_table(rows) + [""]
     lines.append(f"Total {time.perf_counter() - start:.0f} s; load average {load_before:.1f} at the start, "
                  f"{os.getloadavg()[0]:.1f} at the end (2 cores shared).")
     print(write_table(Path(args.out) if args.out else None, lines))  # atomic: never half-written

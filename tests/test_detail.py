@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import scipy.sparse as sp
 from scipy.optimize import nnls
 
 from meshdenoise.geometry import vertex_normals
@@ -59,6 +60,37 @@ def test_white_probes_finest_band_matches_the_six_regular_lattice():
     N = vertex_normals(V, F)
     p = probe_spectra(V, F, N, ells=(0.0,), bands=(0,), probes=4, seed=0)
     assert p[0, 0] == pytest.approx(CHI2_1_MEDIAN * stencil, rel=0.03)
+
+
+def test_probe_spectra_match_heat_solves_and_dense_band_pass():
+    """probe_spectra colours every length from one Krylov space and reads the bands through one chain of powers of P:
+    against each length's heat filter solved tightly (HeatFilter, tol 1e-11) and the dense (I - P)^2 P^s."""
+    from meshdenoise.noise import HeatFilter, diffusion_length, heat_geometry
+
+    V, F = icosphere(3)  # 642 vertices
+    rng = np.random.default_rng(3)
+    V = V + 0.01 * rng.standard_normal(V.shape)
+    N = vertex_normals(V, F)
+    n, probes, ells, bands = V.shape[0], 4, (0.0, 1.0, 2.5), (0, 1, 4, 16)
+    P = sp.csr_matrix(dense_P(F, n))  # scipy's own product (not meshdenoise's threaded spmm)
+    xi = np.random.default_rng(7).standard_normal((n, probes))  # probe_spectra's own white probes (seed 7)
+    geometry = heat_geometry(V, F)
+    expected = np.empty((len(ells), len(bands)))
+    for j, ell in enumerate(ells):
+        Z = xi if ell == 0 else HeatFilter(V, F, diffusion_length(ell), geometry)(xi, tol=1e-11)
+        Z = Z * np.sqrt(Z.size / np.sum(Z * Z))
+        for b, s in enumerate(bands):
+            r = np.empty((n, probes))
+            for k in range(probes):
+                X = Z[:, [k]] * N
+                for _ in range(s):
+                    X = P @ X
+                X = X - P @ X
+                X = X - P @ X
+                r[:, k] = np.sum(X * N, axis=1)
+            expected[j, b] = np.median(r * r)
+    got = probe_spectra(V, F, N, ells, bands, probes=probes, seed=7)
+    np.testing.assert_allclose(got, expected, rtol=1e-4)
 
 
 def test_misfit_profile_matches_brute_force_nnls():

@@ -60,14 +60,15 @@ from typing import Any
 import numpy as np
 
 from ..adapters import read_mesh
-from ..noise import HeatFilter, diffusion_length, heat_geometry
+from ..noise import HeatKrylov, diffusion_length, heat_geometry
 from ..operators import get_operators, spmm
 from .covariance import NoiseModel
 from .noise_kernels import vertex_normals  # geometry.vertex_normals bit for bit (compiled from 65,536 vertices)
 from .noise_level import estimate_noise_and_smooth, mean_edge_length
 
 __all__ = ["DetailVerdict", "separate_detail", "band_spectrum", "probe_spectra", "fit_spectrum", "misfit_profile",
-           "interpolate_spectra", "correlation_test", "region_probe_spectra", "BANDS", "ELL_GRID", "ELL_FINE", "BETA_GRID"]
+           "interpolate_spectra", "correlation_test", "region_probe_spectra", "BANDS", "ELL_GRID", "ELL_FINE", "BETA_GRID",
+           "CORRELATION_SAMPLE"]
 
 BANDS = (0, 1, 2, 4, 8, 16, 32, 64)  # s of (I - P)^2 P^s: the fine bands and the coarse ones the surface dominates
 FINE = (0, 1, 2, 4)  # the fine bands (estimate_noise_model's)
@@ -88,6 +89,12 @@ CORRELATION_RATIO = 1.4
 CORRELATION_GAIN = 0.1  # ... and this much more than the best fit's (l >= ELL_MIN): calibrated, docs/noise-vs-detail.md
 CORRELATION_PATCHES = 100  # ... and the mesh holds this many correlation areas pi l^2 (estimate_noise_model's MIN_PATCHES)
 PROBES = 4  # probes per correlation length: a median over n * PROBES values
+# the correlation test's call (meshdenoise.default.default_noise, where the fine bands read independent noise): its
+# probes read on a sampled region above this many vertices (``sample=``). On every cell of
+# benchmarks/noise_model_grid.py, the peers/quality rows and the correlated table's rows the same decisions as on
+# the noise model's FIT_SAMPLE (30,000): 20 of 20 asked cells the same test answer, verdict and model taken or kept,
+# levels taken within 3.3 %; 10,000 moved a level by 16 % (benchmarks/results/noise-model-test-sample.md)
+CORRELATION_SAMPLE = 15_000
 MIN_VERTICES = 200  # fewer usable vertices than this: too few for eight bands
 
 
@@ -210,8 +217,9 @@ def probe_spectra(smooth: np.ndarray, F: np.ndarray, N: np.ndarray, ells: tuple[
                   seed: int = 0) -> np.ndarray:
     """:math:`p_s(\\ell)`: :func:`band_spectrum`'s statistic of unit-variance noise of correlation length :math:`\\ell` along ``N``.
 
-    The probes are ``probes`` white fields filtered by :class:`meshdenoise.noise.HeatFilter`
-    (:func:`meshdenoise.noise.diffusion_length` of :math:`\\ell`) on ``smooth``, rescaled to
+    The probes are ``probes`` white fields heat-filtered as :class:`meshdenoise.noise.HeatFilter`
+    does (:func:`meshdenoise.noise.diffusion_length` of :math:`\\ell`; all lengths from one Krylov
+    space, :class:`meshdenoise.noise.HeatKrylov`, to :data:`HEAT_TOL`) on ``smooth``, rescaled to
     mean square 1 (the noise model's :math:`\\mathrm{tr}\\,\\Sigma = n`); the median is over
     the usable vertices of all probes.
 
@@ -219,19 +227,21 @@ def probe_spectra(smooth: np.ndarray, F: np.ndarray, N: np.ndarray, ells: tuple[
     -------
     ndarray, shape (len(ells), len(bands))
     """
+    from . import covariance as cov
+
     n = smooth.shape[0]
     ops = get_operators(F, n)
     if ok is None:
         ok = ~ops.isolated & (np.linalg.norm(N, axis=1) > 0)
     xi = np.random.default_rng(seed).standard_normal((n, probes))
-    geometry = heat_geometry(smooth, F)
-    out = np.empty((len(ells), len(bands)))
-    for j, ell in enumerate(ells):
-        Z = xi if ell == 0 else HeatFilter(smooth, F, diffusion_length(ell), geometry)(xi, tol=HEAT_TOL)
-        Z = Z * math.sqrt(Z.size / float(np.sum(Z * Z)))
-        B = (Z[:, :, None] * N[:, None, :]).reshape(n, 3 * probes)
-        out[j] = _band_stats(ops.P, B, N, ok, tuple(bands))
-    return out
+    # every length from one growing Krylov space (HeatKrylov; a HeatFilter per length ran 8 CG solves each), the
+    # bands of four lengths at a time from one chain of powers of P (cov._spectrum_medians): the same statistic
+    family = HeatKrylov(smooth, F, xi, geometry=heat_geometry(smooth, F), tol=HEAT_TOL)
+    Zs = []
+    for ell in ells:
+        Z = xi if ell == 0 else family(diffusion_length(ell))
+        Zs.append(Z * math.sqrt(Z.size / float(np.sum(Z * Z))))
+    return cov._spectrum_medians(ops, N, Zs, ok, None, tuple(bands))
 
 
 def region_probe_spectra(smooth: np.ndarray, F: np.ndarray, N: np.ndarray, ok: np.ndarray, sample: int,
@@ -276,9 +286,10 @@ def region_probe_spectra(smooth: np.ndarray, F: np.ndarray, N: np.ndarray, ok: n
     xi = np.random.default_rng(seed).standard_normal((Vr.shape[0], cov.FIT_SAMPLE_PROBES))
     geometry = (cov.noise_mean_edge_length(smooth, F),) + tuple(heat_geometry(Vr, Fr)[1:])
     count = np.maximum(np.bincount(sr[inner], minlength=share_all.size), 1)
+    family = HeatKrylov(Vr, Fr, xi, geometry=geometry, tol=cov.FIT_TOL)  # as the noise model colours its own
     Zs = []
     for ell in ells:
-        Z = xi if ell == 0 else HeatFilter(Vr, Fr, diffusion_length(ell), geometry)(xi, tol=cov.FIT_TOL)
+        Z = xi if ell == 0 else family(diffusion_length(ell))
         msq = np.bincount(sr[inner], weights=np.mean(Z[inner] ** 2, axis=1), minlength=share_all.size) / count
         Zs.append(Z / math.sqrt(float(np.sum(share_all * msq))))
     return cov._spectrum_medians(opsr, Nr, Zs, okr, weights, tuple(bands))
