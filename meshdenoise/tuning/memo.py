@@ -30,7 +30,9 @@ def release_before_filter() -> None:
     moved the vertices; at scan size they are the largest thing left from the choice (a
     1.6M-vertex averaging curve: the coordinates, 10 probes and their state, 255 MB) and
     would sit beside the filter's own buffers at its peak. :func:`choose_parameters` alone
-    keeps them, for a second search on the same mesh (a benchmark's oracle).
+    keeps them, for a second search on the same mesh (a benchmark's oracle). In a batch run on
+    threads another mesh's search may lose its entries here: it computes them again, the same
+    numbers (every entry is a deterministic function of its key).
     """
     MEMO.clear()
 
