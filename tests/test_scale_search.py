@@ -539,3 +539,35 @@ def test_region_held_at_the_whole_result_on_its_cut_rings_reproduces_the_whole_m
     whole80 = SPDSolver(shifted_matrix(ops, 80.0, 3)).solve(Vn)[region.vertices]
     drift = np.sqrt(np.mean(np.sum((free - whole80)[region.inner] ** 2, axis=1)))
     assert region.inner.any() and drift > 0.1 * rho
+
+
+def test_curve_terms_are_the_records_sums_on_any_thread_count(monkeypatch):
+    """kernels.curve_terms against numpy's sums; PathCurve takes it from CURVE_KERNEL_MIN_VERTICES on."""
+    import numba
+
+    from meshdenoise import kernels
+    from meshdenoise.tuning import search
+
+    rng = np.random.default_rng(3)
+    n = 3 * kernels.CURVE_CHUNK + 17
+    V, Z = rng.standard_normal((n, 3)), rng.choice([-1.0, 1.0], size=(n, 4))
+    Y = np.hstack([V + 0.01 * rng.standard_normal((n, 3)), 0.5 * Z + rng.standard_normal((n, 4))])
+    r, t = kernels.curve_terms(Y, V, Z)
+    assert r == pytest.approx(float(np.sum((Y[:, :3] - V) ** 2)), rel=1e-12)
+    assert t == pytest.approx(float(np.sum(Z * Y[:, 3:])), rel=1e-12)
+    monkeypatch.setattr(kernels, "set_threads", lambda: numba.set_num_threads(1) or 1)
+    assert kernels.curve_terms(Y, V, Z) == (r, t)  # the same bits on one thread
+    with pytest.raises(ValueError, match="do not match"):
+        kernels.curve_terms(Y[:, :6], V, Z)
+    Vs, Fs = icosphere(3)
+    ops = Operators(Fs, len(Vs))
+    step = search.averaging_step(ops.P, 0.5)
+    Zs = probe_block(len(Vs), False, n_probes=4)
+    old = search.PathCurve(Vs, ops, step, probes=Zs)
+    monkeypatch.setattr(search, "CURVE_KERNEL_MIN_VERTICES", len(Vs))
+    new = search.PathCurve(Vs, ops, step, probes=Zs)
+    for a, b in zip(new.points(), old.points()):
+        assert a.residual_sq == pytest.approx(b.residual_sq, rel=1e-12, abs=1e-300)
+        assert a.trace == pytest.approx(b.trace, rel=1e-12)
+        if a.value == 12:
+            break
