@@ -380,23 +380,13 @@ def _csr_of_groups(groups: np.ndarray, size: int, index_dtype) -> tuple[np.ndarr
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _side_order(F, n, ptr, order, other):  # pragma: no cover - compiled
-    """Face sides ``3 f + k`` sorted by (smaller, larger) endpoint, stably: a counting sort by the smaller
-    endpoint (rows ``ptr``), then an insertion sort of each row by the larger one (``other``)."""
-    at = ptr[:-1].copy()
-    for f in range(F.shape[0]):
-        for k in range(3):
-            a = F[f, k]
-            b = F[f, (k + 1) % 3]
-            lo, hi = (a, b) if a < b else (b, a)
-            order[at[lo]] = 3 * f + k
-            other[at[lo]] = hi
-            at[lo] += 1
-    for v in range(n):
+def _sort_rows(ptr, order, other):  # pragma: no cover - compiled
+    """Each row ``ptr[v]:ptr[v + 1]`` of ``(other, order)`` sorted by ``other``, stably (insertion sort: rows are short)."""
+    for v in range(ptr.shape[0] - 1):
         for i in range(ptr[v] + 1, ptr[v + 1]):
             h, s = other[i], order[i]
             j = i - 1
-            while j >= ptr[v] and other[j] > h:  # strict: equal keys keep their side order
+            while j >= ptr[v] and other[j] > h:  # strict: equal keys keep their order
                 other[j + 1] = other[j]
                 order[j + 1] = order[j]
                 j -= 1
@@ -431,13 +421,11 @@ def edge_side_pairs(F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
     Returns ``first``, ``second`` (E,) int64 face indices.
     """
     F = np.ascontiguousarray(F)
-    lo = np.minimum(F, np.roll(F, -1, axis=1)).ravel()  # side k's smaller endpoint, in side order
-    ptr = np.zeros(n + 1, dtype=np.int64)
-    np.cumsum(np.bincount(lo, minlength=n), out=ptr[1:])
-    del lo
-    order = np.empty(3 * F.shape[0], dtype=np.int64)
-    other = np.empty(3 * F.shape[0], dtype=F.dtype)
-    _side_order(F, n, ptr, order, other)
+    G = np.roll(F, -1, axis=1)  # side k runs from F[:, k] to G[:, k]
+    ptr, order = _csr_of_groups(np.minimum(F, G).ravel(), n, np.int64)  # sides by smaller endpoint, stably
+    other = np.maximum(F, G).ravel()[order]  # ... then each row by the larger one
+    del G
+    _sort_rows(ptr, order, other)
     empty = np.empty(0, dtype=np.int64)
     count = _consecutive_pairs(ptr, order, other, empty, empty)
     first, second = np.empty(count, dtype=np.int64), np.empty(count, dtype=np.int64)
