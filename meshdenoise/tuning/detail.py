@@ -60,10 +60,10 @@ from typing import Any
 import numpy as np
 
 from ..adapters import read_mesh
+from ..geometry import vertex_normals  # the compiled kernel from 65,536 vertices (noise_kernels), bit for bit
 from ..noise import HeatKrylov, diffusion_length, heat_geometry
 from ..operators import get_operators, spmm
 from .covariance import NoiseModel
-from .noise_kernels import vertex_normals  # geometry.vertex_normals bit for bit (compiled from 65,536 vertices)
 from .noise_level import estimate_noise_and_smooth, mean_edge_length
 
 __all__ = ["DetailVerdict", "separate_detail", "band_spectrum", "probe_spectra", "fit_spectrum", "misfit_profile",

@@ -14,8 +14,9 @@ import scipy.sparse as sp
 
 from ..adapters import read_mesh
 from ..arrays import MeshValidationError
+from ..geometry import vertex_normals  # the compiled kernel from 65,536 vertices (noise_kernels), bit for bit
 from ..operators import Operators, get_operators, spmm
-from .noise_kernels import edge_lengths, fourth_difference_csr, vertex_normals
+from .noise_kernels import edge_lengths, fourth_difference_csr
 from .risk import colour_probes
 from .search import averaging_step, best_on_curve, path_curve
 
