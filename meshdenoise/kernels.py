@@ -18,6 +18,9 @@ Index arrays: ``indptr`` int64, ``indices`` int32 (int64 above 2^31 entries).
 from __future__ import annotations
 
 import os
+import threading
+from contextlib import contextmanager
+from typing import Callable, Iterator, Sequence, TypeVar
 
 # Idle OpenMP threads sleep instead of spinning. On a busy machine (2 cores shared by many
 # jobs) spinning doubled the CPU time of a two_stage run and made 2 threads slower than 1;
@@ -33,8 +36,13 @@ from numba import njit, prange  # noqa: E402
 # Both are safe to call from several threads at once, unlike the workqueue fallback.
 numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
 
+T = TypeVar("T")
+R = TypeVar("R")
+
 __all__ = [
     "set_threads",
+    "single_threaded",
+    "run_concurrently",
     "face_geometry",
     "centroid_spacing_sums",
     "spatial_weights",
@@ -52,12 +60,56 @@ __all__ = [
 
 
 def set_threads() -> int:
-    """Use :func:`meshdenoise.operators.spmm_threads` threads (at most numba's pool size); returns the count."""
+    """Use :func:`meshdenoise.operators.spmm_threads` threads (at most numba's pool size, and at most
+    the calling thread's :func:`single_threaded` limit); returns the count."""
     from .operators import spmm_threads
 
-    k = max(1, min(spmm_threads(), numba.config.NUMBA_NUM_THREADS))
-    numba.set_num_threads(k)
+    k = max(1, min(spmm_threads(), numba.config.NUMBA_NUM_THREADS, getattr(_local, "limit", None) or 1 << 30))
+    numba.set_num_threads(k)  # numba's count is the calling thread's own
     return k
+
+
+_local = threading.local()
+
+
+@contextmanager
+def single_threaded() -> Iterator[None]:
+    """Inside the block, kernels started from this Python thread run on one thread (:func:`set_threads`)."""
+    old = getattr(_local, "limit", None)
+    _local.limit = 1
+    try:
+        yield
+    finally:
+        _local.limit = old
+        set_threads()
+
+
+def run_concurrently(fn: Callable[[T], R], items: Sequence[T]) -> list[R]:
+    """``[fn(x) for x in items]``, computed on :func:`~meshdenoise.operators.spmm_threads` Python threads.
+
+    For many independent runs on a small mesh (a tuning rule's candidates on its sampled
+    region): each run's kernels are then single-threaded (:func:`single_threaded`), so the
+    runs, not the loops inside them, share the cores. A parallel loop over a few thousand
+    faces costs about as much in waking and joining threads as in work (``fit_vertices`` on
+    3,000 vertices: 2 threads slower than 1), while whole runs side by side need no joining
+    until they end. Every kernel computes each output element on one thread in a fixed order,
+    so the results are the same bits as a loop's. The first exception raised is re-raised.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    from .operators import spmm_threads
+
+    items = list(items)
+    workers = min(spmm_threads(), numba.config.NUMBA_NUM_THREADS, len(items))
+    if workers <= 1:
+        return [fn(x) for x in items]
+
+    def one(x: T) -> R:
+        with single_threaded():
+            return fn(x)
+
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="meshdenoise-runs") as pool:
+        return list(pool.map(one, items))
 
 
 # --------------------------------------------------------------------------- small helpers

@@ -567,3 +567,86 @@ def test_large_meshes_sample_the_rule_region_in_more_balls(monkeypatch, large_fr
     with pytest.raises(Stop):
         choose_parameters((Vn, F), "two_stage", noise=0.01)
     assert seen == [(ts.TWO_STAGE_SAMPLE, expected)]
+
+
+# --- runs side by side (kernels.run_concurrently) -------------------------------------------------
+def test_run_concurrently_is_the_loop_in_order_with_one_kernel_thread_per_run_and_reraises():
+    import threading
+
+    import numba
+
+    from meshdenoise import kernels
+
+    seen = {}
+    parallel = min(ts_threads(), numba.config.NUMBA_NUM_THREADS) > 1
+    both = threading.Barrier(2, timeout=30)
+
+    def fn(x):
+        kernels.set_threads()  # what a run does first: it must get one kernel thread here
+        seen[x] = (threading.get_ident(), numba.get_num_threads())
+        if parallel and x < 2:
+            both.wait()  # the first two runs meet: they run at the same time (a loop would wait here forever)
+        return x * x
+
+    assert kernels.run_concurrently(fn, range(7)) == [x * x for x in range(7)]
+    if parallel:
+        assert all(k == 1 for _, k in seen.values())
+        assert seen[0][0] != seen[1][0]
+        assert threading.get_ident() not in {t for t, _ in seen.values()}
+    assert kernels.set_threads() == min(ts_threads(), numba.config.NUMBA_NUM_THREADS)  # the caller's count untouched
+
+    def boom(x):
+        if x == 3:
+            raise ValueError("run 3 failed")
+        return x
+
+    with pytest.raises(ValueError, match="run 3 failed"):
+        kernels.run_concurrently(boom, range(6))
+
+
+def ts_threads():
+    from meshdenoise.operators import spmm_threads
+
+    return spmm_threads()
+
+
+def test_staged_search_with_an_evaluator_runs_each_stage_at_once_and_chooses_as_the_loop():
+    table = {(5, 20): 0.30, (5, 40): 0.05, (10, 20): 0.10, (10, 40): 0.20, (20, 20): 0.40, (20, 40): 0.50}
+
+    def path(params):
+        score = abs(params["sigma_r"] - 0.3) + table[params["normal_iterations"], params["vertex_iterations"]]
+        return ts.Point(3, 0.0, 0.0, np.zeros((1, 3)), score)
+
+    batches = []
+
+    def evaluate(f, xs):
+        batches.append(len(xs))
+        return [f(x) for x in reversed(xs)][::-1]  # computed in another order, returned in order
+
+    grid = ts._search_grid({})
+    loop = ts._staged_search(path, grid, ts.TWO_STAGE_REVISIT_SPAN)
+    batched = ts._staged_search(path, grid, ts.TWO_STAGE_REVISIT_SPAN, evaluate=evaluate)
+    assert batched[0] == loop[0] and batched[1].score == loop[1].score
+    assert batches[0] == len(ts.TWO_STAGE_SIGMA_R)  # the first stage: every sigma_r at once
+
+
+def test_the_rule_and_feature_risk_give_the_same_bits_with_runs_side_by_side_or_one_after_another(monkeypatch):
+    """The rule's candidates and guard probes, and feature_risk's probes, run side by side on one
+    kernel thread each; a plain loop (each run's kernels on every thread) must give the same numbers."""
+    from meshdenoise import default, kernels
+    from meshdenoise.tuning.covariance import NoiseModel
+
+    V, Y, F, rho = noisy_box()
+
+    def both():
+        params, risk = choose_parameters((Y, F), "two_stage", noise=rho, return_risk=True)
+        normals = vertex_normals(V, F)
+        fr, out = default.feature_risk(Y, F, params, NoiseModel(rho), normals, probes=5)
+        return params, risk, fr, out
+
+    side = both()
+    monkeypatch.setattr(kernels, "run_concurrently", lambda fn, items: [fn(x) for x in items])
+    loop = both()
+    assert side[0] == loop[0]
+    assert side[1] == loop[1] and side[2] == loop[2]  # bit for bit
+    assert np.array_equal(side[3], loop[3])

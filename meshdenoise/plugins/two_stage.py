@@ -545,7 +545,8 @@ def _search_grid(given: dict, oracle: bool = False) -> dict[str, tuple]:
 
 
 def _staged_search(path: Callable[[dict], Point], grid: dict[str, tuple],
-                   revisit_span: int | None = None) -> tuple[dict, Point]:
+                   revisit_span: int | None = None,
+                   evaluate: Callable[[Callable[[dict], Point], list[dict]], list[Point]] | None = None) -> tuple[dict, Point]:
     """Coordinate search over ``grid``: ``sigma_r``, ``normal_iterations``, ``sigma_r``, ``vertex_iterations``, then both counts jointly.
 
     ``path(params)`` returns the best :class:`Point` (its ``value`` the outer iteration
@@ -563,7 +564,13 @@ def _staged_search(path: Callable[[dict], Point], grid: dict[str, tuple],
     bunny and elephant with scanner noise 0.3 h at correlation lengths 1, 2 and 4), every search
     ends at the same point as with the full stage, with 10 to 25 % fewer normal-filtering passes
     where the count had moved (docs/automatic-parameters.md, session 10).
+
+    ``evaluate(path, candidates)``: the points of a stage's new candidates, in order (a loop
+    when None; the rule runs them side by side, :func:`~meshdenoise.kernels.run_concurrently`).
+    A stage's candidates differ from the best so far in the stage's own parameters only, so
+    they are known before any of them is run, and the choice is the loop's.
     """
+    evaluate = evaluate or (lambda f, xs: [f(x) for x in xs])
     done: dict[tuple, Point] = {}
     visited: set[str] = set()
     middle = lambda values: 10 if 10 in values else values[0]  # noqa: E731
@@ -580,11 +587,12 @@ def _staged_search(path: Callable[[dict], Point], grid: dict[str, tuple],
                 values = values[max(0, j - revisit_span):j + revisit_span + 1]
             values_of.append(values)
         visited.update(names)
-        for values in itertools.product(*values_of):
-            params = {**best, **dict(zip(names, values))}
+        stage_params = [{**best, **dict(zip(names, values))} for values in itertools.product(*values_of)]
+        todo = {tuple(sorted(p.items())): p for p in stage_params}
+        todo = {key: p for key, p in todo.items() if key not in done}
+        done.update(zip(todo, evaluate(path, list(todo.values()))))
+        for params in stage_params:
             key = tuple(sorted(params.items()))
-            if key not in done:
-                done[key] = path(params)
             if best_point is None or done[key].score < best_point.score:
                 best, best_point = params, done[key]
     return best, best_point
@@ -669,7 +677,9 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     ``TWO_STAGE_PATCHES`` patches (24 from 100,000 vertices, ``TWO_STAGE_PATCHES_LARGE``: smaller
     balls spread over more of a large surface, a steadier choice; faces and vertices within
     ``TWO_STAGE_MARGIN`` rings of a cut not scored), so the choice costs about the same at 50k and at 1M vertices apart from
-    the region's growth (a sparse product per ring).
+    the region's growth (a sparse product per ring). A stage's candidates and the guard's
+    runs (the chosen run and its probes) run side by side, one kernel thread each
+    (:func:`~meshdenoise.kernels.run_concurrently`; the same bits as one after another).
 
     ``criterion="oracle"`` runs the same staged search on the whole noisy mesh, scored by the
     squared position error against the reference (the generic oracle). The returned point's
@@ -677,6 +687,8 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     Monte-Carlo SURE on its inner vertices, scaled by ``n`` over their count: comparable with the
     other filters' SURE); its ``X`` is the result on the sampled region (oracle: on the mesh).
     """
+    from .. import kernels
+
     spec = get_filter("two_stage")
     full = spec.resolve(ctx.given, where="choose_parameters(method='two_stage')")
     n = ctx.ops.n
@@ -750,7 +762,10 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
                 yield p
         return best_on_run(scored(), patience(params))
 
-    chosen, best = _staged_search(path, _search_grid(ctx.given), TWO_STAGE_REVISIT_SPAN)
+    # the candidates run side by side, one thread each: on the region a parallel loop costs about as much
+    # in joining threads as in work (the same choice, bit for bit)
+    chosen, best = _staged_search(path, _search_grid(ctx.given), TWO_STAGE_REVISIT_SPAN,
+                                  evaluate=kernels.run_concurrently)
     chosen["iterations"] = int(best.value)
     consistent = (dict(chosen), best)  # the criterion's choice, before the guard
 
@@ -771,10 +786,12 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
 
     def sure_per_probe(params: dict) -> list[tuple[Point, np.ndarray]]:
         """Along a run of ``params["iterations"]``: (point scored by SURE with the mean divergence, SURE per probe (P,))."""
-        clean = runs(Y, F, ops, params)
-        perturbed = [runs(Y + delta * b, F, ops, params) for b in probes]
+        def along(start: np.ndarray) -> list[tuple[int, np.ndarray]]:
+            return list(itertools.islice(runs(start, F, ops, params), params["iterations"]))
+
+        clean, *perturbed = kernels.run_concurrently(along, [Y] + [Y + delta * b for b in probes])
         out = []
-        for (k, X), *others in itertools.islice(zip(clean, *perturbed), params["iterations"]):
+        for (k, X), *others in zip(clean, *perturbed):
             res = float(np.sum((X - Y)[inner] ** 2))
             divs = np.array([np.sum((b * (Xp - X))[inner]) for b, (_, Xp) in zip(probes, others)]) / delta
             p = Point(k, res, float(divs.mean()), X)
