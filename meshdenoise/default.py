@@ -44,6 +44,7 @@ import logging
 import math
 import time
 import warnings
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -206,6 +207,12 @@ def detect_features(mesh: Any, *, ops: Operators | None = None) -> FeatureTest:
     V, F = data.V, data.F
     ops = ops if ops is not None else get_operators(F, V.shape[0])
     return _feature_test(V, F, ops)
+
+
+def _single_threaded_feature_test(V: np.ndarray, F: np.ndarray, ops: Operators) -> FeatureTest:
+    """:func:`_feature_test` with its kernels on one thread (:func:`~meshdenoise.kernels.single_threaded`)."""
+    with kernels.single_threaded():
+        return _feature_test(V, F, ops)
 
 
 def _feature_test(V: np.ndarray, F: np.ndarray, ops: Operators) -> FeatureTest:
@@ -1002,6 +1009,13 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
     if relabel is not None:
         F = ops.F  # int64, as read_mesh gives (the relabelling's own faces are int32)
     h = mean_edge_length(V, ops)
+    # the feature test needs no noise level: it runs beside the noise estimate, on one kernel thread (the
+    # estimate's sparse products take the others); the same result as after it
+    background = ThreadPoolExecutor(max_workers=1, thread_name_prefix="meshdenoise-features")
+    try:
+        feature_job = background.submit(_single_threaded_feature_test, V, F, ops)
+    finally:
+        background.shutdown(wait=False)  # the job runs on; its result is awaited below
     with stage("estimating the noise"):
         if noise is None:
             model, noise_reason, caveats, decided, rho_range = default_noise(V, F, h)
@@ -1013,7 +1027,7 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
             decided, rho_range = "given", (float("nan"), float("nan"))
     rho = model.rho
     with stage("looking for sharp features"):
-        features = _feature_test(V, F, ops)  # detect_features without its copies of V and F
+        features = feature_job.result()  # detect_features without its copies of V and F
     n = V.shape[0]
 
     def rms(risk: float) -> str:  # SURE's estimated squared error as an rms distance in mean edge lengths

@@ -758,3 +758,19 @@ def test_the_post_steps_on_every_mesh_type_give_the_array_result(mesh_kind):
         assert out is mesh
     elif mesh_kind == "open3d":
         np.testing.assert_array_equal(np.asarray(mesh.vertices), Vn)  # the input is unchanged
+
+
+def test_choose_default_runs_the_feature_test_beside_the_noise_estimate_with_the_same_answer(monkeypatch):
+    """The feature test runs on a worker thread while the noise is estimated: the choice states
+    detect_features' own reason, and an error in the test reaches the caller."""
+    V, F = box(10)
+    Vn = md.add_normal_noise((V, F), 0.01, seed=0)[0]
+    expected = detect_features((Vn, F)).reason
+    assert expected in choose_default((Vn, F)).reasons
+
+    def broken(*args):
+        raise RuntimeError("the feature test failed")
+
+    monkeypatch.setattr(default, "_feature_test", broken)
+    with pytest.raises(RuntimeError, match="the feature test failed"):
+        choose_default((Vn, F))
