@@ -488,10 +488,9 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     run = lambda X: core_run(spec, X, ops, values)  # noqa: E731
     part = (lambda A: A) if keep is None else (lambda A: A[keep])  # noqa: E731
     rho = float(model.rho)
-    out = run(V)
-    residual = float(np.sum((part(out) - part(V)) ** 2))
     if rho == 0:
-        return residual, out
+        out = run(V)
+        return float(np.sum((part(out) - part(V)) ** 2)), out
     # 0.1 rho, also under correlated noise: measured (docs/peers.md, smooth-prior post-step), the 1 rho of
     # two_stage's guard (mc_sure_step(rho, True)) read two_stage 0.328 h rms against 0.300 on bunny scanner l=2 and
     # flipped the pick to sobolev_bilaplacian (8.63 / 48.93 -> 8.76 / 48.40); no other row of four changed
@@ -500,16 +499,20 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     if model.correlated:  # all probes in one colouring (a block solve); mean square 1 per vertex over the probes
         Z = model.colour(Z, 1.0 / probes)
 
-    def term(k: int) -> float:  # the filter is not linear: one run per probe
-        b = Z[:, k, None] * normals
-        return float(np.sum(part(b) * part(run(V + delta * b) - out))) / delta
+    def result(k: int) -> np.ndarray:  # the filter is not linear: one run per probe (k = -1: the input itself)
+        return run(V if k < 0 else V + delta * (Z[:, k, None] * normals))
 
     # two_stage's runs are compiled kernels: side by side, one thread each, they share the cores better than
     # each run's parallel loops do (the same bits); the other filters' solves run one after another
-    terms = kernels.run_concurrently(term, range(probes)) if spec.name == "two_stage" else [term(k) for k in range(probes)]
+    if spec.name == "two_stage":
+        out, *runs = kernels.run_concurrently(result, range(-1, probes))
+    else:
+        out, runs = result(-1), None
+    residual = float(np.sum((part(out) - part(V)) ** 2))
     divergence = 0.0
-    for t in terms:  # summed in probe order, as the loop did
-        divergence += t
+    for k in range(probes):
+        b = Z[:, k, None] * normals
+        divergence += float(np.sum(part(b) * part((runs[k] if runs is not None else result(k)) - out))) / delta
     return residual - count * rho**2 + 2 * rho**2 * divergence / probes, out
 
 
