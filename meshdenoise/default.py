@@ -517,7 +517,7 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     # two_stage's runs are compiled kernels: side by side, one thread each, they share the cores better than
     # each run's parallel loops do (the same bits); the other filters' solves run one after another
     if spec.name == "two_stage":
-        out, *runs = kernels.run_concurrently(result, range(-1, probes))
+        out, *runs = kernels.run_concurrently(result, range(-1, probes), n)
     else:
         out, runs = result(-1), None
     residual = float(np.sum((part(out) - part(V)) ** 2))

@@ -84,7 +84,10 @@ def single_threaded() -> Iterator[None]:
         set_threads()
 
 
-def run_concurrently(fn: Callable[[T], R], items: Sequence[T]) -> list[R]:
+CONCURRENT_BELOW = 10_000  # vertices: runs of smaller meshes go side by side (run_concurrently), larger one after another
+
+
+def run_concurrently(fn: Callable[[T], R], items: Sequence[T], vertices: int = 0) -> list[R]:
     """``[fn(x) for x in items]``, computed on :func:`~meshdenoise.operators.spmm_threads` Python threads.
 
     For many independent runs on a small mesh (a tuning rule's candidates on its sampled
@@ -92,8 +95,12 @@ def run_concurrently(fn: Callable[[T], R], items: Sequence[T]) -> list[R]:
     runs, not the loops inside them, share the cores. A parallel loop over a few thousand
     faces costs about as much in waking and joining threads as in work (``fit_vertices`` on
     3,000 vertices: 2 threads slower than 1), while whole runs side by side need no joining
-    until they end. Every kernel computes each output element on one thread in a fixed order,
-    so the results are the same bits as a loop's. The first exception raised is re-raised.
+    until they end. Runs on meshes of ``vertices`` >= :data:`CONCURRENT_BELOW` go one after
+    another, each on every thread: there a run's own loops scale, and 3 runs on 2 threads
+    side by side wait for the third (``two_stage`` with 2 probes, 2 cores idle: 0.85 of the
+    loop's time at 3,176 vertices, 0.97 at 7,352, 1.07 at 13,256, 1.17 at 37,448). Every kernel
+    computes each output element on one thread in a fixed order, so the results are the same
+    bits as a loop's. The first exception raised is re-raised.
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -101,7 +108,7 @@ def run_concurrently(fn: Callable[[T], R], items: Sequence[T]) -> list[R]:
 
     items = list(items)
     workers = min(spmm_threads(), numba.config.NUMBA_NUM_THREADS, len(items))
-    if workers <= 1:
+    if workers <= 1 or vertices >= CONCURRENT_BELOW:
         return [fn(x) for x in items]
 
     def one(x: T) -> R:

@@ -603,6 +603,11 @@ def test_run_concurrently_is_the_loop_in_order_with_one_kernel_thread_per_run_an
     with pytest.raises(ValueError, match="run 3 failed"):
         kernels.run_concurrently(boom, range(6))
 
+    # runs on a mesh of CONCURRENT_BELOW vertices or more: one after another, on the calling thread
+    where = set()
+    assert kernels.run_concurrently(lambda x: where.add(threading.get_ident()) or x, range(4), kernels.CONCURRENT_BELOW) == [0, 1, 2, 3]
+    assert where == {threading.get_ident()}
+
 
 def ts_threads():
     from meshdenoise.operators import spmm_threads
@@ -645,7 +650,7 @@ def test_the_rule_and_feature_risk_give_the_same_bits_with_runs_side_by_side_or_
         return params, risk, fr, out
 
     side = both()
-    monkeypatch.setattr(kernels, "run_concurrently", lambda fn, items: [fn(x) for x in items])
+    monkeypatch.setattr(kernels, "run_concurrently", lambda fn, items, vertices=0: [fn(x) for x in items])
     loop = both()
     assert side[0] == loop[0]
     assert side[1] == loop[1] and side[2] == loop[2]  # bit for bit

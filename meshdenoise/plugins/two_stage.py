@@ -765,7 +765,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     # the candidates run side by side, one thread each: on the region a parallel loop costs about as much
     # in joining threads as in work (the same choice, bit for bit)
     chosen, best = _staged_search(path, _search_grid(ctx.given), TWO_STAGE_REVISIT_SPAN,
-                                  evaluate=kernels.run_concurrently)
+                                  evaluate=lambda f, xs: kernels.run_concurrently(f, xs, region.vertices.size))
     chosen["iterations"] = int(best.value)
     consistent = (dict(chosen), best)  # the criterion's choice, before the guard
 
@@ -789,7 +789,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
         def along(start: np.ndarray) -> list[tuple[int, np.ndarray]]:
             return list(itertools.islice(runs(start, F, ops, params), params["iterations"]))
 
-        clean, *perturbed = kernels.run_concurrently(along, [Y] + [Y + delta * b for b in probes])
+        clean, *perturbed = kernels.run_concurrently(along, [Y] + [Y + delta * b for b in probes], Y.shape[0])
         out = []
         for (k, X), *others in zip(clean, *perturbed):
             res = float(np.sum((X - Y)[inner] ** 2))
