@@ -47,7 +47,6 @@ import logging
 import math
 import time
 import warnings
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -219,12 +218,6 @@ def detect_features(mesh: Any, *, ops: Operators | None = None) -> FeatureTest:
     V, F = data.V, data.F
     ops = ops if ops is not None else get_operators(F, V.shape[0])
     return _feature_test(V, F, ops)
-
-
-def _single_threaded_feature_test(V: np.ndarray, F: np.ndarray, ops: Operators) -> FeatureTest:
-    """:func:`_feature_test` with its kernels on one thread (:func:`~meshdenoise.kernels.single_threaded`)."""
-    with kernels.single_threaded():
-        return _feature_test(V, F, ops)
 
 
 def _feature_test(V: np.ndarray, F: np.ndarray, ops: Operators) -> FeatureTest:
@@ -1275,11 +1268,7 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
     h = mean_edge_length(V, ops)
     # the feature test needs no noise level: it runs beside the noise estimate, on one kernel thread (the
     # estimate's sparse products take the others); the same result as after it
-    background = ThreadPoolExecutor(max_workers=1, thread_name_prefix="meshdenoise-features")
-    try:
-        feature_job = background.submit(_single_threaded_feature_test, V, F, ops)
-    finally:
-        background.shutdown(wait=False)  # the job runs on; its result is awaited below
+    feature_job = kernels.start(_feature_test, V, F, ops)
     with stage("estimating the noise"):
         if noise is None:
             model, noise_reason, caveats, decided, rho_range = default_noise(V, F, h)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import os
 import threading
+from concurrent.futures import Future
 from contextlib import contextmanager
 from typing import Callable, Iterator, Sequence, TypeVar
 
@@ -43,6 +44,7 @@ __all__ = [
     "set_threads",
     "single_threaded",
     "run_concurrently",
+    "start",
     "face_geometry",
     "centroid_spacing_sums",
     "spatial_weights",
@@ -117,6 +119,36 @@ def run_concurrently(fn: Callable[[T], R], items: Sequence[T], vertices: int = 0
 
     with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="meshdenoise-runs") as pool:
         return list(pool.map(one, items))
+
+
+def start(fn: Callable[..., R], *args: object) -> Future:
+    """``fn(*args)`` on a worker thread, its kernels on one thread (:func:`single_threaded`); a finished future
+    at once when only one thread is allowed (:func:`~meshdenoise.operators.spmm_threads` or numba's pool).
+
+    For a part of a job that needs nothing from the part the caller does meanwhile (the
+    default's feature test beside its noise estimate). ``future.result()`` re-raises its error.
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    from .operators import spmm_threads
+
+    if min(spmm_threads(), numba.config.NUMBA_NUM_THREADS) <= 1:
+        done: Future = Future()
+        try:
+            done.set_result(fn(*args))
+        except Exception as error:  # delivered by result(), as a worker's would be
+            done.set_exception(error)
+        return done
+
+    def one() -> R:
+        with single_threaded():
+            return fn(*args)
+
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="meshdenoise-start")
+    try:
+        return pool.submit(one)
+    finally:
+        pool.shutdown(wait=False)  # the job runs on; the caller awaits its result
 
 
 # --------------------------------------------------------------------------- small helpers

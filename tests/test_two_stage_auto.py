@@ -655,3 +655,30 @@ def test_the_rule_and_feature_risk_give_the_same_bits_with_runs_side_by_side_or_
     assert side[0] == loop[0]
     assert side[1] == loop[1] and side[2] == loop[2]  # bit for bit
     assert np.array_equal(side[3], loop[3])
+
+
+def test_start_runs_a_job_on_a_worker_with_one_kernel_thread_or_at_once_on_one_thread(monkeypatch):
+    import threading
+
+    import numba
+
+    from meshdenoise import kernels
+
+    def where():
+        kernels.set_threads()
+        return threading.get_ident(), numba.get_num_threads()
+
+    if min(ts_threads(), numba.config.NUMBA_NUM_THREADS) > 1:
+        ident, k = kernels.start(where).result(timeout=30)
+        assert ident != threading.get_ident() and k == 1
+    monkeypatch.setenv("MESHDENOISE_THREADS", "1")  # one thread allowed: at once, on the caller's thread
+    job = kernels.start(where)
+    assert job.done() and job.result()[0] == threading.get_ident()
+
+    def boom():
+        raise ValueError("the job failed")
+
+    for threads in ("1", "2"):
+        monkeypatch.setenv("MESHDENOISE_THREADS", threads)
+        with pytest.raises(ValueError, match="the job failed"):
+            kernels.start(boom).result(timeout=30)
