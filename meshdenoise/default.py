@@ -507,8 +507,9 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     def result(k: int) -> np.ndarray:  # the filter is not linear: one run per probe (k = -1: the input itself)
         return run(V if k < 0 else V + delta * (Z[:, k, None] * normals))
 
-    # two_stage's runs are compiled kernels: side by side, one thread each, they share the cores better than
-    # each run's parallel loops do (the same bits); the other filters' solves run one after another
+    # two_stage's runs are compiled kernels: on a small mesh (under kernels.CONCURRENT_BELOW vertices) side by side,
+    # one thread each, they share the cores better than each run's parallel loops do (the same bits); the other
+    # filters' solves run one after another
     if spec.name == "two_stage":
         out, *runs = kernels.run_concurrently(result, range(-1, probes), n)
     else:
