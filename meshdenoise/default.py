@@ -828,13 +828,13 @@ def tilted_directions(N: np.ndarray, share: np.ndarray | float, rng: np.random.G
 def taubin_passes(ops: Operators) -> tuple:
     """The two passes of a :data:`POST_TAUBIN` step as matrices, ``(1 - f) I + f D^{-1} W`` (n, n) CSR for f = lam, mu.
 
-    ``taubin`` with uniform weights and no pinned vertex applies them in turn per iteration
-    (tests: the same result to rounding); here they apply to many columns at once.
+    The filter's own matrices (:func:`meshdenoise.plugins.taubin.pass_matrix`): ``taubin`` with
+    uniform weights and no pinned vertex applies them in turn per iteration; here they apply to
+    many columns at once.
     """
-    import scipy.sparse as sp
+    from .plugins.taubin import pass_matrix
 
-    eye = sp.identity(ops.n, format="csr")
-    return tuple(sp.csr_matrix((1.0 - f) * eye + f * ops.P) for f in (POST_TAUBIN["lam"], POST_TAUBIN["mu"]))
+    return tuple(pass_matrix(ops.P, f) for f in (POST_TAUBIN["lam"], POST_TAUBIN["mu"]))
 
 
 def small_post_estimates(V: np.ndarray, F: np.ndarray, method: str, params: dict, model: NoiseModel, *,

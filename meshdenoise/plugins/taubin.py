@@ -11,7 +11,7 @@ from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import averaging_step, best_on_curve, best_on_path, iterative_path, path_curve
 
-__all__ = ["taubin", "meshlab_taubin_operator", "TAUBIN_WEIGHTS"]
+__all__ = ["taubin", "meshlab_taubin_operator", "pass_matrix", "TAUBIN_WEIGHTS"]
 
 TAUBIN_WEIGHTS = ("uniform", "meshlab", "open3d")
 
@@ -222,7 +222,7 @@ def taubin(V, F, *, ops, pinned, iterations, lam, mu, weights):
         return _open3d_taubin(X, ops, pinned, iterations, lam, mu)
     A = ops.P if weights == "uniform" else meshlab_taubin_operator(ops)
     # each pass X + f (AX - X) = ((1 - f) I + f A) X folded into one matrix: one threaded product, no temporaries
-    passes = [_pass_matrix(A, f, pinned) for f in (lam, mu)]
+    passes = [pass_matrix(A, f, pinned) for f in (lam, mu)]
     Y = np.empty_like(X)
     for _ in range(iterations):
         for M in passes:
@@ -231,7 +231,7 @@ def taubin(V, F, *, ops, pinned, iterations, lam, mu, weights):
     return X
 
 
-def _pass_matrix(A: sp.csr_matrix, f: float, pinned: np.ndarray | None) -> sp.csr_matrix:
+def pass_matrix(A: sp.csr_matrix, f: float, pinned: np.ndarray | None = None) -> sp.csr_matrix:
     """``(1 - f) I + f A`` (n, n) CSR, with identity rows at ``pinned`` vertices (they stay bit-identical)."""
     n = A.shape[0]
     keep = np.ones(n) if pinned is None else (~pinned).astype(np.float64)
