@@ -112,6 +112,7 @@ SMALL_RECORRUPTION = 0.5  # ... Y + aZ, Y - Z/a with this a (the estimate's leve
 # (feature_risk) and 548 s (the post-step's 17 runs of the prior) of an 813 s choice (session 9). The measured rows of
 # the benchmark tables have at most 35k vertices, so none of them changes.
 REGION_FROM = 50_000
+RULES_BESIDE_UP_TO = 50_000  # up to this many vertices the smooth prior's rule runs beside two_stage's (_candidate_rules)
 RISK_REGION = 40_000  # the region: about this many vertices ...
 RISK_PATCHES = 12  # ... in this many balls (the 400k elephant: 8, 12 and 24 chose the post-step as the whole mesh did) ...
 RISK_MARGIN = 10  # ... scored from this many rings from a cut on (more where the smooth prior reaches farther):
@@ -1232,6 +1233,27 @@ def default_noise(V: np.ndarray, F: np.ndarray, h: float) -> tuple[NoiseModel, s
     return model, reason, caveats, verdict.verdict, verdict.rho_range
 
 
+def _candidate_rules(mesh: tuple[np.ndarray, np.ndarray], candidates: list[str], model: NoiseModel) -> dict[str, list]:
+    """``{method: [params, risk]}``: each candidate's own rule (:func:`choose_parameters` with ``return_risk``).
+
+    Up to :data:`RULES_BESIDE_UP_TO` vertices the smooth prior's rule runs on a worker thread, one kernel
+    thread (:func:`~meshdenoise.kernels.start`), beside the others on this one: ``two_stage``'s rule
+    leaves a core idle between its stages' runs side by side, and the prior's rule is mostly
+    single-threaded sparse solves. Both colour the same probes (``NoiseModel.colour``: computed
+    once, the other waits for it); the results are the same bits as one after another. Larger
+    meshes run the rules one after another, each on every thread, their peaks of memory apart.
+    """
+    def rule(method: str) -> list:
+        return list(choose_parameters(mesh, method, noise=model, return_risk=True))
+
+    beside = SMOOTH_METHOD in candidates and len(candidates) > 1 and mesh[0].shape[0] <= RULES_BESIDE_UP_TO
+    job = kernels.start(rule, SMOOTH_METHOD) if beside else None
+    scored = {m: (None if job is not None and m == SMOOTH_METHOD else rule(m)) for m in candidates}
+    if job is not None:
+        scored[SMOOTH_METHOD] = job.result()
+    return scored
+
+
 def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, boundary_motion: str = "normal") -> DefaultChoice:
     """Choose the filter and its parameters for a noisy mesh, and say why.
 
@@ -1301,7 +1323,7 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
         reasons = [f"{features.reason} -> {method}, a smooth prior",
                    f"its parameters minimise {method}'s risk estimate (SURE) for that noise level"]
     else:  # the filter with the smaller estimated error (it picks two_stage on the CAD pairs by 2.5x)
-        scored = {m: list(choose_parameters((V, F), m, noise=model, return_risk=True)) for m in candidates}
+        scored = _candidate_rules((V, F), candidates, model)
         with stage("estimating the candidates' errors"):  # along the smooth prior's normals
             if n > REGION_FROM:  # both candidates by Monte-Carlo SURE on one region, same probes: a paired comparison
                 region = RiskRegion.cut(V, F, ops, risk_margin(float(scored[SMOOTH_METHOD][0]["mu"])))

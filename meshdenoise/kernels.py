@@ -42,6 +42,7 @@ R = TypeVar("R")
 __all__ = [
     "set_threads",
     "single_threaded",
+    "every_thread",
     "run_concurrently",
     "start",
     "face_geometry",
@@ -78,6 +79,21 @@ def single_threaded() -> Iterator[None]:
 
     old = getattr(_limits, "limit", None)
     _limits.limit = 1
+    try:
+        yield
+    finally:
+        _limits.limit = old
+        set_threads()
+
+
+@contextmanager
+def every_thread() -> Iterator[None]:
+    """Inside the block, this Python thread's kernels and products use every thread again (lifts
+    :func:`single_threaded`): for work that other threads are waiting for (a shared colouring)."""
+    from .operators import _limits
+
+    old = getattr(_limits, "limit", None)
+    _limits.limit = None
     try:
         yield
     finally:
@@ -125,23 +141,28 @@ def start(fn: Callable[..., R], *args: object) -> Future:
     at once when only one thread is allowed (:func:`~meshdenoise.operators.spmm_threads` or numba's pool).
 
     For a part of a job that needs nothing from the part the caller does meanwhile (the
-    default's feature test beside its noise estimate). ``future.result()`` re-raises its error.
+    default's feature test beside its noise estimate, the smooth prior's rule beside
+    ``two_stage``'s). It runs in a copy of the caller's context (its progress listener: its
+    stages are reported as the caller's, like :func:`asyncio.to_thread`). ``future.result()``
+    re-raises its error.
     """
+    import contextvars
     from concurrent.futures import ThreadPoolExecutor
 
     from .operators import spmm_threads
 
+    context = contextvars.copy_context()
     if min(spmm_threads(), numba.config.NUMBA_NUM_THREADS) <= 1:
         done: Future = Future()
         try:
-            done.set_result(fn(*args))
+            done.set_result(context.run(fn, *args))
         except Exception as error:  # delivered by result(), as a worker's would be
             done.set_exception(error)
         return done
 
     def one() -> R:
         with single_threaded():
-            return fn(*args)
+            return context.run(fn, *args)
 
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="meshdenoise-start")
     try:

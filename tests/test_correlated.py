@@ -51,6 +51,71 @@ def test_exact_coloured_probes_give_the_dense_trace_of_h_sigma():
     assert np.trace(H @ Sigma) > 1.5 * np.trace(H)
 
 
+def test_colour_from_several_threads_colours_each_probe_block_once():
+    """NoiseModel.colour called at once from threads (the default's rules side by side): the same probes are coloured
+    once (the other callers wait for that colouring), different probes at the same time, every result the serial
+    one; a pickled model colours alike."""
+    import pickle
+    import threading
+    import time
+
+    V, F = SMALL
+    n = V.shape[0]
+    serial = NoiseModel(0.1, 2.0, V, F)
+    rng = np.random.default_rng(4)
+    blocks = [rng.choice([-1.0, 1.0], size=(n, 5)) for _ in range(2)]
+    expected = [serial.colour(Z, 0.2) for Z in blocks]
+
+    model = NoiseModel(0.1, 2.0, V, F)
+    computed = []
+    inside = threading.Barrier(2, timeout=10)  # both blocks' colourings under way at once
+    plain = model._coloured_probes
+
+    def slow(Z, s):
+        computed.append(Z[0, 0])
+        if len(computed) <= 2:
+            inside.wait()
+        time.sleep(0.05)  # callers of the same block arrive while it is computed
+        return plain(Z, s)
+
+    model._coloured_probes = slow
+    got = {}
+
+    def call(i, j):
+        got[i] = model.colour(blocks[j], 0.2)
+
+    threads = [threading.Thread(target=call, args=(i, i % 2)) for i in range(6)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert len(computed) == 2  # one colouring per block, both at once (the barrier)
+    for i in range(6):
+        np.testing.assert_array_equal(got[i], expected[i % 2])
+    assert model._pending == {}
+    again = pickle.loads(pickle.dumps(serial))
+    np.testing.assert_array_equal(again.colour(blocks[0], 0.2), expected[0])
+
+
+def test_a_failed_colouring_leaves_the_next_caller_to_colour():
+    V, F = SMALL
+    model = NoiseModel(0.1, 2.0, V, F)
+    Z = np.random.default_rng(6).choice([-1.0, 1.0], size=(V.shape[0], 3))
+    plain, calls = model._coloured_probes, []
+
+    def fails_once(Z, s):
+        calls.append(1)
+        if len(calls) == 1:
+            raise MemoryError("no room")
+        return plain(Z, s)
+
+    model._coloured_probes = fails_once
+    with pytest.raises(MemoryError):
+        model.colour(Z, 1 / 3)
+    np.testing.assert_array_equal(model.colour(Z, 1 / 3), NoiseModel(0.1, 2.0, V, F).colour(Z, 1 / 3))
+    assert len(calls) == 2 and model._pending == {}
+
+
 def test_hutchinson_with_coloured_probes_is_unbiased_for_the_trace():
     V, F = SMALL
     n = V.shape[0]

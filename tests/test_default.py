@@ -775,6 +775,44 @@ def test_choose_default_runs_the_feature_test_beside_the_noise_estimate_with_the
     with pytest.raises(RuntimeError, match="the feature test failed"):
         choose_default((Vn, F))
 
+def test_the_smooth_priors_rule_runs_beside_two_stages_with_the_same_choice(monkeypatch):
+    """Under correlated noise both rules colour the same probes: the smooth prior's rule runs on a worker thread
+    beside two_stage's (the model's colouring shared, computed once) and the choice is the one made with the rules
+    one after another (RULES_BESIDE_UP_TO = 0), bit for bit."""
+    import threading
+
+    from meshdenoise.shapes import torus
+    from meshdenoise.tuning import choose as choose_module
+
+    V, F = torus(80, 40)
+    h = mean_edge_length(V, get_operators(F, V.shape[0]))
+    Vn = md.add_scanner_noise((V, F), 0.3 * h, correlation_length=2.0, seed=0)[0]
+    threads, colourings = {}, []
+    rule = default.choose_parameters
+    colour = NoiseModel._coloured_probes
+
+    def recorded(mesh, method, **kw):
+        threads.setdefault(method, set()).add(threading.current_thread() is threading.main_thread())
+        return rule(mesh, method, **kw)
+
+    def counted(self, Z, s):
+        colourings.append(Z.shape)
+        return colour(self, Z, s)
+
+    monkeypatch.setattr(default, "choose_parameters", recorded)
+    monkeypatch.setattr(NoiseModel, "_coloured_probes", counted)
+    beside = choose_default((Vn, F))
+    assert beside.method in ("two_stage", "sobolev_bilaplacian") and beside.correlation_length > 0
+    assert threads == {"two_stage": {True}, "sobolev_bilaplacian": {False}}
+    assert len(colourings) == len(set(colourings))  # the rules' shared probe block coloured once
+    threads.clear()
+    monkeypatch.setattr(default, "RULES_BESIDE_UP_TO", 0)
+    after = choose_default((Vn, F))
+    assert threads == {"two_stage": {True}, "sobolev_bilaplacian": {True}}
+    assert (after.method, after.params, after.reasons) == (beside.method, beside.params, beside.reasons)
+    assert choose_module.choose_parameters is not recorded  # only the default's own reference was replaced
+
+
 # --- the post-step on small meshes: tilted probes, the realization's spread, recorrupted pairs ----------------------
 def test_tilted_directions_are_unit_at_the_angle_asked_with_a_uniform_tangential_part():
     V, F = icosphere(1)

@@ -46,6 +46,7 @@ gets it.
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass, field
 from typing import Any, Iterator
 
@@ -53,6 +54,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..adapters import read_mesh
+from ..kernels import every_thread
 from ..noise import HeatFilter, HeatKrylov, diffusion_length, heat_geometry
 from ..noise import mean_edge_length as noise_mean_edge_length
 from ..operators import Operators, get_operators, spmm
@@ -105,6 +107,10 @@ class NoiseModel:
     F: np.ndarray | None = field(default=None, repr=False, compare=False)
     _filter: Any = field(default=None, init=False, repr=False, compare=False)
     _coloured: dict = field(default_factory=dict, init=False, repr=False, compare=False)
+    # colour() may be called from threads at once (the default's rules side by side): the lock guards the filter's
+    # build and the cache; a colouring under way is waited for, not computed twice
+    _lock: Any = field(default_factory=threading.Lock, init=False, repr=False, compare=False)
+    _pending: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         for name in ("rho", "correlation_length"):
@@ -119,15 +125,25 @@ class NoiseModel:
             raise ValueError("NoiseModel: a correlated model (correlation_length > 0) needs the mesh V, F "
                              "its heat filter is built on")
 
+    def __getstate__(self) -> dict:  # pickled (a process pool, Dask) without its lock and caches
+        state = dict(self.__dict__)
+        state.update(_filter=None, _coloured={}, _lock=None, _pending={})
+        return state
+
+    def __setstate__(self, state: dict) -> None:
+        self.__dict__.update(state)
+        self._lock = threading.Lock()
+
     @property
     def correlated(self) -> bool:
         return self.correlation_length > 0
 
     def filter(self) -> HeatFilter:
-        """The heat filter :math:`C_\\ell` (built once)."""
-        if self._filter is None:
-            self._filter = HeatFilter(self.V, self.F, diffusion_length(self.correlation_length))
-        return self._filter
+        """The heat filter :math:`C_\\ell` (built once, also when asked from several threads)."""
+        with self._lock:
+            if self._filter is None:
+                self._filter = HeatFilter(self.V, self.F, diffusion_length(self.correlation_length))
+            return self._filter
 
     def colour(self, Z: np.ndarray, s: float) -> np.ndarray:
         """Probes ``Z`` (n, m) coloured by :math:`\\Sigma^{1/2}`: ``Z`` itself (same object) when independent.
@@ -139,28 +155,53 @@ class NoiseModel:
         With ``Z = I`` (exact traces) :math:`\\mathrm{tr}(Y^T H Y) = \\mathrm{tr}(H\\Sigma)` exactly.
         The result is kept (by the content of ``Z`` and ``s``, at most :data:`COLOUR_CACHE_BYTES`,
         :meth:`clear`): the rules of one choice colour the same probes several times, each
-        colouring :data:`~meshdenoise.noise.HEAT_STEPS` CG solves on the whole mesh.
+        colouring :data:`~meshdenoise.noise.HEAT_STEPS` CG solves on the whole mesh. Safe to call
+        from several threads: a colouring asked for while another thread computes it is waited
+        for (one computation); different probes are coloured at the same time.
         """
         if not self.correlated:
             return Z
         Z = np.asarray(Z, dtype=np.float64)
         key = (digest(Z), float(s))
-        if key in self._coloured:  # the rules of one choice colour the same probes several times
-            return self._coloured[key].copy()
+        with self._lock:
+            if key in self._coloured:  # the rules of one choice colour the same probes several times
+                return self._coloured[key].copy()
+            gate = self._pending.get(key)
+            mine = gate is None
+            if mine:
+                gate = self._pending[key] = threading.Event()
+        if not mine:
+            gate.wait()
+            with self._lock:
+                if key in self._coloured:
+                    return self._coloured[key].copy()
+            return self._coloured_probes(Z, s)  # the other thread failed, or its result was too large to keep
+        try:
+            with every_thread():  # other threads may be waiting for it: not held to a worker's one thread
+                Y = self._coloured_probes(Z, s)
+            if Y.nbytes <= COLOUR_CACHE_BYTES:
+                with self._lock:
+                    while self._coloured and sum(v.nbytes for v in self._coloured.values()) + Y.nbytes > COLOUR_CACHE_BYTES:
+                        self._coloured.pop(next(iter(self._coloured)))  # oldest first
+                    self._coloured[key] = Y.copy()
+            return Y
+        finally:
+            with self._lock:
+                del self._pending[key]
+            gate.set()
+
+    def _coloured_probes(self, Z: np.ndarray, s: float) -> np.ndarray:
+        """:meth:`colour`'s computation, uncached."""
         # exact traces (Z = I, as many columns as rows: small meshes) keep 8 digits; probes need no more than 5
         Y = self.filter()(Z, tol=1e-8 if Z.shape[1] >= Z.shape[0] else COLOUR_TOL)
         energy = s * float(np.sum(Y * Y))
         n = Y.shape[0]
-        Y = Y * math.sqrt(n / energy) if energy > 0 else Y
-        if Y.nbytes <= COLOUR_CACHE_BYTES:
-            while self._coloured and sum(v.nbytes for v in self._coloured.values()) + Y.nbytes > COLOUR_CACHE_BYTES:
-                self._coloured.pop(next(iter(self._coloured)))  # oldest first
-            self._coloured[key] = Y.copy()
-        return Y
+        return Y * math.sqrt(n / energy) if energy > 0 else Y
 
     def clear(self) -> None:
         """Forget the coloured probes kept by :meth:`colour` (at most :data:`COLOUR_CACHE_BYTES`)."""
-        self._coloured.clear()
+        with self._lock:
+            self._coloured.clear()
 
 
 def band_residuals(ops: Operators, X: np.ndarray, bands: tuple[int, ...] = BANDS) -> dict[int, np.ndarray]:
