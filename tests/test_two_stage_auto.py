@@ -220,7 +220,7 @@ def test_staged_search_ends_with_both_counts_jointly_where_one_at_a_time_stalls(
     def path(params):
         return ts.Point(3, 0.0, 0.0, np.zeros((1, 3)), score(params))
 
-    grid = ts._search_grid({})
+    grid = ts._search_grid({}, correlated=True)  # 20 and 40 vertex steps
     chosen, best = ts._staged_search(path, grid)
     pairs = [{**chosen, "normal_iterations": a, "vertex_iterations": b} for a, b in table]
     expected = min(pairs, key=score)
@@ -229,8 +229,12 @@ def test_staged_search_ends_with_both_counts_jointly_where_one_at_a_time_stalls(
     assert chosen["sigma_r"] == 0.3
 
 
-def test_the_rule_searches_20_and_40_vertex_steps_and_the_oracle_10_as_well():
-    assert ts._search_grid({})["vertex_iterations"] == (20, 40)
+def test_the_rule_searches_40_vertex_steps_20_and_40_under_correlated_noise_and_the_oracle_10_as_well():
+    # session 14: under independent noise the criterion preferred 20 steps where 40 was better (Block0.4: 2.94
+    # against 2.78 degrees at the rule's two draws; docs/automatic-parameters.md)
+    assert ts._search_grid({})["vertex_iterations"] == (40,)
+    assert ts._search_grid({}, correlated=True)["vertex_iterations"] == (20, 40)
+    assert ts._search_grid({"vertex_iterations": 7}, correlated=True)["vertex_iterations"] == (7,)
     assert ts._search_grid({"vertex_iterations": 7})["vertex_iterations"] == (7,)
     assert ts._search_grid({}, oracle=True)["vertex_iterations"] == (20, 10, 40)
 
@@ -320,7 +324,8 @@ def test_guard_lighter_run_is_taken_on_a_detailed_smooth_scan_and_lowers_the_tru
     """pymeshlab's bunny with independent noise of 0.3 edge lengths along the normals (the correlated
     benchmark's row at l = 0): the consistency criterion asks for 10 normal passes and 20 vertex steps,
     the guard's lighter run (5 and 10) is taken, and it is better against the clean mesh on both
-    measures (benchmarks/results/correlated-two-stage-2026-11-24.md: 58.63 dB against 56.57)."""
+    measures (benchmarks/results/correlated-two-stage-2026-11-24.md: 58.63 dB against 56.57; since session 14's
+    two synthetic draws and 40 vertex steps the unguarded choice is better, 57.85 dB, the guarded one the same)."""
     from meshdenoise.data import sample_mesh
     from meshdenoise.io import load_arrays
     from meshdenoise.noise import add_scanner_noise, mean_edge_length
@@ -334,7 +339,7 @@ def test_guard_lighter_run_is_taken_on_a_detailed_smooth_scan_and_lowers_the_tru
     assert (guarded["normal_iterations"], guarded["vertex_iterations"]) == (5, 10)
     assert (plain["normal_iterations"], plain["vertex_iterations"]) != (5, 10)
     out = {name: apply_filter("two_stage", (Vn, F), **p)[0] for name, p in (("guarded", guarded), ("plain", plain))}
-    assert snr(V, out["guarded"]) > snr(V, out["plain"]) + 1.0
+    assert snr(V, out["guarded"]) > snr(V, out["plain"]) + 0.5
     assert normal_error_deg((V, F), out["guarded"]) < normal_error_deg((V, F), out["plain"])
 
 
@@ -510,7 +515,7 @@ def test_rules_second_sigma_r_stage_stays_next_to_the_best_so_far_and_the_oracle
             seen.append(dict(params))
             return ts.Point(3, 0.0, 0.0, np.zeros((1, 3)), score(params))
 
-        chosen, _ = ts._staged_search(path, ts._search_grid({}), span)
+        chosen, _ = ts._staged_search(path, ts._search_grid({}, correlated=True), span)  # 20 and 40 vertex steps
         assert chosen["sigma_r"] == 0.35 and chosen["normal_iterations"] == 20
         second = {p["sigma_r"] for p in seen if p["normal_iterations"] == 20 and p["vertex_iterations"] == 20}
         assert second == tried
@@ -682,3 +687,91 @@ def test_start_runs_a_job_on_a_worker_with_one_kernel_thread_or_at_once_on_one_t
         monkeypatch.setenv("MESHDENOISE_THREADS", threads)
         with pytest.raises(ValueError, match="the job failed"):
             kernels.start(boom).result(timeout=30)
+
+
+# --- session 14: two synthetic draws, the residual's whiteness ------------------------------------
+def test_residual_correlation_is_the_lag_one_autocorrelation_over_edges_written_by_hand():
+    V, F = icosphere(3)
+    n = len(V)
+    rng = np.random.default_rng(4)
+    X = V * (1 + 0.01 * rng.standard_normal(n))[:, None]
+    Y = X + 0.02 * rng.standard_normal((n, 3))
+    W = get_operators(F, n).W
+    Nx = vertex_normals(X, F)
+    r = np.einsum("ij,ij->i", Y - X, Nx)
+    edges = {tuple(sorted((int(a), int(b)))) for f in F for a, b in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0]))}
+    expected = sum(2 * r[a] * r[b] for a, b in edges) / (2 * len(edges) * np.mean(r**2))
+    assert ts.residual_correlation(Y, X, F, W) == pytest.approx(expected, rel=1e-10)
+    rows = np.arange(n) < n // 2
+    inside = [(a, b) for a, b in edges if rows[a] and rows[b]]
+    expected = sum(2 * r[a] * r[b] for a, b in inside) / (2 * len(inside) * np.mean(r[rows] ** 2))
+    assert ts.residual_correlation(Y, X, F, W, rows) == pytest.approx(expected, rel=1e-10)
+    assert ts.residual_correlation(X, X, F, W) == 0.0
+
+
+def test_residual_correlation_reads_white_noise_as_zero_its_high_pass_below_and_its_low_pass_above():
+    """The whiteness principle's three cases on a sphere with independent noise along the normals:
+    the filter that removes exactly the noise leaves it white; an umbrella step (a light filter) leaves
+    its high-pass part (negative); the umbrella-smoothed noise (what too much smoothing moves into
+    the residual) is positive."""
+    V, F = icosphere(4)
+    n = len(V)
+    ops = get_operators(F, n)
+    N = vertex_normals(V, F)
+    eps = np.random.default_rng(0).standard_normal(n)
+    Y = V + 0.01 * eps[:, None] * N
+    mean_of_neighbours = lambda x: (ops.W @ x) / np.asarray(ops.W.sum(axis=1))  # noqa: E731
+    white = ts.residual_correlation(Y, V, F, ops.W)
+    assert abs(white) < 4 / np.sqrt(n)  # ~ N(0, 1/ (6 n)) for six neighbours
+    high = Y - 0.5 * (Y - mean_of_neighbours(Y))  # half an umbrella step: the residual is half the noise's high-pass
+    assert ts.residual_correlation(Y, high, F, ops.W) < -0.1
+    low = V + 0.01 * (eps - mean_of_neighbours(mean_of_neighbours(eps[:, None]))[:, 0])[:, None] * N
+    assert ts.residual_correlation(Y, low, F, ops.W) > 0.1
+
+
+@pytest.mark.parametrize("draws", [1, 2])
+def test_consistency_scores_are_the_mean_median_angle_of_the_draws_seeds_0_up(monkeypatch, draws):
+    """Each candidate's runs on the TWO_STAGE_DRAWS synthetic copies (synthetic_noise with seeds 0, 1, ...)
+    go in step; a point's score is the mean of the copies' median angles at its outer iteration, and the
+    run's best point is the least of those means (its walk)."""
+    from meshdenoise import kernels
+
+    V, Vn, F, rho = noisy_box()
+    monkeypatch.setattr(kernels, "CONCURRENT_BELOW", 0)  # candidates one after another: the recording below is in order
+    monkeypatch.setattr(ts, "TWO_STAGE_DRAWS", draws)
+    seeds, angles, checks = [], [], []
+    noise, median, search = ts.synthetic_noise, ts.median_angle, ts._staged_search
+    monkeypatch.setattr(ts, "synthetic_noise", lambda N, r, seed=0: (seeds.append(seed), noise(N, r, seed))[1])
+    monkeypatch.setattr(ts, "median_angle", lambda *a, **k: (angles.append(median(*a, **k)), angles[-1])[1])
+
+    def staged(path, grid, *args, **kwargs):
+        def recorded(params):
+            start = len(angles)
+            p = path(params)
+            per_k = np.reshape(angles[start:], (-1, draws)).mean(axis=1)
+            checks.append((p.score, per_k[int(p.value) - 1], per_k.min()))
+            return p
+        return search(recorded, grid, *args, **kwargs)
+
+    monkeypatch.setattr(ts, "_staged_search", staged)
+    choose_parameters((Vn, F), "two_stage", noise=rho)
+    assert seeds == list(range(draws))
+    assert checks and all(s == pytest.approx(a, rel=1e-12) and s == pytest.approx(m, rel=1e-12) for s, a, m in checks)
+
+
+def test_whiteness_switch_sets_the_outer_iterations_of_the_whitest_residual(monkeypatch):
+    """TWO_STAGE_WHITENESS (off in the rule, measured in session 14): the chosen run's outer iterations become
+    the count whose residual is whitest on the noisy mesh (brute force over the counts with apply_filter;
+    the box is its own region). The guard and the fine run are switched off to see the step alone."""
+    V, Vn, F, rho = noisy_box()
+    monkeypatch.setattr(ts, "TWO_STAGE_GUARD_LIGHTER", ())
+    monkeypatch.setattr(ts, "TWO_STAGE_GUARD_MARGIN", np.inf)
+    monkeypatch.setattr(ts, "TWO_STAGE_FINE", {})
+    plain = choose_parameters((Vn, F), "two_stage", noise=rho)
+    monkeypatch.setattr(ts, "TWO_STAGE_WHITENESS", True)
+    white = choose_parameters((Vn, F), "two_stage", noise=rho)
+    assert {k: v for k, v in white.items() if k != "iterations"} == {k: v for k, v in plain.items() if k != "iterations"}
+    W = get_operators(F, len(V)).W
+    lag = [abs(ts.residual_correlation(Vn, apply_filter("two_stage", (Vn, F), **{**white, "iterations": k})[0], F, W))
+           for k in range(1, ts.TWO_STAGE_MAX_ITERATIONS + 1)]
+    assert white["iterations"] == 1 + int(np.argmin(lag))
