@@ -775,3 +775,24 @@ def test_whiteness_switch_sets_the_outer_iterations_of_the_whitest_residual(monk
     lag = [abs(ts.residual_correlation(Vn, apply_filter("two_stage", (Vn, F), **{**white, "iterations": k})[0], F, W))
            for k in range(1, ts.TWO_STAGE_MAX_ITERATIONS + 1)]
     assert white["iterations"] == 1 + int(np.argmin(lag))
+
+
+def test_fine_run_must_beat_the_least_sure_along_the_chosen_run_not_its_last_point():
+    # Block0.4's numbers with the chosen run at 8 iterations (session 14): least 3.86 at 2, 8.84 at 8; the fine run 5.54
+    along = [11.82, 3.86, 4.86, 5.30, 5.56, 6.47, 7.63, 8.84]
+    assert not ts.fine_run_wins(5.54, along, 0.2)  # 37 % below the last point, above the least
+    assert ts.fine_run_wins(3.0, along, 0.2) and not ts.fine_run_wins(3.2, along, 0.2)  # 0.8 x 3.86 = 3.088
+    assert ts.fine_run_wins(-1.0, [-0.5, -0.2], 0.2) and not ts.fine_run_wins(-0.55, [-0.5, -0.2], 0.2)  # |least|
+
+
+@pytest.mark.parametrize("gain, fine", [(-np.inf, True), (np.inf, False)])
+def test_the_rule_takes_the_fine_run_as_fine_run_wins_says(monkeypatch, gain, fine):
+    """The plumbing: the fine run's mean angle made lower than the choice's (mean_angle patched: the fine run's
+    first), its SURE test made to pass or fail by the gain; the rule returns the fine run's parameters or not."""
+    V, Vn, F, rho = noisy_box()
+    calls = []
+    monkeypatch.setattr(ts, "mean_angle", lambda *a, **k: (calls.append(1), 0.0 if len(calls) % 2 else 1.0)[1])
+    monkeypatch.setattr(ts, "TWO_STAGE_FINE_GAIN", gain)
+    p = choose_parameters((Vn, F), "two_stage", noise=rho)
+    assert calls  # the fine run was considered
+    assert ((p["normal_iterations"], p["vertex_iterations"]) == (1, 10)) == fine

@@ -508,6 +508,17 @@ def guard_drops(per_probe: np.ndarray, last: np.ndarray, margin: float) -> bool:
     return bool(float(d.mean()) + 2.0 * se < -margin)
 
 
+def fine_run_wins(fine: float, along: list[float], gain: float) -> bool:
+    """Whether the fine run's SURE ``fine`` is below the least of ``along`` (SURE at each outer iteration of the
+    chosen run, (k,)) by ``gain`` times that least's magnitude.
+
+    The least, not the chosen count's: SURE is a position risk, whose best count comes before the normals'
+    (docs/automatic-parameters.md, session 14).
+    """
+    least = min(along)
+    return bool(fine < least - gain * abs(least))
+
+
 def face_angles(A: np.ndarray, B: np.ndarray | None, F: np.ndarray, faces: np.ndarray,
                 normals_b: np.ndarray | None = None) -> np.ndarray:
     """Angles (radians) between the unit normals of faces ``F[faces]`` under ``A`` and ``B`` (n, 3), shape (k,).
@@ -912,8 +923,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
             # against the least SURE along the chosen run, not its last point: SURE is a position risk, whose best
             # count comes before the normals' (Block0.4 at (0.3, 5, 40): least at 2 iterations, 3.86, the chosen 8
             # 8.84; the fine run's 5.54 is 37 % below the latter and 3.03 degrees against 2.68; session 14)
-            least = min(p.score for p, _ in path_sure)
-            if fine_sure[-1][0].score < least - TWO_STAGE_FINE_GAIN * abs(least):
+            if fine_run_wins(fine_sure[-1][0].score, [p.score for p, _ in path_sure], TWO_STAGE_FINE_GAIN):
                 chosen, final = fine, fine_sure[-1][0]
     # the returned score estimates the whole mesh's squared error ||f(X) - X0||^2 (comparable with
     # other filters' SURE, as choose_parameters(return_risk=True) reports it): the region's SURE on its
