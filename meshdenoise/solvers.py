@@ -10,6 +10,7 @@ wins on very large, well-conditioned systems such as ``I + mu L`` with moderate 
 from __future__ import annotations
 
 import math
+import threading
 from collections import OrderedDict
 from typing import Any, Callable
 
@@ -82,6 +83,10 @@ class DirichletSystem:
         return Y
 
 
+_quiet_lock = threading.Lock()
+_quiet: dict = {"depth": 0, "saved": {}, "tmps": {}}  # the one redirection of descriptors 1 and 2, shared by threads
+
+
 def _without_cholmod_warnings(build: Callable[[], Any]) -> Any:
     """``build()`` with CHOLMOD's own C-level warning lines kept off the terminal.
 
@@ -90,35 +95,56 @@ def _without_cholmod_warnings(build: Callable[[], Any]) -> Any:
     ``CHOLMOD warning: not positive definite ...`` through C's buffered ``stdout``. File
     descriptors 1 and 2 are sent to temporary files while the factor is built (C's buffers
     flushed before they are restored), then everything else written there meanwhile (other
-    threads' output) is written back.
+    threads' output) is written back. Descriptors belong to the process: threads building at
+    once share one redirection, made by the first to enter and undone by the last to leave
+    (each saving and restoring its own would leave them on a deleted temporary file).
     """
     import ctypes
     import os
     import sys
     import tempfile
 
+    with _quiet_lock:
+        if _quiet["depth"] == 0:
+            try:
+                sys.stdout.flush()
+                sys.stderr.flush()
+                saved = {fd: os.dup(fd) for fd in (1, 2)}
+            except (OSError, ValueError, AttributeError):  # no usable descriptors (embedded interpreters): build as is
+                saved = None
+            if saved is not None:
+                tmps = {fd: tempfile.TemporaryFile() for fd in (1, 2)}
+                for fd, tmp in tmps.items():
+                    os.dup2(tmp.fileno(), fd)
+                _quiet.update(saved=saved, tmps=tmps)
+        redirected = bool(_quiet["saved"])
+        _quiet["depth"] += 1
+    if not redirected:
+        try:
+            return build()
+        finally:
+            with _quiet_lock:
+                _quiet["depth"] -= 1
     try:
-        libc = ctypes.CDLL(None)
-        sys.stdout.flush()
-        sys.stderr.flush()
-        saved = {fd: os.dup(fd) for fd in (1, 2)}
-    except (OSError, ValueError, AttributeError):  # no usable descriptors (embedded interpreters): build as is
-        return build()
-    tmps = {fd: tempfile.TemporaryFile() for fd in (1, 2)}
-    try:
-        for fd, tmp in tmps.items():
-            os.dup2(tmp.fileno(), fd)
         return build()
     finally:
-        libc.fflush(None)
-        for fd, tmp in tmps.items():
-            os.dup2(saved[fd], fd)
-            os.close(saved[fd])
-            tmp.seek(0)
-            kept = [line for line in tmp.read().splitlines(keepends=True) if not line.startswith(b"CHOLMOD warning")]
-            tmp.close()
-            if kept:
-                os.write(fd, b"".join(kept))
+        with _quiet_lock:
+            _quiet["depth"] -= 1
+            if _quiet["depth"] == 0:
+                try:
+                    ctypes.CDLL(None).fflush(None)  # C's buffered output into the temporary files first
+                except (OSError, AttributeError):
+                    pass
+                saved, tmps = _quiet["saved"], _quiet["tmps"]
+                _quiet.update(saved={}, tmps={})
+                for fd, tmp in tmps.items():
+                    os.dup2(saved[fd], fd)
+                    os.close(saved[fd])
+                    tmp.seek(0)
+                    kept = [line for line in tmp.read().splitlines(keepends=True) if not line.startswith(b"CHOLMOD warning")]
+                    tmp.close()
+                    if kept:
+                        os.write(fd, b"".join(kept))
 
 
 class SPDSolver(DirichletSystem):

@@ -649,3 +649,39 @@ def test_a_failed_factorisation_prints_one_line_and_no_cholmod_warning(tmp_path)
     assert out.returncode == 2 and len(lines) == 1 and "CHOLMOD" not in out.stdout + out.stderr, lines
     assert "mu=1e+20" in lines[0] and lines[0].startswith("error:")
     assert not (tmp_path / "o.ply").exists()
+
+
+def test_factorisations_built_at_once_on_threads_leave_stdout_and_stderr_where_they_were(capfd):
+    """Threads building factors at once (the default's rules side by side) share one redirection of descriptors 1
+    and 2: afterwards both are the files they were (not a deleted temporary file), CHOLMOD's lines are dropped and
+    every other line written meanwhile is written back."""
+    import os
+    import threading
+
+    from meshdenoise import solvers
+
+    before = {fd: (os.fstat(fd).st_dev, os.fstat(fd).st_ino) for fd in (1, 2)}
+    inside = threading.Barrier(3, timeout=10)
+
+    def build(i):
+        def factor():
+            inside.wait()  # all three inside the redirection at once
+            os.write(1, f"CHOLMOD warning: not positive definite {i}\nkept out {i}\n".encode())
+            os.write(2, f"kept err {i}\n".encode())
+            inside.wait()
+            return i
+        return solvers._without_cholmod_warnings(factor)
+
+    got = {}
+    threads = [threading.Thread(target=lambda i=i: got.setdefault(i, build(i))) for i in range(3)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert got == {0: 0, 1: 1, 2: 2}
+    assert {fd: (os.fstat(fd).st_dev, os.fstat(fd).st_ino) for fd in (1, 2)} == before
+    assert solvers._quiet["depth"] == 0 and solvers._quiet["saved"] == {}
+    out, err = capfd.readouterr()
+    assert "CHOLMOD" not in out + err
+    assert sorted(out.splitlines()) == [f"kept out {i}" for i in range(3)]
+    assert sorted(err.splitlines()) == [f"kept err {i}" for i in range(3)]
