@@ -110,7 +110,7 @@ def main(argv: list[str] | None = None) -> int:
                 params = {**choice.params, "mu": choice.params["mu"] / choice.post.scale}
                 truth = {}
                 for c in default.POST_SCALES:
-                    for k in default.POST_STEPS:
+                    for k in default.SMALL_POST_STEPS:
                         X = md.apply_filter(choice.method, (Vn, F), **{**params, "mu": params["mu"] * c},
                                             boundary_motion="normal")
                         if k:

@@ -67,7 +67,7 @@ from .tuning.detail import ELL_GRID as DETAIL_LENGTHS
 from .tuning.detail import DetailVerdict, separate_detail
 from .tuning.noise_level import mean_edge_length
 from .tuning.region import SampledRegion
-from .tuning.recorrupted import cross_normals, normal_score, recorrupted_scores
+from .tuning.recorrupted import cross_normals, normal_score, recorrupt
 from .tuning.risk import mc_sure_step
 from .tuning.search import shifted_reach
 
@@ -107,6 +107,7 @@ SMALL_COPIES = 16  # ... read on this many synthetic copies of the prior's resul
 SMALL_PROBES = 32  # ... the guard's tilted Monte-Carlo SURE probes ...
 SMALL_DRAWS = 32  # ... and the criterion's recorrupted pairs ...
 SMALL_RECORRUPTION = 0.5  # ... Y + aZ, Y - Z/a with this a (the estimate's level: sqrt(1 + a^2) = 1.12 times the noise's)
+SMALL_POST_STEPS = (0, 2, 5, 8)  # ... over these Taubin step counts (after each of POST_SCALES), run as denoise runs them
 # Above this many vertices the candidates' risks, the probes' normals and the post-step are estimated on a sampled
 # region (:class:`RiskRegion`) instead of the whole mesh: on the 1.6M elephant their whole-mesh runs took 160 s
 # (feature_risk) and 548 s (the post-step's 17 runs of the prior) of an 813 s choice (session 9). The measured rows of
@@ -826,27 +827,110 @@ def tilted_directions(N: np.ndarray, share: np.ndarray | float, rng: np.random.G
     return np.sqrt(1.0 - beta)[:, None] * N + np.sqrt(beta)[:, None] * T
 
 
-def taubin_passes(ops: Operators) -> tuple:
+def taubin_passes(ops: Operators, pinned: np.ndarray | None = None) -> tuple:
     """The two passes of a :data:`POST_TAUBIN` step as matrices, ``(1 - f) I + f D^{-1} W`` (n, n) CSR for f = lam, mu.
 
     The filter's own matrices (:func:`meshdenoise.plugins.taubin.pass_matrix`): ``taubin`` with
-    uniform weights and no pinned vertex applies them in turn per iteration; here they apply to
-    many columns at once.
+    uniform weights applies them in turn per iteration; here they apply to many columns at once.
+    ``pinned`` (bool, shape (n,)): identity rows there, as the filter with those vertices pinned.
     """
     from .plugins.taubin import pass_matrix
 
-    return tuple(pass_matrix(ops.P, f) for f in (POST_TAUBIN["lam"], POST_TAUBIN["mu"]))
+    return tuple(pass_matrix(ops.P, f, pinned) for f in (POST_TAUBIN["lam"], POST_TAUBIN["mu"]))
+
+
+def small_post_runs(inputs: list, F: np.ndarray, method: str, params: dict, *, ops: Operators,
+                    steps: tuple = SMALL_POST_STEPS, boundary_motion: str = "free") -> list[dict[tuple[float, int], np.ndarray]]:
+    """Every candidate of the small-mesh post-step run on each input, as ``denoise`` runs it.
+
+    A candidate is ``method`` with ``mu`` times a scale of :data:`POST_SCALES`, then a count of
+    ``steps`` Taubin steps :data:`POST_TAUBIN`. With ``boundary_motion="normal"`` both the prior and
+    the steps move open borders along their normals only, as ``denoise`` and
+    :func:`run_post_step` do (:func:`meshdenoise.registry.boundary_along_normals`: the free run,
+    each border vertex moved along the free result's vertex normal by its move's normal part, then
+    the run again with the border held there); ``"free"``: the filters as they are. Taubin steps
+    of all scales run at once (:func:`taubin_passes`); the prior runs scale by scale over all
+    inputs, so that one factorisation of each scale's system (and of its border-held system)
+    serves them all.
+
+    Parameters
+    ----------
+    inputs : list of ndarray, shape (n, 3)
+        Noisy vertex positions (the mesh, its probes, its recorrupted copies).
+    F : ndarray, shape (m, 3)
+    method : str
+        The smooth prior (a filter with a ``mu`` parameter).
+    params : dict
+        Its parameters as chosen (``mu`` is scaled).
+    ops : Operators
+    steps : tuple of int
+    boundary_motion : {"free", "normal"}
+
+    Returns
+    -------
+    list of dict
+        One per input: ``(scale, steps)`` -> ndarray (n, 3).
+    """
+    if boundary_motion not in ("free", "normal"):
+        raise ValueError(f"small_post_runs: boundary_motion must be 'free' or 'normal', got {boundary_motion!r}")
+    spec = get_filter(method)
+    # the prior's array core with resolved parameters (the public filter's result bit for bit, without its copies)
+    priors = {float(c): spec.resolve({**params, "mu": params["mu"] * c}) for c in POST_SCALES}
+    counts = sorted(set(int(k) for k in steps))
+    border = ops.boundary_vertices if boundary_motion == "normal" else None
+    if border is not None and not border.any():
+        border = None
+    passes = taubin_passes(ops)
+    held_passes = taubin_passes(ops, border) if border is not None else None
+
+    def prior_run(X: np.ndarray, values: dict) -> np.ndarray:
+        if border is None:
+            return core_run(spec, X, ops, values)
+        out = run_core(spec, X, ops, values, boundary_motion="normal")
+        if not np.isfinite(out).all():
+            raise ParameterError(f"filter '{spec.name}' produced non-finite coordinates (overflow: a parameter is too "
+                                 "large or too small for this mesh)")
+        return out
+
+    def steps_after(Ys: list) -> dict[tuple[float, int], np.ndarray]:
+        """Every candidate's result from the prior's results ``Ys`` (one per scale) of one input."""
+        block, done, out = np.hstack(Ys), 0, {}
+        for k in counts:
+            for _ in range(k - done):  # all scales' Taubin steps at once, run on from the previous count
+                for M in passes:
+                    block = M @ block
+            done = max(done, k)
+            result = block
+            if k and border is not None:  # as denoise runs them: borders along the free run's normals, then held
+                result = np.hstack(Ys)
+                for i in range(len(Ys)):
+                    cols = slice(3 * i, 3 * i + 3)
+                    N = vertex_normals(block[:, cols], F)[border]
+                    start = Ys[i][border]
+                    result[border, cols] = start + np.einsum("ij,ij->i", block[border, cols] - start, N)[:, None] * N
+                for _ in range(k):
+                    for M in held_passes:
+                        result = M @ result
+            for i, c in enumerate(priors):
+                out[(c, k)] = Ys[i] if k == 0 else result[:, 3 * i:3 * i + 3]
+        return out
+
+    # scale by scale over all inputs: one factorisation of each scale's systems serves them all (the border's held
+    # system is a second one: cycling through six would miss the solver cache's four every time)
+    Ys = [[prior_run(np.asarray(X, dtype=np.float64), values) for X in inputs] for values in priors.values()]
+    return [steps_after([Ys[i][q] for i in range(len(priors))]) for q in range(len(inputs))]
 
 
 def small_post_estimates(V: np.ndarray, F: np.ndarray, method: str, params: dict, model: NoiseModel, *,
                          ops: Operators | None = None, normals: np.ndarray, share: np.ndarray,
                          probes: int = SMALL_PROBES, draws: int = SMALL_DRAWS, a: float = SMALL_RECORRUPTION,
-                         seed: int = 0) -> dict[tuple[float, int], tuple[np.ndarray, float, np.ndarray]]:
+                         seed: int = 0, steps: tuple = SMALL_POST_STEPS,
+                         boundary_motion: str = "free") -> dict[tuple[float, int], tuple[np.ndarray, float, np.ndarray]]:
     """The post-step's estimates on a small mesh: tilted Monte-Carlo SURE, its realization spread, recorrupted normal scores.
 
     For each candidate :math:`f` (``method`` with ``mu`` times a scale of :data:`POST_SCALES`,
-    then a count of :data:`POST_STEPS` Taubin steps :data:`POST_TAUBIN`; :math:`f_0` the prior as
-    chosen):
+    then a count of ``steps`` Taubin steps :data:`POST_TAUBIN`, run by :func:`small_post_runs`
+    with ``boundary_motion``; :math:`f_0` the prior as chosen):
 
     - **positions**: Monte-Carlo SURE :math:`S_p = \\|f(X) - X\\|^2 - n\\rho^2 + 2\\rho^2 b_p^T
       (f(X + \\delta b_p) - f(X)) / \\delta` with probes :math:`b_p = z_p D_p` along
@@ -889,6 +973,13 @@ def small_post_estimates(V: np.ndarray, F: np.ndarray, method: str, params: dict
     a : float
         The recorruption's strength.
     seed : int
+    steps : tuple of int
+        The Taubin step counts (0 among them).
+    boundary_motion : {"free", "normal"}
+        How the candidates move open borders: as ``denoise`` will (:func:`choose_default` passes
+        its own). With free borders, Taubin steps pull open borders inward, a loss ``denoise``
+        does not have: on the Nefertiti at rho 0.2 (seed 0) 8 steps after ``mu`` as chosen lose
+        0.55 dB with free borders and gain 0.13 dB with borders along their normals.
 
     Returns
     -------
@@ -899,56 +990,51 @@ def small_post_estimates(V: np.ndarray, F: np.ndarray, method: str, params: dict
     V = np.asarray(V, dtype=np.float64)
     n, m = V.shape[0], F.shape[0]
     ops = ops if ops is not None else get_operators(F, n)
-    spec = get_filter(method)
-    # the prior's array core with resolved parameters (the public filter's result bit for bit, without its copies)
-    priors = {float(c): spec.resolve({**params, "mu": params["mu"] * c}) for c in POST_SCALES}
-    counts = sorted(int(k) for k in POST_STEPS)
-    passes = taubin_passes(ops)
-
-    def runs(X: np.ndarray) -> dict[tuple[float, int], np.ndarray]:
-        Ys = [core_run(spec, X, ops, values) for values in priors.values()]
-        block, done, out = np.hstack(Ys), 0, {}
-        for k in counts:
-            for _ in range(k - done):  # all scales' Taubin steps at once, run on from the previous count
-                for M in passes:
-                    block = M @ block
-            done = max(done, k)
-            for i, c in enumerate(priors):
-                out[(c, k)] = Ys[i] if k == 0 else block[:, 3 * i:3 * i + 3]
-        return out
-
+    if boundary_motion not in ("free", "normal"):
+        raise ValueError(f"small_post_estimates: boundary_motion must be 'free' or 'normal', got {boundary_motion!r}")
+    if 0 not in steps:
+        raise ValueError(f"small_post_estimates: steps must include 0 (the prior as chosen, f_0), got {steps!r}")
+    run = lambda inputs: small_post_runs(inputs, F, method, params, ops=ops, steps=steps,  # noqa: E731
+                                         boundary_motion=boundary_motion)
     rho = float(model.rho)
     delta = mc_sure_step(rho, False)
-    base = runs(V)
+    rng = np.random.default_rng(seed)
+    B = []
+    for _ in range(int(probes)):
+        B.append(rng.choice([-1.0, 1.0], size=n)[:, None] * tilted_directions(normals, share, rng))
+    # the recorrupted pairs as recorrupted_scores draws them (tuning/recorrupted.py), run in the same batch
+    pair_rng = np.random.default_rng(seed + 1)
+    pairs = [recorrupt(V, rho * pair_rng.standard_normal(n)[:, None] * normals, a) for _ in range(int(draws))]
+    done = run([V] + [V + delta * b for b in B] + [plus for plus, _ in pairs])
+    base, moved_all, paired = done[0], done[1:1 + len(B)], done[1 + len(B):]
     keys = list(base)
     residual = {key: float(np.sum((X - V) ** 2)) for key, X in base.items()}
-    rng = np.random.default_rng(seed)
     S = np.empty((int(probes), len(keys)))
-    for p in range(int(probes)):
-        b = rng.choice([-1.0, 1.0], size=n)[:, None] * tilted_directions(normals, share, rng)
-        moved = runs(V + delta * b)
+    for p, (b, moved) in enumerate(zip(B, moved_all)):
         for j, key in enumerate(keys):
             S[p, j] = residual[key] - n * rho**2 + 2 * rho**2 * float(np.sum(b * (moved[key] - base[key]))) / delta
     f0 = base[(1.0, 0)]
     spread = {key: 2 * rho * float(np.linalg.norm(np.einsum("ij,ij->i", X - f0, normals))) for key, X in base.items()}
     c_mean = float(np.mean(np.linalg.norm(cross_normals(f0, F), axis=1)))
     w = np.full(m, 1.0 / (m * c_mean)) if c_mean > 0 else np.zeros(m)
-    scores = recorrupted_scores(lambda X: runs(X).values(), V,
-                                lambda r: rho * r.standard_normal(n)[:, None] * normals,
-                                lambda X, T: normal_score(X, F, cross_normals(T, F), weights=w),
-                                a=a, draws=int(draws), seed=seed + 1)
+    scores = np.empty((len(pairs), len(keys)))
+    for d, ((_, minus), out) in enumerate(zip(pairs, paired)):
+        target = cross_normals(minus, F)
+        for j, key in enumerate(keys):
+            scores[d, j] = normal_score(out[key], F, target, weights=w)
     return {key: (S[:, j], spread[key], scores[:, j]) for j, key in enumerate(keys)}
 
 
 def _small_post_step(V: np.ndarray, F: np.ndarray, method: str, params: dict, model: NoiseModel, *, ops: Operators,
                      normals: np.ndarray, smooth_params: dict, base: np.ndarray, seed: int,
-                     max_loss_db: float) -> PostStep | None:
+                     max_loss_db: float, boundary_motion: str = "free") -> PostStep | None:
     """:func:`choose_post_step` on a small mesh whose probe normals are far off (None below :data:`SMALL_TILT_FROM`)."""
     share = normal_error_share(base, F, smooth_params, float(model.rho), ops=ops, seed=seed)
     mean_share = float(np.mean(share))
     if mean_share < SMALL_TILT_FROM:
         return None
-    est = small_post_estimates(V, F, method, params, model, ops=ops, normals=normals, share=share, seed=seed)
+    est = small_post_estimates(V, F, method, params, model, ops=ops, normals=normals, share=share, seed=seed,
+                               steps=SMALL_POST_STEPS, boundary_motion=boundary_motion)
     S0 = est[(1.0, 0)][0]
     R0 = 2.0 * (1.0 + float(np.mean(est[(1.0, 0)][2])))
     cands = []
@@ -989,7 +1075,7 @@ def _loss_db(S: np.ndarray, S0: np.ndarray, realization: float = 0.0) -> float:
 def choose_post_step(V: np.ndarray, F: np.ndarray, method: str, params: dict, model: NoiseModel, *,
                      ops: Operators | None = None, normals: np.ndarray | None = None, probes: int | None = None,
                      seed: int = 0, max_loss_db: float = POST_MAX_LOSS_DB, rows: np.ndarray | None = None,
-                     smooth_params: dict | None = None) -> PostStep:
+                     smooth_params: dict | None = None, boundary_motion: str = "free") -> PostStep:
     """After a smooth prior: a multiple of its ``mu`` and a Taubin step count, by a normal-domain risk, guarded by SURE.
 
     SURE chooses the prior's ``mu`` for positions; face normals ask for a little more
@@ -1024,6 +1110,10 @@ def choose_post_step(V: np.ndarray, F: np.ndarray, method: str, params: dict, mo
         "Small meshes": on the Nefertiti at rho 0.2, noise seeds 0-9, 0.6 to 2.8 degrees better than
         without, never worse; 47 rows of small meshes: no SNR loss over 0.23 dB against it). Below
         that share, or without it, the rule above, bit for bit.
+    boundary_motion : {"free", "normal"}
+        How the run that follows moves open borders (``denoise``'s option, which
+        :func:`choose_default` passes on): the small-mesh estimates run their candidates the same
+        way (:func:`small_post_runs`). The rule of large meshes runs them free.
 
     Returns
     -------
@@ -1060,7 +1150,8 @@ def choose_post_step(V: np.ndarray, F: np.ndarray, method: str, params: dict, mo
     del moved
     if smooth_params is not None and normals is not None and keep is None and V.shape[0] <= SMALL_MESH:
         small = _small_post_step(V, F, method, params, model, ops=ops, normals=np.asarray(normals, dtype=np.float64),
-                                 smooth_params=smooth_params, base=base, seed=seed, max_loss_db=max_loss_db)
+                                 smooth_params=smooth_params, base=base, seed=seed, max_loss_db=max_loss_db,
+                                 boundary_motion=boundary_motion)
         if small is not None:
             return small
     del base
@@ -1366,7 +1457,8 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
                                         normals=normals, rows=region.rows)
             else:  # on small meshes with the smooth prior's parameters: tilted probes where its normals are far off
                 post = choose_post_step(V, F, method, params, model, ops=ops, normals=normals,
-                                        smooth_params=smooth_params if n <= SMALL_MESH else None)
+                                        smooth_params=smooth_params if n <= SMALL_MESH else None,
+                                        boundary_motion=boundary_motion)
         params = {**params, "mu": params["mu"] * post.scale}
         reasons.append(post.reason)
     nb = int(np.count_nonzero(ops.boundary_vertices))

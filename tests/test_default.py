@@ -874,7 +874,7 @@ def test_small_post_estimates_against_a_dense_computation():
     share = np.full(n, 0.2)
     est = default.small_post_estimates(Vn, F, "sobolev_bilaplacian", {"mu": 0.01}, NoiseModel(rho), normals=N,
                                        share=share, probes=3, draws=2, a=0.5, seed=7)
-    assert sorted(est) == sorted((c, k) for c in default.POST_SCALES for k in default.POST_STEPS)
+    assert sorted(est) == sorted((c, k) for c in default.POST_SCALES for k in default.SMALL_POST_STEPS)
 
     def matrix(c, k):
         cols = []
@@ -893,7 +893,7 @@ def test_small_post_estimates_against_a_dense_computation():
         z = rng.choice([-1.0, 1.0], size=n)
         probes.append(z[:, None] * default.tilted_directions(N, share, rng))
     M0 = matrix(1.0, 0)
-    for c, k in [(1.0, 0), (1.5, 2), (2.0, 5)]:
+    for c, k in [(1.0, 0), (1.5, 2), (2.0, 5), (1.0, 8)]:
         M = matrix(c, k)
         S, spread, scores = est[(c, k)]
         for p, b in enumerate(probes):
@@ -909,6 +909,59 @@ def test_small_post_estimates_against_a_dense_computation():
         Q = (M0 @ Vn)[F]
         c_mean = np.mean(np.linalg.norm(np.cross(Q[:, 1] - Q[:, 0], Q[:, 2] - Q[:, 0]), axis=1))
         assert scores[0] == pytest.approx(-np.sum(u * cross) / (m * c_mean), rel=1e-8)
+
+
+def test_small_post_runs_are_the_candidates_as_denoise_runs_them_borders_included():
+    # independent: the public filters with the boundary_motion option (registry.boundary_along_normals), one by one
+    V, F = grid(9, 7)  # open borders
+    ops = get_operators(F, len(V))
+    rho = 0.3 * mean_edge_length(V, ops)
+    inputs = [md.add_normal_noise((V, F), rho, seed=s)[0] for s in (0, 1)]
+    params = md.choose_parameters((inputs[0], F), "sobolev_normal", noise=rho)
+    for motion in ("free", "normal"):
+        got = default.small_post_runs(inputs, F, "sobolev_normal", params, ops=ops, steps=(0, 2, 5), boundary_motion=motion)
+        assert len(got) == 2 and all(sorted(g) == sorted((c, k) for c in default.POST_SCALES for k in (0, 2, 5)) for g in got)
+        for X, out in zip(inputs, got):
+            for (c, k), Y in out.items():
+                want = md.apply_filter("sobolev_normal", (X, F), **{**params, "mu": params["mu"] * c}, boundary_motion=motion)
+                if k:
+                    want = md.apply_filter("taubin", want, iterations=k, **default.POST_TAUBIN, boundary_motion=motion)
+                np.testing.assert_allclose(Y, want[0], rtol=0, atol=1e-12)
+    border = ops.boundary_vertices
+    free = default.small_post_runs(inputs[:1], F, "sobolev_normal", params, ops=ops, steps=(0, 5))[0]
+    held = default.small_post_runs(inputs[:1], F, "sobolev_normal", params, ops=ops, steps=(0, 5), boundary_motion="normal")[0]
+    assert np.abs(free[(1.0, 5)] - held[(1.0, 5)])[border].max() > 1e-3 * rho  # the border motion changes the runs
+    # a closed mesh: no border, the same runs bit for bit
+    Vc, Fc = icosphere(2)
+    Xc = md.add_normal_noise((Vc, Fc), 0.02, seed=3)[0]
+    opc = get_operators(Fc, len(Vc))
+    a = default.small_post_runs([Xc], Fc, "sobolev_normal", {"mu": 0.5}, ops=opc)[0]
+    b = default.small_post_runs([Xc], Fc, "sobolev_normal", {"mu": 0.5}, ops=opc, boundary_motion="normal")[0]
+    assert all(np.array_equal(a[key], b[key]) for key in a)
+    with pytest.raises(ValueError, match="boundary_motion"):
+        default.small_post_runs([Xc], Fc, "sobolev_normal", {"mu": 0.5}, ops=opc, boundary_motion="along")
+    with pytest.raises(ValueError, match="include 0"):
+        default.small_post_estimates(Xc, Fc, "sobolev_normal", {"mu": 0.5}, NoiseModel(0.02), normals=vertex_normals(Xc, Fc),
+                                     share=np.zeros(len(Vc)), steps=(2, 5))
+
+
+def test_the_small_mesh_estimates_run_the_border_motion_the_default_is_asked_for(monkeypatch):
+    seen = []
+    real = default.small_post_estimates
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get("boundary_motion"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(default, "small_post_estimates", spy)
+    monkeypatch.setattr(default, "SMALL_TILT_FROM", 0.0)  # the small-mesh estimates whatever the probes' error
+    V, F = grid(12, 10)
+    h = mean_edge_length(V, get_operators(F, len(V)))
+    Vn = md.add_normal_noise((V, F), 0.5 * h, seed=0)[0]
+    for motion in ("normal", "free"):
+        choice = choose_default((Vn, F), boundary_motion=motion)
+        assert choice.method in default.SMOOTH_PRIORS and "small mesh" in choice.post.reason
+        assert seen[-1] == motion
 
 
 def test_the_post_step_loss_takes_the_realizations_spread_into_its_standard_error():
@@ -936,7 +989,7 @@ def test_the_small_mesh_post_step_scores_with_tilted_probes_and_recorrupted_pair
     V, Vn, F, ops, rho, smooth, N, params = _small_case()
     post = default.choose_post_step(Vn, F, "sobolev_normal", params, NoiseModel(rho), ops=ops, normals=N,
                                     smooth_params=smooth)
-    assert "small mesh" in post.reason and len(post.candidates) == 9
+    assert "small mesh" in post.reason and len(post.candidates) == len(default.POST_SCALES) * len(default.SMALL_POST_STEPS)
     base = np.asarray(md.apply_filter("sobolev_normal", (Vn, F), **params)[0])
     share = default.normal_error_share(base, F, smooth, rho, ops=ops)
     assert share.mean() >= default.SMALL_TILT_FROM
