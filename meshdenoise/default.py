@@ -54,7 +54,7 @@ import numpy as np
 
 from .adapters import read_mesh
 from . import kernels
-from .geometry import cross_rows, face_normals, vertex_normals
+from .geometry import cross_rows, face_normals, vertex_face_incidence, vertex_normals
 from .locality import relabelling
 from .operators import Operators, get_operators
 from .progress import stage
@@ -882,6 +882,10 @@ def small_post_runs(inputs: list, F: np.ndarray, method: str, params: dict, *, o
         border = None
     passes = taubin_passes(ops)
     held_passes = taubin_passes(ops, border) if border is not None else None
+    n = ops.n
+    if border is not None:  # the faces around the border and their incidence: the border's vertex normals
+        rim = np.asarray(F)[border[np.asarray(F)].any(axis=1)]
+        around = vertex_face_incidence(rim, n)[border]
 
     def prior_run(X: np.ndarray, values: dict) -> np.ndarray:
         if border is None:
@@ -892,33 +896,44 @@ def small_post_runs(inputs: list, F: np.ndarray, method: str, params: dict, *, o
                                  "large or too small for this mesh)")
         return out
 
-    def steps_after(Ys: list) -> dict[tuple[float, int], np.ndarray]:
-        """Every candidate's result from the prior's results ``Ys`` (one per scale) of one input."""
-        block, done, out = np.hstack(Ys), 0, {}
-        for k in counts:
-            for _ in range(k - done):  # all scales' Taubin steps at once, run on from the previous count
-                for M in passes:
-                    block = M @ block
-            done = max(done, k)
-            result = block
-            if k and border is not None:  # as denoise runs them: borders along the free run's normals, then held
-                result = np.hstack(Ys)
-                for i in range(len(Ys)):
-                    cols = slice(3 * i, 3 * i + 3)
-                    N = vertex_normals(block[:, cols], F)[border]
-                    start = Ys[i][border]
-                    result[border, cols] = start + np.einsum("ij,ij->i", block[border, cols] - start, N)[:, None] * N
-                for _ in range(k):
-                    for M in held_passes:
-                        result = M @ result
-            for i, c in enumerate(priors):
-                out[(c, k)] = Ys[i] if k == 0 else result[:, 3 * i:3 * i + 3]
-        return out
+    def border_normals(block: np.ndarray) -> np.ndarray:
+        """:func:`vertex_normals` at the border of every vertex triple (columns 3j..3j+2) of ``block`` (n, 3K): (nb, K, 3)."""
+        X = block.reshape(n, -1, 3)
+        P0 = X[rim[:, 0]]
+        c = np.cross(X[rim[:, 1]] - P0, X[rim[:, 2]] - P0)
+        length = np.linalg.norm(c, axis=2, keepdims=True)
+        u = np.divide(c, length, out=np.zeros_like(c), where=length > 0)
+        total = (around @ u.reshape(len(rim), -1)).reshape(int(np.count_nonzero(border)), -1, 3)
+        length = np.linalg.norm(total, axis=2, keepdims=True)
+        return np.divide(total, length, out=np.zeros_like(total), where=length > 0)
 
     # scale by scale over all inputs: one factorisation of each scale's systems serves them all (the border's held
     # system is a second one: cycling through six would miss the solver cache's four every time)
     Ys = [[prior_run(np.asarray(X, dtype=np.float64), values) for X in inputs] for values in priors.values()]
-    return [steps_after([Ys[i][q] for i in range(len(priors))]) for q in range(len(inputs))]
+    scales, count = list(priors), len(inputs)
+    # then the Taubin steps of every input and scale at once: triple q * len(scales) + i is input q at scale i
+    start = np.hstack([Ys[i][q] for q in range(count) for i in range(len(scales))])
+    block, done, out = start, 0, [{} for _ in range(count)]
+    for k in counts:
+        for _ in range(k - done):  # run on from the previous count
+            for M in passes:
+                block = M @ block
+        done = max(done, k)
+        result = block
+        if k and border is not None:  # as denoise runs them: borders along the free run's normals, then held
+            N = border_normals(block)
+            at = start[border].reshape(N.shape)
+            result = start.copy()
+            result[border] = (at + np.einsum("ijk,ijk->ij", block[border].reshape(N.shape) - at, N)[..., None]
+                              * N).reshape(N.shape[0], -1)
+            for _ in range(k):
+                for M in held_passes:
+                    result = M @ result
+        for q in range(count):
+            for i, c in enumerate(scales):
+                j = q * len(scales) + i
+                out[q][(c, k)] = Ys[i][q] if k == 0 else result[:, 3 * j:3 * j + 3]
+    return out
 
 
 def small_post_estimates(V: np.ndarray, F: np.ndarray, method: str, params: dict, model: NoiseModel, *,
