@@ -897,7 +897,7 @@ def small_post_runs(inputs: list, F: np.ndarray, method: str, params: dict, *, o
         return out
 
     def border_normals(block: np.ndarray) -> np.ndarray:
-        """:func:`vertex_normals` at the border of every vertex triple (columns 3j..3j+2) of ``block`` (n, 3K): (nb, K, 3)."""
+        """:func:`vertex_normals` at the border of each vertex triple (columns 3j..3j+2) of ``block`` (n, 3K): (nb, K, 3)."""
         X = block.reshape(n, -1, 3)
         P0 = X[rim[:, 0]]
         c = np.cross(X[rim[:, 1]] - P0, X[rim[:, 2]] - P0)
@@ -1059,8 +1059,9 @@ def _small_post_step(V: np.ndarray, F: np.ndarray, method: str, params: dict, mo
                                    loss < max_loss_db))
     best = min((p for p in cands if p.allowed), key=lambda p: (p.normal_risk, p.scale, p.steps))
     said = lambda p: f"mu x {p.scale:g}, {p.steps} Taubin steps"  # noqa: E731
+    held = " run with open borders along their normals" if boundary_motion == "normal" and ops.boundary_vertices.any() else ""
     where = (f"smooth-prior post-step (small mesh: the probe normals' error is large, mean sin^2 {mean_share:.3f} on "
-             f"synthetic copies, from {SMALL_TILT_FROM:g}: tilted probes, recorrupted pairs)")
+             f"synthetic copies, from {SMALL_TILT_FROM:g}: tilted probes, recorrupted pairs{held})")
     if (best.scale, best.steps) == (1.0, 0):
         why = f"{where}: none (mu as SURE chose it): no candidate allowed has a smaller recorrupted normal risk"
     else:
