@@ -1120,12 +1120,13 @@ def choose_post_step(V: np.ndarray, F: np.ndarray, method: str, params: dict, mo
         (:func:`choose_default` passes them on meshes of at most :data:`SMALL_MESH` vertices).
         Given, with ``normals``, no ``rows`` and at most :data:`SMALL_MESH` vertices: when the
         probe normals' error (:func:`normal_error_share`, mean over vertices) is at least
-        :data:`SMALL_TILT_FROM`, the candidates are scored by :func:`small_post_estimates` instead:
-        the guard is SURE with tilted probes, two standard errors that include the noise
-        realization's, and the criterion the recorrupted pairs' normal score (docs/peers.md,
-        "Small meshes": on the Nefertiti at rho 0.2, noise seeds 0-9, 0.6 to 2.8 degrees better than
-        without, never worse; 47 rows of small meshes: no SNR loss over 0.23 dB against it). Below
-        that share, or without it, the rule above, bit for bit.
+        :data:`SMALL_TILT_FROM`, the candidates (:data:`POST_SCALES` x :data:`SMALL_POST_STEPS`)
+        are scored by :func:`small_post_estimates` instead: the guard is SURE with tilted probes,
+        two standard errors that include the noise realization's, and the criterion the
+        recorrupted pairs' normal score (docs/peers.md, "Small meshes" and "Small meshes, session
+        14": on the Nefertiti at rho 0.2, noise seeds 0-9, 0.95 to 2.9 degrees better than without;
+        47 rows of small meshes: no SNR loss over 0.23 dB against it). Below that share, or without
+        it, the rule above, bit for bit.
     boundary_motion : {"free", "normal"}
         How the run that follows moves open borders (``denoise``'s option, which
         :func:`choose_default` passes on): the small-mesh estimates run their candidates the same
