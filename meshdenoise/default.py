@@ -848,10 +848,10 @@ def small_post_runs(inputs: list, F: np.ndarray, method: str, params: dict, *, o
     the steps move open borders along their normals only, as ``denoise`` and
     :func:`run_post_step` do (:func:`meshdenoise.registry.boundary_along_normals`: the free run,
     each border vertex moved along the free result's vertex normal by its move's normal part, then
-    the run again with the border held there); ``"free"``: the filters as they are. Taubin steps
-    of all scales run at once (:func:`taubin_passes`); the prior runs scale by scale over all
-    inputs, so that one factorisation of each scale's system (and of its border-held system)
-    serves them all.
+    the run again with the border held there); ``"free"``: the filters as they are. The prior
+    runs scale by scale over all inputs, so that one factorisation of each scale's system (and of
+    its border-held system) serves them all; the Taubin steps (:func:`taubin_passes`) and the
+    border's vertex normals of all inputs and scales run at once, as blocks of columns.
 
     Parameters
     ----------
