@@ -113,7 +113,9 @@ SMALL_POST_STEPS = (0, 2, 5, 8)  # ... over these Taubin step counts (after each
 # (feature_risk) and 548 s (the post-step's 17 runs of the prior) of an 813 s choice (session 9). The measured rows of
 # the benchmark tables have at most 35k vertices, so none of them changes.
 REGION_FROM = 50_000
-RULES_BESIDE_UP_TO = 50_000  # up to this many vertices the smooth prior's rule runs beside two_stage's (_candidate_rules)
+# up to this many vertices the smooth prior's rule runs beside two_stage's (_candidate_rules; idle, same choices: bunny
+# scanner 28k 3.20 -> 2.98 s, face000 scanner 85k 4.99 -> 4.70 s); larger meshes are not measured: one after another
+RULES_BESIDE_UP_TO = 100_000
 RISK_REGION = 40_000  # the region: about this many vertices ...
 RISK_PATCHES = 12  # ... in this many balls (the 400k elephant: 8, 12 and 24 chose the post-step as the whole mesh did) ...
 RISK_MARGIN = 10  # ... scored from this many rings from a cut on (more where the smooth prior reaches farther):
@@ -1349,7 +1351,8 @@ def _candidate_rules(mesh: tuple[np.ndarray, np.ndarray], candidates: list[str],
     leaves a core idle between its stages' runs side by side, and the prior's rule is mostly
     single-threaded sparse solves. Both colour the same probes (``NoiseModel.colour``: computed
     once, the other waits for it); the results are the same bits as one after another. Larger
-    meshes run the rules one after another, each on every thread, their peaks of memory apart.
+    meshes (not measured side by side) run the rules one after another, each on every thread,
+    their peaks of memory apart.
     """
     def rule(method: str) -> list:
         return list(choose_parameters(mesh, method, noise=model, return_risk=True))
