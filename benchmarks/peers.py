@@ -9,7 +9,9 @@ Each *cell* (one mesh and one method) runs in a fresh Python process (``subproce
 ``--jobs`` at a time; a cell that exceeds its timeout is killed and recorded as ``> T s``
 (``--timeout``, default 120 s, for each of ours, one call; ``--peer-timeout``, default 600 s,
 for a peer's whole grid search). A cell's result is stored in ``OUT/cells/`` as soon as it completes (``--resume``
-measures only what is missing there).
+measures only what is missing there, or was measured on another mesh: every cell names its mesh's content
+fingerprint, :func:`mesh_fingerprint`, and older cells without one are reused only when their mesh's stored input
+cell names the noise the mesh has now).
 
 Peers (installed by the optional extra ``pip install -e '.[bench]'``; a peer whose library
 is missing is reported as such): MeshLib (``meshDenoiseViaNormals``, ``relaxKeepVolume``),
@@ -651,9 +653,22 @@ def filters_without_rule() -> list[str]:
     return [f.name for f in list_filters() if not _has_rule(f)]
 
 
+def mesh_fingerprint(m: dict) -> str:
+    """A content digest of a benchmark mesh (clean and noisy vertices, faces): stored in every cell, so that
+    ``--resume`` never puts cells measured on two different meshes in one row (a changed noise, file or reader)."""
+    from meshdenoise.tuning.memo import digest
+
+    return digest(m["V0"], m["F"], m["Vn"])[:16]
+
+
 def measure_cell(mesh: str, kind: str, name: str, quick: bool) -> dict:
-    """One cell: ``kind`` is "peer", "ours" (``name`` a method or "default") or "input"."""
+    """One cell: ``kind`` is "peer", "ours" (``name`` a method or "default") or "input"; its result names the mesh's
+    :func:`mesh_fingerprint`."""
     m = MESHES[mesh]()
+    return {**_measure(m, kind, name, quick), "mesh_fingerprint": mesh_fingerprint(m)}
+
+
+def _measure(m: dict, kind: str, name: str, quick: bool) -> dict:
     V0, F, Vn = m["V0"], m["F"], m["Vn"]
     if kind == "input":
         import meshdenoise as md
@@ -694,10 +709,20 @@ def run_cells(cells: list[Cell], store: Path, timeout: float, jobs: int, quick: 
     """
     store.mkdir(parents=True, exist_ok=True)
     todo = []
+    current: dict[str, dict] = {}  # mesh -> its fingerprint and noise line now (built once, when cells are reused)
     for c in cells:
         f = store / (_slug(c.mesh, c.kind, c.name) + ".json")
-        if resume and f.is_file():
-            c.result = json.loads(f.read_text())
+        stored = json.loads(f.read_text()) if resume and f.is_file() else None
+        if stored is not None:
+            if c.mesh not in current:
+                m = MESHES[c.mesh]()
+                current[c.mesh] = {"fingerprint": mesh_fingerprint(m), "noise": m["noise"]}
+            why = stale(stored, current[c.mesh], store / (_slug(c.mesh, "input", "input") + ".json"))
+            if why:
+                log(f"{c.mesh:20s} {c.kind:5s} {c.name:22s} stored cell {why}: measured again")
+                stored = None
+        if stored is not None:
+            c.result = stored
         else:
             todo.append((c, f))
     running: list[tuple[Cell, Path, subprocess.Popen, float, Any]] = []
@@ -710,6 +735,23 @@ def run_cells(cells: list[Cell], store: Path, timeout: float, jobs: int, quick: 
             if p.poll() is None:
                 os.killpg(p.pid, 9)
                 p.wait()
+
+
+def stale(stored: dict, now: dict, input_cell: Path) -> str:
+    """Why a stored cell may not be reused for the mesh as it is ``now`` (its fingerprint and noise line), "" if it may.
+
+    A cell with a fingerprint is reused only on the same mesh. Older cells have none: they are
+    reused when the stored input cell of their mesh names the noise the mesh has now (a run made
+    when the noise was another, e.g. ``peers.py``'s stand-in, measured another mesh).
+    """
+    if "status" in stored and "mesh_fingerprint" not in stored:
+        return ""  # a timeout or failure record: nothing measured on any mesh
+    if "mesh_fingerprint" in stored:
+        return "" if stored["mesh_fingerprint"] == now["fingerprint"] else "was measured on another mesh (fingerprint)"
+    noise = json.loads(input_cell.read_text()).get("noise") if input_cell.is_file() else None
+    if noise is not None and noise != now["noise"]:
+        return f"predates fingerprints and its mesh had another noise ({noise!r})"
+    return ""
 
 
 def _drive(todo: list, running: list, env: dict, timeout: float, peer_timeout: float, jobs: int, quick: bool,

@@ -237,6 +237,43 @@ def test_a_cell_over_the_timeout_is_killed_and_recorded(tmp_path):
     assert cell.result["wall_s"] < 30
 
 
+def test_resume_measures_again_the_cells_of_another_mesh(tmp_path, monkeypatch):
+    """--resume reuses a stored cell only for the mesh it was measured on: a cell with another fingerprint, or an
+    older cell (no fingerprint) whose mesh's stored input cell names another noise, is measured again; a matching
+    one, or an older one with the same noise line, is reused."""
+    m = peers.MESHES["tiny"]()
+    now = peers.mesh_fingerprint(m)
+    other = {**m, "Vn": m["Vn"] + 1e-9}
+    assert peers.mesh_fingerprint(other) != now and peers.mesh_fingerprint(peers.MESHES["tiny"]()) == now
+
+    def store(name, record):
+        (tmp_path / (peers._slug("tiny", *name) + ".json")).write_text(json.dumps(record))
+
+    store(("input", "input"), {"noise": m["noise"], "normal_error_deg": 1.0})  # older: no fingerprint, same noise
+    store(("ours", "default"), {"normal_error_deg": 2.0, "mesh_fingerprint": now})
+    store(("ours", "sobolev"), {"normal_error_deg": 3.0, "mesh_fingerprint": peers.mesh_fingerprint(other)})
+    store(("ours", "taubin"), {"normal_error_deg": 4.0})  # older, same noise as now: reused
+    measured, lines = [], []
+    monkeypatch.setattr(peers, "_drive", lambda todo, *a, **k: measured.extend(c.name for c, _ in todo))
+    cells = [peers.Cell("tiny", "input", "input")] + [peers.Cell("tiny", "ours", n) for n in ("default", "sobolev", "taubin")]
+    peers.run_cells(cells, tmp_path, timeout=10, jobs=1, quick=True, resume=True, log=lines.append)
+    assert measured == ["sobolev"]
+    assert [c.result.get("normal_error_deg") for c in cells] == [1.0, 2.0, None, 4.0]
+    assert any("sobolev" in ln and "another mesh" in ln for ln in lines)
+    # the stored input cell names another noise (a run on the stand-in): its older cells are all measured again
+    store(("input", "input"), {"noise": "stand-in correlated noise", "normal_error_deg": 1.0})
+    measured.clear()
+    cells = [peers.Cell("tiny", "input", "input")] + [peers.Cell("tiny", "ours", n) for n in ("default", "taubin")]
+    peers.run_cells(cells, tmp_path, timeout=10, jobs=1, quick=True, resume=True, log=lines.append)
+    assert measured == ["input", "taubin"]
+    assert peers.stale({"status": "> 120 s"}, {"fingerprint": now, "noise": m["noise"]}, tmp_path / "none.json") == ""
+
+
+def test_a_measured_cell_names_its_meshs_fingerprint():
+    out = peers.measure_cell("tiny", "input", "input", quick=True)
+    assert out["mesh_fingerprint"] == peers.mesh_fingerprint(peers.MESHES["tiny"]()) and out["n_vertices"] == 162
+
+
 def test_grid_edges_marks_a_best_at_the_end_of_its_axis():
     p = peers.Peer("numpy", "fake", peers.Session, peers._product(a=[1.0, 2.0, 3.0], b=[0.1, 0.2]), [{}], path=True)
     assert peers.grid_edges(p, {"params": {"a": 2.0, "b": 0.2}, "iterations": 5}) == ["b"]
