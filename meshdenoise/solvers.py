@@ -117,20 +117,13 @@ def _without_cholmod_warnings(build: Callable[[], Any]) -> Any:
                 for fd, tmp in tmps.items():
                     os.dup2(tmp.fileno(), fd)
                 _quiet.update(saved=saved, tmps=tmps)
-        redirected = bool(_quiet["saved"])
         _quiet["depth"] += 1
-    if not redirected:
-        try:
-            return build()
-        finally:
-            with _quiet_lock:
-                _quiet["depth"] -= 1
     try:
         return build()
     finally:
         with _quiet_lock:
             _quiet["depth"] -= 1
-            if _quiet["depth"] == 0:
+            if _quiet["depth"] == 0 and _quiet["saved"]:  # the last one out undoes the redirection, if one was made
                 try:
                     ctypes.CDLL(None).fflush(None)  # C's buffered output into the temporary files first
                 except (OSError, AttributeError):
