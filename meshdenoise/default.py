@@ -37,6 +37,10 @@ normal-domain risk estimate guarded by SURE on positions (the paper's elephant a
 :data:`SMALL_MESH` vertices whose probe normals are far off the noise's direction (read on synthetic
 copies), the guard's probes are tilted by that error and the candidates ranked by recorrupted pairs
 (:func:`small_post_estimates`; the Nefertiti at rho 0.2: 16.35 -> 15.41 degrees, 25.70 -> 25.95 dB).
+After ``two_stage`` on a mesh with no sharp features, :func:`feature_post_step` adds 0 to 16 Taubin
+steps by the same two estimates, read on the probes' runs that scored ``two_stage`` (pymeshlab's bunny
+with scanner noise of 0.5 mean edge lengths correlated over 2: 8.63 -> 8.23 degrees, 48.93 -> 48.81 dB;
+docs/peers.md, "Taubin steps after two_stage").
 This module names filters: it is policy, above the
 generic tuning machinery.
 """
@@ -56,7 +60,7 @@ from .adapters import read_mesh
 from . import kernels
 from .geometry import cross_rows, face_normals, vertex_face_incidence, vertex_normals
 from .locality import relabelling
-from .operators import Operators, get_operators
+from .operators import Operators, get_operators, spmm
 from .progress import stage
 from .registry import COMMON_OPTIONS, FilterSpec, ParameterError, apply_filter, get_filter, run_core
 from .tuning.choose import choose_parameters, relabelled_model
@@ -72,6 +76,7 @@ from .tuning.risk import mc_sure_step
 from .tuning.search import shifted_reach
 
 __all__ = ["DefaultChoice", "FeatureTest", "choose_default", "denoise", "detect_features", "feature_risk",
+           "feature_runs", "ProbeRuns", "feature_post_step", "FEATURE_POST_STEPS",
            "noise_policy", "default_noise", "SMOOTH_METHOD", "FEATURE_METHOD", "NormalJacobian", "PostCandidate",
            "PostStep", "post_step_estimates", "choose_post_step", "run_post_step", "normal_error_share",
            "tilted_directions", "small_post_estimates", "taubin_passes"]
@@ -97,6 +102,8 @@ SMOOTH_PRIORS = (SMOOTH_METHOD, SMALL_MESH_METHOD)  # the picks after which the 
 POST_SCALES = (1.0, 1.5, 2.0)  # the post-step: multiples of the smooth prior's SURE-chosen mu ...
 POST_STEPS = (0, 2, 5)  # ... times Taubin steps after it ...
 POST_TAUBIN = {"lam": 0.5, "mu": -0.53}  # ... with these (uniform weights: the filter's default)
+FEATURE_POST_STEPS = (0, 2, 5, 8, 12, 16)  # Taubin step counts tried after two_stage where there are no sharp features
+NOISE_LEVEL_SLACK = 0.02  # ... whose SURE guard takes the noise level as known to within this fraction
 POST_MAX_LOSS_DB = 0.3  # a candidate is allowed if its SURE on positions loses less than this (dB), 2 s.e. included
 POST_PROBE_RUNS = 60_000  # probes x vertices of the post-step's estimates, about ...
 POST_PROBES = (4, 16)  # ... within these bounds on the probe count
@@ -290,10 +297,11 @@ class DefaultChoice:
     rho_range : tuple of float
         The noise levels (mesh units) the band spectrum allows, (low, high); NaN when not read.
     post_steps : int
-        Taubin steps (:data:`POST_TAUBIN`) run after the filter (:func:`choose_post_step`, after
-        a smooth prior only; its ``mu`` in ``params`` is already scaled); 0: none.
+        Taubin steps (:data:`POST_TAUBIN`) run after the filter: after a smooth prior
+        (:func:`choose_post_step`; its ``mu`` in ``params`` is already scaled) or after
+        ``two_stage`` on a mesh with no sharp features (:func:`feature_post_step`); 0: none.
     post : PostStep or None
-        The post-step's choice and its candidates (None when the filter is not a smooth prior).
+        The post-step's choice and its candidates (None when none was considered).
     region : tuple of int
         ``(vertices, scored)`` of the :class:`RiskRegion` the candidates' risks were estimated on
         (above :data:`REGION_FROM` vertices); ``(0, 0)`` when they were estimated on the whole mesh.
@@ -486,6 +494,75 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     (float, ndarray of shape (n, 3))
         The estimate and ``f(X)``.
     """
+    runs = feature_runs(V, F, params, model, normals, ops=ops, probes=probes, seed=seed, method=method, rows=rows)
+    return float(np.mean(runs.sure())), runs.out
+
+
+@dataclass
+class ProbeRuns:
+    """A filter's result and its runs on probed inputs (:func:`feature_runs`), kept for the estimates read on them.
+
+    Attributes
+    ----------
+    V : ndarray, shape (n, 3)
+        The noisy vertices :math:`X`.
+    out : ndarray, shape (n, 3)
+        :math:`f(X)`.
+    runs : list of ndarray, shape (n, 3)
+        :math:`f(X + \\delta b_p)`, one per probe (empty when rho is 0).
+    probes : list of ndarray, shape (n, 3)
+        The probes :math:`b_p = z_p N`.
+    normals : ndarray, shape (n, 3)
+        The unit directions :math:`N` of the probes (the noise's, as estimated).
+    delta : float
+        The step :math:`\\delta`.
+    rho : float
+        The noise level.
+    rows : ndarray of bool, shape (n,), or None
+        The vertices scored (None: all).
+    """
+
+    V: np.ndarray
+    out: np.ndarray
+    runs: list
+    probes: list
+    normals: np.ndarray
+    delta: float
+    rho: float
+    rows: np.ndarray | None = None
+
+    def part(self, A: np.ndarray) -> np.ndarray:
+        """``A``'s scored rows."""
+        return A if self.rows is None else A[self.rows]
+
+    @property
+    def count(self) -> int:
+        """The vertices scored."""
+        return self.V.shape[0] if self.rows is None else int(np.count_nonzero(self.rows))
+
+    def sure(self, out: np.ndarray | None = None, runs: list | None = None) -> np.ndarray:
+        """Monte-Carlo SURE per probe, shape (P,) (one value when rho is 0), of ``out`` and ``runs`` (by default
+        the filter's own; given: the same probes through a filter run after it, such as Taubin steps)."""
+        out = self.out if out is None else out
+        runs = self.runs if runs is None else runs
+        residual = float(np.sum((self.part(out) - self.part(self.V)) ** 2))
+        if self.rho == 0:
+            return np.array([residual])
+        rho2 = self.rho**2
+        return np.array([residual - self.count * rho2
+                         + 2 * rho2 * float(np.sum(self.part(b) * self.part(X - out))) / self.delta
+                         for b, X in zip(self.probes, runs)])
+
+
+def feature_runs(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, normals: np.ndarray, *,
+                 ops: Operators | None = None, probes: int | None = None, seed: int = 0,
+                 method: str = FEATURE_METHOD, rows: np.ndarray | None = None) -> ProbeRuns:
+    """The runs of :func:`feature_risk` (same arguments), kept: its SURE is ``feature_runs(...).sure().mean()``.
+
+    Returns
+    -------
+    ProbeRuns
+    """
     n = V.shape[0]
     ops = ops if ops is not None else get_operators(F, n)
     keep = _rows(rows, n, "feature_risk")
@@ -495,11 +572,9 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     spec = get_filter(method)
     values = spec.resolve(dict(params))
     run = lambda X: core_run(spec, X, ops, values)  # noqa: E731
-    part = (lambda A: A) if keep is None else (lambda A: A[keep])  # noqa: E731
     rho = float(model.rho)
     if rho == 0:
-        out = run(V)
-        return float(np.sum((part(out) - part(V)) ** 2)), out
+        return ProbeRuns(V, run(V), [], [], normals, 0.0, 0.0, keep)
     # 0.1 rho, also under correlated noise: measured (docs/peers.md, smooth-prior post-step), the 1 rho of
     # two_stage's guard (mc_sure_step(rho, True)) read two_stage 0.328 h rms against 0.300 on bunny scanner l=2 and
     # flipped the pick to sobolev_bilaplacian (8.63 / 48.93 -> 8.76 / 48.40); no other row of four changed
@@ -507,9 +582,11 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     Z = np.random.default_rng(seed).choice([-1.0, 1.0], size=(probes, n)).T  # the draws of one probe at a time
     if model.correlated:  # all probes in one colouring (a block solve); mean square 1 per vertex over the probes
         Z = model.colour(Z, 1.0 / probes)
+    B = [Z[:, k, None] * normals for k in range(probes)]
+    del Z
 
     def result(k: int) -> np.ndarray:  # the filter is not linear: one run per probe (k = -1: the input itself)
-        return run(V if k < 0 else V + delta * (Z[:, k, None] * normals))
+        return run(V if k < 0 else V + delta * B[k])
 
     # two_stage's runs are compiled kernels: on a small mesh (under kernels.CONCURRENT_BELOW vertices) side by side,
     # one thread each, they share the cores better than each run's parallel loops do (the same bits); the other
@@ -517,13 +594,145 @@ def feature_risk(V: np.ndarray, F: np.ndarray, params: dict, model: NoiseModel, 
     if spec.name == "two_stage":
         out, *runs = kernels.run_concurrently(result, range(-1, probes), n)
     else:
-        out, runs = result(-1), None
-    residual = float(np.sum((part(out) - part(V)) ** 2))
-    divergence = 0.0
-    for k in range(probes):
-        b = Z[:, k, None] * normals
-        divergence += float(np.sum(part(b) * part((runs[k] if runs is not None else result(k)) - out))) / delta
-    return residual - count * rho**2 + 2 * rho**2 * divergence / probes, out
+        out, runs = result(-1), [result(k) for k in range(probes)]
+    return ProbeRuns(V, out, list(runs), B, normals, delta, rho, keep)
+
+
+def feature_post_step(runs: ProbeRuns, F: np.ndarray, *, ops: Operators | None = None,
+                      steps: tuple = FEATURE_POST_STEPS, max_loss_db: float = POST_MAX_LOSS_DB) -> PostStep:
+    """Taubin steps after ``two_stage`` on a mesh with no sharp features: a count by a normal-domain risk, guarded by SURE.
+
+    The probes' runs that scored ``two_stage`` (:func:`feature_runs`) are run on through ``k``
+    Taubin steps :data:`POST_TAUBIN` (:math:`T^k`, linear) for each ``k`` of ``steps``: the
+    candidate :math:`f_k = T^k \\circ f` costs no other run of ``two_stage``. For each probe
+    :math:`b_p` (with :math:`\\Delta_p = (f_k(X + \\delta b_p) - f_k(X)) / \\delta`) the same two
+    estimates as :func:`post_step_estimates`' are read:
+
+    - on normals, with :math:`J` the derivative of the unit face normals at ``two_stage``'s
+      result (:class:`NormalJacobian`),
+
+      .. math:: G_p = \\frac1m\\Big(\\|J(f_k(X) - X)\\|^2 - \\rho^2 \\|J b_p\\|^2
+                + 2\\rho^2 (J b_p)^T (J \\Delta_p)\\Big),
+
+      Stein's estimate of the mean squared turn of the face normals from the clean ones;
+    - on positions, Monte-Carlo SURE :math:`S_p` (:meth:`ProbeRuns.sure`).
+
+    The count kept has the least mean :math:`G` among those whose gain over no step is
+    significant (the paired difference plus two standard errors below 0) and whose SURE loses
+    less than ``max_loss_db`` (the paired difference plus two standard errors, as
+    :func:`choose_post_step`'s guard); 0 when none is. Why: ``two_stage`` fits the vertices to
+    filtered normals and leaves the noise's long waves where the surface is smooth; under
+    correlated noise they are most of it (pymeshlab's bunny with scanner noise of 0.5 mean edge
+    lengths correlated over 2: 12 steps take its normal error from 8.63 to 8.23 degrees for 0.12
+    dB, and this estimate reads -0.0034 rad^2 per face against a true -0.0050; docs/peers.md,
+    "Taubin steps after two_stage"). Where the surface has sharp features the steps round them;
+    :func:`choose_default` does not ask then.
+
+    Parameters
+    ----------
+    runs : ProbeRuns
+        ``two_stage``'s result and its probes' runs (with ``rows``: a :class:`RiskRegion`'s scored
+        vertices, and the faces whose three corners are among them).
+    F : ndarray, shape (m, 3)
+        The faces of ``runs``' mesh.
+    ops : Operators, optional
+        Its operators.
+    steps : tuple of int
+        The counts tried (0 among them: no step).
+    max_loss_db : float
+        The SNR loss allowed (dB).
+
+    Returns
+    -------
+    PostStep
+        ``scale`` 1 (``two_stage`` has no ``mu``) and the count; its candidates' ``normal_risk``
+        and ``sure`` are means over the probes.
+
+    Examples
+    --------
+    >>> from meshdenoise.shapes import icosphere
+    >>> from meshdenoise import add_normal_noise
+    >>> from meshdenoise.geometry import vertex_normals
+    >>> from meshdenoise.tuning.covariance import NoiseModel
+    >>> V, F = icosphere(3)
+    >>> Vn, _ = add_normal_noise((V, F), rho=0.02, seed=0)
+    >>> params = {"sigma_r": 0.35, "iterations": 1}
+    >>> post = feature_post_step(feature_runs(Vn, F, params, NoiseModel(0.02), vertex_normals(V, F), probes=4), F)
+    >>> post.scale, post.steps in FEATURE_POST_STEPS
+    (1.0, True)
+    """
+    steps = tuple(sorted({int(k) for k in steps}))
+    if not steps or steps[0] < 0:
+        raise ValueError(f"feature_post_step: parameter 'steps' = {steps!r} must be counts >= 0")
+    if runs.rho == 0 or len(runs.runs) < 2:
+        return PostStep(1.0, 0, (), "Taubin steps after two_stage: none (no noise, or too few probes to compare)")
+    F = np.asarray(F)
+    ops = ops if ops is not None else get_operators(F, runs.V.shape[0])
+    n, P = runs.V.shape[0], len(runs.runs)
+    faces = None if runs.rows is None else runs.rows[F].all(axis=1)
+    J = NormalJacobian(runs.out, F)
+    turn = (lambda D: J(D)) if faces is None else (lambda D: J(D)[faces])  # noqa: E731
+    m = max(F.shape[0] if faces is None else int(np.count_nonzero(faces)), 1)
+    rho2, delta = runs.rho**2, runs.delta
+    JB = [turn(b) for b in runs.probes]
+    noise_term = [rho2 * float(np.sum(jb * jb)) for jb in JB]
+    # (J b)^T J d = (J^T J b)^T d: each probe's term becomes a product in vertex space, no turn per run
+    lifted = [J.adjoint(J(b) if faces is None else J(b) * faces[:, None], n) for b in runs.probes]
+    JV = turn(runs.V)
+    # the result and every probe's run side by side as columns: each Taubin pass is one product for all of them
+    block = np.hstack([runs.out] + list(runs.runs))
+    spare = np.empty_like(block)
+    passes = taubin_passes(ops)
+    done, est, ends, turned = 0, {}, {}, {}
+    for k in sorted(set(steps) | {0}):
+        for _ in range(k - done):  # Taubin run on from the previous count, as the filter runs it
+            for M in passes:
+                spmm(M, block, out=spare)
+                block, spare = spare, block
+        done = k
+        Y, probed = block[:, :3].copy(), [block[:, 3 * (p + 1):3 * (p + 2)] for p in range(P)]
+        turned[k] = J(Y)  # J is linear: the turns of differences are differences of turns
+        JY = turned[k] if faces is None else turned[k][faces]
+        JR = JY - JV
+        normal_residual = float(np.sum(JR * JR))
+        G = np.array([normal_residual - t + 2 * rho2 * float(np.sum(a * (X - Y))) / delta
+                      for a, t, X in zip(lifted, noise_term, probed)]) / m
+        est[k] = (G, runs.sure(Y, probed))
+        ends[k] = Y
+    del block, spare
+    G0, S0 = est[0]
+    # SURE's n rho^2 with rho off by NOISE_LEVEL_SLACK: where two_stage leaves a small part of the noise (a sphere at
+    # 0.5 edge lengths: SURE 0.0995 for a true 0.0383, rho estimated 0.6 % low), a ratio to SURE reads losses too small
+    slack = 2 * NOISE_LEVEL_SLACK * runs.count * runs.rho**2
+    # the noise's direction, as the probes take it (b_p = z_p N): the realization's spread below is along it
+    normals = runs.normals
+    cands = []
+    for k, (G, S) in est.items():
+        d = G - G0
+        # each paired difference is off by the noise realization's own term, which the probes do not see: for S,
+        # -2 (f_k - f_0)^T E, for G, -2 (J^T J (f_k - f_0))^T E / m; their standard deviations for noise along the
+        # normals (independent: under correlated noise the steps' change is high-pass, where the noise is weaker)
+        along = runs.part(np.einsum("ij,ij->i", ends[k] - ends[0], normals))
+        spread_s = 2 * runs.rho * math.sqrt(float(np.sum(along * along)))
+        turn_change = turned[k] - turned[0]
+        adj = J.adjoint(turn_change if faces is None else turn_change * faces[:, None], n)
+        along = runs.part(np.einsum("ij,ij->i", adj, normals))
+        spread_g = 2 * runs.rho * math.sqrt(float(np.sum(along * along))) / m
+        se = math.hypot(float(np.std(d, ddof=1)) / math.sqrt(d.size), spread_g)
+        gain = float(d.mean()) + 2 * se  # an upper bound on the change
+        loss = 0.0 if k == 0 else _loss_db(S, S0, realization=spread_s, slack=slack)
+        cands.append(PostCandidate(1.0, k, float(np.mean(G)), float(np.mean(S)), loss,
+                                   k == 0 or (loss < max_loss_db and gain < 0)))
+    best = min((p for p in cands if p.allowed), key=lambda p: (p.normal_risk, p.steps))
+    if best.steps == 0:
+        why = ("Taubin steps after two_stage: none (no count has a significantly smaller normal-domain risk with SURE "
+               f"on positions losing less than {max_loss_db:g} dB)")
+    else:
+        why = (f"{best.steps} Taubin steps after two_stage: the least normal-domain risk allowed (Stein, face normals' "
+               f"squared turn: {best.normal_risk - float(np.mean(G0)):+.3g} rad^2 per face against none, two standard "
+               f"errors below 0; SURE on positions loses at most {max(best.loss_db, 0):.2g} dB, under {max_loss_db:g}); "
+               "no sharp features to round")
+    return PostStep(1.0, best.steps, tuple(cands), why)
 
 
 def _rows(rows: np.ndarray | None, n: int, who: str) -> np.ndarray | None:
@@ -585,8 +794,8 @@ class NormalJacobian:
 
     def __init__(self, R: np.ndarray, F: np.ndarray):
         P = np.asarray(R, dtype=np.float64)[F]
-        self.F = np.asarray(F)
-        self.e1, self.e2 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+        self.F = np.ascontiguousarray(F, dtype=np.int64)
+        self.e1, self.e2 = np.ascontiguousarray(P[:, 1] - P[:, 0]), np.ascontiguousarray(P[:, 2] - P[:, 0])
         c = cross_rows(self.e1, self.e2)
         area2 = np.linalg.norm(c, axis=1)
         self.inv = np.divide(1.0, area2, out=np.zeros_like(area2), where=area2 > 0)
@@ -594,10 +803,21 @@ class NormalJacobian:
 
     def __call__(self, D: np.ndarray) -> np.ndarray:
         """:math:`J d` for ``D`` of shape (n, 3): the turn of each unit face normal, shape (m, 3)."""
-        Q = np.asarray(D, dtype=np.float64)[self.F]
-        dc = cross_rows(Q[:, 1] - Q[:, 0], self.e2) + cross_rows(self.e1, Q[:, 2] - Q[:, 0])
-        dc -= self.n * np.einsum("ij,ij->i", self.n, dc)[:, None]
-        return dc * self.inv[:, None]
+        out = np.empty((self.F.shape[0], 3))
+        kernels.normal_turns(np.ascontiguousarray(D, dtype=np.float64), self.F, self.e1, self.e2, self.n, self.inv, out)
+        return out
+
+    def adjoint(self, W: np.ndarray, n: int) -> np.ndarray:
+        """:math:`J^T w` for ``W`` of shape (m, 3), on ``n`` vertices: shape (n, 3), so that
+        :math:`(J d) \\cdot w = d \\cdot (J^T w)` for every ``d``."""
+        W = np.asarray(W, dtype=np.float64)
+        W = (W - self.n * np.einsum("ij,ij->i", self.n, W)[:, None]) * self.inv[:, None]
+        g1, g2 = cross_rows(self.e2, W), cross_rows(W, self.e1)  # (a x e2) . w = a . (e2 x w); (e1 x a) . w = a . (w x e1)
+        out = np.zeros((n, 3))
+        for corner, g in ((0, -g1 - g2), (1, g1), (2, g2)):
+            for axis in range(3):
+                out[:, axis] += np.bincount(self.F[:, corner], weights=g[:, axis], minlength=n)
+        return out
 
 
 @dataclass(frozen=True)
@@ -1073,18 +1293,20 @@ def _small_post_step(V: np.ndarray, F: np.ndarray, method: str, params: dict, mo
     return PostStep(best.scale, best.steps, tuple(cands), why)
 
 
-def _loss_db(S: np.ndarray, S0: np.ndarray, realization: float = 0.0) -> float:
+def _loss_db(S: np.ndarray, S0: np.ndarray, realization: float = 0.0, slack: float = 0.0) -> float:
     """The SNR loss (dB) of SURE ``S`` against ``S0`` (paired probes): 10 log10 of their ratio, two standard errors up.
 
     ``realization``: a standard deviation of the paired difference over noise realizations (mesh
     units^2), combined with the probes' standard error (:func:`small_post_estimates`); 0 (the
-    default): the probes' only.
+    default): the probes' only. ``slack``: taken off ``S0``'s mean before the ratio, the part of it
+    that is not known (mesh units^2; :func:`feature_post_step`: what the noise level's own error
+    makes of SURE's :math:`n\\rho^2`), so that a small error is not read larger than it may be.
     """
     d = np.asarray(S, dtype=np.float64) - np.asarray(S0, dtype=np.float64)
     se = float(np.std(d, ddof=1)) / math.sqrt(d.size) if d.size > 1 else 0.0
     if realization:
         se = math.hypot(se, float(realization))
-    base = float(np.mean(S0))
+    base = float(np.mean(S0)) - float(slack)
     if base <= 0:  # SURE of the prior below its own scatter: no loss can be measured against it
         return 0.0 if float(d.mean()) + 2 * se <= 0 else math.inf
     return 10.0 * math.log10(max(1.0 + (float(d.mean()) + 2 * se) / base, 1e-12))
@@ -1428,6 +1650,7 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
     normals = None  # the smooth prior's result's vertex normals, when there are candidates to score
     smooth_params = None  # ... and the smooth prior's parameters that gave them
     region = None  # above REGION_FROM vertices: the estimates below run on a RiskRegion
+    feature = None  # two_stage's result and probes' runs (ProbeRuns), kept for the Taubin steps after it
     if len(candidates) == 1:
         method = SMOOTH_METHOD
         params = choose_parameters((V, F), method, noise=model)
@@ -1446,8 +1669,11 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
                 del smooth
                 sub_model = region.noise_model(model)
                 for m in candidates:
-                    scored[m][1] = region.scale * feature_risk(*sub, scored[m][0], sub_model, normals, ops=region.ops,
-                                                               method=m, rows=region.rows)[0]
+                    probed = feature_runs(*sub, scored[m][0], sub_model, normals, ops=region.ops, method=m,
+                                          rows=region.rows)
+                    scored[m][1] = region.scale * float(np.mean(probed.sure()))
+                    feature = probed if m == FEATURE_METHOD else feature
+                    del probed
             else:  # on the whole mesh
                 smooth = np.asarray(get_filter(SMOOTH_METHOD).public((V, F), operators=ops,
                                                                      **scored[SMOOTH_METHOD][0])[0])
@@ -1460,7 +1686,10 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
                     ops.drop_matrices()
                 for m in candidates:
                     if m != SMOOTH_METHOD:  # the smooth prior is linear: its own SURE is exact in expectation
-                        scored[m][1] = feature_risk(V, F, scored[m][0], model, normals, ops=ops, method=m)[0]
+                        probed = feature_runs(V, F, scored[m][0], model, normals, ops=ops, method=m)
+                        scored[m][1] = float(np.mean(probed.sure()))
+                        feature = probed if m == FEATURE_METHOD else feature
+                        del probed
         method = min(scored, key=lambda m: scored[m][1])
         params = scored[method][0]
         others = ", ".join(f"{rms(scored[m][1])} for {m}" for m in candidates if m != method)
@@ -1470,6 +1699,15 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
                    + (f", on {int(np.count_nonzero(region.rows)):,} vertices of a sampled region" if region else "")
                    + f"): {rms(scored[method][1])} mean edge lengths against {others}; its parameters minimise it"]
     post = None
+    if method == FEATURE_METHOD and feature is not None and rho > 0:
+        if features.sharp:
+            reasons.append("no Taubin steps after two_stage: they would round the sharp features")
+        else:  # on the probes' runs that scored two_stage (no other run of it)
+            with stage("choosing Taubin steps after two_stage"):
+                post = feature_post_step(feature, region.F if region is not None else F,
+                                         ops=region.ops if region is not None else ops)
+            reasons.append(post.reason)
+    feature = None
     if method in SMOOTH_PRIORS and rho > 0:  # the smooth prior's mu (SURE on positions) under-smooths the normals
         with stage("choosing the smooth prior's post-step"):  # along sobolev_bilaplacian's normals when computed
             if region is not None:

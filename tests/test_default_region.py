@@ -149,8 +149,8 @@ def test_above_region_from_the_default_scores_both_candidates_on_one_region_and_
         whole.append(default.choose_default((Vn, F), noise=rho).method)
     assert whole == ["two_stage", "sobolev_bilaplacian"]
     calls = []
-    risk = default.feature_risk
-    monkeypatch.setattr(default, "feature_risk", lambda V, *a, **k: calls.append((V.shape[0], k["method"])) or risk(V, *a, **k))
+    runs = default.feature_runs
+    monkeypatch.setattr(default, "feature_runs", lambda V, *a, **k: calls.append((V.shape[0], k["method"])) or runs(V, *a, **k))
     monkeypatch.setattr(default, "REGION_FROM", 1000)
     monkeypatch.setattr(default, "RISK_REGION", 600)
     monkeypatch.setattr(default, "RISK_PATCHES", 4)
