@@ -93,12 +93,22 @@ def measure(mesh: str, sigma: float, ell: float, seed: int) -> dict:
     return {"mesh": mesh, "sigma": sigma, "ell": ell, **with_and_without(V0, F, Vn)}
 
 
+def _commit() -> str:
+    try:
+        out = subprocess.run(["git", "describe", "--always", "--dirty"], capture_output=True, text=True,
+                             cwd=Path(__file__).resolve().parent)
+        return out.stdout.strip() or "unknown"
+    except OSError:
+        return "unknown"
+
+
 def table(rows: list[dict], command: str) -> list[str]:
     ts = [r for r in rows if "before" in r]
     other = len(rows) - len(ts)
     fmt = lambda q: f"{q[0]:.2f} / {q[1]:.2f}"  # noqa: E731
     out = [f"# Taubin steps after two_stage in the default ({datetime.date.today()})", "",
-           f"Command: `{command}`; load average {os.getloadavg()[0]:.1f} at the end.", "",
+           f"Command: `{command}`; commit {_commit()}; load average {os.getloadavg()[0]:.1f} at the end (rows "
+           "measured at that commit's code, or kept from the JSON beside this table by a resumed run).", "",
            "Mean face-normal error (deg) / SNR (dB) against the clean mesh; sigma and l in mean edge lengths "
            "(`add_scanner_noise` along the normals, one seed), 'peers' the peers benchmark's own noise. "
            f"{len(ts)} rows where the default chose two_stage; {other} where it chose a smooth prior (unchanged, not "
