@@ -9,7 +9,8 @@ Per (row, filter) cell: the automatic choice (:func:`benchmarks.peers.run_ours`:
 whole call, the parameters) and the oracle: the least normal error over a grid of the parameters the filter's rule
 chooses, every other parameter at the value the rule used (so the oracle searches the rule's own space):
 
-- ``filtering``: ``iterations`` (every count along one run, until ``k >= 2 k_best + 20``, :func:`walk`).
+- ``filtering``: ``iterations`` (every count along one run up to 100, then about every 1 % of the count
+  (:func:`walk_scored`), until ``k >= 2 k_best + 20``).
 - ``heat``: ``tau`` in the rule's (0.25, 0.5, 1) x ``time = k tau`` (every k along one Euler run).
 - ``taubin``: ``lam`` in ``TAUBIN_LAMBDAS`` (``mu`` from the defaults' pass band, as the rule) x every ``iterations``
   along one run (all three lambdas, also where the rule skips the finer ones on large meshes).
@@ -68,6 +69,7 @@ HALF_WIDTH = 1.0  # the coarse grid spans this many decades either side of the r
 TOL = 0.01  # golden section stops when the bracket is this many decades wide
 EXTEND = 8  # a coarse grid is extended by at most this many points while its best sits at an end
 WALK_MAX = 20000  # cap of a walk along an iterative run
+WALK_DENSE = 100  # a walk scores every step up to this count, then about every 1 % of the count
 
 
 # ----------------------------------------------------------------------------- pure helpers
@@ -186,21 +188,44 @@ class Scorer:
         return q["normal_error_deg"]
 
 
-def _walk_path(scorer: Scorer, X0: np.ndarray, step: Callable, params: Callable[[int], dict]) -> dict:
-    """Score the states 0, 1, 2, ... of ``X <- step(X)`` until past the minimum (:func:`walk`); the walk's record."""
-    from meshdenoise.tuning.walk import walk
+def walk_scored(k: int) -> bool:
+    """Whether a walk scores step ``k``: every step up to ``WALK_DENSE``, then every ``k // WALK_DENSE``-th
+    (about 1 % of the count apart: long walks of Taubin's fine steps, thousands of steps, stay affordable).
 
-    def states():
-        X = np.array(X0, dtype=np.float64)
-        k = 0
-        yield k, X  # no step: the input itself is a candidate (``iterations=0``)
-        while True:
-            X = step(X)
-            k += 1
-            yield k, X
+    Examples
+    --------
+    >>> [k for k in range(195, 215) if walk_scored(k)]
+    [195, 196, 197, 198, 199, 200, 202, 204, 206, 208, 210, 212, 214]
+    """
+    return k <= WALK_DENSE or k % (k // WALK_DENSE) == 0
 
-    w = walk(states(), lambda s: scorer(s[1], params(s[0])), max_steps=WALK_MAX)
-    return {"best_k": w.best[0].item[0], "steps": w.steps + 1, "stop": w.stop}
+
+def _walk_path(scorer: Callable[[np.ndarray, dict], float], X0: np.ndarray, step: Callable,
+               params: Callable[[int], dict]) -> dict:
+    """Score the states 0, 1, 2, ... of ``X <- step(X)`` (those :func:`walk_scored` picks) until past the minimum
+    (:func:`~meshdenoise.tuning.walk.past_minimum`: ``k >= 2 k_best + 20``) or ``WALK_MAX`` steps; the walk's record."""
+    from meshdenoise.tuning.walk import past_minimum
+
+    X = np.array(X0, dtype=np.float64)
+    k = best_k = 0
+    best = scorer(X, params(0))  # no step: the input itself is a candidate (``iterations=0``)
+    scored = 1
+    while True:
+        if past_minimum(k, best_k):
+            stop = "past minimum"
+            break
+        if k >= WALK_MAX:
+            stop = "max_steps"
+            break
+        X = step(X)
+        k += 1
+        if walk_scored(k):
+            v = scorer(X, params(k))
+            v = math.inf if math.isnan(v) else v
+            scored += 1
+            if v < best:
+                best, best_k = v, k
+    return {"best_k": best_k, "steps": k, "scored": scored, "stop": stop}
 
 
 def oracle_filtering(V0, F, Vn, auto: dict, scorer: Scorer) -> dict:
@@ -211,7 +236,7 @@ def oracle_filtering(V0, F, Vn, auto: dict, scorer: Scorer) -> dict:
     ops = get_operators(F, Vn.shape[0])
     w = _walk_path(scorer, Vn, averaging_step(averaging_operator(ops, "uniform", None, True), 1.0),
                    lambda k: {"iterations": k})
-    return {"grid": "iterations 0, 1, 2, ... along one run (until 2 k_best + 20)",
+    return {"grid": "iterations 0, 1, 2, ... along one run (every step to 100, then every ~1 %; until 2 k_best + 20)",
             "edges": ["iterations"] if w["stop"] != "past minimum" else [], "walks": {"lam=1": w}}
 
 
@@ -227,7 +252,7 @@ def oracle_heat(V0, F, Vn, auto: dict, scorer: Scorer) -> dict:
     edges = ["time"] if any(w["stop"] != "past minimum" for w in walks.values()) else []
     if scorer.best["params"]["tau"] in (0.25,):
         edges.append("tau (smallest of the rule's)")
-    return {"grid": "tau in (0.25, 0.5, 1) x time = k tau, k along one Euler run (until 2 k_best + 20)",
+    return {"grid": "tau in (0.25, 0.5, 1) x time = k tau, k along one Euler run (every step to 100, then every ~1 %; until 2 k_best + 20)",
             "edges": edges, "walks": walks}
 
 
@@ -251,7 +276,7 @@ def oracle_taubin(V0, F, Vn, auto: dict, scorer: Scorer) -> dict:
     if scorer.best["params"]["lam"] == min(TAUBIN_LAMBDAS):
         edges.append("lam (finest of the rule's)")
     return {"grid": f"lam in {TAUBIN_LAMBDAS} (mu for the defaults' pass band) x iterations along one run "
-                    "(until 2 k_best + 20)", "edges": edges, "walks": walks}
+                    "(every step to 100, then every ~1 %; until 2 k_best + 20)", "edges": edges, "walks": walks}
 
 
 def oracle_sinkhorn(V0, F, Vn, auto: dict, scorer: Scorer) -> dict:

@@ -79,6 +79,21 @@ def test_walk_path_scores_the_input_and_stops_past_the_minimum():
     assert w0["best_k"] == 0
 
 
+def test_walk_path_thins_long_walks_but_finds_a_far_minimum():
+    seen = []
+
+    def scorer(X, params):
+        seen.append(params["k"])
+        return abs(float(X[0, 0]) - 1234.0)
+
+    w = fo._walk_path(scorer, np.zeros((1, 3)), lambda X: X + 1.0, lambda k: {"k": k})
+    assert w["stop"] == "past minimum" and w["steps"] == 2 * w["best_k"] + 20
+    assert abs(w["best_k"] - 1234) <= 1234 // fo.WALK_DENSE  # within the stride (about 1 % of the count)
+    assert seen[:fo.WALK_DENSE + 1] == list(range(fo.WALK_DENSE + 1))
+    assert len(seen) == w["scored"] < w["steps"] / 4
+    assert all(fo.walk_scored(k) for k in seen) and seen == sorted(seen)
+
+
 def test_ratio_and_outside():
     assert fo.ratio(2.2, 2.0) == pytest.approx(1.1)
     assert fo.ratio(0.0, 0.0) == 1.0 and math.isinf(fo.ratio(1.0, 0.0))
