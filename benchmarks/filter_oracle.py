@@ -510,9 +510,16 @@ def table(cells: list[dict], rows: list[str], filters: list[str], command: str, 
     missing = [(f, r) for f in filters for r in rows if (r, f) not in by or "status" in by[(r, f)]]
     L += ["", f"(e): the oracle's best at an edge of its grid (see the cell). Measured: {len(measured)} of "
               f"{len(rows) * len(filters)} cells.", "",
-          f"**Outside 10 % ({len(off)} of {len(measured)} measured cells):** "
-          + ("; ".join(f"{f} on {r} ({x:.3f})" for f, r, x in off) or "none") + ".",
-          ]
+          f"**Outside 10 % ({len(off)} of {len(measured)} measured cells)**" + (": none." if not off else ", worst first:"),
+          ""]
+    for f in filters:
+        mine = [(r, x) for g, r, x in off if g == f]
+        n_f = sum(1 for c in measured if c["filter"] == f)
+        if mine:
+            L.append(f"- {f} ({len(mine)} of {n_f}): " + ", ".join(f"{r} {x:.3f}" for r, x in mine))
+        elif n_f:
+            L.append(f"- {f} (0 of {n_f}): within 10 % on every measured row")
+    L.append("")
     if missing:
         L.append("Not measured: " + "; ".join(f"{f} on {r}" + (f" ({by[(r, f)]['status']})" if (r, f) in by else "")
                                                for f, r in missing) + ".")

@@ -112,7 +112,8 @@ def test_table_summary_names_the_cells_outside_and_the_missing():
     text = fo.table([cell, {"row": "r2", "filter": "f", "status": "not measured (> 5 s)"}], ["r1", "r2"], ["f"],
                     "cmd", "note")
     assert "| f | 1.250 **>1.10** (e) | not measured (> 5 s) |" in text
-    assert "**Outside 10 % (1 of 1 measured cells):** f on r1 (1.250)." in text
+    assert "**Outside 10 % (1 of 1 measured cells)**, worst first:" in text
+    assert "- f (1 of 1): r1 1.250" in text
     assert "Not measured: f on r2 (not measured (> 5 s))." in text
 
 
