@@ -521,8 +521,8 @@ def table(cells: list[dict], rows: list[str], filters: list[str], command: str, 
             L.append(f"- {f} (0 of {n_f}): within 10 % on every measured row")
     L.append("")
     if missing:
-        L.append("Not measured: " + "; ".join(f"{f} on {r}" + (f" ({by[(r, f)]['status']})" if (r, f) in by else "")
-                                               for f, r in missing) + ".")
+        why = lambda f, r: by[(r, f)]["status"].removeprefix("not measured ") if (r, f) in by else "(not run)"  # noqa: E731
+        L.append("Not measured: " + "; ".join(f"{f} on {r} {why(f, r)}" for f, r in missing) + ".")
     L += ["", "## Cells", "",
           "| row | filter | auto ne | auto SNR | auto time (s) | oracle ne | oracle SNR | auto / oracle | auto "
           "re-applied ne | oracle time (s), evaluations | edges | auto parameters | oracle parameters |",
@@ -606,7 +606,11 @@ def main(argv: list[str] | None = None) -> int:
         ts_rows = {r["row"]: r["grid_ne"] for r in json.loads(Path(a.two_stage_from).read_text()) if "grid_ne" in r}
     todo = [(r, f) for r in a.rows for f in filters if (r, f) not in done]
     load = " ".join(open("/proc/loadavg").read().split()[:3]) if os.path.exists("/proc/loadavg") else "?"
-    command = "PYTHONPATH=. python benchmarks/filter_oracle.py " + shlex.join(argv if argv is not None else sys.argv[1:])
+    args = list(argv if argv is not None else sys.argv[1:])
+    if "--note" in args:  # the note is printed under the command, not inside it
+        i = args.index("--note")
+        del args[i:i + 2]
+    command = "PYTHONPATH=. python benchmarks/filter_oracle.py " + shlex.join(args) + (" --note ..." if a.note else "")
     note = f"Load average when started: {load} (2 cores, shared: times are under load). {a.note}".strip()
 
     def write() -> None:

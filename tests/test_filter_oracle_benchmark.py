@@ -114,7 +114,7 @@ def test_table_summary_names_the_cells_outside_and_the_missing():
     assert "| f | 1.250 **>1.10** (e) | not measured (> 5 s) |" in text
     assert "**Outside 10 % (1 of 1 measured cells)**, worst first:" in text
     assert "- f (1 of 1): r1 1.250" in text
-    assert "Not measured: f on r2 (not measured (> 5 s))." in text
+    assert "Not measured: f on r2 (> 5 s)." in text
 
 
 # ----------------------------------------------------------------------------- one cell, checked independently
