@@ -252,7 +252,8 @@ def oracle_heat(V0, F, Vn, auto: dict, scorer: Scorer) -> dict:
     edges = ["time"] if any(w["stop"] != "past minimum" for w in walks.values()) else []
     if scorer.best["params"]["tau"] in (0.25,):
         edges.append("tau (smallest of the rule's)")
-    return {"grid": "tau in (0.25, 0.5, 1) x time = k tau, k along one Euler run (every step to 100, then every ~1 %; until 2 k_best + 20)",
+    return {"grid": "tau in (0.25, 0.5, 1) x time = k tau, k along one Euler run (every step to 100, then every "
+                    "~1 %; until 2 k_best + 20)",
             "edges": edges, "walks": walks}
 
 
@@ -487,7 +488,8 @@ def table(cells: list[dict], rows: list[str], filters: list[str], command: str, 
     by = {(c["row"], c["filter"]): c for c in cells}
     L = ["# Each filter's automatic choice against its own normal-error oracle (issue 22)", "",
          f"Command: `{command}`  ", note, "",
-         "Mean face-normal error to the clean mesh (deg, lower is better). `auto`: `denoise(noisy, method=M)` (no clean "
+         "Mean face-normal error to the clean mesh (deg, lower is better). `auto`: `denoise(noisy, method=M)` (no "
+         "clean "
          "mesh); `oracle`: the least error over a grid of the parameters the rule chooses (other parameters at the "
          "rule's values; the grids are listed at the end), the automatic choice included as a candidate. Target: "
          f"auto / oracle <= {TARGET:.2f}.", "",
@@ -510,7 +512,8 @@ def table(cells: list[dict], rows: list[str], filters: list[str], command: str, 
     missing = [(f, r) for f in filters for r in rows if (r, f) not in by or "status" in by[(r, f)]]
     L += ["", f"(e): the oracle's best at an edge of its grid (see the cell). Measured: {len(measured)} of "
               f"{len(rows) * len(filters)} cells.", "",
-          f"**Outside 10 % ({len(off)} of {len(measured)} measured cells)**" + (": none." if not off else ", worst first:"),
+          f"**Outside 10 % ({len(off)} of {len(measured)} measured cells)**"
+          + (": none." if not off else ", worst first:"),
           ""]
     for f in filters:
         mine = [(r, x) for g, r, x in off if g == f]
@@ -521,7 +524,9 @@ def table(cells: list[dict], rows: list[str], filters: list[str], command: str, 
             L.append(f"- {f} (0 of {n_f}): within 10 % on every measured row")
     L.append("")
     if missing:
-        why = lambda f, r: by[(r, f)]["status"].removeprefix("not measured ") if (r, f) in by else "(not run)"  # noqa: E731
+        def why(f: str, r: str) -> str:
+            return by[(r, f)]["status"].removeprefix("not measured ") if (r, f) in by else "(not run)"
+
         L.append("Not measured: " + "; ".join(f"{f} on {r} {why(f, r)}" for f, r in missing) + ".")
     L += ["", "## Cells", "",
           "| row | filter | auto ne | auto SNR | auto time (s) | oracle ne | oracle SNR | auto / oracle | auto "
