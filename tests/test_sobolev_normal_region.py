@@ -77,3 +77,17 @@ def test_lanczos_shifted_with_spaced_tests_converges_where_the_old_schedule_cost
     np.testing.assert_allclose(spaced, every, atol=1e-9 * rho)
     with pytest.raises(ValueError, match="mu"):
         lanczos_shifted(ops, Vn, "strong", 3)
+
+
+def test_region_rule_under_a_correlated_noise_model_colours_the_regions_probes_by_the_regions_model(monkeypatch):
+    # the region's noise model is built on a smoothed region (sure_smoothed), which ran inside the whole mesh's
+    # colouring: "colour_probes: the noise model has n vertices, the probes k rows" (face000 scanner, 85k vertices,
+    # with method="sobolev_normal" or "sobolev_gls"; the default's own path was not affected)
+    from meshdenoise.tuning.covariance import NoiseModel
+
+    V, Vn, F, rho = _torus_case()
+    model = NoiseModel(rho, 2.0, Vn, F)
+    cuts = _forced_region(monkeypatch)
+    params = choose_parameters((Vn, F), "sobolev_normal", noise=model)
+    assert cuts and cuts[0].vertices.size < len(V)  # on a region
+    assert snr(V, apply_filter("sobolev_normal", (Vn, F), **params)[0]) > snr(V, Vn)

@@ -569,7 +569,9 @@ def _on_region(ctx, rule: Callable, region, held: dict) -> tuple[dict, Point]:
     if model is not None and getattr(model, "correlated", False):
         from .covariance import NoiseModel
 
-        model = NoiseModel(ctx.rho, float(model.correlation_length), sure_smoothed(V, ops, ctx.rho).X, F)
+        with noise_colouring(None):  # the region's own smoothing: its probes are not the whole mesh's rows
+            smoothed = sure_smoothed(V, ops, ctx.rho).X
+        model = NoiseModel(ctx.rho, float(model.correlation_length), smoothed, F)
     sub = TuningContext(V, F, ops, ctx.rho, ctx.criterion, ctx.exact, held, model)
     with noise_colouring(model):
         return rule(sub, region.inner)
