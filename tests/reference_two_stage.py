@@ -101,10 +101,10 @@ def guidance_normals(N: np.ndarray, areas: np.ndarray, nb: FaceNeighbourhood) ->
     total = np.bincount(nb.patch, weights=phi, minlength=m)
     H = spread * largest / (1e-9 + total)
     # Symmetric meshes (an icosahedron, a CAD part's flat sides) have exactly tied patches; rounding
-    # noise (say from a translation) must not decide between them. Quantise H to 1e-6 of its range
+    # noise (say from a translation) must not decide between them. Quantise H to 1e-9 of its range
     # so near-ties are ties, broken by patch index.
     scale = float(H.max()) if H.size else 0.0
-    Hq = np.round(H * (1e6 / scale)) if scale > 0 else np.zeros_like(H)  # two_stage.QUANTUM
+    Hq = np.round(H * (1e9 / scale)) if scale > 0 else np.zeros_like(H)  # two_stage.QUANTUM
     # for each face i, the neighbour patch j with the least H (rows are sorted, so lexsort by (H, j, row))
     order = np.lexsort((nb.cols, Hq[nb.cols], nb.rows))
     return g[nb.cols[order[nb.starts]]]

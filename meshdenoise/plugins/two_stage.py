@@ -115,18 +115,19 @@ def _float_rows(X: np.ndarray) -> np.ndarray:
     return np.array(X, dtype=np.float64, order="C")
 
 
-QUANTUM = 1e6  # patch scores are compared on a grid of this many steps of their range: equal within it, a tie
+QUANTUM = 1e9  # patch scores are compared on a grid of this many steps of their range: equal within it, a tie
 
 
 def _quantisation(H: np.ndarray) -> float:
     """The factor that maps ``H`` to integers on a :data:`QUANTUM` grid of its range (0 when ``H`` is all zero).
 
-    Symmetric meshes have patches of equal scores whose computed values differ by rounding, and a
-    translation of the mesh changes that rounding (6e-12 of the scores at 1000 times the extent): on a
-    1e9 grid a face subset of ``icosphere(2)`` moved by 1024 saw one score cross a step, one guidance
-    pick change, and the result move by 0.15 (tests/test_properties.py). On a 1e6 grid the same
-    rounding is a millionth of a step; a value that close to a step's edge is still possible, so the
-    filter is translation-equivariant to rounding except on such a tie.
+    Symmetric meshes have patches of equal scores whose computed values differ by rounding: on the
+    grid they are ties, broken by the faces' labels in the caller's order. A quantised choice cannot
+    be continuous: a score within rounding of a step's edge can fall either way. A translation of
+    the mesh changes the rounding (6e-12 of the scores at 1000 times the extent): hypothesis found a
+    face subset of ``icosphere(2)`` moved by 1024 whose result moved by 0.145 that way. A coarser grid
+    (1e6) fixes that mesh but makes near-ties ties, broken by the labels: a shuffled mesh then gives
+    results 2e-8 apart (tests/test_locality.py). Kept at 1e9 (docs/peers.md, session 15).
     """
     scale = float(H.max()) if H.size else 0.0
     return QUANTUM / scale if scale > 0 else 0.0
