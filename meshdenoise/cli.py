@@ -116,10 +116,13 @@ def filters_json() -> dict:
         {"name": "noise", "type": "str|float", "default": None, "range": "RHO[h][,L], RHO >= 0, L >= 0",
          "help": "the noise level to choose parameters for instead of the estimate (with parameters: auto): RHO in "
                  "mesh units or in mean edge lengths with h, L the correlation length in mean edge lengths"},
+        {"name": "criterion", "type": "str", "default": "sure", "range": "sure or normals",
+         "help": "with parameters: auto, what the choice minimises: the position error (sure) or, for the linear "
+                 "filters, the face-normal error (normals)"},
     ]
-    # the denoise step (the default) takes our filters' options except `parameters`, with borders along normals
+    # the denoise step (the default) takes our filters' options but `parameters` and `criterion`, borders along normals
     denoise_options = [{**o, "default": "normal"} if o["name"] == "boundary_motion" else o
-                       for o in options if o["name"] != "parameters"]
+                       for o in options if o["name"] not in ("parameters", "criterion")]
     steps.append({"name": "denoise", "kind": "builtin", "params": denoise_options})
     steps.append({"name": "metrics", "kind": "builtin", "params": [
         {"name": "reference", "type": "str", "default": "input", "range": "input, a mesh file or {before: LABEL}",

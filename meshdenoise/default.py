@@ -58,12 +58,12 @@ import numpy as np
 
 from .adapters import read_mesh
 from . import kernels
-from .geometry import cross_rows, face_normals, vertex_face_incidence, vertex_normals
+from .geometry import face_normals, vertex_face_incidence, vertex_normals
 from .locality import relabelling
 from .operators import Operators, get_operators, spmm
 from .progress import stage
 from .registry import COMMON_OPTIONS, FilterSpec, ParameterError, apply_filter, get_filter, run_core
-from .tuning.choose import choose_parameters, relabelled_model
+from .tuning.choose import choose_parameters, relabelled_model, rule_criterion
 from .tuning.covariance import NoiseModel, estimate_noise_model
 from .tuning.memo import release_before_filter
 from .tuning.detail import BANDS as DETAIL_BANDS
@@ -73,6 +73,7 @@ from .tuning.noise_level import mean_edge_length
 from .tuning.region import SampledRegion
 from .tuning.recorrupted import cross_normals, normal_score, recorrupt
 from .tuning.risk import mc_sure_step
+from .tuning.normal_risk import NormalJacobian
 from .tuning.search import shifted_reach
 
 __all__ = ["DefaultChoice", "FeatureTest", "choose_default", "denoise", "detect_features", "feature_risk",
@@ -772,52 +773,6 @@ def core_run(spec: FilterSpec, V: np.ndarray, ops: Operators, values: dict) -> n
         raise ParameterError(f"filter '{spec.name}' produced non-finite coordinates (overflow: a parameter is too "
                              "large or too small for this mesh)")
     return out
-
-
-class NormalJacobian:
-    """The derivative of the unit face normals with respect to the vertex positions, at fixed vertices ``R``.
-
-    For a face :math:`(p_0, p_1, p_2)` with :math:`c = (p_1 - p_0) \\times (p_2 - p_0)` and
-    :math:`n = c / \\|c\\|`, a displacement :math:`d` of its vertices turns the normal by
-
-    .. math:: J d = \\frac{(I - n n^T)\\,\\big((d_1 - d_0) \\times (p_2 - p_0) + (p_1 - p_0) \\times (d_2 - d_0)\\big)}{\\|c\\|},
-
-    so that :math:`\\|J d\\|^2` is, to first order, the sum over faces of the squared angles
-    (radians) by which ``d`` turns them. Zero-area faces count 0.
-
-    Parameters
-    ----------
-    R : ndarray, shape (n, 3)
-        The vertices where the derivative is taken.
-    F : ndarray, shape (m, 3)
-    """
-
-    def __init__(self, R: np.ndarray, F: np.ndarray):
-        P = np.asarray(R, dtype=np.float64)[F]
-        self.F = np.ascontiguousarray(F, dtype=np.int64)
-        self.e1, self.e2 = np.ascontiguousarray(P[:, 1] - P[:, 0]), np.ascontiguousarray(P[:, 2] - P[:, 0])
-        c = cross_rows(self.e1, self.e2)
-        area2 = np.linalg.norm(c, axis=1)
-        self.inv = np.divide(1.0, area2, out=np.zeros_like(area2), where=area2 > 0)
-        self.n = c * self.inv[:, None]
-
-    def __call__(self, D: np.ndarray) -> np.ndarray:
-        """:math:`J d` for ``D`` of shape (n, 3): the turn of each unit face normal, shape (m, 3)."""
-        out = np.empty((self.F.shape[0], 3))
-        kernels.normal_turns(np.ascontiguousarray(D, dtype=np.float64), self.F, self.e1, self.e2, self.n, self.inv, out)
-        return out
-
-    def adjoint(self, W: np.ndarray, n: int) -> np.ndarray:
-        """:math:`J^T w` for ``W`` of shape (m, 3), on ``n`` vertices: shape (n, 3), so that
-        :math:`(J d) \\cdot w = d \\cdot (J^T w)` for every ``d``."""
-        W = np.asarray(W, dtype=np.float64)
-        W = (W - self.n * np.einsum("ij,ij->i", self.n, W)[:, None]) * self.inv[:, None]
-        g1, g2 = cross_rows(self.e2, W), cross_rows(W, self.e1)  # (a x e2) . w = a . (e2 x w); (e1 x a) . w = a . (w x e1)
-        out = np.zeros((n, 3))
-        for corner, g in ((0, -g1 - g2), (1, g1), (2, g2)):
-            for axis in range(3):
-                out[:, axis] += np.bincount(self.F[:, corner], weights=g[:, axis], minlength=n)
-        return out
 
 
 @dataclass(frozen=True)
@@ -1741,6 +1696,7 @@ def denoise(
     noise: float | None = None,
     return_params: bool = False,
     boundary_motion: str = "normal",
+    criterion: str | None = None,
     **params: Any,
 ) -> Any:
     """Denoise a mesh; with no method, the default for scans chooses the filter and its parameters.
@@ -1761,6 +1717,12 @@ def denoise(
         ``"normal"`` (default): vertices on open borders move only along their normals, so
         borders do not shrink inward (:func:`meshdenoise.registry.boundary_along_normals`);
         ``"free"``: the filter as it is (what ``apply_filter`` does).
+    criterion : {"normals", "sure", "gcv"}, optional
+        With a method and its parameters chosen automatically, how: ``"normals"`` (the default
+        for the linear filters, :func:`~meshdenoise.tuning.choose.normal_filters`) the least
+        estimated error of the face normals, what a rendering shows; ``"sure"`` (the default for
+        the others) the least estimated position error, which smooths 1 to 10 times less and
+        keeps the volume better (docs/automatic-parameters.md). Not with ``method=None``.
     **params
         Filter parameters (held fixed) and the common options (``pinned``, ``region``,
         ``preserve_volume``, ``operators``). With none of the filter's own parameters
@@ -1793,6 +1755,9 @@ def denoise(
         if params:
             raise TypeError(f"denoise: filter parameters {sorted(params)} need method=; "
                             "with no method the default chooses the filter and its parameters")
+        if criterion is not None:
+            raise TypeError(f"denoise: criterion={criterion!r} needs method=; with no method the default "
+                            "chooses by its own estimates (normal error under a position-error guard)")
         choice = choose_default(mesh, noise=noise, boundary_motion=boundary_motion)
         method, chosen = choice.method, dict(choice.params)
         release_before_filter()  # the choice's memo entries are dead weight beside the filter
@@ -1801,7 +1766,7 @@ def denoise(
             raise TypeError(f"denoise: method must be a filter name (str) or None, got {method!r}")
         spec = get_filter(method)
         if spec.auto is not None and set(spec.auto.tunes) - set(params):
-            chosen = choose_parameters(mesh, method, noise=noise, **params)
+            chosen = choose_parameters(mesh, method, noise=noise, criterion=rule_criterion(method, criterion), **params)
             log.info("denoise(%s): automatic parameters %s", method, chosen)
             release_before_filter()  # the choice's memo entries are dead weight beside the filter
         else:

@@ -225,7 +225,7 @@ def face_geometry(X, F, N, A, C):  # pragma: no cover - compiled
 def normal_turns(D, F, e1, e2, n, inv, out):  # pragma: no cover - compiled
     """The turn of each unit face normal under the vertex displacement ``D`` (n, 3), into ``out`` (m, 3).
 
-    :class:`meshdenoise.default.NormalJacobian`'s product :math:`J d` in one pass over the faces:
+    :class:`meshdenoise.tuning.normal_risk.NormalJacobian`'s product :math:`J d` in one pass over the faces:
     :math:`((d_1 - d_0) \\times e_2 + e_1 \\times (d_2 - d_0))` without its part along the unit normal
     ``n``, times ``inv`` (1 / twice the area; 0 for a zero-area face). Same products and sums as
     the numpy code (:func:`meshdenoise.geometry.cross_rows`), so the same rounding.

@@ -198,10 +198,23 @@ class AutoRule:
     ``choose(ctx)`` takes a :class:`~meshdenoise.tuning.context.TuningContext` and returns
     ``(chosen parameters, best point)`` (a :class:`~meshdenoise.tuning.risk.Point`); it
     chooses the parameters in ``tunes`` that ``ctx.given`` does not hold.
+
+    ``normals`` names the parameter that sets how much a filter smooths (a weight,
+    an iteration count, a diffusion time): with ``criterion="normals"``
+    (:func:`~meshdenoise.tuning.choose.choose_parameters`) it is rescaled from the rule's choice
+    to the least estimated face-normal error
+    (:func:`~meshdenoise.tuning.normal_risk.refine_for_normals`). ``additive``: running the
+    filter at ``a`` then at ``b`` is running it at ``a + b``; ``integer``: the parameter is a count.
+    Declaring ``normals`` promises that the filter is linear in the coordinates, the same on each
+    axis, for every parameter value its rule accepts (``taubin`` with its three weightings is,
+    though not registered ``linear``).
     """
 
     tunes: tuple[str, ...]
     choose: Callable[[Any], tuple[dict, Any]]
+    normals: str | None = None
+    additive: bool = False
+    integer: bool = False
 
 
 @dataclass(frozen=True)

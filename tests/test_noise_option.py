@@ -87,7 +87,7 @@ def test_cli_dry_run_uses_the_given_level_in_edge_lengths(noisy_sphere_file):
     result = CliRunner().invoke(cli, ["denoise", str(src), "--dry-run", "--method", "sobolev", "--auto",
                                       "--noise", "0.5h"])
     assert result.exit_code == 0, result.output
-    mu = choose_parameters((Vn, F), "sobolev", noise=0.5 * h)["mu"]
+    mu = choose_parameters((Vn, F), "sobolev", noise=0.5 * h, criterion="normals")["mu"]  # as denoise(method=)
     assert f"mu={mu!r}" in result.output and "given by --noise" in result.output
 
 

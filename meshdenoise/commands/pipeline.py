@@ -194,9 +194,13 @@ def _print_rows(rows: list[dict]) -> None:
 @click.option("--noise", "noise", default=None, metavar="RHO[h][,L]",
               help="The noise level to choose for, instead of the estimate: RHO in mesh units, or in mean edge lengths "
                    "with h (0.4h); L its correlation length in mean edge lengths (0.4h,2). With no --method, or with --auto.")
+@click.option("--criterion", type=click.Choice(["normals", "sure"]), default=None,
+              help="With --method and --auto: what the choice minimises. normals (default where the filter has it: "
+                   "filtering, heat, taubin, sobolev, sobolev_bilaplacian): the face-normal error, what a rendering "
+                   "shows; it smooths and shrinks more. sure: the position error (SNR), a pipeline's default.")
 @click.option("--dry-run", is_flag=True, help="Only print the noise estimate and what would be chosen; write nothing.")
 def denoise_command(input_path, output_path, method, params, pinned, region_from_selection, preserve_volume, auto,
-                    boundary_motion, noise, dry_run):
+                    boundary_motion, noise, criterion, dry_run):
     """Denoise the mesh IN and write OUT (PLY, OBJ, OFF or STL; colours kept).
 
     With no --method the filter and its parameters are chosen from the mesh alone and
@@ -218,8 +222,19 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
         given["region"] = _selected_vertices(input_path)
     if preserve_volume:
         given["preserve_volume"] = True
+    if criterion is not None and not (auto and method is not None):
+        _fail(f"--criterion {criterion}: it says how --auto chooses a filter's parameters: give --method and --auto "
+              "(with no method the default chooses by its own estimates)", 2)
     if auto and method is not None:
+        from ..registry import get_filter
+        from ..tuning.choose import rule_criterion
+
         given["parameters"] = "auto"
+        try:
+            get_filter(method)  # an unknown name is said below, as --method's
+            given["criterion"] = rule_criterion(method, criterion)
+        except KeyError:
+            pass
     given["boundary_motion"] = boundary_motion
     if noise is not None:
         from ..pipeline.noise_option import parse_noise_option
@@ -316,7 +331,7 @@ def _dry_run(src: Path, method: str | None, given: dict) -> None:
             rho = model.rho
             own = {k: v for k, v in given.items() if k not in COMMON}
             if given.get("parameters") == "auto" and spec.auto is not None:
-                own = choose_parameters(arrays, method, noise=model, **own)
+                own = choose_parameters(arrays, method, noise=model, criterion=given.get("criterion", "sure"), **own)
             settings = spec.resolve(own, f"--method '{method}'")
             spread = (f"correlated over {model.correlation_length:.3g} edge lengths" if model.correlated
                       else "independent") + ("; given by --noise" if known is not None else "")

@@ -64,7 +64,7 @@ BUILTIN_STEPS: dict[str, list[Param]] = {
     "metrics": [],  # checked by _check_metrics, described by METRICS_DOC
     "render": [],  # checked by _check_render, described by RENDER_DOC
 }
-COMMON = {"pinned", "region", "preserve_volume", "parameters", "boundary_motion", "noise"}
+COMMON = {"pinned", "region", "preserve_volume", "parameters", "boundary_motion", "noise", "criterion"}
 RESERVED = {"label"}
 
 
@@ -163,6 +163,10 @@ def _filter_options(given: dict, at: str, allowed: tuple[str, ...] = tuple(sorte
                 options[key] = parse_noise_option(value, f"{at}: noise")
             except ValueError as exc:
                 raise PipelineValidationError(str(exc)) from None
+        elif key == "criterion":
+            if value not in STEP_CRITERIA:
+                raise PipelineValidationError(f"{at}: criterion must be one of {', '.join(STEP_CRITERIA)}, got {value!r}")
+            options[key] = value
     return options, rest
 
 
@@ -173,6 +177,15 @@ def _our_filter(index, name, given, label, source, line) -> Step:
     if "noise" in options and options.get("parameters") != "auto":
         raise PipelineValidationError(f"{at}: noise: the noise level is used only to choose parameters: add "
                                       "'parameters: auto' (--auto), or leave noise out")
+    if "criterion" in options:
+        from ..tuning.choose import normal_filters
+
+        if options.get("parameters") != "auto":
+            raise PipelineValidationError(f"{at}: criterion: it says how parameters are chosen: add 'parameters: auto' "
+                                          "(--auto), or leave criterion out")
+        if options["criterion"] == "normals" and name not in normal_filters():
+            raise PipelineValidationError(f"{at}: criterion 'normals' is for the linear filters "
+                                          f"({', '.join(normal_filters())}), not '{name}'")
     try:
         if options.get("parameters") == "auto":
             spec.resolve(rest, at)  # explicit values are still checked; auto fills the others
@@ -213,7 +226,11 @@ OURS_OPTIONS_DOC = (
     ("boundary_motion", "free | normal", "free", "normal: open borders move along their normals only (no inward shrinking)"),
     ("noise", "RHO[h][,L]", None, "the noise level to choose parameters for, instead of the estimate: RHO in mesh units "
      "or in mean edge lengths with h (0.4h), L its correlation length in mean edge lengths (with parameters: auto)"),
+    ("criterion", "sure | normals", "sure", "with parameters: auto, what the choice minimises: sure, the estimated "
+     "position error (SNR); normals (linear filters), the face-normal error: what a rendering shows, smoothing and "
+     "shrinking more (the command line's --method M --auto uses it)"),
 )
+STEP_CRITERIA = ("sure", "normals")
 
 
 def describe_pymeshlab_step(name: str) -> dict:
@@ -272,7 +289,7 @@ def describe_steps() -> list[dict]:
         entry("denoise", "the default for scans: chooses the filter (two_stage for sharp features, else "
               "sobolev_bilaplacian) and its parameters from the mesh alone, and records why (denoise.* columns)",
               [(n, t, "normal" if n == "boundary_motion" else d, h) for n, t, d, h in OURS_OPTIONS_DOC
-               if n != "parameters"]),
+               if n not in ("parameters", "criterion")]),
         entry("add_noise", "displace every vertex along its normal by Gaussian noise", from_params(BUILTIN_STEPS["add_noise"])),
         entry("save", "write the current mesh (PLY, OBJ, OFF, STL) once every step succeeded", from_params(BUILTIN_STEPS["save"])),
         entry("metrics", "measure the current mesh against a reference; values go to the results table", METRICS_DOC),
@@ -596,7 +613,7 @@ def _run_ours(step: Step, ctx: RunContext) -> None:
     spec = get_filter(step.name)
     state = ctx.state
     params = dict(step.params)
-    options = {k: v for k, v in step.options.items() if k not in ("parameters", "noise")}
+    options = {k: v for k, v in step.options.items() if k not in ("parameters", "noise", "criterion")}
     for key in ("pinned", "region"):
         if key in options:
             options[key] = _vertex_option(options[key], state, key)
@@ -606,7 +623,8 @@ def _run_ours(step: Step, ctx: RunContext) -> None:
 
         given_noise = step.options.get("noise")
         noise = given_noise.model(state.V, state.F) if given_noise is not None else None
-        chosen = choose_parameters(state.arrays(), method=step.name, noise=noise)
+        chosen = choose_parameters(state.arrays(), method=step.name, noise=noise,
+                                   criterion=step.options.get("criterion", "sure"))
         chosen = {**chosen, **params}  # values written in the pipeline win
         params = spec.resolve(chosen, step.where)
         for k, v in params.items():

@@ -222,7 +222,7 @@ def choose_filtering(ctx: TuningContext) -> tuple[dict, Point]:
 
 @register(
     "filtering",
-    auto=AutoRule(("iterations",), choose_filtering),
+    auto=AutoRule(("iterations",), choose_filtering, normals="iterations", additive=True, integer=True),
     summary="Linear filtering: average each vertex with its neighbours, k times (X <- D^-1 W X)",
     params=[
         Param("iterations", int, 10, low=0, high=MAX_ITERATIONS, help="number of averaging steps k"),

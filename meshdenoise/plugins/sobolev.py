@@ -98,7 +98,7 @@ def choose_sobolev(ctx: TuningContext) -> tuple[dict, Point]:
 
 @register(
     "sobolev",
-    auto=AutoRule(("mu",), choose_sobolev),
+    auto=AutoRule(("mu",), choose_sobolev, normals="mu"),
     summary="Sobolev regularisation: solve (I + mu L) Y = X, L = D - W, by cached sparse Cholesky or block CG",
     params=[
         Param("mu", float, 1.0, low=0.0, help="regularisation weight (0 returns the input)"),

@@ -129,7 +129,7 @@ def choose_taubin(ctx: TuningContext) -> tuple[dict, Point]:
 
 @register(
     "taubin",
-    auto=AutoRule(("iterations", "lam", "mu"), choose_taubin),
+    auto=AutoRule(("iterations", "lam", "mu"), choose_taubin, normals="iterations", additive=True, integer=True),
     summary="Taubin lambda/mu smoothing: per iteration X += lam (AX - X), then X += mu (AX - X), mu < 0",
     params=[
         Param("iterations", int, 10, low=0, high=MAX_ITERATIONS, help="number of (lambda pass + mu pass) pairs"),

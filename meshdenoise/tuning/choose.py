@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 import math
+import warnings
 from typing import Any
 
 import numpy as np
@@ -21,10 +22,15 @@ from ..progress import stage
 from ..registry import get_filter, list_filters
 from .context import TuningContext
 from .covariance import NoiseModel, estimate_noise_model
-from .risk import Criterion, noise_colouring
-from .search import sure_smoothed
+from .normal_risk import NORMAL_FIRST, NORMAL_SCALES, NormalChoice, refine_for_normals
+from .risk import Criterion, Point, noise_colouring
+from .search import REGION_MAX_MARGIN, REGION_MIN_VERTICES, region_rule, sure_smoothed
 
-__all__ = ["choose_parameters", "auto_filters"]
+__all__ = ["choose_parameters", "auto_filters", "normal_filters", "rule_criterion", "CRITERIA"]
+
+CRITERIA = ("sure", "gcv", "oracle", "normals")
+NORMAL_REGION = 32_000  # criterion "normals" from REGION_MIN_VERTICES: the search on a sampled region of this many vertices
+NORMAL_PATCHES = 8  # ... made of this many balls
 
 log = logging.getLogger("meshdenoise.auto")
 
@@ -38,6 +44,105 @@ def auto_filters() -> list[str]:
     True
     """
     return [spec.name for spec in list_filters() if spec.auto is not None]
+
+
+def normal_filters() -> list[str]:
+    """Names of the registered filters whose rule takes ``criterion="normals"`` (linear in the coordinates, with a smoothing amount).
+
+    Examples
+    --------
+    >>> normal_filters()
+    ['filtering', 'heat', 'sobolev', 'sobolev_bilaplacian', 'taubin']
+    """
+    return [spec.name for spec in list_filters() if spec.auto is not None and spec.auto.normals is not None]
+
+
+def rule_criterion(method: str, criterion: str | None = None) -> str:
+    """The criterion a filter's automatic choice uses when the caller names none: ``"normals"`` where the filter
+    has it (:func:`normal_filters`), else ``"sure"``.
+
+    ``denoise(mesh, method=M)``, the command line's ``--method M`` and a pipeline step's
+    ``parameters: auto`` all ask it, so the three choose alike; :func:`choose_parameters` called
+    directly keeps ``"sure"`` unless told.
+
+    Examples
+    --------
+    >>> rule_criterion("sobolev"), rule_criterion("two_stage"), rule_criterion("sobolev", "sure")
+    ('normals', 'sure', 'sure')
+    """
+    if criterion is not None:
+        return criterion
+    return "normals" if method in normal_filters() else "sure"
+
+
+def normal_candidates(start: float, integer: bool, high: float | None = None) -> list[float]:
+    """The values :func:`refine_for_normals` compares: ``start`` times :data:`NORMAL_SCALES` (counts rounded, from 1).
+
+    Examples
+    --------
+    >>> normal_candidates(3, True)
+    [2.0, 3.0, 4.0, 5.0, 6.0, 8.0, 9.0, 12.0, 15.0, 19.0, 24.0, 30.0]
+    """
+    values = [start * s for s in NORMAL_SCALES]
+    if integer:
+        values = [float(max(1, round(v))) for v in values]
+    if high is not None:
+        values = [v for v in values if v <= high]
+    return sorted(set(values))
+
+
+def _warn_if_worse_than_input(method: str, chosen: dict, found: NormalChoice, sure_choice: dict, sure_score: float,
+                              noise_energy: float) -> None:
+    """A ``UserWarning`` when the normals choice is estimated to leave the positions worse than the input's."""
+    gain = found.position_gain_db
+    if not gain < 0:
+        return
+    sure_gain = 10.0 * math.log10(noise_energy / sure_score) if sure_score > 0 and noise_energy > 0 else math.inf
+    warnings.warn(
+        f"choose_parameters({method}): the normals criterion's choice {chosen} is estimated to leave the vertex "
+        f"positions {-gain:.1f} dB worse than the input's (the filter shrinks the mesh as it smooths the normals); "
+        f"criterion='sure' ({sure_choice}) is estimated {sure_gain:+.1f} dB, or use a filter that shrinks less "
+        "(sobolev_bilaplacian, taubin)", UserWarning, stacklevel=3)
+
+
+def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, NormalChoice | None]:
+    """``chosen`` with its smoothing amount moved to the least estimated face-normal error (``None``: left as it is).
+
+    From :data:`~meshdenoise.tuning.search.REGION_MIN_VERTICES` vertices the search runs on a sampled
+    region of about :data:`NORMAL_REGION` vertices (:func:`~meshdenoise.tuning.search.region_rule`),
+    scoring the faces more than a margin from its cuts, the margin the reach of the strongest
+    smoothing compared (``2 sqrt(k)`` rings for ``k`` averaging steps, ``k`` ten times position
+    SURE's); the weight is a property of the noise per edge and of the local shape, so it carries
+    to the whole mesh.
+    """
+    rule = spec.auto
+    name = rule.normals
+    if name in ctx.given or not ctx.rho or ctx.rho <= 0:
+        return chosen, None  # held by the caller, or no noise to remove
+    params = spec.resolve({**ctx.given, **chosen})
+    start = float(params[name])
+    if rule.integer:
+        start = max(start, 1.0)  # a rule that chose no step: the normals may still want some
+    elif start <= 0:
+        return chosen, None
+    candidates = normal_candidates(start, rule.integer, spec.param(name).high)
+    found: list[NormalChoice] = []
+
+    def on(sub: TuningContext, scored: np.ndarray | None) -> tuple[dict, Point]:
+        def apply(value: float, block: np.ndarray) -> np.ndarray:
+            return spec.core(block, sub.F, ops=sub.ops, pinned=None, **{**params, name: int(value) if rule.integer else value})
+
+        correlated = sub.noise is not None and sub.noise.correlated
+        found.append(refine_for_normals(sub.V, sub.F, apply, start, candidates, sub.rho,
+                                        colour=sub.colour if correlated else None, additive=rule.additive,
+                                        first=start * NORMAL_FIRST, rows=scored))
+        return {name: found[-1].value}, Point(found[-1].value, math.nan, math.nan, None, found[-1].risk)
+
+    k = float(ctx.smoothed("sure").value) if ctx.n >= REGION_MIN_VERTICES else 0.0
+    margin = int(min(REGION_MAX_MARGIN, math.ceil(2.0 * math.sqrt(k * NORMAL_SCALES[-1]))))
+    region_rule(ctx, on, NORMAL_REGION, NORMAL_PATCHES, margin)
+    value = int(found[-1].value) if rule.integer else float(found[-1].value)
+    return {**chosen, name: value}, found[-1]
 
 
 def choose_parameters(
@@ -77,9 +182,13 @@ def choose_parameters(
         The noise's correlation length in mean edge lengths, if known (with ``noise``:
         0 when not given, the independent noise of the paper; without it: estimated
         when not given). SURE then counts the noise that passes the smoother, :math:`\\mathrm{tr}(H\\Sigma)`.
-    criterion : {"sure", "gcv", "oracle"}
+    criterion : {"sure", "gcv", "oracle", "normals"}
         ``"oracle"`` needs ``reference`` (the clean mesh) and minimises the true error
         over the same search space: the best parameters in hindsight, for benchmarks.
+        ``"normals"`` (linear filters, :func:`normal_filters`): the rule's SURE choice, then its
+        smoothing amount moved to the least estimated error of the face normals
+        (:func:`~meshdenoise.tuning.normal_risk.refine_for_normals`): what a rendering shows,
+        at some position error (the result shrinks more); what ``denoise(mesh, method=M)`` uses.
     exact_trace : bool, optional
         Force exact traces (identity probes) or Hutchinson ones.
     reference : mesh or (n, 3) array, optional
@@ -87,7 +196,8 @@ def choose_parameters(
     return_risk : bool
         Also return the chosen point's score: with ``criterion="sure"`` the estimated
         squared error :math:`\\|f(X) - X^0\\|_F^2` of the result (summed over vertices and
-        coordinates), comparable between filters on the same mesh and noise level.
+        coordinates), comparable between filters on the same mesh and noise level; with
+        ``"normals"`` the estimated mean squared turn of the face normals (rad^2).
     **given
         Parameters held fixed (e.g. ``weights="meshlab"`` for filtering, ``tau`` for heat);
         the method's tuned parameters that are not given are chosen.
@@ -115,8 +225,11 @@ def choose_parameters(
             f"choose_parameters: no automatic rule for filter '{method}'; "
             f"automatic parameters exist for: {', '.join(auto_filters())}"
         )
-    if criterion not in ("sure", "gcv", "oracle"):
-        raise ValueError(f"choose_parameters: criterion must be 'sure', 'gcv' or 'oracle', got {criterion!r}")
+    if criterion not in CRITERIA:
+        raise ValueError(f"choose_parameters: criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
+    if criterion == "normals" and method not in normal_filters():
+        raise ValueError(f"choose_parameters: criterion 'normals' is for the linear filters "
+                         f"({', '.join(normal_filters())}), not '{method}'")
     if (criterion == "oracle") != (reference is not None):
         raise ValueError("choose_parameters: reference= (the clean mesh) goes with criterion='oracle', and only with it")
     spec.resolve(given, where=f"choose_parameters(method='{method}')")  # names/types/ranges of held values
@@ -163,9 +276,18 @@ def choose_parameters(
             raise ValueError(f"choose_parameters: reference has {Y.shape[0]} vertices, the mesh {V.shape[0]}")
         if relabel is not None:
             Y = relabel.vertices(Y)
-    ctx = TuningContext(V, F, ops, rho, Criterion(criterion, Y), exact_trace, dict(given), model)
+    ctx = TuningContext(V, F, ops, rho, Criterion("sure" if criterion == "normals" else criterion, Y), exact_trace,
+                        dict(given), model)
     with stage(f"choosing {method}'s parameters"), noise_colouring(model):
         chosen, point = spec.auto.choose(ctx)
+        if criterion == "normals":
+            sure_choice, sure_score = dict(chosen), float(point.score)
+            chosen, found = _for_normals(spec, ctx, chosen)
+            if found is not None:
+                log.info("choose_parameters(%s): normals moved %s to %s (passes %s; rms %.3g deg)", method,
+                         sure_choice, chosen, found.path, found.rms_degrees)
+                point = Point(found.value, math.nan, math.nan, None, found.risk)
+                _warn_if_worse_than_input(method, chosen, found, sure_choice, sure_score, ctx.n * ctx.rho**2)
     params = {**chosen, **given}
     log.info("choose_parameters(%s): %s (rho=%s, correlation length %s, %s score %.6g)", method, params, rho,
              ctx.correlation_length, criterion, point.score)

@@ -1,0 +1,325 @@
+"""The face-normal risk of a linear smoother, estimated from the noisy mesh alone (Stein's identity).
+
+Generic machinery: it knows a linear map applied to blocks of coordinates (``apply(value,
+block)``), never a filter. A filter's rule chooses its parameter by the position risk (SURE);
+:func:`refine_for_normals` moves that parameter to the least estimated error of the *face
+normals*, which is what a rendering shows and what the peers benchmark measures. The two
+disagree because the uniform Laplacian also moves vertices along the surface: that drift costs
+position error but hardly turns a face, so position SURE stops smoothing 2 to 10 times too
+early for the normals (docs/automatic-parameters.md, "Each filter's automatic choice against
+its own oracle").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+
+from .. import kernels
+from ..geometry import cross_rows, vertex_normals
+
+__all__ = ["NormalJacobian", "NormalChoice", "normal_risk", "refine_for_normals", "normal_probe_count", "NORMAL_PROBES",
+           "NORMAL_ITERATIONS", "NORMAL_SCALES", "NORMAL_FIRST", "NORMAL_PATIENCE"]
+
+# Rademacher vector probes: NORMAL_PROBE_BUDGET / n, from NORMAL_PROBES to NORMAL_MAX_PROBES (the estimate averages
+# over the faces, so its spread falls like 1 / sqrt(n P): a constant n P keeps it; 8 probes at 50k vertices chose the
+# oracle's weight on the benchmark rows, session 16)
+NORMAL_PROBES = 8
+NORMAL_MAX_PROBES = 64
+NORMAL_PROBE_BUDGET = 8 * 50_000
+NORMAL_PATIENCE = 3  # an additive sweep stops this many candidates past its least risk
+# the first pass linearises at this multiple of position SURE's choice, the middle of NORMAL_SCALES: at SURE's own
+# choice a rough mesh's J overstates the turns of further smoothing (filtering on Fandisk0.3 stayed at 1 step, its
+# normal oracle 2; from the middle it found 2)
+NORMAL_FIRST = 10.0 ** 0.5
+NORMAL_ITERATIONS = 4  # fixed-point passes: the weight settled within 3 on every benchmark row (docs)
+# the weight's multiples searched, 10^t for t = -0.3 .. 1.0 by tenths: the normal oracles measured were 1 to 10 times
+# position SURE's weight (docs/automatic-parameters.md); beyond 10 the estimate's linearisation fails (the Nefertiti)
+NORMAL_SCALES = tuple(float(10.0 ** (t / 10.0)) for t in range(-3, 11))
+
+
+def normal_probe_count(n: int) -> int:
+    """Vector probes of :func:`refine_for_normals` on ``n`` vertices.
+
+    Examples
+    --------
+    >>> normal_probe_count(2_562), normal_probe_count(35_000), normal_probe_count(1_000_000)
+    (64, 12, 8)
+    """
+    return int(min(NORMAL_MAX_PROBES, max(NORMAL_PROBES, math.ceil(NORMAL_PROBE_BUDGET / max(int(n), 1)))))
+
+
+class NormalJacobian:
+    """The derivative of the unit face normals with respect to the vertex positions, at fixed vertices ``R``.
+
+    For a face :math:`(p_0, p_1, p_2)` with :math:`c = (p_1 - p_0) \\times (p_2 - p_0)` and
+    :math:`n = c / \\|c\\|`, a displacement :math:`d` of its vertices turns the normal by
+
+    .. math:: J d = \\frac{(I - n n^T)\\,\\big((d_1 - d_0) \\times (p_2 - p_0) + (p_1 - p_0) \\times (d_2 - d_0)\\big)}{\\|c\\|},
+
+    so that :math:`\\|J d\\|^2` is, to first order, the sum over faces of the squared angles
+    (radians) by which ``d`` turns them. Zero-area faces count 0.
+
+    Parameters
+    ----------
+    R : ndarray, shape (n, 3)
+        The vertices where the derivative is taken.
+    F : ndarray, shape (m, 3)
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> J = NormalJacobian(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
+    >>> np.round(J(np.array([[0.0, 0, 0], [0, 0, 0], [0, 0, 0.01]])), 6)  # lift one corner by 0.01: 0.01 rad
+    array([[ 0.  , -0.01,  0.  ]])
+    """
+
+    def __init__(self, R: np.ndarray, F: np.ndarray):
+        P = np.asarray(R, dtype=np.float64)[F]
+        self.F = np.ascontiguousarray(F, dtype=np.int64)
+        self.e1, self.e2 = np.ascontiguousarray(P[:, 1] - P[:, 0]), np.ascontiguousarray(P[:, 2] - P[:, 0])
+        c = cross_rows(self.e1, self.e2)
+        area2 = np.linalg.norm(c, axis=1)
+        self.inv = np.divide(1.0, area2, out=np.zeros_like(area2), where=area2 > 0)
+        self.n = c * self.inv[:, None]
+
+    def __call__(self, D: np.ndarray) -> np.ndarray:
+        """:math:`J d` for ``D`` of shape (n, 3): the turn of each unit face normal, shape (m, 3)."""
+        out = np.empty((self.F.shape[0], 3))
+        kernels.normal_turns(np.ascontiguousarray(D, dtype=np.float64), self.F, self.e1, self.e2, self.n, self.inv, out)
+        return out
+
+    def adjoint(self, W: np.ndarray, n: int) -> np.ndarray:
+        """:math:`J^T w` for ``W`` of shape (m, 3), on ``n`` vertices: shape (n, 3), so that
+        :math:`(J d) \\cdot w = d \\cdot (J^T w)` for every ``d``."""
+        W = np.asarray(W, dtype=np.float64)
+        W = (W - self.n * np.einsum("ij,ij->i", self.n, W)[:, None]) * self.inv[:, None]
+        g1, g2 = cross_rows(self.e2, W), cross_rows(W, self.e1)  # (a x e2) . w = a . (e2 x w); (e1 x a) . w = a . (w x e1)
+        out = np.zeros((n, 3))
+        for corner, g in ((0, -g1 - g2), (1, g1), (2, g2)):
+            for axis in range(3):
+                out[:, axis] += np.bincount(self.F[:, corner], weights=g[:, axis], minlength=n)
+        return out
+
+
+def normal_risk(J: NormalJacobian, X: np.ndarray, Y: np.ndarray, JB: Sequence[np.ndarray], HB: Sequence[np.ndarray],
+                rho: float, faces: np.ndarray | None = None) -> float:
+    """Stein's estimate of the mean squared turn of the face normals of a linear smoother's result from the clean ones.
+
+    For noise :math:`X = X^0 + \\rho\\, \\varepsilon`, :math:`\\varepsilon = \\mathrm{diag}(N)\\, z`
+    along unit directions ``N`` (:math:`z` standard, or coloured like correlated noise), a
+    linear smoother ``H`` (the same on each coordinate) and the face normals' derivative ``J``
+    at a fixed mesh, with probes :math:`b_p = \\mathrm{diag}(N)\\, z_p` (:math:`\\mathbb E\\, z_p z_p^T`
+    the noise's correlation):
+
+    .. math:: G = \\frac1m\\Big(\\|J(HX - X)\\|^2 + \\frac{\\rho^2}{P}\\sum_p \\big(2\\,(J b_p)^T (J H b_p) - \\|J b_p\\|^2\\big)\\Big),
+
+    unbiased for :math:`\\frac1m \\mathbb E\\|J(HX - X^0)\\|^2`, to first order the mean squared
+    angle (rad^2) between the result's face normals and the clean ones.
+
+    Parameters
+    ----------
+    J : NormalJacobian
+    X : ndarray, shape (n, 3)
+        The noisy vertices.
+    Y : ndarray, shape (n, 3)
+        :math:`HX`.
+    JB : sequence of ndarray, shape (m, 3)
+        :math:`J b_p`.
+    HB : sequence of ndarray, shape (n, 3)
+        :math:`H b_p`.
+    rho : float
+    faces : ndarray of bool, shape (m,), optional
+        The faces counted (default all; ``JB`` holds the turns of every face).
+
+    Returns
+    -------
+    float
+    """
+    keep = (lambda T: T) if faces is None else (lambda T: T[faces])  # noqa: E731
+    JR = keep(J(Y - X))
+    terms = [2.0 * float(np.sum(keep(jb) * keep(J(hb)))) - float(np.sum(keep(jb) ** 2)) for jb, hb in zip(JB, HB)]
+    m = max(J.F.shape[0] if faces is None else int(np.count_nonzero(faces)), 1)
+    return (float(np.sum(JR * JR)) + rho**2 * float(np.mean(terms))) / m
+
+
+@dataclass(frozen=True)
+class NormalChoice:
+    r"""What :func:`refine_for_normals` chose.
+
+    Attributes
+    ----------
+    value : float
+        The parameter of least estimated normal risk at the last pass.
+    risk : float
+        Its estimate (mean squared turn, rad^2 per face).
+    path : tuple of float
+        The value chosen by each fixed-point pass (the first pass linearises at ``first``).
+    values, risks : tuple of float
+        The last pass's candidates and estimates.
+    position_risk : float
+        SURE of the chosen value's positions, :math:`\|HX - X\|^2 - n\rho^2 + 2\rho^2\,\mathrm{tr}\,H`
+        (the trace from the same probes: :math:`\mathbb E\, b_p^T H b_p = \mathrm{tr}\,H` for
+        a smoother acting alike on each coordinate), over the scored vertices.
+    noise_energy : float
+        :math:`n\rho^2` over the same vertices: the input's expected squared error.
+    """
+
+    value: float
+    risk: float
+    path: tuple
+    values: tuple
+    risks: tuple
+    position_risk: float = math.nan
+    noise_energy: float = math.nan
+
+    @property
+    def position_gain_db(self) -> float:
+        """The estimated SNR gain of the positions over the input (dB; negative: worse than the input)."""
+        if not (self.position_risk > 0 and self.noise_energy > 0):
+            return math.inf if self.position_risk <= 0 else math.nan
+        return 10.0 * math.log10(self.noise_energy / self.position_risk)
+
+    @property
+    def rms_degrees(self) -> float:
+        """The estimate as an rms angle in degrees (0 when it came out negative)."""
+        return math.degrees(math.sqrt(max(self.risk, 0.0)))
+
+
+def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.ndarray], np.ndarray],
+                       start: float, candidates: Sequence[float], rho: float, *,
+                       colour: Callable[[np.ndarray, float], np.ndarray] | None = None,
+                       probes: int | None = None, iterations: int = NORMAL_ITERATIONS,
+                       additive: bool = False, first: float | None = None, rows: np.ndarray | None = None,
+                       seed: int = 0) -> NormalChoice:
+    """The parameter of a linear smoother with the least estimated face-normal risk (:func:`normal_risk`).
+
+    The risk is linearised at a mesh ``R`` (``J`` and the noise directions ``N``, the unit
+    vertex normals of ``R``). A fixed point: ``R`` is first the smoother's result at ``first``
+    (:func:`~meshdenoise.tuning.choose.choose_parameters` passes :data:`NORMAL_FIRST` times its
+    position-SURE choice), then at each pass the result at the previous pass's choice,
+    until the choice repeats or ``iterations`` passes are done. Linearising at the position-SURE
+    result alone overshoots on meshes with sharp features (the chosen weight at the search's end
+    on Fandisk0.3 and Block0.4 for :math:`(I + \\mu L)^{-1}`); the fixed point settles within
+    2 % of the normal oracle there (docs/automatic-parameters.md, session 16).
+
+    Parameters
+    ----------
+    V : ndarray, shape (n, 3)
+        The noisy vertices.
+    F : ndarray, shape (m, 3)
+    apply : callable
+        ``apply(value, block)``: the smoother at ``value`` on ``block`` (n, 3k), coordinate
+        triples side by side; linear in ``block``.
+    start : float
+        The value to linearise at first.
+    candidates : sequence of float
+        The values compared, ascending.
+    rho : float
+        The noise level, > 0.
+    colour : callable, optional
+        ``colour(Z, s)``: probes ``Z`` (n, P) coloured like correlated noise
+        (:meth:`~meshdenoise.tuning.context.TuningContext.colour`); none for independent noise.
+    probes : int, optional
+        Default :func:`normal_probe_count`.
+    iterations : int
+    additive : bool
+        ``apply(b, apply(a, X)) == apply(a + b, X)`` (iteration counts, diffusion times): the
+        candidates are then reached by running on from the previous one, in one run that stops
+        :data:`NORMAL_PATIENCE` candidates past the least risk. Otherwise each pass descends
+        from the candidate nearest the value it linearised at to a local minimum (a few solves).
+    first : float, optional
+        The value whose result the first pass linearises at (default ``start``).
+    rows : ndarray of bool, shape (n,), optional
+        The vertices scored (a sampled region's inner part): only faces with three scored
+        corners count. Default: all.
+    seed : int
+
+    Returns
+    -------
+    NormalChoice
+
+    Examples
+    --------
+    >>> import numpy as np, scipy.sparse as sp, scipy.sparse.linalg as sla
+    >>> from meshdenoise.shapes import icosphere
+    >>> from meshdenoise.operators import get_operators
+    >>> V, F = icosphere(3)
+    >>> X = V + 0.02 * np.random.default_rng(0).standard_normal(len(V))[:, None] * V
+    >>> L = get_operators(F, len(V)).L
+    >>> smooth = lambda mu, B: sla.spsolve((sp.identity(len(V)) + mu * L).tocsc(), B)  # (I + mu L)^-1
+    >>> choice = refine_for_normals(X, F, smooth, 0.1, [0.1, 0.2, 0.4, 0.8, 1.6, 3.2], rho=0.02)
+    >>> bool(choice.value > 0.1), choice.path[-1] == choice.value
+    (True, True)
+    """
+    V = np.asarray(V, dtype=np.float64)
+    values = sorted(float(c) for c in candidates)
+    if not values:
+        raise ValueError("refine_for_normals: candidates is empty")
+    if not (math.isfinite(rho) and rho > 0):
+        raise ValueError(f"refine_for_normals: rho must be finite and > 0, got {rho!r}")
+    probes = normal_probe_count(V.shape[0]) if probes is None else probes
+    if int(probes) < 1 or int(iterations) < 1:
+        raise ValueError(f"refine_for_normals: probes and iterations must be >= 1, got {probes!r}, {iterations!r}")
+    n = V.shape[0]
+    Z = np.random.default_rng(seed).choice([-1.0, 1.0], size=(n, int(probes)))
+    if colour is not None:
+        Z = colour(Z, 1.0 / int(probes))
+    logs = np.log(values)
+    faces = None
+    if rows is not None:
+        rows = np.asarray(rows, dtype=bool)
+        if rows.shape != (n,):
+            raise ValueError(f"refine_for_normals: rows must be a bool mask of shape ({n},), got shape {rows.shape}")
+        faces = rows[np.asarray(F)].all(axis=1)
+    count = n if rows is None else int(np.count_nonzero(rows))
+    at = float(first) if first is not None else float(start)
+    R = apply(at, V)
+    path: list[float] = []
+    for _ in range(int(iterations)):
+        N = vertex_normals(R, F)
+        J = NormalJacobian(R, F)
+        B = np.hstack([Z[:, [p]] * N for p in range(Z.shape[1])])
+        JB = [J(B[:, 3 * p:3 * p + 3]) for p in range(Z.shape[1])]
+        risks: dict[int, float] = {}
+        kept: list = [None, math.inf, math.nan]  # the pass's best result, its risk and SURE: no other copy kept
+
+        def score(i: int, out: np.ndarray) -> None:
+            HB = [out[:, 3 + 3 * p:6 + 3 * p] for p in range(Z.shape[1])]
+            risks[i] = normal_risk(J, V, out[:, :3], JB, HB, rho, faces)
+            if risks[i] < kept[1]:
+                part = (lambda A: A) if rows is None else (lambda A: A[rows])  # noqa: E731
+                trace = float(np.mean([np.sum(part(B[:, 3 * p:3 * p + 3]) * part(HB[p])) for p in range(len(HB))]))
+                sure = float(np.sum(part(out[:, :3] - V) ** 2)) - count * rho**2 + 2.0 * rho**2 * trace
+                kept[:] = [out[:, :3].copy(), risks[i], sure]
+
+        if additive:  # one run, on from each candidate to the next, until PATIENCE candidates past the best
+            block, done = np.hstack([V, B]), 0.0
+            for i, value in enumerate(values):
+                if value > done:
+                    block, done = apply(value - done, block), value
+                score(i, block)
+                if i - min(risks, key=risks.get) >= NORMAL_PATIENCE:
+                    break
+        else:  # descend from the candidate nearest the mesh linearised at (the risk is smooth in log value)
+            cur = int(np.argmin(np.abs(logs - math.log(at))))
+            while True:
+                for j in (cur - 1, cur, cur + 1):
+                    if 0 <= j < len(values) and j not in risks:
+                        score(j, apply(values[j], np.hstack([V, B])))
+                nxt = min((j for j in (cur - 1, cur, cur + 1) if j in risks), key=risks.get)
+                if nxt == cur:
+                    break
+                cur = nxt
+        best = min(risks, key=risks.get)
+        repeat = bool(path) and values[best] == path[-1]
+        path.append(values[best])
+        R, at, sure = kept[0], values[best], kept[2]
+        if repeat:
+            break
+    order = sorted(risks)
+    return NormalChoice(values[best], float(risks[best]), tuple(path), tuple(values[i] for i in order),
+                        tuple(float(risks[i]) for i in order), float(sure), float(count * rho**2))

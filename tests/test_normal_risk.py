@@ -1,0 +1,194 @@
+"""The face-normal risk of linear smoothers (meshdenoise.tuning.normal_risk) and the "normals" criterion."""
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import meshdenoise as md
+from meshdenoise.geometry import face_normals, vertex_normals
+from meshdenoise.operators import get_operators
+from meshdenoise.shapes import icosphere
+from meshdenoise.tuning.choose import choose_parameters, normal_candidates, normal_filters, rule_criterion
+from meshdenoise.tuning.normal_risk import NormalJacobian, normal_risk, refine_for_normals
+
+
+def _dense_jacobian(J: NormalJacobian, n: int) -> np.ndarray:
+    """J as a (3m, 3n) matrix, column 3i + a the turn for a unit move of vertex i along axis a."""
+    cols = []
+    for i in range(n):
+        for a in range(3):
+            D = np.zeros((n, 3))
+            D[i, a] = 1.0
+            cols.append(J(D).ravel())
+    return np.array(cols).T
+
+
+def test_jacobian_matches_finite_differences_of_the_face_normals():
+    V, F = icosphere(1)
+    rng = np.random.default_rng(0)
+    V = V + 0.05 * rng.standard_normal(V.shape)
+    D = rng.standard_normal(V.shape)
+    eps = 1e-6
+    fd = (face_normals(V + eps * D, F) - face_normals(V - eps * D, F)) / (2 * eps)
+    np.testing.assert_allclose(NormalJacobian(V, F)(D), fd, atol=1e-6)
+
+
+def test_risk_against_a_dense_computation_of_its_expectation():
+    """E[G] over the noise equals (1/m) E||J(HX - X0)||^2: the estimator written out densely with exact traces."""
+    V0, F = icosphere(1)
+    n, m = V0.shape[0], F.shape[0]
+    R = V0 + 0.03 * np.random.default_rng(1).standard_normal(V0.shape)  # J and N at some other mesh, held fixed
+    J, N = NormalJacobian(R, F), vertex_normals(R, F)
+    L = get_operators(F, n).L.toarray()
+    H = np.linalg.inv(np.eye(n) + 0.7 * L)
+    rho = 0.05
+    Jd = _dense_jacobian(J, n)
+    M = Jd.T @ Jd
+    Hk = np.kron(H, np.eye(3))  # vertex-major layout: index 3i + a
+    D = np.zeros((3 * n, n))
+    for i in range(n):
+        D[3 * i:3 * i + 3, i] = N[i]
+    # probes sqrt(n) e_i N_i: the mean over them is the exact trace
+    B = [np.sqrt(n) * np.outer(np.eye(n)[i], N[i]) for i in range(n)]
+    G0 = normal_risk(J, V0, H @ V0, [J(b) for b in B], [H @ b for b in B], rho)  # at X = X0
+    I3n = np.eye(3 * n)
+    # E||J(HX - X)||^2 = ||J(H - I)X0||^2 + rho^2 tr(D^T (H-I)^T M (H-I) D): add the noise part G0 lacks
+    expected_G = G0 + rho**2 * np.trace(D.T @ (Hk - I3n).T @ M @ (Hk - I3n) @ D) / m
+    x0 = V0.ravel()
+    truth = (np.sum((Jd @ (Hk @ x0 - x0)) ** 2) + rho**2 * np.trace(D.T @ Hk.T @ M @ Hk @ D)) / m
+    assert expected_G == pytest.approx(truth, rel=1e-10)
+
+
+def test_risk_is_unbiased_over_noise_realisations():
+    V0, F = icosphere(2)
+    n = V0.shape[0]
+    J, N = NormalJacobian(V0, F), vertex_normals(V0, F)
+    L = get_operators(F, n).L
+    solve = sp.linalg.factorized((sp.identity(n) + 0.5 * L).tocsc())
+    H = lambda X: np.column_stack([solve(X[:, a]) for a in range(3)])  # noqa: E731
+    rho, rng = 0.02, np.random.default_rng(2)
+    est, truth = [], []
+    for _ in range(300):
+        X = V0 + rho * rng.standard_normal(n)[:, None] * N
+        Z = rng.choice([-1.0, 1.0], size=(n, 4))
+        B = [Z[:, [p]] * N for p in range(4)]
+        Y = H(X)
+        est.append(normal_risk(J, X, Y, [J(b) for b in B], [H(b) for b in B], rho))
+        truth.append(np.sum(J(Y - V0) ** 2) / F.shape[0])
+    diff = np.array(est) - np.array(truth)
+    assert abs(diff.mean()) < 3 * diff.std() / np.sqrt(len(diff)) + 1e-12
+    assert np.mean(truth) > 0 and abs(diff.mean()) < 0.05 * np.mean(truth)
+
+
+def _sphere_case(seed=0, rho=0.012):
+    V0, F = icosphere(4)
+    X = V0 + rho * np.random.default_rng(seed).standard_normal(len(V0))[:, None] * vertex_normals(V0, F)
+    return V0, F, X
+
+
+@pytest.mark.parametrize("method", ["sobolev", "filtering"])
+def test_normals_criterion_reaches_the_normal_oracle_on_a_noisy_sphere(method):
+    V0, F, X = _sphere_case()
+    spec = md.registry.get_filter(method)
+    name = spec.auto.normals
+    chosen = choose_parameters((X, F), method, criterion="normals")
+    sure = choose_parameters((X, F), method, criterion="sure")
+    err = lambda p: md.normal_error_deg((V0, F), md.apply_filter(method, (X, F), **p))  # noqa: E731
+    start = float(sure[name])
+    grid = normal_candidates(max(start, 1.0) if spec.auto.integer else start, spec.auto.integer)
+    oracle = min(err({**sure, name: (int(v) if spec.auto.integer else v)}) for v in grid)
+    assert err(chosen) <= 1.1 * oracle
+    assert err(chosen) < err(sure)  # position SURE stops early for the normals
+
+
+def test_descending_and_sweeping_searches_agree():
+    """An additive filter searched by one run (sweep) or by separate runs (descent) chooses the same count."""
+    V0, F, X = _sphere_case(seed=3)
+    ops = get_operators(F, len(X))
+    P = ops.P
+
+    def steps(k, block):
+        for _ in range(int(k)):
+            block = P @ block
+        return block
+
+    values = normal_candidates(2, True)
+    a = refine_for_normals(X, F, steps, 2, values, 0.012, additive=True, first=6)
+    b = refine_for_normals(X, F, steps, 2, values, 0.012, additive=False, first=6)
+    assert a.value == b.value and a.path == b.path
+
+
+def test_choice_is_scale_invariant():
+    V0, F, X = _sphere_case(seed=4)
+    a = choose_parameters((X, F), "sobolev_bilaplacian", criterion="normals", noise=0.012)
+    b = choose_parameters((1000.0 * X, F), "sobolev_bilaplacian", criterion="normals", noise=12.0)
+    assert a["mu"] == pytest.approx(b["mu"], rel=1e-6)
+
+
+def test_criterion_errors_and_defaults():
+    V, F = icosphere(2)
+    assert set(normal_filters()) == {"filtering", "heat", "sobolev", "sobolev_bilaplacian", "taubin"}
+    assert rule_criterion("taubin") == "normals" and rule_criterion("two_stage") == "sure"
+    with pytest.raises(ValueError, match="criterion 'normals' is for the linear filters .* not 'two_stage'"):
+        choose_parameters((V, F), "two_stage", criterion="normals")
+    with pytest.raises(ValueError, match="criterion must be one of"):
+        choose_parameters((V, F), "sobolev", criterion="angles")
+    with pytest.raises(TypeError, match="criterion='sure' needs method="):
+        md.denoise((V, F), criterion="sure")
+    with pytest.raises(ValueError, match="rho must be finite and > 0"):
+        refine_for_normals(V, F, lambda v, b: b, 1.0, [1.0], 0.0)
+
+
+def test_denoise_with_a_method_uses_the_normals_criterion():
+    V0, F, X = _sphere_case(seed=5)
+    _, used = md.denoise((X, F), method="sobolev", return_params=True)
+    assert used == choose_parameters((X, F), "sobolev", criterion="normals")
+    _, kept = md.denoise((X, F), method="sobolev", criterion="sure", return_params=True)
+    assert kept == choose_parameters((X, F), "sobolev")
+
+
+def test_command_line_and_pipeline_criterion(tmp_path):
+    from click.testing import CliRunner
+
+    from meshdenoise.cli import cli
+    from meshdenoise.io import load_mesh, save_mesh
+
+    V0, F, X = _sphere_case(seed=6)
+    src = save_mesh(tmp_path / "n [1].ply", X, F)
+    for extra, criterion in (([], "normals"), (["--criterion", "sure"], "sure")):
+        out = tmp_path / f"o-{criterion}.ply"
+        result = CliRunner().invoke(cli, ["denoise", str(src), str(out), "--method", "sobolev", "--auto", *extra])
+        assert result.exit_code == 0, result.output
+        mu = choose_parameters((X, F), "sobolev", criterion=criterion)["mu"]
+        np.testing.assert_allclose(load_mesh(out).V, md.apply_filter("sobolev", (X, F), mu=mu)[0], atol=1e-9)
+    result = CliRunner().invoke(cli, ["denoise", str(src), str(tmp_path / "x.ply"), "--criterion", "sure"])
+    assert result.exit_code == 2 and "--criterion sure: it says how --auto chooses" in result.output
+    result = CliRunner().invoke(cli, ["denoise", str(src), str(tmp_path / "x.ply"), "--method", "two_stage", "--auto",
+                                      "--criterion", "normals"])
+    assert result.exit_code == 2 and "criterion 'normals' is for the linear filters" in result.output
+    assert not (tmp_path / "x.ply").exists()
+    # a pipeline step: sure unless told
+    p = tmp_path / "p.yaml"
+    for line, criterion in (("{parameters: auto}", "sure"), ("{parameters: auto, criterion: normals}", "normals")):
+        p.write_text(f"inputs: '{src.name}'\noutput_dir: {tmp_path / criterion}\nsteps:\n"
+                     f"  - sobolev: {line}\n  - save: {{path: a.ply}}\n")
+        result = CliRunner().invoke(cli, ["run", str(p), "--serial"])
+        assert result.exit_code == 0, result.output
+        mu = choose_parameters((X, F), "sobolev", criterion=criterion)["mu"]
+        got = load_mesh(tmp_path / criterion / "a.ply").V
+        np.testing.assert_allclose(got, md.apply_filter("sobolev", (X, F), mu=mu)[0], atol=1e-9)
+    p.write_text(f"inputs: '{src.name}'\nsteps:\n  - sobolev: {{criterion: normals}}\n")
+    result = CliRunner().invoke(cli, ["run", str(p), "--serial"])
+    assert result.exit_code == 2 and "criterion: it says how parameters are chosen" in result.output
+
+
+def test_warning_when_the_normals_choice_is_worse_than_the_input_in_positions():
+    """A cube's faces are flat: first-order smoothing for the normals rounds it and shrinks it, which SURE sees."""
+    from meshdenoise.shapes import box
+
+    V0, F = box(12)
+    X = V0 + 0.01 * np.random.default_rng(7).standard_normal(len(V0))[:, None] * vertex_normals(V0, F)
+    with pytest.warns(UserWarning, match=r"dB worse than the input's .* criterion='sure'"):
+        chosen = choose_parameters((X, F), "sobolev", criterion="normals")
+    gain = md.snr(V0, md.apply_filter("sobolev", (X, F), **chosen)[0]) - md.snr(V0, X)
+    assert gain < 0.5  # the estimate said worse than the input: measured, no better than about the input
