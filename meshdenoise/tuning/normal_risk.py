@@ -20,6 +20,7 @@ import numpy as np
 
 from .. import kernels
 from ..geometry import cross_rows, vertex_normals
+from .risk import EXACT_TRACE_MAX
 
 __all__ = ["NormalJacobian", "NormalChoice", "normal_risk", "refine_for_normals", "normal_probe_count", "NORMAL_PROBES",
            "NORMAL_ITERATIONS", "NORMAL_SCALES", "NORMAL_FIRST", "NORMAL_PATIENCE"]
@@ -35,7 +36,10 @@ NORMAL_PATIENCE = 3  # an additive sweep stops this many candidates past its lea
 # choice a rough mesh's J overstates the turns of further smoothing (filtering on Fandisk0.3 stayed at 1 step, its
 # normal oracle 2; from the middle it found 2)
 NORMAL_FIRST = 10.0 ** 0.5
-NORMAL_ITERATIONS = 4  # fixed-point passes: the weight settled within 3 on every benchmark row (docs)
+NORMAL_MIN_HEIGHT = 0.2  # faces lower than this fraction of the median height are left out of the risk: a scan's
+# slivers (face000: 0.17 % of its faces held 98 % of the first-order turn, its risk 3e21 rad^2 and its choice swinging
+# between the candidates' ends; cut, the 0.1 % largest terms hold 14 %)
+NORMAL_ITERATIONS = 6  # fixed-point passes at most (a bisection over the 14 candidates needs 4 once bracketed)
 # the weight's multiples searched, 10^t for t = -0.3 .. 1.0 by tenths: the normal oracles measured were 1 to 10 times
 # position SURE's weight (docs/automatic-parameters.md); beyond 10 the estimate's linearisation fails (the Nefertiti)
 NORMAL_SCALES = tuple(float(10.0 ** (t / 10.0)) for t in range(-3, 11))
@@ -68,6 +72,10 @@ class NormalJacobian:
     R : ndarray, shape (n, 3)
         The vertices where the derivative is taken.
     F : ndarray, shape (m, 3)
+    min_height : float
+        Faces whose height (twice the area over the longest edge) is below this fraction of
+        the median height count 0 (``counted`` says which count): a sliver's first-order turn
+        grows like one over its height while the true angle stays below pi.
 
     Examples
     --------
@@ -77,13 +85,19 @@ class NormalJacobian:
     array([[ 0.  , -0.01,  0.  ]])
     """
 
-    def __init__(self, R: np.ndarray, F: np.ndarray):
+    def __init__(self, R: np.ndarray, F: np.ndarray, min_height: float = 0.0):
         P = np.asarray(R, dtype=np.float64)[F]
         self.F = np.ascontiguousarray(F, dtype=np.int64)
         self.e1, self.e2 = np.ascontiguousarray(P[:, 1] - P[:, 0]), np.ascontiguousarray(P[:, 2] - P[:, 0])
         c = cross_rows(self.e1, self.e2)
         area2 = np.linalg.norm(c, axis=1)
-        self.inv = np.divide(1.0, area2, out=np.zeros_like(area2), where=area2 > 0)
+        self.counted = area2 > 0
+        if min_height > 0 and area2.size:
+            e3 = np.ascontiguousarray(P[:, 2] - P[:, 1])
+            longest = np.sqrt(np.max([np.einsum("ij,ij->i", e, e) for e in (self.e1, self.e2, e3)], axis=0))
+            height = np.divide(area2, longest, out=np.zeros_like(area2), where=longest > 0)
+            self.counted &= height > float(min_height) * float(np.median(height))
+        self.inv = np.divide(1.0, area2, out=np.zeros_like(area2), where=self.counted)
         self.n = c * self.inv[:, None]
 
     def __call__(self, D: np.ndarray) -> np.ndarray:
@@ -139,10 +153,11 @@ def normal_risk(J: NormalJacobian, X: np.ndarray, Y: np.ndarray, JB: Sequence[np
     -------
     float
     """
-    keep = (lambda T: T) if faces is None else (lambda T: T[faces])  # noqa: E731
+    faces = J.counted if faces is None else faces & J.counted
+    keep = lambda T: T[faces]  # noqa: E731
     JR = keep(J(Y - X))
     terms = [2.0 * float(np.sum(keep(jb) * keep(J(hb)))) - float(np.sum(keep(jb) ** 2)) for jb, hb in zip(JB, HB)]
-    m = max(J.F.shape[0] if faces is None else int(np.count_nonzero(faces)), 1)
+    m = max(int(np.count_nonzero(faces)), 1)
     return (float(np.sum(JR * JR)) + rho**2 * float(np.mean(terms))) / m
 
 
@@ -194,17 +209,21 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
                        colour: Callable[[np.ndarray, float], np.ndarray] | None = None,
                        probes: int | None = None, iterations: int = NORMAL_ITERATIONS,
                        additive: bool = False, first: float | None = None, rows: np.ndarray | None = None,
-                       seed: int = 0) -> NormalChoice:
+                       exact: bool | None = None, seed: int = 0) -> NormalChoice:
     """The parameter of a linear smoother with the least estimated face-normal risk (:func:`normal_risk`).
 
     The risk is linearised at a mesh ``R`` (``J`` and the noise directions ``N``, the unit
-    vertex normals of ``R``). A fixed point: ``R`` is first the smoother's result at ``first``
+    vertex normals of ``R``). The value sought is a fixed point: the candidate whose own result,
+    linearised at, chooses it. ``R`` is first the result at the candidate nearest ``first``
     (:func:`~meshdenoise.tuning.choose.choose_parameters` passes :data:`NORMAL_FIRST` times its
-    position-SURE choice), then at each pass the result at the previous pass's choice,
-    until the choice repeats or ``iterations`` passes are done. Linearising at the position-SURE
-    result alone overshoots on meshes with sharp features (the chosen weight at the search's end
-    on Fandisk0.3 and Block0.4 for :math:`(I + \\mu L)^{-1}`); the fixed point settles within
-    2 % of the normal oracle there (docs/automatic-parameters.md, session 16).
+    position-SURE choice); each pass then moves to the pass's choice, until the choice is the
+    candidate linearised at. Linearised at a rougher mesh the estimate asks for more smoothing,
+    at a smoother one for less, so once a choice above and one below have been seen the fixed
+    point is bracketed and the passes bisect (adjacent ends: the better as the last pass sees
+    them); at most ``iterations`` passes. Linearising at the position-SURE result alone overshoots
+    on meshes with sharp features (the chosen weight at the search's end on Fandisk0.3 and
+    Block0.4 for :math:`(I + \\mu L)^{-1}`); the fixed point is within 1 % of the normal oracle
+    there (docs/automatic-parameters.md, "The normals criterion").
 
     Parameters
     ----------
@@ -236,6 +255,9 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
     rows : ndarray of bool, shape (n,), optional
         The vertices scored (a sampled region's inner part): only faces with three scored
         corners count. Default: all.
+    exact : bool, optional
+        Exact traces (probes :math:`\sqrt n\, e_i`, ``3n`` columns) instead of Rademacher ones;
+        by default up to :data:`~meshdenoise.tuning.risk.EXACT_TRACE_MAX` vertices.
     seed : int
 
     Returns
@@ -265,7 +287,10 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
     if int(probes) < 1 or int(iterations) < 1:
         raise ValueError(f"refine_for_normals: probes and iterations must be >= 1, got {probes!r}, {iterations!r}")
     n = V.shape[0]
-    Z = np.random.default_rng(seed).choice([-1.0, 1.0], size=(n, int(probes)))
+    if exact if exact is not None else n <= EXACT_TRACE_MAX:  # probes sqrt(n) e_i: the mean over them is the trace
+        Z = math.sqrt(n) * np.eye(n)
+    else:
+        Z = np.random.default_rng(seed).choice([-1.0, 1.0], size=(n, int(probes)))
     if colour is not None:
         Z = colour(Z, 1.0 / int(probes))
     logs = np.log(values)
@@ -276,25 +301,26 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
             raise ValueError(f"refine_for_normals: rows must be a bool mask of shape ({n},), got shape {rows.shape}")
         faces = rows[np.asarray(F)].all(axis=1)
     count = n if rows is None else int(np.count_nonzero(rows))
-    at = float(first) if first is not None else float(start)
-    R = apply(at, V)
+    # the fixed point, bracketed: linearised at a smoother mesh the estimate asks for less smoothing, at a rougher one
+    # for more (face000: 2 and 20 steps asked for each other); once both sides are seen, bisect between them
+    at = int(np.argmin(np.abs(logs - math.log(float(first) if first is not None else float(start)))))
+    lo, hi = -1, len(values)
     path: list[float] = []
     for _ in range(int(iterations)):
+        R = apply(values[at], V)
         N = vertex_normals(R, F)
-        J = NormalJacobian(R, F)
+        J = NormalJacobian(R, F, NORMAL_MIN_HEIGHT)
         B = np.hstack([Z[:, [p]] * N for p in range(Z.shape[1])])
         JB = [J(B[:, 3 * p:3 * p + 3]) for p in range(Z.shape[1])]
         risks: dict[int, float] = {}
-        kept: list = [None, math.inf, math.nan]  # the pass's best result, its risk and SURE: no other copy kept
+        sures: dict[int, float] = {}
 
         def score(i: int, out: np.ndarray) -> None:
             HB = [out[:, 3 + 3 * p:6 + 3 * p] for p in range(Z.shape[1])]
             risks[i] = normal_risk(J, V, out[:, :3], JB, HB, rho, faces)
-            if risks[i] < kept[1]:
-                part = (lambda A: A) if rows is None else (lambda A: A[rows])  # noqa: E731
-                trace = float(np.mean([np.sum(part(B[:, 3 * p:3 * p + 3]) * part(HB[p])) for p in range(len(HB))]))
-                sure = float(np.sum(part(out[:, :3] - V) ** 2)) - count * rho**2 + 2.0 * rho**2 * trace
-                kept[:] = [out[:, :3].copy(), risks[i], sure]
+            part = (lambda A: A) if rows is None else (lambda A: A[rows])  # noqa: E731
+            trace = float(np.mean([np.sum(part(B[:, 3 * p:3 * p + 3]) * part(HB[p])) for p in range(len(HB))]))
+            sures[i] = float(np.sum(part(out[:, :3] - V) ** 2)) - count * rho**2 + 2.0 * rho**2 * trace
 
         if additive:  # one run, on from each candidate to the next, until PATIENCE candidates past the best
             block, done = np.hstack([V, B]), 0.0
@@ -304,8 +330,8 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
                 score(i, block)
                 if i - min(risks, key=risks.get) >= NORMAL_PATIENCE:
                     break
-        else:  # descend from the candidate nearest the mesh linearised at (the risk is smooth in log value)
-            cur = int(np.argmin(np.abs(logs - math.log(at))))
+        else:  # descend from the candidate linearised at (the risk is smooth in log value)
+            cur = at
             while True:
                 for j in (cur - 1, cur, cur + 1):
                     if 0 <= j < len(values) and j not in risks:
@@ -315,11 +341,20 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
                     break
                 cur = nxt
         best = min(risks, key=risks.get)
-        repeat = bool(path) and values[best] == path[-1]
         path.append(values[best])
-        R, at, sure = kept[0], values[best], kept[2]
-        if repeat:
+        if best == at:
             break
+        if best > at:
+            lo = at
+        else:
+            hi = at
+        if lo >= 0 and hi < len(values):
+            if hi - lo <= 1:  # adjacent: the better of the two as this pass sees them
+                best = min((i for i in (lo, hi) if i in risks), key=risks.get, default=best)
+                break
+            at = (lo + hi) // 2
+        else:
+            at = best
     order = sorted(risks)
     return NormalChoice(values[best], float(risks[best]), tuple(path), tuple(values[i] for i in order),
-                        tuple(float(risks[i]) for i in order), float(sure), float(count * rho**2))
+                        tuple(float(risks[i]) for i in order), float(sures[best]), float(count * rho**2))
