@@ -205,16 +205,22 @@ class AutoRule:
     to the least estimated face-normal error
     (:func:`~meshdenoise.tuning.normal_risk.refine_for_normals`). ``additive``: running the
     filter at ``a`` then at ``b`` is running it at ``a + b``; ``integer``: the parameter is a count.
+    A tuple of names is scaled together by one factor (``sobolev_axes``' three weights).
     Declaring ``normals`` promises that the filter is linear in the coordinates, the same on each
     axis, for every parameter value its rule accepts (``taubin`` with its three weightings is,
-    though not registered ``linear``).
+    though not registered ``linear``), or gives ``linear_map``: ``linear_map(V, F, ops, params)``
+    returns the filter's map with what it reads of the mesh (a frame, normals) taken from ``V``
+    and held, as a function of an ``(n, 3k)`` block of ``k`` coordinate triples, each mapped as
+    the filter maps positions (``sinkhorn``, whose core takes ``(n, 3)`` only; ``sobolev_axes``,
+    whose axes come from the mesh).
     """
 
     tunes: tuple[str, ...]
     choose: Callable[[Any], tuple[dict, Any]]
-    normals: str | None = None
+    normals: str | tuple[str, ...] | None = None
     additive: bool = False
     integer: bool = False
+    linear_map: Callable[..., Callable[[Any], Any]] | None = None
 
 
 @dataclass(frozen=True)

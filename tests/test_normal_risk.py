@@ -86,19 +86,53 @@ def _sphere_case(seed=0, rho=0.012):
     return V0, F, X
 
 
-@pytest.mark.parametrize("method", ["sobolev", "filtering"])
+@pytest.mark.parametrize("method", ["sobolev", "filtering", "sinkhorn", "sobolev_axes"])
 def test_normals_criterion_reaches_the_normal_oracle_on_a_noisy_sphere(method):
     V0, F, X = _sphere_case()
     spec = md.registry.get_filter(method)
-    name = spec.auto.normals
+    names = (spec.auto.normals,) if isinstance(spec.auto.normals, str) else spec.auto.normals
     chosen = choose_parameters((X, F), method, criterion="normals")
     sure = choose_parameters((X, F), method, criterion="sure")
     err = lambda p: md.normal_error_deg((V0, F), md.apply_filter(method, (X, F), **p))  # noqa: E731
-    start = float(sure[name])
-    grid = normal_candidates(max(start, 1.0) if spec.auto.integer else start, spec.auto.integer)
-    oracle = min(err({**sure, name: (int(v) if spec.auto.integer else v)}) for v in grid)
+    if len(names) == 1:
+        name, start = names[0], float(sure[names[0]])
+        grid = normal_candidates(max(start, 1.0) if spec.auto.integer else start, spec.auto.integer)
+        oracle = min(err({**sure, name: (int(v) if spec.auto.integer else v)}) for v in grid)
+    else:  # one factor on the named weights
+        oracle = min(err({**sure, **{k: sure[k] * s for k in names}}) for s in normal_candidates(1.0, False))
     assert err(chosen) <= 1.1 * oracle
     assert err(chosen) < err(sure)  # position SURE stops early for the normals
+
+
+def test_linear_maps_against_dense_matrices():
+    """``AutoRule.linear_map``: the filter on ``V`` itself, and on a block of triples the dense matrices' product."""
+    V0, F = icosphere(2)
+    X = V0 + 0.02 * np.random.default_rng(0).standard_normal(V0.shape)
+    n = len(X)
+    ops = get_operators(F, n)
+    L = ops.L.toarray()
+    eye = np.eye(n)
+    B = np.random.default_rng(1).standard_normal((n, 6))
+    block = np.hstack([X, B])
+
+    spec = md.registry.get_filter("sinkhorn")
+    p = spec.resolve({"t": 0.7, "iterations": 2, "steps": 2})
+    out = spec.auto.linear_map(X, F, ops, p)(block)
+    G = np.linalg.matrix_power(np.linalg.inv(eye + 0.35 * L), 2)
+    H = np.linalg.matrix_power(2 * G - G @ G, 2)
+    np.testing.assert_allclose(out, H @ block, atol=1e-10)
+    np.testing.assert_allclose(out[:, :3], spec.core(X, F, ops=ops, pinned=None, **p), atol=1e-10)
+
+    from meshdenoise.plugins.sobolev_axes import normal_frame
+
+    spec = md.registry.get_filter("sobolev_axes")
+    p = spec.resolve({"mu1": 0.0, "mu2": 0.3, "mu3": 2.0, "order": 2, "frame_steps": 1})
+    out = spec.auto.linear_map(X, F, ops, p)(block)
+    E, _ = normal_frame(X, F, ops, 1)
+    want = np.hstack([sum(np.outer(np.linalg.solve(eye + mu * L @ L, T @ E[:, d]), E[:, d])
+                          for d, mu in enumerate((0.0, 0.3, 2.0))) for T in np.split(block, 3, axis=1)])
+    np.testing.assert_allclose(out, want, atol=1e-10)
+    np.testing.assert_allclose(out[:, :3], spec.core(X, F, ops=ops, pinned=None, **p), atol=1e-10)
 
 
 def test_descending_and_sweeping_searches_agree():
@@ -127,7 +161,8 @@ def test_choice_is_scale_invariant():
 
 def test_criterion_errors_and_defaults():
     V, F = icosphere(2)
-    assert set(normal_filters()) == {"filtering", "heat", "sobolev", "sobolev_bilaplacian", "taubin"}
+    assert set(normal_filters()) == {"filtering", "heat", "sinkhorn", "sobolev", "sobolev_axes", "sobolev_bilaplacian",
+                                     "taubin"}
     assert rule_criterion("taubin") == "normals" and rule_criterion("two_stage") == "sure"
     with pytest.raises(ValueError, match="criterion 'normals' is for the linear filters .* not 'two_stage'"):
         choose_parameters((V, F), "two_stage", criterion="normals")

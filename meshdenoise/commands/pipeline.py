@@ -196,7 +196,7 @@ def _print_rows(rows: list[dict]) -> None:
                    "with h (0.4h); L its correlation length in mean edge lengths (0.4h,2). With no --method, or with --auto.")
 @click.option("--criterion", type=click.Choice(["normals", "sure"]), default=None,
               help="With --method and --auto: what the choice minimises. normals (default where the filter has it: "
-                   "filtering, heat, taubin, sobolev, sobolev_bilaplacian): the face-normal error, what a rendering "
+                   "filtering, heat, taubin, sinkhorn, sobolev, sobolev_bilaplacian, sobolev_axes): the face-normal error, what a rendering "
                    "shows; it smooths and shrinks more. sure: the position error (SNR), a pipeline's default.")
 @click.option("--dry-run", is_flag=True, help="Only print the noise estimate and what would be chosen; write nothing.")
 def denoise_command(input_path, output_path, method, params, pinned, region_from_selection, preserve_volume, auto,

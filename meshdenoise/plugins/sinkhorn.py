@@ -11,7 +11,7 @@ from ..tuning.memo import MEMO, digest
 from ..tuning.risk import Point, probe_block
 from ..tuning.search import search_log
 
-__all__ = ["sinkhorn"]
+__all__ = ["sinkhorn", "sinkhorn_map"]
 
 
 # ----------------------------------------------------------------------------- automatic rule
@@ -73,9 +73,30 @@ def choose_sinkhorn(ctx: TuningContext) -> tuple[dict, Point]:
     return {"t": float(p.value), "iterations": int(best_k[p.value])}, p
 
 
+def sinkhorn_map(V: np.ndarray, F: np.ndarray, ops: object, params: dict):
+    """The filter in its rule's configuration as a map of ``(n, 3k)`` blocks: :math:`(2G - G^2)^k`, :math:`G = (I + \tfrac{t}{s} L)^{-s}`.
+
+    The core checks for ``(n, 3)`` positions; this map is the same filter (graph Laplacian,
+    uniform measure, twicing: linear, the same on each column) for the probes of
+    :func:`~meshdenoise.tuning.normal_risk.refine_for_normals` (``AutoRule.linear_map``).
+    """
+    from ..ot import MeshHeatKernel
+
+    K = MeshHeatKernel(V, F, float(params["t"]), laplacian="graph", mass="uniform", steps=int(params["steps"]))
+
+    def apply(block: np.ndarray) -> np.ndarray:
+        Y = np.array(block, dtype=np.float64)
+        for _ in range(int(params["iterations"])):
+            GY = K.solve(Y)
+            Y = 2.0 * GY - K.solve(GY)
+        return Y
+
+    return apply
+
+
 @register(
     "sinkhorn",
-    auto=AutoRule(("t", "iterations"), choose_sinkhorn),
+    auto=AutoRule(("t", "iterations"), choose_sinkhorn, normals="t", linear_map=sinkhorn_map),
     summary="OT: move each vertex to its barycentric projection under the Sinkhorn-scaled heat-kernel plan",
     params=[
         Param("t", float, 10.0, low=0.0, low_open=True, help="diffusion time of the heat kernel (I + tL)^-1"),

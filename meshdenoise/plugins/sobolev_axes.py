@@ -20,7 +20,7 @@ from ..tuning.search import best_shifted, probe_count, solve_shifted
 AXES_SCALE_MIN_VERTICES = 50_000  # from this size: the search by Lanczos quadrature, the filter without a factor
 # (every quality-table mesh is below it: their choices are unchanged)
 
-__all__ = ["sobolev_axes", "normal_frame", "choose_sobolev_axes"]
+__all__ = ["sobolev_axes", "normal_frame", "choose_sobolev_axes", "sobolev_axes_map"]
 
 
 def normal_frame(X: np.ndarray, F: np.ndarray, ops: Operators, steps: int) -> tuple[np.ndarray, np.ndarray]:
@@ -218,9 +218,32 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
     return {**chosen, "frame_steps": steps}, Point(0, 0.0, 0.0, ctx.V, total)
 
 
+def sobolev_axes_map(V: np.ndarray, F: np.ndarray, ops: Operators, params: dict):
+    """The filter with its frame taken from ``V`` and held, as a map of ``(n, 3k)`` blocks of coordinate triples.
+
+    :math:`Y = \sum_d (I + \mu_d L^p)^{-1} (B e_d)\, e_d^T` for each triple ``B``: linear, the
+    frame :math:`E` of :func:`normal_frame` read from ``V`` (``AutoRule.linear_map``, for the
+    probes of :func:`~meshdenoise.tuning.normal_risk.refine_for_normals`; on ``V`` itself it is the filter).
+    """
+    E, _ = normal_frame(V, F, ops, int(params["frame_steps"]))
+    mus, order = (float(params["mu1"]), float(params["mu2"]), float(params["mu3"])), int(params["order"])
+
+    def apply(block: np.ndarray) -> np.ndarray:
+        B = np.asarray(block, dtype=np.float64)
+        n, k = B.shape[0], B.shape[1] // 3
+        C = B.reshape(n, k, 3) @ E  # each triple in the frame
+        out = np.empty_like(C)
+        for d, mu in enumerate(mus):
+            out[:, :, d] = C[:, :, d] if mu == 0 else shifted_solver(ops, mu, order).solve(np.ascontiguousarray(C[:, :, d]))
+        return (out @ E.T).reshape(n, 3 * k)
+
+    return apply
+
+
 @register(
     "sobolev_axes",
-    auto=AutoRule(("mu1", "mu2", "mu3"), choose_sobolev_axes),
+    auto=AutoRule(("mu1", "mu2", "mu3"), choose_sobolev_axes, normals=("mu1", "mu2", "mu3"),
+                  linear_map=sobolev_axes_map),
     summary="Polyharmonic Sobolev (I + mu_d L^p) y_d = x_d, one mu per principal axis of the normals",
     params=[
         Param("mu1", float, 1.0, low=0.0, help="weight on the axis the normals point along least (0 keeps it)"),

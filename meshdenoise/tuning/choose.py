@@ -52,7 +52,7 @@ def normal_filters() -> list[str]:
     Examples
     --------
     >>> normal_filters()
-    ['filtering', 'heat', 'sobolev', 'sobolev_bilaplacian', 'taubin']
+    ['filtering', 'heat', 'sinkhorn', 'sobolev', 'sobolev_axes', 'sobolev_bilaplacian', 'taubin']
     """
     return [spec.name for spec in list_filters() if spec.auto is not None and spec.auto.normals is not None]
 
@@ -108,41 +108,57 @@ def _warn_if_worse_than_input(method: str, chosen: dict, found: NormalChoice, su
 def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, NormalChoice | None]:
     """``chosen`` with its smoothing amount moved to the least estimated face-normal error (``None``: left as it is).
 
-    From :data:`~meshdenoise.tuning.search.REGION_MIN_VERTICES` vertices the search runs on a sampled
-    region of about :data:`NORMAL_REGION` vertices (:func:`~meshdenoise.tuning.search.region_rule`),
-    scoring the faces more than a margin from its cuts, the margin the reach of the strongest
-    smoothing compared (``2 sqrt(k)`` rings for ``k`` averaging steps, ``k`` ten times position
-    SURE's); the weight is a property of the noise per edge and of the local shape, so it carries
-    to the whole mesh.
+    The smoothing amount is the parameter ``spec.auto.normals`` names, or a common factor on the
+    parameters it names (a tuple). From :data:`~meshdenoise.tuning.search.REGION_MIN_VERTICES`
+    vertices the search runs on a sampled region of about :data:`NORMAL_REGION` vertices
+    (:func:`~meshdenoise.tuning.search.region_rule`), scoring the faces more than a margin from
+    its cuts, the margin the reach of the strongest smoothing compared (``2 sqrt(k)`` rings for
+    ``k`` averaging steps, ``k`` ten times position SURE's); the weight is a property of the noise
+    per edge and of the local shape, so it carries to the whole mesh.
     """
     rule = spec.auto
-    name = rule.normals
-    if name in ctx.given or not ctx.rho or ctx.rho <= 0:
+    names = (rule.normals,) if isinstance(rule.normals, str) else tuple(rule.normals)
+    if any(name in ctx.given for name in names) or not ctx.rho or ctx.rho <= 0:
         return chosen, None  # held by the caller, or no noise to remove
     params = spec.resolve({**ctx.given, **chosen})
-    start = float(params[name])
-    if rule.integer:
-        start = max(start, 1.0)  # a rule that chose no step: the normals may still want some
-    elif start <= 0:
-        return chosen, None
-    candidates = normal_candidates(start, rule.integer, spec.param(name).high)
+    if len(names) == 1:
+        name = names[0]
+        start = float(params[name])
+        if rule.integer:
+            start = max(start, 1.0)  # a rule that chose no step: the normals may still want some
+        elif start <= 0:
+            return chosen, None
+        candidates = normal_candidates(start, rule.integer, spec.param(name).high)
+
+        def values(value: float) -> dict:
+            return {name: int(value) if rule.integer else float(value)}
+    else:  # one factor on the named weights (those the rule set to 0 stay 0)
+        base = {name: float(params[name]) for name in names}
+        if not any(v > 0 for v in base.values()):
+            return chosen, None
+        start, candidates = 1.0, normal_candidates(1.0, False)
+
+        def values(value: float) -> dict:
+            return {name: float(v * value) for name, v in base.items()}
     found: list[NormalChoice] = []
 
     def on(sub: TuningContext, scored: np.ndarray | None) -> tuple[dict, Point]:
         def apply(value: float, block: np.ndarray) -> np.ndarray:
-            return spec.core(block, sub.F, ops=sub.ops, pinned=None, **{**params, name: int(value) if rule.integer else value})
+            at = {**params, **values(value)}
+            if rule.linear_map is not None:  # the filter's map with what it reads of the mesh taken from sub.V
+                return rule.linear_map(sub.V, sub.F, sub.ops, at)(block)
+            return spec.core(block, sub.F, ops=sub.ops, pinned=None, **at)
 
         correlated = sub.noise is not None and sub.noise.correlated
         found.append(refine_for_normals(sub.V, sub.F, apply, start, candidates, sub.rho,
                                         colour=sub.colour if correlated else None, additive=rule.additive,
                                         first=start * NORMAL_FIRST, rows=scored))
-        return {name: found[-1].value}, Point(found[-1].value, math.nan, math.nan, None, found[-1].risk)
+        return values(found[-1].value), Point(found[-1].value, math.nan, math.nan, None, found[-1].risk)
 
     k = float(ctx.smoothed("sure").value) if ctx.n >= REGION_MIN_VERTICES else 0.0
     margin = int(min(REGION_MAX_MARGIN, math.ceil(2.0 * math.sqrt(k * NORMAL_SCALES[-1]))))
     region_rule(ctx, on, NORMAL_REGION, NORMAL_PATCHES, margin)
-    value = int(found[-1].value) if rule.integer else float(found[-1].value)
-    return {**chosen, name: value}, found[-1]
+    return {**chosen, **values(found[-1].value)}, found[-1]
 
 
 def choose_parameters(
