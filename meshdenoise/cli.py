@@ -90,10 +90,23 @@ def demo(out_dir: str, mesh_path: str | None, noise: float, seed: int) -> None:
     console.print(f"meshes written to {click.format_filename(out_dir)}/", soft_wrap=True)
 
 
+def _auto_json(spec) -> dict | None:
+    """A filter's automatic rule for ``filters --json``: what it chooses, the criteria it takes and its default
+    (``denoise --method M --auto``); ``None`` for a filter without one."""
+    from .tuning.choose import normal_filters, rule_criterion
+
+    if spec.auto is None:
+        return None
+    normals = spec.name in normal_filters()
+    return {"tunes": list(spec.auto.tunes), "criteria": ["sure", "normals"] if normals else ["sure"],
+            "default_criterion": rule_criterion(spec.name)}
+
+
 def filters_json() -> dict:
     """Every filter and built-in pipeline step with its parameters (:meth:`Param.describe`), for ``filters --json``.
 
-    ``{"filters": [{"name", "summary", "params": [...]}], "steps": [{"name", "kind", "params": [...]}]}``;
+    ``{"filters": [{"name", "summary", "params": [...], "auto"}], "steps": [{"name", "kind", "params": [...]}]}``
+    (``auto``: ``{"tunes", "criteria", "default_criterion"}`` or ``None``);
     the pipeline-only options of our filters (``pinned``, ``region``, ``preserve_volume``, ``parameters``,
     ``boundary_motion``)
     are listed once under ``"filter_options"``. pymeshlab's own filters are not listed (``pymeshlab.filter_list()``).
@@ -134,8 +147,8 @@ def filters_json() -> dict:
     steps += [{"name": f"open3d.{op}", "kind": "open3d", "params": [p.describe() for p in params]}
               for op, params in OPEN3D_OPS.items()]
     return {
-        "filters": [{"name": f.name, "summary": f.summary, "params": [p.describe() for p in f.params]}
-                    for f in list_filters()],
+        "filters": [{"name": f.name, "summary": f.summary, "params": [p.describe() for p in f.params],
+                     "auto": _auto_json(f)} for f in list_filters()],
         "filter_options": options,
         "steps": steps,
     }
@@ -154,6 +167,10 @@ def filters(as_json: bool) -> None:
         console.print(Text.assemble((spec.name, "bold"), f": {spec.summary}"))
         for p in spec.params:
             console.print(f"    {p.name} ({p.kind.__name__}, default {p.default!r}, {p.range_text()}): {p.help}")
+        auto = _auto_json(spec)
+        if auto is not None:
+            console.print(f"    --auto chooses {', '.join(auto['tunes'])} (criterion {auto['default_criterion']}; "
+                          f"takes {' or '.join(auto['criteria'])})")
 
 
 def _add_commands() -> None:

@@ -441,6 +441,17 @@ def test_filters_json_lists_every_filter_and_step_as_the_registry_has_them():
 
     assert {o["name"] for o in doc["filter_options"]} == COMMON  # every option a pipeline's filter step takes
     assert listed["filtering"]["params"][0]["high"] == MAX_ITERATIONS
+    from meshdenoise.tuning.choose import normal_filters
+
+    for spec in md.list_filters():  # the automatic rule: what it tunes, the criteria it takes, its default
+        auto = listed[spec.name]["auto"]
+        if spec.auto is None:
+            assert auto is None
+            continue
+        assert auto["tunes"] == list(spec.auto.tunes)
+        assert auto["criteria"] == (["sure", "normals"] if spec.name in normal_filters() else ["sure"])
+        assert auto["default_criterion"] == auto["criteria"][-1]
+    assert listed["two_stage"]["auto"]["criteria"] == ["sure"] and listed["taubin"]["auto"]["criteria"][-1] == "normals"
 
 
 # item 1: square brackets in names and content are printed as they are ----------------------------------
