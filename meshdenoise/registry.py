@@ -212,7 +212,10 @@ class AutoRule:
     returns the filter's map with what it reads of the mesh (a frame, normals) taken from ``V``
     and held, as a function of an ``(n, 3k)`` block of ``k`` coordinate triples, each mapped as
     the filter maps positions (``sinkhorn``, whose core takes ``(n, 3)`` only; ``sobolev_axes``,
-    whose axes come from the mesh).
+    whose axes come from the mesh). ``normals_region``: the size of the sampled region the
+    normals search runs on (default :data:`~meshdenoise.tuning.choose.NORMAL_REGION`), from twice
+    that many vertices, for a filter whose candidates are costly (a factorisation of
+    :math:`I + \mu L^3` per weight).
     """
 
     tunes: tuple[str, ...]
@@ -221,6 +224,7 @@ class AutoRule:
     additive: bool = False
     integer: bool = False
     linear_map: Callable[..., Callable[[Any], Any]] | None = None
+    normals_region: int | None = None
 
 
 @dataclass(frozen=True)

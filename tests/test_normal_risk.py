@@ -227,3 +227,23 @@ def test_warning_when_the_normals_choice_is_worse_than_the_input_in_positions():
         chosen = choose_parameters((X, F), "sobolev", criterion="normals")
     gain = md.snr(V0, md.apply_filter("sobolev", (X, F), **chosen)[0]) - md.snr(V0, X)
     assert gain < 0.5  # the estimate said worse than the input: measured, no better than about the input
+
+
+def test_a_rules_normals_region_reaches_the_region_search(monkeypatch):
+    """``AutoRule.normals_region``: the normals search runs on a region of that size from twice as many vertices."""
+    import meshdenoise.tuning.choose as choose
+    from meshdenoise.plugins.sobolev_axes import AXES_NORMAL_REGION
+    from meshdenoise.tuning.search import REGION_MIN_VERTICES
+
+    calls, real = [], choose.region_rule
+
+    def spy(ctx, rule, size, patches, margin=0, **kw):
+        calls.append((size, kw.get("min_vertices")))
+        return real(ctx, rule, size, patches, margin, **kw)
+
+    monkeypatch.setattr(choose, "region_rule", spy)
+    V0, F, X = _sphere_case(seed=7)
+    choose_parameters((X, F), "sobolev_axes", criterion="normals")
+    assert calls == [(AXES_NORMAL_REGION, 2 * AXES_NORMAL_REGION)]
+    choose_parameters((X, F), "sobolev", criterion="normals")
+    assert calls[-1] == (choose.NORMAL_REGION, REGION_MIN_VERTICES)

@@ -19,6 +19,8 @@ from ..tuning.search import best_shifted, probe_count, solve_shifted
 
 AXES_SCALE_MIN_VERTICES = 50_000  # from this size: the search by Lanczos quadrature, the filter without a factor
 # (every quality-table mesh is below it: their choices are unchanged)
+AXES_NORMAL_REGION = 8_000  # the normals criterion's search on a region of this size from twice as many vertices: each
+# candidate factorises I + mu L^3 three times (3.3 s each at 35k vertices; the whole-mesh search took 170 s on Bunny0.2)
 
 __all__ = ["sobolev_axes", "normal_frame", "choose_sobolev_axes", "sobolev_axes_map"]
 
@@ -243,7 +245,7 @@ def sobolev_axes_map(V: np.ndarray, F: np.ndarray, ops: Operators, params: dict)
 @register(
     "sobolev_axes",
     auto=AutoRule(("mu1", "mu2", "mu3"), choose_sobolev_axes, normals=("mu1", "mu2", "mu3"),
-                  linear_map=sobolev_axes_map),
+                  linear_map=sobolev_axes_map, normals_region=AXES_NORMAL_REGION),
     summary="Polyharmonic Sobolev (I + mu_d L^p) y_d = x_d, one mu per principal axis of the normals",
     params=[
         Param("mu1", float, 1.0, low=0.0, help="weight on the axis the normals point along least (0 keeps it)"),

@@ -110,7 +110,8 @@ def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, Nor
 
     The smoothing amount is the parameter ``spec.auto.normals`` names, or a common factor on the
     parameters it names (a tuple). From :data:`~meshdenoise.tuning.search.REGION_MIN_VERTICES`
-    vertices the search runs on a sampled region of about :data:`NORMAL_REGION` vertices
+    vertices (or twice the rule's ``normals_region``) the search runs on a sampled region of about
+    :data:`NORMAL_REGION` vertices (the rule's ``normals_region``)
     (:func:`~meshdenoise.tuning.search.region_rule`), scoring the faces more than a margin from
     its cuts, the margin the reach of the strongest smoothing compared (``2 sqrt(k)`` rings for
     ``k`` averaging steps, ``k`` ten times position SURE's); the weight is a property of the noise
@@ -155,9 +156,11 @@ def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, Nor
                                         first=start * NORMAL_FIRST, rows=scored))
         return values(found[-1].value), Point(found[-1].value, math.nan, math.nan, None, found[-1].risk)
 
-    k = float(ctx.smoothed("sure").value) if ctx.n >= REGION_MIN_VERTICES else 0.0
+    size = int(rule.normals_region or NORMAL_REGION)
+    least = min(REGION_MIN_VERTICES, 2 * size)
+    k = float(ctx.smoothed("sure").value) if ctx.n >= least else 0.0
     margin = int(min(REGION_MAX_MARGIN, math.ceil(2.0 * math.sqrt(k * NORMAL_SCALES[-1]))))
-    region_rule(ctx, on, NORMAL_REGION, NORMAL_PATCHES, margin)
+    region_rule(ctx, on, size, NORMAL_PATCHES, margin, min_vertices=least)
     return {**chosen, **values(found[-1].value)}, found[-1]
 
 
