@@ -32,6 +32,10 @@ NORMAL_PROBES = 8
 NORMAL_MAX_PROBES = 64
 NORMAL_PROBE_BUDGET = 8 * 50_000
 NORMAL_PATIENCE = 3  # an additive sweep stops this many candidates past its least risk
+# an additive sweep costs its length (up to 10x position SURE's count: thousands of Taubin steps at lam 0.125) times
+# the probes: at most this many (Fandisk0.3, Block0.4, Twelve0.5Impulsive chose the same counts as with 50-64 probes,
+# in 4-8 s instead of 12-50 s)
+NORMAL_SWEEP_PROBES = 16
 # the first pass linearises at this multiple of position SURE's choice, the middle of NORMAL_SCALES: at SURE's own
 # choice a rough mesh's J overstates the turns of further smoothing (filtering on Fandisk0.3 stayed at 1 step, its
 # normal oracle 2; from the middle it found 2)
@@ -244,7 +248,7 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
         ``colour(Z, s)``: probes ``Z`` (n, P) coloured like correlated noise
         (:meth:`~meshdenoise.tuning.context.TuningContext.colour`); none for independent noise.
     probes : int, optional
-        Default :func:`normal_probe_count`.
+        Default :func:`normal_probe_count`, at most :data:`NORMAL_SWEEP_PROBES` with ``additive``.
     iterations : int
     additive : bool
         ``apply(b, apply(a, X)) == apply(a + b, X)`` (iteration counts, diffusion times): the
@@ -284,7 +288,8 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
         raise ValueError("refine_for_normals: candidates is empty")
     if not (math.isfinite(rho) and rho > 0):
         raise ValueError(f"refine_for_normals: rho must be finite and > 0, got {rho!r}")
-    probes = normal_probe_count(V.shape[0]) if probes is None else probes
+    if probes is None:
+        probes = min(normal_probe_count(V.shape[0]), NORMAL_SWEEP_PROBES) if additive else normal_probe_count(V.shape[0])
     if int(probes) < 1 or int(iterations) < 1:
         raise ValueError(f"refine_for_normals: probes and iterations must be >= 1, got {probes!r}, {iterations!r}")
     n = V.shape[0]
