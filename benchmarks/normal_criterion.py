@@ -46,12 +46,12 @@ def ratio(ne: float, oracle: float) -> float:
     return max(ne / oracle, 1.0)
 
 
-def table(cells: list[dict], command: str) -> str:
+def table(cells: list[dict], command: str, note: str = "") -> str:
     rows = list(dict.fromkeys(c["row"] for c in cells))
     filters = list(dict.fromkeys(c["filter"] for c in cells))
     by = {(c["row"], c["filter"]): c for c in cells}
     lines = [f"# Linear filters' automatic choice, criterion \"normals\", against each filter's oracle\n",
-             f"Command: `{command}`\n",
+             f"Command: `{command}`\n" + (f"\n{note}\n" if note else ""),
              "Cell: normal error of `denoise(mesh, method=M)` (deg) / its oracle's (session 15, "
              "`filter-oracle-session15.json`) = ratio; in brackets the position-SURE choice's ratio (session 15). "
              "**Bold**: outside 10 %.\n",
@@ -91,11 +91,18 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--oracles", default=str(ORACLES))
     ap.add_argument("--timeout", type=float, default=900.0)
     ap.add_argument("--out", required=True)
+    ap.add_argument("--keep", action="store_true",
+                    help="keep the cells of OUT's JSON that this run does not measure (--rows x --filters)")
+    ap.add_argument("--note", default="", help="a line under the command (what else made the table)")
     a = ap.parse_args(argv)
     stored = {(c["row"], c["filter"]): c for c in json.loads(Path(a.oracles).read_text()) if "oracle" in c}
     filters = a.filters or normal_filters()
     rows = a.rows or list(dict.fromkeys(r for r, _ in stored))
-    cells = []
+    out = Path(a.out)
+    kept = {}
+    if a.keep and out.with_suffix(".json").exists():
+        kept = {(c["row"], c["filter"]): c for c in json.loads(out.with_suffix(".json").read_text())}
+    measured = {}
     for r in rows:
         for f in filters:
             old = stored.get((r, f))
@@ -110,11 +117,11 @@ def main(argv: list[str] | None = None) -> int:
                 cell.update(ne=got["normal_error_deg"], snr=got["snr_db"], time=got["time_s"], params=got["params"],
                             oracle_ne=oracle, ratio=ratio(got["normal_error_deg"], oracle), sure_ne=old["auto"]["ne"],
                             sure_snr=old["auto"]["snr"], sure_ratio=old["ratio"])
-            cells.append(cell)
+            measured[(r, f)] = cell
             print(json.dumps(cell), flush=True)
+    cells = list({**kept, **measured}.values())  # a kept cell keeps its place; new ones follow
     command = "PYTHONPATH=. python benchmarks/normal_criterion.py " + " ".join(shlex.quote(x) for x in (argv or sys.argv[1:]))
-    out = Path(a.out)
-    for path, text in ((out.with_suffix(".json"), json.dumps(cells, indent=1)), (out, table(cells, command))):
+    for path, text in ((out.with_suffix(".json"), json.dumps(cells, indent=1)), (out, table(cells, command, a.note))):
         tmp = path.with_name(path.name + ".tmp")  # never a half-written table
         tmp.write_text(text)
         tmp.replace(path)
