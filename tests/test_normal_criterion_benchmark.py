@@ -47,3 +47,19 @@ def test_keep_measures_only_the_cells_asked_and_keeps_the_rest(tmp_path, monkeyp
     assert [c["params"]["x"] for c in cells] == [1, 2, 3, 5]  # only (B, taubin) measured again
     nc.main(["--oracles", str(oracles), "--rows", "B", "--filters", "taubin", "--out", str(out)])
     assert len(json.loads(out.with_suffix(".json").read_text())) == 1  # without --keep: this run's cells only
+
+
+def test_normal_risk_parts_add_up_on_the_tiny_row():
+    """benchmarks/normal_risk_parts.py: the estimate is its parts' sum, and the realised terms match their model's scale."""
+    import normal_risk_parts as nrp
+
+    import pytest
+
+    rows = nrp.parts("tiny", [2], [0, 1, 4], probes=4, directions="clean")
+    for r in rows:
+        assert r["estimate"] == pytest.approx(r["residual"] + r["trace"] - r["noise"])
+        assert r["linearised_truth"] >= 0 and 0 <= r["mean_angle_deg"] <= 180
+    zero = rows[0]  # no smoothing: H = I, so the trace terms are twice the noise terms and nothing is left
+    assert zero["residual"] == 0 and zero["trace"] == pytest.approx(2 * zero["noise"])
+    assert zero["trace_realised"] == pytest.approx(2 * zero["noise_realised"])
+    assert zero["estimate"] == pytest.approx(zero["noise"])
