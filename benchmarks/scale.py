@@ -291,7 +291,8 @@ def me(*args: str) -> list[str]:
     return [sys.executable, str(Path(__file__).resolve()), *args]
 
 
-def run_size(mesh: dict, methods: list[str], timeout: float, pairs: bool, e2e: bool, cells: bool, workdir: Path) -> dict:
+def run_size(mesh: dict, methods: list[str], timeout: float, pairs: bool, e2e: bool, cells: bool, workdir: Path,
+             criterion: str | None = None) -> dict:
     result = {"mesh": mesh, "methods": {}, "pairs": {}}
     for method in methods if cells or e2e else []:
         row = {"load_before": os.getloadavg()[0]}
@@ -301,6 +302,8 @@ def run_size(mesh: dict, methods: list[str], timeout: float, pairs: bool, e2e: b
             out = workdir / f"out-{mesh['label']}-{method}.ply"
             cli = "import sys; from meshdenoise.cli import main; sys.argv[0] = 'meshdenoise'; main()"
             how = [] if method == DEFAULT else ["--method", method, "--auto"]
+            if criterion is not None and method != DEFAULT:
+                how += ["--criterion", criterion]
             cmd = [sys.executable, "-c", cli, "denoise", *how, mesh["ply"], str(out)]
             row["e2e"] = run_limited(cmd, timeout)
             if out.exists():
@@ -399,6 +402,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--no-pairs", action="store_true", help="skip the same-process comparisons with MeshLab / Open3D")
     ap.add_argument("--pairs-only", action="store_true", help="only the same-process comparisons")
     ap.add_argument("--no-e2e", action="store_true", help="skip the command-line cells")
+    ap.add_argument("--criterion", choices=("sure", "normals"), default=None,
+                    help="the command-line cells' --criterion (default: each filter's own; the in-process cells "
+                         "always time the SURE rule)")
     args = ap.parse_args(argv)
     ARGS_TIMEOUT = args.timeout
     sizes = [s.strip() for s in args.sizes.split(",") if s.strip()]
@@ -426,7 +432,7 @@ def main(argv: list[str] | None = None) -> None:
             print(f"<!-- {label}: n={mesh['n']} m={mesh['m']} rho={mesh['rho']:.4g} (mean edge {mesh['h']:.4g}) -->", flush=True)
             results.append(
                 run_size(mesh, methods, args.timeout, not args.no_pairs, not (args.no_e2e or args.pairs_only),
-                         not args.pairs_only, Path(work))
+                         not args.pairs_only, Path(work), args.criterion)
             )
     uptime_after = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
     meta = {
@@ -435,6 +441,7 @@ def main(argv: list[str] | None = None) -> None:
         "uptime_after": uptime_after,
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
         "timeout": args.timeout,
+        "criterion": args.criterion,
         "commit": commit,
         "command": "python benchmarks/scale.py " + " ".join(argv),
     }
