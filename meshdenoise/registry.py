@@ -215,7 +215,7 @@ class AutoRule:
     whose axes come from the mesh). ``normals_region``: the size of the sampled region the
     normals search runs on (default :data:`~meshdenoise.tuning.choose.NORMAL_REGION`), from twice
     that many vertices, for a filter whose candidates are costly (a factorisation of
-    :math:`I + \mu L^3` per weight).
+    :math:`I + \\mu L^3` per weight).
     """
 
     tunes: tuple[str, ...]

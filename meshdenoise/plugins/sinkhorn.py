@@ -74,7 +74,9 @@ def choose_sinkhorn(ctx: TuningContext) -> tuple[dict, Point]:
 
 
 def sinkhorn_map(V: np.ndarray, F: np.ndarray, ops: object, params: dict):
-    """The filter in its rule's configuration as a map of ``(n, 3k)`` blocks: :math:`(2G - G^2)^k`, :math:`G = (I + \tfrac{t}{s} L)^{-s}`.
+    """The filter in its rule's configuration as a map of ``(n, 3k)`` blocks: :math:`(2G - G^2)^k`.
+
+    :math:`G = (I + \\tfrac{t}{s} L)^{-s}`, the graph Laplacian's heat kernel in ``steps`` substeps.
 
     The core checks for ``(n, 3)`` positions; this map is the same filter (graph Laplacian,
     uniform measure, twicing: linear, the same on each column) for the probes of

@@ -223,7 +223,7 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
 def sobolev_axes_map(V: np.ndarray, F: np.ndarray, ops: Operators, params: dict):
     """The filter with its frame taken from ``V`` and held, as a map of ``(n, 3k)`` blocks of coordinate triples.
 
-    :math:`Y = \sum_d (I + \mu_d L^p)^{-1} (B e_d)\, e_d^T` for each triple ``B``: linear, the
+    :math:`Y = \\sum_d (I + \\mu_d L^p)^{-1} (B e_d)\\, e_d^T` for each triple ``B``: linear, the
     frame :math:`E` of :func:`normal_frame` read from ``V`` (``AutoRule.linear_map``, for the
     probes of :func:`~meshdenoise.tuning.normal_risk.refine_for_normals`; on ``V`` itself it is the filter).
     """
@@ -236,7 +236,8 @@ def sobolev_axes_map(V: np.ndarray, F: np.ndarray, ops: Operators, params: dict)
         C = B.reshape(n, k, 3) @ E  # each triple in the frame
         out = np.empty_like(C)
         for d, mu in enumerate(mus):
-            out[:, :, d] = C[:, :, d] if mu == 0 else shifted_solver(ops, mu, order).solve(np.ascontiguousarray(C[:, :, d]))
+            out[:, :, d] = C[:, :, d] if mu == 0 else shifted_solver(ops, mu, order).solve(
+                np.ascontiguousarray(C[:, :, d]))
         return (out @ E.T).reshape(n, 3 * k)
 
     return apply

@@ -261,7 +261,7 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
         The vertices scored (a sampled region's inner part): only faces with three scored
         corners count. Default: all.
     exact : bool, optional
-        Exact traces (probes :math:`\sqrt n\, e_i`, ``3n`` columns) instead of Rademacher ones;
+        Exact traces (probes :math:`\\sqrt n\\, e_i`, ``3n`` columns) instead of Rademacher ones;
         by default up to :data:`~meshdenoise.tuning.risk.EXACT_TRACE_MAX` vertices.
     seed : int
 
