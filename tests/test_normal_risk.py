@@ -194,6 +194,7 @@ def test_command_line_and_pipeline_criterion(tmp_path):
         out = tmp_path / f"o-{criterion}.ply"
         result = CliRunner().invoke(cli, ["denoise", str(src), str(out), "--method", "sobolev", "--auto", *extra])
         assert result.exit_code == 0, result.output
+        assert f"(criterion {criterion})" in result.output  # the user is told what the choice minimised
         mu = choose_parameters((X, F), "sobolev", criterion=criterion)["mu"]
         np.testing.assert_allclose(load_mesh(out).V, md.apply_filter("sobolev", (X, F), mu=mu)[0], atol=1e-9)
     result = CliRunner().invoke(cli, ["denoise", str(src), str(tmp_path / "x.ply"), "--criterion", "sure"])

@@ -623,14 +623,16 @@ def _run_ours(step: Step, ctx: RunContext) -> None:
 
         given_noise = step.options.get("noise")
         noise = given_noise.model(state.V, state.F) if given_noise is not None else None
-        chosen = choose_parameters(state.arrays(), method=step.name, noise=noise,
-                                   criterion=step.options.get("criterion", "sure"))
+        criterion = step.options.get("criterion", "sure")
+        chosen = choose_parameters(state.arrays(), method=step.name, noise=noise, criterion=criterion)
         chosen = {**chosen, **params}  # values written in the pipeline win
         params = spec.resolve(chosen, step.where)
         for k, v in params.items():
             ctx.row[f"auto.{step.name}.{k}"] = v
         if ctx.echo:
-            ctx.echo(f"{ctx.input_path.name}: {step.name} parameters chosen automatically: {params}")
+            what = "the face-normal error" if criterion == "normals" else "the position error"
+            ctx.echo(f"{ctx.input_path.name}: {step.name} parameters chosen automatically for {what} "
+                     f"(criterion {criterion}): {params}")
         release_before_filter()
     with stage(f"running {step.name}"):
         V, _ = spec.public(state.arrays(), **params, **options)
