@@ -144,11 +144,16 @@ def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, Nor
     found: list[NormalChoice] = []
 
     def on(sub: TuningContext, scored: np.ndarray | None) -> tuple[dict, Point]:
+        last: dict = {}  # the last value's linear map: a pass applies it to V, then to V with the probes
+
         def apply(value: float, block: np.ndarray) -> np.ndarray:
             at = {**params, **values(value)}
-            if rule.linear_map is not None:  # the filter's map with what it reads of the mesh taken from sub.V
-                return rule.linear_map(sub.V, sub.F, sub.ops, at)(block)
-            return spec.core(block, sub.F, ops=sub.ops, pinned=None, **at)
+            if rule.linear_map is None:
+                return spec.core(block, sub.F, ops=sub.ops, pinned=None, **at)
+            if last.get("value") != value:  # the filter's map with what it reads of the mesh taken from sub.V
+                last.clear()
+                last.update(value=value, map=rule.linear_map(sub.V, sub.F, sub.ops, at))
+            return last["map"](block)
 
         correlated = sub.noise is not None and sub.noise.correlated
         found.append(refine_for_normals(sub.V, sub.F, apply, start, candidates, sub.rho,

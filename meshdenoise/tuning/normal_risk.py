@@ -289,7 +289,9 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
     if not (math.isfinite(rho) and rho > 0):
         raise ValueError(f"refine_for_normals: rho must be finite and > 0, got {rho!r}")
     if probes is None:
-        probes = min(normal_probe_count(V.shape[0]), NORMAL_SWEEP_PROBES) if additive else normal_probe_count(V.shape[0])
+        probes = normal_probe_count(V.shape[0])
+        if additive:
+            probes = min(probes, NORMAL_SWEEP_PROBES)
     if int(probes) < 1 or int(iterations) < 1:
         raise ValueError(f"refine_for_normals: probes and iterations must be >= 1, got {probes!r}, {iterations!r}")
     n = V.shape[0]
@@ -307,6 +309,7 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
             raise ValueError(f"refine_for_normals: rows must be a bool mask of shape ({n},), got shape {rows.shape}")
         faces = rows[np.asarray(F)].all(axis=1)
     count = n if rows is None else int(np.count_nonzero(rows))
+    part = (lambda A: A) if rows is None else (lambda A: A[rows])  # noqa: E731  the scored vertices
     # the fixed point, bracketed: linearised at a smoother mesh the estimate asks for less smoothing, at a rougher one
     # for more (face000: 2 and 20 steps asked for each other); once both sides are seen, bisect between them
     at = int(np.argmin(np.abs(logs - math.log(float(first) if first is not None else float(start)))))
@@ -324,7 +327,6 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
         def score(i: int, out: np.ndarray) -> None:
             HB = [out[:, 3 + 3 * p:6 + 3 * p] for p in range(Z.shape[1])]
             risks[i] = normal_risk(J, V, out[:, :3], JB, HB, rho, faces)
-            part = (lambda A: A) if rows is None else (lambda A: A[rows])  # noqa: E731
             trace = float(np.mean([np.sum(part(B[:, 3 * p:3 * p + 3]) * part(HB[p])) for p in range(len(HB))]))
             sures[i] = float(np.sum(part(out[:, :3] - V) ** 2)) - count * rho**2 + 2.0 * rho**2 * trace
 
