@@ -215,7 +215,9 @@ class AutoRule:
     whose axes come from the mesh). ``normals_region``: the size of the sampled region the
     normals search runs on (default :data:`~meshdenoise.tuning.choose.NORMAL_REGION`), from twice
     that many vertices, for a filter whose candidates are costly (a factorisation of
-    :math:`I + \\mu L^3` per weight).
+    :math:`I + \\mu L^3` per weight). ``normals_held``: ``(name, value)`` pairs the normals search
+    scores the filter at, whatever the rule chose (``sobolev_gls``: ``beta`` 1, the isotropic
+    filter, whose face normals follow the filter's at every weight for a thirtieth of the cost).
     """
 
     tunes: tuple[str, ...]
@@ -225,6 +227,7 @@ class AutoRule:
     integer: bool = False
     linear_map: Callable[..., Callable[[Any], Any]] | None = None
     normals_region: int | None = None
+    normals_held: tuple[tuple[str, Any], ...] = ()
 
 
 @dataclass(frozen=True)

@@ -86,13 +86,14 @@ def _sphere_case(seed=0, rho=0.012):
     return V0, F, X
 
 
-@pytest.mark.parametrize("method", ["sobolev", "filtering", "sinkhorn", "sobolev_axes"])
+@pytest.mark.parametrize("method", ["sobolev", "filtering", "sinkhorn", "sobolev_axes", "sobolev_gls"])
 def test_normals_criterion_reaches_the_normal_oracle_on_a_noisy_sphere(method):
     V0, F, X = _sphere_case()
     spec = md.registry.get_filter(method)
     names = (spec.auto.normals,) if isinstance(spec.auto.normals, str) else spec.auto.normals
-    chosen = choose_parameters((X, F), method, criterion="normals")
-    sure = choose_parameters((X, F), method, criterion="sure")
+    held = {"beta": 5.0} if method == "sobolev_gls" else {}  # its rule's beta search: 40 s here, not the point
+    chosen = choose_parameters((X, F), method, criterion="normals", **held)
+    sure = choose_parameters((X, F), method, criterion="sure", **held)
     err = lambda p: md.normal_error_deg((V0, F), md.apply_filter(method, (X, F), **p))  # noqa: E731
     if len(names) == 1:
         name, start = names[0], float(sure[names[0]])
@@ -134,6 +135,23 @@ def test_linear_maps_against_dense_matrices():
     np.testing.assert_allclose(out, want, atol=1e-10)
     np.testing.assert_allclose(out[:, :3], spec.core(X, F, ops=ops, pinned=None, **p), atol=1e-10)
 
+    from meshdenoise.geometry import coherent_normals
+
+    spec = md.registry.get_filter("sobolev_gls")
+    p = spec.resolve({"mu": 0.4, "beta": 5.0, "order": 2})
+    out = spec.auto.linear_map(X, F, ops, p)(block)
+    S = np.linalg.inv(eye + 0.4 * L @ L)
+    N = coherent_normals(S @ X, F)
+    Pt = np.zeros((3 * n, 3 * n))  # vertex-major: index 3i + a
+    for i in range(n):
+        Pt[3 * i:3 * i + 3, 3 * i:3 * i + 3] = np.eye(3) - np.outer(N[i], N[i])
+    A = np.eye(3 * n) + 4.0 * Pt + 0.4 * np.kron(L @ L, np.eye(3))
+    want = np.hstack([S @ T + np.linalg.solve(A, 4.0 * Pt @ (T - S @ T).ravel()).reshape(n, 3)
+                      for T in np.split(block, 3, axis=1)])
+    scale = np.abs(block).max()
+    np.testing.assert_allclose(out, want, atol=1e-5 * scale)  # CG to a relative residual of GLS_MAP_TOL
+    np.testing.assert_allclose(out[:, :3], spec.core(X, F, ops=ops, pinned=None, **p), atol=1e-5 * scale)
+
 
 def test_descending_and_sweeping_searches_agree():
     """An additive filter searched by one run (sweep) or by separate runs (descent) chooses the same count."""
@@ -152,6 +170,20 @@ def test_descending_and_sweeping_searches_agree():
     assert a.value == b.value and a.path == b.path
 
 
+def test_guard_keeps_the_search_from_shrinking_the_mesh_away():
+    """A map that only shrinks the mesh turns no face, so the linearised risk falls without end (each face's noise
+    is scaled away); past ``guard_above`` a candidate must also keep the positions better than the input's."""
+    V0, F, X = _sphere_case(seed=7)
+    shrink = lambda v, B: B / (1.0 + v)  # noqa: E731  a uniform scaling: the face normals stay as they are
+    values = [0.001 * 2.0**k for k in range(12)]
+    free = refine_for_normals(X, F, shrink, values[0], values, 0.012, first=values[0])
+    assert free.value == values[-1]  # the estimate alone asks for the mesh to vanish
+    guarded = refine_for_normals(X, F, shrink, values[0], values, 0.012, first=values[0], guard_above=values[3])
+    # SURE of Y = c X, c = 1 / (1 + v), with probes z_i N_i (trace c n): ||(c - 1) X||^2 - n rho^2 + 2 rho^2 c n, below
+    # the input's n rho^2 only for 1 - c < 2 rho^2 / mean |X_i|^2 = 2.9e-4 on the unit sphere: no candidate past the guard
+    assert guarded.value == values[3] and np.isfinite(guarded.risk)
+
+
 def test_choice_is_scale_invariant():
     V0, F, X = _sphere_case(seed=4)
     a = choose_parameters((X, F), "sobolev_bilaplacian", criterion="normals", noise=0.012)
@@ -162,7 +194,7 @@ def test_choice_is_scale_invariant():
 def test_criterion_errors_and_defaults():
     V, F = icosphere(2)
     assert set(normal_filters()) == {"filtering", "heat", "sinkhorn", "sobolev", "sobolev_axes", "sobolev_bilaplacian",
-                                     "taubin"}
+                                     "sobolev_gls", "taubin"}
     assert rule_criterion("taubin") == "normals" and rule_criterion("two_stage") == "sure"
     with pytest.raises(ValueError, match="criterion 'normals' is for the linear filters .* not 'two_stage'"):
         choose_parameters((V, F), "two_stage", criterion="normals")

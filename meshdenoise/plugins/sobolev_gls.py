@@ -22,7 +22,7 @@ from ..tuning.search import best_shifted, region_rule, search_log, shifted_reach
 
 log = logging.getLogger("meshdenoise.auto")
 
-__all__ = ["sobolev_gls", "normal_weighted_solve", "coherent_normals"]
+__all__ = ["sobolev_gls", "normal_weighted_solve", "coherent_normals", "sobolev_gls_map"]
 
 CG_TOL = 1e-9  # relative residual of the preconditioned conjugate gradient
 CG_MAXITER = 300
@@ -407,10 +407,49 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
     return {"mu": float(mu), "beta": float(beta)}, best
 
 
+GLS_MAP_TOL = 1e-6  # CG's relative residual in sobolev_gls_map (the normals search's probes; SOBOLEV_GLS_REGION_TOL)
+GLS_NORMAL_REGION = 8_000  # the normals criterion's search on a region of this size from twice as many vertices: each
+# candidate is a factorisation of I + mu L^3 and a block CG over the probes' triples
+
+
+def sobolev_gls_map(V: np.ndarray, F: np.ndarray, ops: Operators, params: dict):
+    """The filter with its normals taken from ``V`` and held, as a map of ``(n, 3k)`` blocks of coordinate triples.
+
+    For each triple ``B`` (n, 3):
+
+    .. math:: Y = B_0 + A^{-1} (\\beta - 1)(I - \\hat N \\hat N^T)(B - B_0), \\qquad B_0 = (I + \\mu L^p)^{-1} B,
+
+    :math:`A = W + \\mu L^p \\otimes I_3`, with :math:`\\hat N` the normals of :math:`(I + \\mu L^p)^{-1} V` held:
+    linear in ``B``, and :func:`sobolev_gls` itself on ``V`` (``AutoRule.linear_map``, for the probes of
+    :func:`~meshdenoise.tuning.normal_risk.refine_for_normals`). The triples are solved together, one block
+    conjugate-gradient run (:func:`normal_weighted_solve`) to a relative residual of ``GLS_MAP_TOL`` each.
+    """
+    mu, beta, order = float(params["mu"]), float(params["beta"]), int(params["order"])
+    V = np.asarray(V, dtype=np.float64)
+    S = shifted_solver(ops, mu, order) if mu > 0 else None
+    N = coherent_normals(S.solve(V), F) if S is not None and beta != 1.0 else None
+
+    def apply(block: np.ndarray) -> np.ndarray:
+        B = np.asarray(block, dtype=np.float64)
+        if S is None:
+            return B.copy()
+        B0 = S.solve(B)
+        if N is None:
+            return B0
+        n, k = B.shape[0], B.shape[1] // 3
+        R = (B - B0).reshape(n, k, 3).transpose(0, 2, 1)  # (n, 3, k): triple p in [:, :, p]
+        rhs = (beta - 1.0) * (R - N[:, :, None] * np.sum(N[:, :, None] * R, axis=1, keepdims=True))
+        D = normal_weighted_solve(ops, N, beta, mu, order, rhs, tol=GLS_MAP_TOL)
+        return B0 + D.transpose(0, 2, 1).reshape(n, 3 * k)
+
+    return apply
+
+
 @register(
     "sobolev_gls",
     scale_free=True,
-    auto=AutoRule(("mu", "beta"), choose_sobolev_gls),
+    auto=AutoRule(("mu", "beta"), choose_sobolev_gls, normals="mu", linear_map=sobolev_gls_map,
+                  normals_region=GLS_NORMAL_REGION, normals_held=(("beta", 1.0),)),
     summary="Polyharmonic Sobolev with the data term weighted beta times more across the estimated normals",
     params=[
         Param("mu", float, 1000.0, low=0.0, help="weight of the penalty ||L^{p/2} Y||^2 (0 returns the input)"),

@@ -23,7 +23,8 @@ from ..geometry import cross_rows, vertex_normals
 from .risk import EXACT_TRACE_MAX
 
 __all__ = ["NormalJacobian", "NormalChoice", "normal_risk", "refine_for_normals", "normal_probe_count", "NORMAL_PROBES",
-           "NORMAL_ITERATIONS", "NORMAL_SCALES", "NORMAL_FIRST", "NORMAL_PATIENCE"]
+           "NORMAL_ITERATIONS", "NORMAL_SCALES", "NORMAL_WIDE_SCALES", "NORMAL_WIDE_BELOW", "NORMAL_FIRST",
+           "NORMAL_PATIENCE"]
 
 # Rademacher vector probes: NORMAL_PROBE_BUDGET / n, from NORMAL_PROBES to NORMAL_MAX_PROBES (the estimate averages
 # over the faces, so its spread falls like 1 / sqrt(n P): a constant n P keeps it; 8 probes at 50k vertices chose the
@@ -47,6 +48,11 @@ NORMAL_ITERATIONS = 6  # fixed-point passes at most (a bisection over the 14 can
 # the weight's multiples searched, 10^t for t = -0.3 .. 1.0 by tenths: the normal oracles measured were 1 to 10 times
 # position SURE's weight (docs/automatic-parameters.md); beyond 10 the estimate's linearisation fails (the Nefertiti)
 NORMAL_SCALES = tuple(float(10.0 ** (t / 10.0)) for t in range(-3, 11))
+# ... and on to 10^2 where the noise is below NORMAL_WIDE_BELOW mean edge lengths, where the linearisation holds:
+# face000's oracles were 12, 20 and 28 times SURE's weight (sobolev, sobolev_bilaplacian, sobolev_axes), the
+# elephant's, at 26 edge lengths of noise, 2 times (and the estimate there asked for the grid's end)
+NORMAL_WIDE_SCALES = tuple(float(10.0 ** (t / 10.0)) for t in range(-3, 21))
+NORMAL_WIDE_BELOW = 1.0
 
 
 def normal_probe_count(n: int) -> int:
@@ -213,7 +219,7 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
                        colour: Callable[[np.ndarray, float], np.ndarray] | None = None,
                        probes: int | None = None, iterations: int = NORMAL_ITERATIONS,
                        additive: bool = False, first: float | None = None, rows: np.ndarray | None = None,
-                       exact: bool | None = None, seed: int = 0) -> NormalChoice:
+                       exact: bool | None = None, guard_above: float | None = None, seed: int = 0) -> NormalChoice:
     """The parameter of a linear smoother with the least estimated face-normal risk (:func:`normal_risk`).
 
     The risk is linearised at a mesh ``R`` (``J`` and the noise directions ``N``, the unit
@@ -263,6 +269,12 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
     exact : bool, optional
         Exact traces (probes :math:`\\sqrt n\\, e_i`, ``3n`` columns) instead of Rademacher ones;
         by default up to :data:`~meshdenoise.tuning.risk.EXACT_TRACE_MAX` vertices.
+    guard_above : float, optional
+        Candidates above this value are chosen only where the positions' SURE
+        (``NormalChoice.position_risk``) is below the input's expected error :math:`n\\rho^2`:
+        past there the filter shrinks the mesh faster than it removes noise, and the
+        linearisation at so shrunk a mesh asked for ever more smoothing (Nefertiti at
+        rho = 0.2, ``sobolev``: 24 times SURE's weight, 25.4 degrees against the oracle's 17.8).
     seed : int
 
     Returns
@@ -329,6 +341,8 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
             risks[i] = normal_risk(J, V, out[:, :3], JB, HB, rho, faces)
             trace = float(np.mean([np.sum(part(B[:, 3 * p:3 * p + 3]) * part(HB[p])) for p in range(len(HB))]))
             sures[i] = float(np.sum(part(out[:, :3] - V) ** 2)) - count * rho**2 + 2.0 * rho**2 * trace
+            if guard_above is not None and values[i] > guard_above and not sures[i] < count * rho**2:
+                risks[i] = math.inf  # worse positions than the input's: not a candidate past guard_above
 
         if additive:  # one run, on from each candidate to the next, until PATIENCE candidates past the best
             block, done = np.hstack([V, B]), 0.0
