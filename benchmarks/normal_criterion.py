@@ -52,8 +52,9 @@ def table(cells: list[dict], command: str, note: str = "") -> str:
     by = {(c["row"], c["filter"]): c for c in cells}
     lines = [f"# Linear filters' automatic choice, criterion \"normals\", against each filter's oracle\n",
              f"Command: `{command}`\n" + (f"\n{note}\n" if note else ""),
-             "Cell: normal error of `denoise(mesh, method=M)` (deg) / its oracle's (session 15, "
-             "`filter-oracle-session15.json`) = ratio; in brackets the position-SURE choice's ratio (session 15). "
+             "Cell: normal error of `denoise(mesh, method=M)` (deg) / its oracle's (`benchmarks/filter_oracle.py`: "
+             "session 15's `filter-oracle-session15.json`, or the files the command's `--oracles` names) = ratio; in "
+             "brackets the position-SURE choice's ratio (from the same file). "
              "**Bold**: outside 10 %.\n",
              "| filter | " + " | ".join(rows) + " |", "|---|" + "---|" * len(rows)]
     for f in filters:
@@ -88,14 +89,16 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--rows", nargs="*", default=None)
     ap.add_argument("--filters", nargs="*", default=None)
-    ap.add_argument("--oracles", default=str(ORACLES))
+    ap.add_argument("--oracles", nargs="+", default=[str(ORACLES)],
+                    help="benchmarks/filter_oracle.py JSON files; a later file's cell replaces an earlier one's")
     ap.add_argument("--timeout", type=float, default=900.0)
     ap.add_argument("--out", required=True)
     ap.add_argument("--keep", action="store_true",
                     help="keep the cells of OUT's JSON that this run does not measure (--rows x --filters)")
     ap.add_argument("--note", default="", help="a line under the command (what else made the table)")
     a = ap.parse_args(argv)
-    stored = {(c["row"], c["filter"]): c for c in json.loads(Path(a.oracles).read_text()) if "oracle" in c}
+    stored = {(c["row"], c["filter"]): c for path in a.oracles for c in json.loads(Path(path).read_text())
+              if "oracle" in c}
     filters = a.filters or normal_filters()
     rows = a.rows or list(dict.fromkeys(r for r, _ in stored))
     out = Path(a.out)

@@ -47,6 +47,12 @@ def test_keep_measures_only_the_cells_asked_and_keeps_the_rest(tmp_path, monkeyp
     assert [c["params"]["x"] for c in cells] == [1, 2, 3, 5]  # only (B, taubin) measured again
     nc.main(["--oracles", str(oracles), "--rows", "B", "--filters", "taubin", "--out", str(out)])
     assert len(json.loads(out.with_suffix(".json").read_text())) == 1  # without --keep: this run's cells only
+    later = tmp_path / "later.json"  # a later oracle file's cell replaces the first file's
+    later.write_text(json.dumps([{"row": "B", "filter": "taubin", "oracle": {"ne": 5.0}, "auto": {"ne": 6.0, "snr": 1.0},
+                                  "ratio": 1.2}]))
+    nc.main(["--oracles", str(oracles), str(later), "--rows", "B", "--filters", "taubin", "--out", str(out)])
+    (cell,) = json.loads(out.with_suffix(".json").read_text())
+    assert cell["oracle_ne"] == 5.0 and cell["ratio"] == (10.0 + len(runs)) / 5.0
 
 
 def test_normal_risk_parts_add_up_on_the_tiny_row():
