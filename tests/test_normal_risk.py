@@ -91,7 +91,7 @@ def test_normals_criterion_reaches_the_normal_oracle_on_a_noisy_sphere(method):
     V0, F, X = _sphere_case()
     spec = md.registry.get_filter(method)
     names = (spec.auto.normals,) if isinstance(spec.auto.normals, str) else spec.auto.normals
-    held = {"beta": 5.0} if method == "sobolev_gls" else {}  # its rule's beta search: 40 s here, not the point
+    held = {"beta": 5.0} if method == "sobolev_gls" else {}  # its rule's search over beta took 40 s here
     chosen = choose_parameters((X, F), method, criterion="normals", **held)
     sure = choose_parameters((X, F), method, criterion="sure", **held)
     err = lambda p: md.normal_error_deg((V0, F), md.apply_filter(method, (X, F), **p))  # noqa: E731
