@@ -482,7 +482,9 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order):
     (:func:`normal_weighted_solve`, spectrum in :math:`[1, \\beta]`), for the correction
     :math:`Y - \\hat X`. For pinned normals
     the map is linear; the filter is translation and rotation equivariant.
-    ``meshdenoise.auto.choose_parameters`` picks ``mu`` and ``beta`` by SURE.
+    ``meshdenoise.auto.choose_parameters`` picks ``mu`` and ``beta`` by SURE; ``denoise(mesh,
+    method="sobolev_gls")`` then moves ``mu`` to the least estimated face-normal error (criterion
+    ``"normals"``, scored at ``beta`` 1: :func:`sobolev_gls_map`).
 
     Choosing ``mu`` for a scan: the oracle's ``mu`` for noise of 0.1, 0.3 and 1 mean edge lengths
     was 0.10, 1.2 and 16 on a sphere and 4.3, 11 and 28 on a torus (``benchmarks/results/parameter-scale.md``), and

@@ -48,12 +48,13 @@ def auto_filters() -> list[str]:
 
 
 def normal_filters() -> list[str]:
-    """Names of the registered filters whose rule takes ``criterion="normals"`` (linear in the coordinates, with a smoothing amount).
+    """Names of the registered filters whose rule takes ``criterion="normals"`` (linear in the coordinates for what
+    they read of the mesh held, with a smoothing amount).
 
     Examples
     --------
     >>> normal_filters()
-    ['filtering', 'heat', 'sinkhorn', 'sobolev', 'sobolev_axes', 'sobolev_bilaplacian', 'taubin']
+    ['filtering', 'heat', 'sinkhorn', 'sobolev', 'sobolev_axes', 'sobolev_bilaplacian', 'sobolev_gls', 'taubin']
     """
     return [spec.name for spec in list_filters() if spec.auto is not None and spec.auto.normals is not None]
 
