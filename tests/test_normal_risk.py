@@ -280,3 +280,24 @@ def test_a_rules_normals_region_reaches_the_region_search(monkeypatch):
     assert calls == [(AXES_NORMAL_REGION, 2 * AXES_NORMAL_REGION)]
     choose_parameters((X, F), "sobolev", criterion="normals")
     assert calls[-1] == (choose.NORMAL_REGION, REGION_MIN_VERTICES)
+
+
+def test_sobolev_gls_leaves_mu_unrefined_when_the_normals_search_follows(monkeypatch):
+    """Its last search over mu (at the best beta) is redone by the normals search: skipped under criterion normals."""
+    import meshdenoise.plugins.sobolev_gls as gls
+
+    calls = []
+    original = gls.search_log
+
+    def spy(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(gls, "search_log", spy)
+    V0, F = icosphere(2)
+    X = V0 + 0.01 * np.random.default_rng(8).standard_normal(len(V0))[:, None] * vertex_normals(V0, F)
+    choose_parameters((X, F), "sobolev_gls", criterion="sure", noise=0.01, exact_trace=False)
+    assert len(calls) == 2
+    calls.clear()
+    chosen = choose_parameters((X, F), "sobolev_gls", criterion="normals", noise=0.01, exact_trace=False)
+    assert len(calls) == 1 and chosen["mu"] > 0

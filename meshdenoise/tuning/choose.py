@@ -312,7 +312,7 @@ def choose_parameters(
         if relabel is not None:
             Y = relabel.vertices(Y)
     ctx = TuningContext(V, F, ops, rho, Criterion("sure" if criterion == "normals" else criterion, Y), exact_trace,
-                        dict(given), model)
+                        dict(given), model, normals_next=criterion == "normals")
     with stage(f"choosing {method}'s parameters"), noise_colouring(model):
         chosen, point = spec.auto.choose(ctx)
         if criterion == "normals":

@@ -572,6 +572,6 @@ def _on_region(ctx, rule: Callable, region, held: dict) -> tuple[dict, Point]:
         with noise_colouring(None):  # the region's own smoothing: its probes are not the whole mesh's rows
             smoothed = sure_smoothed(V, ops, ctx.rho).X
         model = NoiseModel(ctx.rho, float(model.correlation_length), smoothed, F)
-    sub = TuningContext(V, F, ops, ctx.rho, ctx.criterion, ctx.exact, held, model)
+    sub = TuningContext(V, F, ops, ctx.rho, ctx.criterion, ctx.exact, held, model, ctx.normals_next)
     with noise_colouring(model):
         return rule(sub, region.inner)
