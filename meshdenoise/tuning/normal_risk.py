@@ -46,7 +46,8 @@ NORMAL_MIN_HEIGHT = 0.2  # faces lower than this fraction of the median height a
 # between the candidates' ends; cut, the 0.1 % largest terms hold 14 %)
 NORMAL_ITERATIONS = 6  # fixed-point passes at most (a bisection over the 14 candidates needs 4 once bracketed)
 # the weight's multiples searched, 10^t for t = -0.3 .. 1.0 by tenths: the normal oracles measured were 1 to 10 times
-# position SURE's weight (docs/automatic-parameters.md); beyond 10 the estimate's linearisation fails (the Nefertiti)
+# position SURE's weight (docs/automatic-parameters.md); beyond 10, at a much shrunk mesh, the estimate asked for ever
+# more smoothing on the Nefertiti (hence guard_above past here)
 NORMAL_SCALES = tuple(float(10.0 ** (t / 10.0)) for t in range(-3, 11))
 # ... and on to 10^2 where the noise is below NORMAL_WIDE_BELOW mean edge lengths, where the linearisation holds:
 # face000's oracles were 12, 20 and 28 times SURE's weight (sobolev, sobolev_bilaplacian, sobolev_axes), the
