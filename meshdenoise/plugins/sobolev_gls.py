@@ -304,8 +304,8 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
     needs no noise level, which :func:`estimate_noise` over-reads on small meshes at low noise
     (Nefertiti rho = 0.015: auto loss 0.75 dB with SURE, 0.23 with GCV, 5 seeds).
     Search: ``mu`` by :func:`~meshdenoise.tuning.search.search_log` at ``beta = 3``, then ``beta`` over
-    ``SOBOLEV_GLS_BETAS`` at that ``mu``, then ``mu`` again at the best ``beta`` (not when the normals
-    criterion follows, ``ctx.normals_next``: it moves ``mu`` on from the first search's).
+    ``SOBOLEV_GLS_BETAS`` at that ``mu``, then ``mu`` again at the best ``beta`` (its bracket only, 0.75
+    decades, when the normals criterion follows, ``ctx.normals_next``: that search moves ``mu`` on).
 
     ``scored`` (bool (n,), optional): the risk of the scored vertices only (residual summed over
     them, probes zero elsewhere: the trace of the scored block of :math:`\\hat\\Sigma J`), for a
@@ -402,8 +402,9 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
     mu = float(full["mu"]) if held_mu else float(search_log(lambda m: evaluate(m, beta), ctx.mu_guess(order), golden_steps=6).value)
     if "beta" not in ctx.given:
         beta = min(SOBOLEV_GLS_BETAS, key=lambda b: evaluate(mu, b).score)
-        if not held_mu and not ctx.normals_next:  # the normals search moves mu on from here anyway
-            mu = float(search_log(lambda m: evaluate(m, beta), mu, golden_steps=6).value)
+        if not held_mu:  # before the normals search (which moves mu on) the bracket only, no golden steps: the first
+            # search, at beta = 3, can end far off (a 162-vertex sphere: 3e-9 against 2e-3), and the bracket recovers it
+            mu = float(search_log(lambda m: evaluate(m, beta), mu, golden_steps=0 if ctx.normals_next else 6).value)
     best = evaluate(mu, beta)
     return {"mu": float(mu), "beta": float(beta)}, best
 

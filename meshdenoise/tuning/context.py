@@ -40,7 +40,7 @@ class TuningContext:
     normals_next : bool
         ``criterion="normals"`` follows the rule: the smoothing amount it chooses
         (``AutoRule.normals``) will be moved to the least estimated face-normal error, so the
-        rule may leave it unrefined (``sobolev_gls`` skips its last search over ``mu``).
+        rule may leave it unrefined (``sobolev_gls`` skips its last golden-section steps over ``mu``).
     """
 
     V: np.ndarray
