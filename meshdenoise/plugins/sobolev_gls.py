@@ -439,8 +439,8 @@ def sobolev_gls_map(V: np.ndarray, F: np.ndarray, ops: Operators, params: dict):
         if N is None:
             return B0
         n, k = B.shape[0], B.shape[1] // 3
-        R = (B - B0).reshape(n, k, 3).transpose(0, 2, 1)  # (n, 3, k): triple p in [:, :, p]
-        rhs = (beta - 1.0) * (R - N[:, :, None] * np.sum(N[:, :, None] * R, axis=1, keepdims=True))
+        triples = lambda A: A.reshape(n, k, 3).transpose(0, 2, 1)  # noqa: E731  (n, 3, k): triple p in [:, :, p]
+        rhs = _correction_rhs(N, beta, triples(B), triples(B0))
         D = normal_weighted_solve(ops, N, beta, mu, order, rhs, tol=GLS_MAP_TOL)
         return B0 + D.transpose(0, 2, 1).reshape(n, 3 * k)
 
@@ -570,7 +570,9 @@ def _correction_rhs(N: np.ndarray, beta: float, X: np.ndarray, X0: np.ndarray) -
 
     From :math:`(I + \\mu K) X_0 = X`: :math:`(W + \\mu K) D = W X - (W + \\mu K) X_0 = (W - I)(X - X_0)`.
     It does not see a translation of the mesh (unlike :math:`W X`), so the iterative
-    solve's tolerance is relative to the correction, not to the coordinates' magnitude.
+    solve's tolerance is relative to the correction, not to the coordinates' magnitude. ``X``, ``X0``: (n, 3), or
+    (n, 3, k) for k systems.
     """
     R = X - X0
-    return (beta - 1.0) * (R - N * np.sum(N * R, axis=1, keepdims=True))
+    Nb = N if R.ndim == 2 else N[:, :, None]
+    return (beta - 1.0) * (R - Nb * np.sum(Nb * R, axis=1, keepdims=True))
