@@ -326,7 +326,7 @@ def test_sobolev_gls_scored_rule_with_every_vertex_scored_is_the_whole_rule():
 
 
 def test_sobolev_gls_region_mode_choice_and_refinement_against_the_whole_rule(monkeypatch):
-    """region=True (looser CG, warm starts) chooses what the whole rule chooses up to a golden step; with a previous
+    """loose=True (looser CG, warm starts) chooses what the whole rule chooses up to a golden step; with a previous
     choice beta is held and mu refined in a few candidates, landing near the whole rule's mu."""
     import meshdenoise.plugins.sobolev_gls as sg
     from meshdenoise.plugins.sobolev_gls import choose_sobolev_gls_whole
@@ -339,13 +339,13 @@ def test_sobolev_gls_region_mode_choice_and_refinement_against_the_whole_rule(mo
     def run(**kw):
         return choose_sobolev_gls_whole(TuningContext(Vn, F, ops, 0.05, Criterion("sure"), False, {}), None, **kw)
 
-    (c0, p0), (c1, p1) = run(), run(region=True)
+    (c0, p0), (c1, p1) = run(), run(loose=True)
     assert c1["beta"] == c0["beta"] and abs(np.log10(c1["mu"] / c0["mu"])) < 0.06
     assert p1.score == pytest.approx(p0.score, rel=1e-3)
     solves = []
     real = sg.normal_weighted_solve
     monkeypatch.setattr(sg, "normal_weighted_solve", lambda *a, **k: solves.append(1) or real(*a, **k))
-    c2, _ = run(region=True, previous={"mu": c0["mu"] * 10**0.15, "beta": 5.0})
+    c2, _ = run(loose=True, previous={"mu": c0["mu"] * 10**0.15, "beta": 5.0})
     assert c2["beta"] == 5.0 and len(solves) <= 9  # the full rule: about 27
-    c3, _ = run(region=True, previous={"mu": c0["mu"] * 10**0.15, "beta": c0["beta"]})
+    c3, _ = run(loose=True, previous={"mu": c0["mu"] * 10**0.15, "beta": c0["beta"]})
     assert abs(np.log10(c3["mu"] / c0["mu"])) < 0.06

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import logging
 import math
-
 import warnings
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -211,9 +211,9 @@ SOBOLEV_GLS_REGION = 10_000  # from search.REGION_MIN_VERTICES the rule runs on 
 SOBOLEV_GLS_PATCHES = 8  # ... made of this many balls of vertices
 SOBOLEV_GLS_MARGIN = 8  # ... scoring only its vertices more than this many rings from a cut
 SOBOLEV_GLS_SPREAD_SAMPLES = 4  # simulated noise draws of the parametric bootstrap of the normals' spread
-SOBOLEV_GLS_REGION_TOL = 1e-6  # on a region: CG's relative residual per candidate (1e-9 on a whole mesh), each solve
-# started from the nearest candidate's solution
-SOBOLEV_GLS_REGION_WARM = 4  # ... of the last this many candidates
+SOBOLEV_GLS_LOOSE_TOL = 1e-6  # on a region, or before the normals search: CG's relative residual per candidate (1e-9
+# on a whole mesh), each solve started from the nearest candidate's solution
+SOBOLEV_GLS_LOOSE_WARM = 4  # ... of the last this many candidates
 
 
 
@@ -242,17 +242,31 @@ def _normals_divergence(
 def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
     """:func:`choose_sobolev_gls_whole` on a sampled region of ``SOBOLEV_GLS_REGION`` vertices from
     :data:`~meshdenoise.tuning.search.REGION_MIN_VERTICES` vertices (:func:`~meshdenoise.tuning.search.region_rule`),
-    on the whole mesh below (docs/scale.md: the same choice at 100k and 400k, a bounded cost)."""
+    on the whole mesh below (docs/scale.md: the same choice at 100k and 400k, a bounded cost).
+
+    When the normals criterion follows (``ctx.normals_next``) it moves ``mu`` on, scoring the filter at
+    ``beta = 1`` (``AutoRule.normals_held``), so ``mu`` is not searched here: it is held at the isotropic
+    filter's SURE weight (:func:`~meshdenoise.tuning.search.best_shifted`, :math:`(I + \\mu L^p)^{-1}`, the
+    normals search's start) and only ``beta`` is chosen, by the SURE sweep at that ``mu`` (CG to
+    ``SOBOLEV_GLS_LOOSE_TOL``, warm-started). Fandisk0.3: 44 s -> 10 s, the same beta and 9.52 degrees
+    against 9.56 (docs/automatic-parameters.md, session 19).
+    """
     order = int(get_filter("sobolev_gls").resolve(ctx.given, where="choose_parameters(method='sobolev_gls')")["order"])
+    sweep_only = ctx.normals_next and "mu" not in ctx.given and ctx.reference is None and bool(ctx.rho)
+    if sweep_only:
+        mu = best_shifted(ctx.V, ctx.ops, order, ctx.rho, "sure", ctx.exact, center=ctx.mu_guess(order),
+                          coordinates=False).value
+        ctx = replace(ctx, given={**ctx.given, "mu": float(mu)})
+
     def on_region(sub: TuningContext, scored: np.ndarray | None, previous: dict | None = None) -> tuple[dict, Point]:
-        return choose_sobolev_gls_whole(sub, scored, previous, region=scored is not None)
+        return choose_sobolev_gls_whole(sub, scored, previous, loose=scored is not None or sweep_only)
 
     return region_rule(ctx, on_region, SOBOLEV_GLS_REGION, SOBOLEV_GLS_PATCHES, SOBOLEV_GLS_MARGIN,
                        reach=lambda chosen: shifted_reach(chosen["mu"], order) if chosen.get("mu") else 0, restart=True)
 
 
 def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = None,
-                             previous: dict | None = None, region: bool = False) -> tuple[dict, Point]:
+                             previous: dict | None = None, loose: bool = False) -> tuple[dict, Point]:
     """``mu`` and ``beta`` of ``sobolev_gls``: SURE (GCV at low noise) with the filter's full divergence.
 
     The filter is :math:`f(X) = X_0 + A^{-1} (\\beta - 1) P (X - X_0)`, :math:`X_0 = (I + \\mu L^p)^{-1} X`,
@@ -304,14 +318,14 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
     needs no noise level, which :func:`estimate_noise` over-reads on small meshes at low noise
     (Nefertiti rho = 0.015: auto loss 0.75 dB with SURE, 0.23 with GCV, 5 seeds).
     Search: ``mu`` by :func:`~meshdenoise.tuning.search.search_log` at ``beta = 3``, then ``beta`` over
-    ``SOBOLEV_GLS_BETAS`` at that ``mu``, then ``mu`` again at the best ``beta`` (its bracket only, 0.75
-    decades, when the normals criterion follows, ``ctx.normals_next``: that search moves ``mu`` on).
+    ``SOBOLEV_GLS_BETAS`` at that ``mu``, then ``mu`` again at the best ``beta``; with ``mu`` given, the
+    sweep over ``beta`` only (as :func:`choose_sobolev_gls` runs it when the normals criterion follows).
 
     ``scored`` (bool (n,), optional): the risk of the scored vertices only (residual summed over
     them, probes zero elsewhere: the trace of the scored block of :math:`\\hat\\Sigma J`), for a
-    region cut out of a larger mesh (:func:`~meshdenoise.tuning.search.region_rule`). With ``region``
-    (set there) each candidate's CG stops at a relative residual of ``SOBOLEV_GLS_REGION_TOL`` and starts from the
-    nearest of the last candidates' solutions. ``previous`` (the choice on a smaller region, whose
+    region cut out of a larger mesh (:func:`~meshdenoise.tuning.search.region_rule`). With ``loose``
+    (set there, and for the sweep before the normals search) each candidate's CG stops at a relative residual of
+    ``SOBOLEV_GLS_LOOSE_TOL`` and starts from the nearest of the last candidates' solutions. ``previous`` (the choice on a smaller region, whose
     border pulled ``mu`` down): ``beta`` is held at its value and ``mu`` refined around its ``mu``
     (:func:`~meshdenoise.tuning.search.search_log` on three points 0.2 decades apart, 4 golden steps).
     """
@@ -351,7 +365,7 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
         log.info("sobolev_gls: tangential share of the noise tau = %.4g", tau)
     rows = slice(None) if scored is None else np.asarray(scored, dtype=bool)
     evaluated: dict[tuple, Point] = {}
-    tol = SOBOLEV_GLS_REGION_TOL if region else CG_TOL
+    tol = SOBOLEV_GLS_LOOSE_TOL if loose else CG_TOL
     warm: list[tuple[float, float, np.ndarray]] = []  # (log10 mu, log10 beta, solution) of the last candidates
 
     def start(mu: float, beta: float) -> np.ndarray | None:
@@ -379,10 +393,10 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
                     # A^-1 b only: b^T A^-1 W b = (A^-1 b)^T W b (A symmetric), and the normals' part needs A^-1 b too
                     rhs = np.concatenate([_correction_rhs(N, beta, ctx.V, X0)[:, :, None], B], axis=2)
                     out = normal_weighted_solve(ctx.ops, N, beta, mu, order, rhs, tol=tol,
-                                                x0=start(mu, beta) if region else None)
-                    if region:
+                                                x0=start(mu, beta) if loose else None)
+                    if loose:
                         warm.append((math.log10(mu), math.log10(beta), out))
-                        del warm[:-SOBOLEV_GLS_REGION_WARM]
+                        del warm[:-SOBOLEV_GLS_LOOSE_WARM]
                     X, AiB = X0 + out[:, :, 0], out[:, :, 1:]
                     fixed_normals = float(np.sum(AiB * _apply_weight(N, beta, B)))
                     tr = s * (fixed_normals + _normals_divergence(X0, ctx.F, ctx.V - X, N, beta, S, B, AiB))
@@ -402,14 +416,13 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
     mu = float(full["mu"]) if held_mu else float(search_log(lambda m: evaluate(m, beta), ctx.mu_guess(order), golden_steps=6).value)
     if "beta" not in ctx.given:
         beta = min(SOBOLEV_GLS_BETAS, key=lambda b: evaluate(mu, b).score)
-        if not held_mu:  # before the normals search (which moves mu on) the bracket only, no golden steps: the first
-            # search, at beta = 3, can end far off (a 162-vertex sphere: 3e-9 against 2e-3), and the bracket recovers it
-            mu = float(search_log(lambda m: evaluate(m, beta), mu, golden_steps=0 if ctx.normals_next else 6).value)
+        if not held_mu:
+            mu = float(search_log(lambda m: evaluate(m, beta), mu, golden_steps=6).value)
     best = evaluate(mu, beta)
     return {"mu": float(mu), "beta": float(beta)}, best
 
 
-GLS_MAP_TOL = 1e-6  # CG's relative residual in sobolev_gls_map (the normals search's probes; SOBOLEV_GLS_REGION_TOL)
+GLS_MAP_TOL = 1e-6  # CG's relative residual in sobolev_gls_map (the normals search's probes; SOBOLEV_GLS_LOOSE_TOL)
 GLS_NORMAL_REGION = 8_000  # the normals criterion's search on a region of this size from twice as many vertices: each
 # candidate is a factorisation of I + mu L^3 and a block CG over the probes' triples
 

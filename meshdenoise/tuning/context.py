@@ -40,7 +40,8 @@ class TuningContext:
     normals_next : bool
         ``criterion="normals"`` follows the rule: the smoothing amount it chooses
         (``AutoRule.normals``) will be moved to the least estimated face-normal error, so the
-        rule may leave it unrefined (``sobolev_gls`` skips its last golden-section steps over ``mu``).
+        rule may leave it unsearched (``sobolev_gls`` holds ``mu`` at the isotropic filter's SURE weight and
+        chooses ``beta`` only).
     """
 
     V: np.ndarray
