@@ -412,8 +412,9 @@ def test_sobolev_axes_quadrature_search_chooses_the_factor_search_weights(monkey
     V, F = torus(40, 20)
     Vn, _ = add_normal_noise((V, F), 0.03, seed=0)
     monkeypatch.setattr(ax, "probe_count", lambda n: 24)
+    monkeypatch.setattr(ax, "AXES_QUADRATURE_MIN_VERTICES", 10**9)
     old, old_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True)
-    monkeypatch.setattr(ax, "AXES_SCALE_MIN_VERTICES", 100)
+    monkeypatch.setattr(ax, "AXES_QUADRATURE_MIN_VERTICES", 100)
     monkeypatch.setattr(ax, "solve_shifted", lambda *a, **k: pytest.fail("a factor was used"))
     new, new_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True)
     for name in ("mu1", "mu2", "mu3"):

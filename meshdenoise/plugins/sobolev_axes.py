@@ -14,11 +14,12 @@ from ..solvers import FILTER_LANCZOS_TOL, LanczosQuadrature, lanczos_shifted, sh
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
 from ..tuning.noise_level import fourth_difference, mean_edge_length, normal_trust
-from ..tuning.risk import Point, probe_block
-from ..tuning.search import best_shifted, probe_count, solve_shifted
+from ..tuning.risk import N_PROBES, Point, probe_block
+from ..tuning.search import QUADRATURE_MIN_VERTICES, best_shifted, probe_count, solve_shifted
 
-AXES_SCALE_MIN_VERTICES = 50_000  # from this size: the search by Lanczos quadrature, the filter without a factor
-# (every quality-table mesh is below it: their choices are unchanged)
+AXES_SCALE_MIN_VERTICES = 50_000  # from this size: the filter without a factor, the frame's estimate by Lanczos
+AXES_QUADRATURE_MIN_VERTICES = QUADRATURE_MIN_VERTICES  # from this size the search by Lanczos quadrature (the same
+# candidates and probes as by a factor per mu, the same scores to about 1e-12; session 19, was 50,000)
 AXES_NORMAL_REGION = 8_000  # the normals criterion's search on a region of this size from twice as many vertices: each
 # candidate factorises I + mu L^3 three times (3.3 s each at 35k vertices; the whole-mesh search took 170 s on Bunny0.2)
 
@@ -109,7 +110,7 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
     misplace up to 30 % of an axis's noise on Nefertiti at rho = 1 (3 edge lengths),
     which made the per-axis SURE pick mu2 = 0.08 instead of about 10 on two of five seeds.
 
-    From ``AXES_SCALE_MIN_VERTICES`` vertices (not the oracle) the candidates are the same and
+    From ``AXES_QUADRATURE_MIN_VERTICES`` vertices (not the oracle, not exact traces) the candidates are the same and
     their scores come from one Lanczos run on ``L`` (Gauss quadrature of both terms, which are
     quadratic forms of functions of ``L``, as :func:`~meshdenoise.tuning.search.shifted_quadrature`;
     the probes :func:`~meshdenoise.tuning.search.probe_count`), no factorisation per ``mu``; a
@@ -136,9 +137,11 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
         c = c * _axis_share_correction(ctx.V, ctx.ops, E, c, ctx.rho, smooth)[None, :]
     Xf = ctx.V @ E
     Yf = None if ctx.reference is None else ctx.reference @ E
-    large = n >= AXES_SCALE_MIN_VERTICES and Yf is None
-    Z, s = probe_block(n, ctx.exact, n_probes=probe_count(n)) if large else probe_block(n, ctx.exact)
+    Z, s = probe_block(n, ctx.exact, n_probes=probe_count(n))  # probe_count: N_PROBES, probe_block's own, to 50k
     m = Z.shape[1]
+    # a factor per mu costs 1 to 5 s at 35k vertices for L^3 (Bunny0.2: 10 of them); exact traces (identity probes,
+    # a Lanczos run per column) keep it
+    large = n >= AXES_QUADRATURE_MIN_VERTICES and Yf is None and m <= N_PROBES
     def probes(d: int) -> np.ndarray:  # axis d's probes z * sqrt(c_d), (n, m): made when needed, not held
         return np.ascontiguousarray(Z * np.sqrt(c[:, [d]]))
 
