@@ -48,7 +48,7 @@ def meshlab_taubin_operator(ops: Operators) -> sp.csr_matrix:
 
 # ----------------------------------------------------------------------------- automatic rule
 TAUBIN_LAMBDAS = (0.5, 0.25, 0.125)  # candidate shrinking steps of the automatic taubin rule
-TAUBIN_FINE_MIN_VERTICES = 50_000  # from this size a finer lambda is tried only while ...
+TAUBIN_FINE_MIN_VERTICES = 10_000  # from this size a finer lambda is tried only while ... (50,000 until session 19)
 TAUBIN_FINE_MAX_ITERATIONS = 8  # ... the coarser one's best count is below this
 
 
@@ -86,7 +86,7 @@ def choose_taubin(ctx: TuningContext) -> tuple[dict, Point]:
     :func:`taubin_mu_for` keeping the pass band :math:`k_{PB} = 1/\\lambda + 1/\\mu` of the
     defaults (0.5, -0.53): the same low-pass shape, finer steps (one default iteration
     can already be too much on weak noise: Nefertiti at rho = 0.015), and the smallest
-    SURE wins, as ``tau`` for ``heat``. From ``TAUBIN_FINE_MIN_VERTICES`` (50,000) vertices a
+    SURE wins, as ``tau`` for ``heat``. From ``TAUBIN_FINE_MIN_VERTICES`` (10,000) vertices a
     finer lambda is tried only while the best count so far is below ``TAUBIN_FINE_MAX_ITERATIONS``
     (8): the finer steps are there for weak noise, where one default iteration is already too
     much; with more iterations the count itself resolves the time, and each halving of lambda
