@@ -141,7 +141,7 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
     m = Z.shape[1]
     # a factor per mu costs 1 to 5 s at 35k vertices for L^3 (Bunny0.2: 10 of them); exact traces (identity probes,
     # a Lanczos run per column) keep it
-    large = n >= AXES_QUADRATURE_MIN_VERTICES and Yf is None and m <= N_PROBES
+    use_quadrature = n >= AXES_QUADRATURE_MIN_VERTICES and Yf is None and m <= N_PROBES
     def probes(d: int) -> np.ndarray:  # axis d's probes z * sqrt(c_d), (n, m): made when needed, not held
         return np.ascontiguousarray(Z * np.sqrt(c[:, [d]]))
 
@@ -149,7 +149,7 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
     evaluated: dict[float, list[float]] = {}  # log10 mu -> per-axis score
     keys: list[str] = []  # the factor path's memo key (topology, order, right-hand sides), hashed on first use
     quad = None
-    if large:  # every candidate's terms from Lanczos runs on L (as search.shifted_quadrature)
+    if use_quadrature:  # every candidate's terms from Lanczos runs on L (as search.shifted_quadrature)
         hp = Xf
         for _ in range(order):
             hp = spmm(ctx.ops.L, np.ascontiguousarray(hp))

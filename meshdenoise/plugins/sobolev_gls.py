@@ -215,7 +215,8 @@ SOBOLEV_GLS_LOOSE_TOL = 1e-6  # on a region, or before the normals search: CG's 
 # on a whole mesh), each solve started from the nearest candidate's solution
 SOBOLEV_GLS_LOOSE_WARM = 4  # ... of the last this many candidates
 GLS_SWEEP_REGION_FROM = 20_000  # before the normals search the beta sweep runs on the region from this size (not
-# REGION_MIN_VERTICES): measured 1.1 to 1.8 times faster on 25k-35k meshes, the same beta but the bunny scanner's (5 for 12)
+# REGION_MIN_VERTICES): measured 1.1 to 1.8 times faster on 25k-35k meshes, the same beta but the bunny scanner's
+# (5 for 12)
 
 
 
@@ -328,9 +329,10 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
     them, probes zero elsewhere: the trace of the scored block of :math:`\\hat\\Sigma J`), for a
     region cut out of a larger mesh (:func:`~meshdenoise.tuning.search.region_rule`). With ``loose``
     (set there, and for the sweep before the normals search) each candidate's CG stops at a relative residual of
-    ``SOBOLEV_GLS_LOOSE_TOL`` and starts from the nearest of the last candidates' solutions. ``previous`` (the choice on a smaller region, whose
-    border pulled ``mu`` down): ``beta`` is held at its value and ``mu`` refined around its ``mu``
-    (:func:`~meshdenoise.tuning.search.search_log` on three points 0.2 decades apart, 4 golden steps).
+    ``SOBOLEV_GLS_LOOSE_TOL`` and starts from the nearest of the last candidates' solutions. ``previous`` (the
+    choice on a smaller region, whose border pulled ``mu`` down): ``beta`` is held at its value and ``mu``
+    refined around its ``mu`` (:func:`~meshdenoise.tuning.search.search_log` on three points 0.2 decades apart,
+    4 golden steps).
     """
     spec = get_filter("sobolev_gls")
     full = spec.resolve(ctx.given, where="choose_parameters(method='sobolev_gls')")
