@@ -25,7 +25,7 @@ from .operators import Operators, mask_key, spmm, trim_cache
 
 __all__ = [
     "DirichletSystem", "SPDSolver", "CGSolver", "block_cg", "cached_solver", "laplacian_power", "shifted_solver",
-    "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "FILTER_LANCZOS_TOL",
+    "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "FILTER_LANCZOS_TOL",
 ]
 
 FACTORS_PER_FAMILY = 4  # a parameter sweep keeps only the last few factorisations of each filter
@@ -442,14 +442,101 @@ def shifted_matrix(ops: Operators, mu: float, order: int = 1) -> sp.csr_matrix:
     return sp.csr_matrix(sp.identity(ops.n, format="csr") + float(mu) * laplacian_power(ops, order))
 
 
+def shifted_factor_matrices(ops: Operators, mu: float, order: int) -> list[sp.csr_matrix]:
+    """SPD polynomials in ``L`` of degree 1 or 2 whose product is :math:`(I + \\mu L^p) / \\mu`.
+
+    The roots of :math:`1 + \\mu x^p` are :math:`x_k = a\\, e^{i \\pi (2k + 1) / p}`,
+    :math:`a = \\mu^{-1/p}`; a conjugate pair gives the real quadratic
+    :math:`x^2 - 2 a \\cos\\theta_k\\, x + a^2`, positive for every real ``x`` (its roots are not real), and an
+    odd ``p`` has the real root :math:`-a`, the factor :math:`x + a`. So
+
+    .. math:: I + \\mu L^3 = \\mu\\, (L + a I)(L^2 - a L + a^2 I), \\qquad
+              I + \\mu L^4 = \\mu\\, (L^2 + \\sqrt2\\, a L + a^2 I)(L^2 - \\sqrt2\\, a L + a^2 I),
+
+    every factor SPD for :math:`L \\succeq 0`, with at most ``L^2``'s pattern: Cholesky factors of those cost
+    a third to a quarter of one of ``L^3`` (37 nonzeros a row) or ``L^4`` (61) on a mesh (measured at 28k
+    vertices: 1.2-1.5 s against 3.2-4.3 s for ``p = 3``, 2.2 s against 7.4-9.3 s for ``p = 4``).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from meshdenoise.operators import Operators
+    >>> ops = Operators(np.array([[0, 1, 2], [0, 2, 3]]), 4)
+    >>> L = ops.L.toarray()
+    >>> P = np.linalg.multi_dot([M.toarray() for M in shifted_factor_matrices(ops, 8.0, 3)])
+    >>> bool(np.allclose(8.0 * P, np.eye(4) + 8.0 * np.linalg.matrix_power(L, 3)))
+    True
+    """
+    if isinstance(order, (bool, np.bool_)) or not isinstance(order, (int, np.integer)) or order < 1:
+        raise ValueError(f"shifted_factor_matrices: order must be an int >= 1, got {order!r}")
+    a = float(mu) ** (-1.0 / order)
+    eye = sp.identity(ops.n, format="csr")
+    L, L2 = laplacian_power(ops, 1), laplacian_power(ops, 2) if order > 1 else None
+    out = [sp.csr_matrix(L + a * eye)] if order % 2 else []
+    for k in range(order // 2):
+        c = 2.0 * a * math.cos(math.pi * (2 * k + 1) / order)
+        out.append(sp.csr_matrix(L2 - c * L + (a * a) * eye))
+    return out
+
+
+class ShiftedProduct:
+    """:math:`(I + \\mu L^p) Y = X` by one Cholesky factor per real factor of :math:`1 + \\mu x^p`
+    (:func:`shifted_factor_matrices`), solved in turn: for ``p >= 3``, with no pinned rows (the free rows of a
+    product are not the product of the factors' free rows).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from meshdenoise.operators import Operators
+    >>> ops = Operators(np.array([[0, 1, 2], [0, 2, 3]]), 4)
+    >>> X = np.arange(12.0).reshape(4, 3)
+    >>> Y = ShiftedProduct(ops, 5.0, 3).solve(X)
+    >>> bool(np.allclose(Y + 5.0 * np.linalg.matrix_power(ops.L.toarray(), 3) @ Y, X))
+    True
+    """
+
+    pinned = None
+
+    def __init__(self, ops: Operators, mu: float, order: int):
+        self.n, self.mu, self.order = ops.n, float(mu), int(order)
+        self.factors = [SPDSolver(M) for M in shifted_factor_matrices(ops, self.mu, self.order)]
+
+    @property
+    def nbytes(self) -> int:
+        """Approximate memory held: the factors' matrices and Cholesky factors."""
+        return sum(f.nbytes for f in self.factors)
+
+    def solve(self, X: np.ndarray) -> np.ndarray:
+        """``Y`` of the shape of ``X`` (n,) or (n, k)."""
+        X = np.asarray(X, dtype=np.float64)
+        if X.shape[0] != self.n:
+            raise ValueError(f"ShiftedProduct.solve: X has {X.shape[0]} rows, the system {self.n}")
+        Y = X.reshape(self.n, -1)
+        for factor in self.factors:
+            Y = factor.solve(Y)
+        Y /= self.mu
+        return Y.reshape(X.shape)
+
+
+def shifted_factor(ops: Operators, mu: float, order: int = 1,
+                   pinned: np.ndarray | None = None) -> SPDSolver | ShiftedProduct:
+    """A factorised solver of :math:`(I + \\mu L^p) Y = X`, not stored: :class:`ShiftedProduct` from ``p = 3``
+    with no pinned rows, else one Cholesky factor of the matrix (:class:`SPDSolver`)."""
+    if order >= 3 and (pinned is None or not np.any(pinned)):
+        return ShiftedProduct(ops, mu, order)
+    return SPDSolver(shifted_matrix(ops, mu, order), pinned)
+
+
 def shifted_solver(
     ops: Operators, mu: float, order: int = 1, pinned: np.ndarray | None = None, method: str = "cholesky"
-) -> SPDSolver | CGSolver:
+) -> SPDSolver | ShiftedProduct | CGSolver:
     """The solver of :math:`(I + \\mu L^p) Y = X` on this topology (pinned rows as Dirichlet data), stored on ``ops``.
 
     The one place the package builds this family of systems: the Sobolev filters of every
     order and the automatic-parameter searches share its factorisations (the last
-    :data:`FACTORS_PER_FAMILY` per (order, method), least recently used first out).
+    :data:`FACTORS_PER_FAMILY` per (order, method), least recently used first out). From ``p = 3``
+    with no pinned rows a ``"cholesky"`` solver factorises the real factors of :math:`1 + \\mu x^p`
+    (:func:`shifted_factor`), a third to a quarter of the cost of factorising :math:`I + \\mu L^p`.
 
     Parameters
     ----------
@@ -478,11 +565,11 @@ def shifted_solver(
     if method not in SHIFTED_METHODS:
         raise ValueError(f"shifted_solver: method must be one of {SHIFTED_METHODS}, got {method!r}")
     mu = float(mu)
-    cls = SPDSolver if method == "cholesky" else CGSolver
-    return cached_solver(
-        ops, f"shifted-p{order}-{method}", mu, pinned,
-        lambda: cls(shifted_matrix(ops, mu, order), pinned),
-    )
+    if method == "cholesky":
+        return cached_solver(ops, f"shifted-p{order}-{method}", mu, pinned,
+                             lambda: shifted_factor(ops, mu, order, pinned))
+    return cached_solver(ops, f"shifted-p{order}-{method}", mu, pinned,
+                         lambda: CGSolver(shifted_matrix(ops, mu, order), pinned))
 
 
 class LanczosQuadrature:

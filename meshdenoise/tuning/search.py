@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..operators import Operators, spmm
-from ..solvers import LanczosQuadrature, SPDSolver, shifted_matrix, shifted_solver
+from ..solvers import LanczosQuadrature, shifted_factor, shifted_solver
 from .memo import MEMO, digest
 from .risk import N_PROBES, Criterion, Point, as_criterion, probe_block
 from .walk import past_minimum, walk
@@ -263,7 +263,7 @@ def solve_shifted(ops: Operators, order: int, mu: float, rhs: np.ndarray, key: s
     evaluates each ``mu`` once on a region: nothing held after it, one factor at a time).
     """
     if not memo:
-        return SPDSolver(shifted_matrix(ops, mu, order)).solve(rhs)
+        return shifted_factor(ops, mu, order).solve(rhs)
     key = key or digest(ops.F, order, rhs)
     return MEMO.get(("solve", key, float(mu)), lambda: shifted_solver(ops, mu, order).solve(rhs))
 
