@@ -10,7 +10,6 @@ from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn
 
 from ..io import MeshFileError, load_arrays
 from .batch import NoisyBatch, make_batch
-from .figures import write_figures
 from .paper import MESHES
 from .strategies import available_methods, run_search
 from .table import make_row, write_json, write_table
@@ -85,6 +84,8 @@ def run_reproduction(
         progress.update(task, description="writing figures")
         write_json(rows, out_dir / "results.json")
         write_json([{"mesh": m, "method": k, **v} for m, c in curves.items() for k, v in c.items()], out_dir / "timing.json")
+        from .figures import write_figures  # matplotlib: imported when figures are drawn, not by every command
+
         write_figures(results, curves, out_dir)
         write_table(rows, noisy, out_dir / "table.md", time.perf_counter() - started, seeds)
         progress.update(task, description="done")
