@@ -60,7 +60,7 @@ sys.path.insert(0, str(ROOT))
 SIZES = {"100k": 1, "400k": 2, "1.6M": 3}  # label -> Loop subdivision levels
 DEFAULT = "default"  # the row of `meshdenoise denoise IN OUT` with no method: choose_default, then its filter
 METHODS = ("filtering", "heat", "taubin", "sobolev", "sobolev_bilaplacian", "sobolev_normal", "sobolev_gls", "two_stage",
-           DEFAULT, "sobolev_axes")
+           DEFAULT, "sobolev_axes", "sinkhorn")
 NOISE_EDGES = 0.5  # noise standard deviation in mean edge lengths
 TWO_STAGE_COUNTS = (1, 20, 20)  # outer, normal, vertex iterations (MeshLab's defaults per outer iteration)
 TAUBIN_ARGS = (10, 0.5, -0.53)
@@ -71,6 +71,7 @@ CONTINUOUS = {  # main parameter of the methods without an iteration count to wa
     "sobolev_normal": "mu",
     "sobolev_gls": "mu",
     "sobolev_axes": ("mu1", "mu2", "mu3"),  # the three weights scaled together
+    "sinkhorn": "t",  # its chosen iteration count kept
 }
 GRID = (1.0 / 3.0, 3.0)
 

@@ -456,7 +456,7 @@ def test_correlated_noise_is_estimated_reported_and_used_by_the_choice():
     assert model.correlation_length > 1.0  # read as correlated
     verdict = separate_detail((Vn, F))  # the detail fit on its own (whole mesh, its own probes)
     assert verdict.verdict == "noise"  # a smooth torus: its own band spectrum explains none of the fine bands
-    choice = choose_default((Vn, F))
+    (Y, _), choice = md.denoise((Vn, F), return_params=True)  # the choice denoise makes, and its result
     assert choice.verdict == "noise" and choice.rho_range == pytest.approx(verdict.rho_range, rel=0.02)
     # "noise": the detail fit's joint model, near the truth
     assert choice.correlation_length == pytest.approx(verdict.model.correlation_length, abs=0.11)
@@ -471,7 +471,6 @@ def test_correlated_noise_is_estimated_reported_and_used_by_the_choice():
     assert choice.lines()[-1] == "  note: " + choice.caveats[0] and choice.as_dict()["caveats"] == choice.caveats
     assert choose_default((Vn, F), noise=model).caveats == []  # a noise model given: the user's call
     assert (choice.method, choice.params) == smaller_risk(Vn, F, model)
-    Y = md.denoise((Vn, F))[0]
     assert md.snr(V, Y) > md.snr(V, Vn) + 1.0
 
 

@@ -313,7 +313,7 @@ def test_sobolev_normal_factor_free_path_equals_the_factor_path(monkeypatch):
         np.testing.assert_allclose(after, before, atol=1e-11)
 
 
-@pytest.mark.parametrize("method", ["sobolev_normal", "sobolev_gls"])
+@pytest.mark.parametrize("method", ["sobolev_normal", "sobolev_gls", "sinkhorn"])
 def test_region_rule_is_not_used_below_its_size(monkeypatch, method):
     """Every quality-table mesh is below REGION_MIN_VERTICES: the rule runs on the whole mesh, as before."""
     import meshdenoise.tuning.region as region
@@ -322,7 +322,51 @@ def test_region_rule_is_not_used_below_its_size(monkeypatch, method):
     V, F = icosphere(2)
     Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
     params = choose_parameters((Vn, F), method, noise=0.02)
-    assert params["mu"] > 0
+    assert params["t" if method == "sinkhorn" else "mu"] > 0
+
+
+def test_sinkhorn_rule_scores_a_regions_inner_vertices_and_cuts_again_while_its_choice_reaches_further(monkeypatch):
+    """From REGION_MIN_VERTICES the rule runs on a sampled region; a free border pulls its choice low, and while the
+    choice's reach (sinkhorn_reach) is wider than the margin used the region is cut again with that margin (here
+    the second region would be the whole mesh, so the whole-mesh rule decides). On a 24,000-vertex torus the third
+    cut's choice was within 0.4 % of the whole mesh's t (docs/scale.md, session 20)."""
+    import meshdenoise.plugins.sinkhorn as sk
+    import meshdenoise.tuning.search as search
+
+    V, F = torus(100, 60)
+    rho = 0.3 * float(np.linalg.norm(V[F[:, 0]] - V[F[:, 1]], axis=1).mean())
+    Vn, _ = add_normal_noise((V, F), rho, seed=0)
+    whole = choose_parameters((Vn, F), "sinkhorn", noise=rho)
+    MEMO.clear()
+    monkeypatch.setattr(search, "REGION_MIN_VERTICES", 1000)
+    monkeypatch.setattr(sk, "SINKHORN_REGION", 3000)
+    monkeypatch.setattr(sk, "SINKHORN_PATCHES", 2)
+    calls = []
+    real = sk.choose_sinkhorn_whole
+    monkeypatch.setattr(sk, "choose_sinkhorn_whole",
+                        lambda ctx, scored=None: calls.append((ctx.n, scored)) or real(ctx, scored))
+    params = choose_parameters((Vn, F), "sinkhorn", noise=rho)
+    (n_region, scored), (n_last, last) = calls
+    assert n_region < len(V) and 0 < scored.sum() < n_region
+    assert (n_last, last) == (len(V), None) and params == whole
+    first = real(TuningContext(Vn, F, get_operators(F, len(V)), rho, Criterion("sure"), None, {}), None)[0]
+    assert first == whole and sk.sinkhorn_reach(whole) > sk.SINKHORN_MARGIN
+
+
+def test_sinkhorn_rule_scoring_every_vertex_is_the_whole_mesh_rule():
+    V, F = icosphere(3)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=1)
+    import meshdenoise.plugins.sinkhorn as sk
+
+    ctx = TuningContext(Vn, F, get_operators(F, len(V)), 0.02, Criterion("sure"), False, {})
+    a, pa = sk.choose_sinkhorn_whole(ctx, None)
+    MEMO.clear()
+    b, pb = sk.choose_sinkhorn_whole(ctx, np.ones(len(V), dtype=bool))
+    assert a == b and pa.score == pytest.approx(pb.score, rel=1e-12)
+    # two-thirds of the vertices scored: the score counts those only (residual, probes and n)
+    half = np.arange(len(V)) % 3 > 0
+    _, pc = sk.choose_sinkhorn_whole(ctx, half)
+    assert pc.residual_sq < pa.residual_sq
 
 
 def test_sobolev_normal_region_search_runs_on_a_cut_region_with_the_whole_mesh_tangential(monkeypatch):
