@@ -328,7 +328,8 @@ def test_region_rule_is_not_used_below_its_size(monkeypatch, method):
 def test_sinkhorn_rule_scores_a_regions_inner_vertices_and_cuts_again_while_its_choice_reaches_further(monkeypatch):
     """From REGION_MIN_VERTICES the rule runs on a sampled region; a free border pulls its choice low, and while the
     choice's reach (sinkhorn_reach) is wider than the margin used the region is cut again with that margin (here
-    the second region would be the whole mesh, so the whole-mesh rule decides). On a 24,000-vertex torus the third
+    the second region would be the whole mesh, so the whole-mesh rule decides). The first cut's margin is the reach
+    of the search's start (first_margin), here narrowed to see the second cut. On a 24,000-vertex torus the third
     cut's choice was within 0.4 % of the whole mesh's t (docs/scale.md, session 20)."""
     import meshdenoise.plugins.sinkhorn as sk
     import meshdenoise.tuning.search as search
@@ -341,6 +342,9 @@ def test_sinkhorn_rule_scores_a_regions_inner_vertices_and_cuts_again_while_its_
     monkeypatch.setattr(search, "REGION_MIN_VERTICES", 1000)
     monkeypatch.setattr(sk, "SINKHORN_REGION", 3000)
     monkeypatch.setattr(sk, "SINKHORN_PATCHES", 2)
+    start = sk.first_margin(TuningContext(Vn, F, get_operators(F, len(V)), rho, Criterion("sure"), None, {}))
+    assert sk.SINKHORN_MARGIN < start <= search.REGION_MAX_MARGIN
+    monkeypatch.setattr(sk, "first_margin", lambda ctx: sk.SINKHORN_MARGIN)  # (the start's margin: the whole torus)
     calls = []
     real = sk.choose_sinkhorn_whole
     monkeypatch.setattr(sk, "choose_sinkhorn_whole",
