@@ -373,6 +373,22 @@ def test_sinkhorn_rule_scoring_every_vertex_is_the_whole_mesh_rule():
     assert pc.residual_sq < pa.residual_sq
 
 
+def test_sinkhorn_rule_on_scored_vertices_traces_the_scored_diagonal_of_the_dense_smoother():
+    import meshdenoise.plugins.sinkhorn as sk
+    from meshdenoise.registry import get_filter
+
+    V, F = icosphere(2)
+    Vn, _ = add_normal_noise((V, F), 0.03, seed=2)
+    ops = get_operators(F, len(V))
+    scored = np.arange(len(V)) % 4 > 0
+    ctx = TuningContext(Vn, F, ops, 0.03, Criterion("sure"), True, {})  # exact traces: identity probes
+    params, point = sk.choose_sinkhorn_whole(ctx, scored)
+    H = sk.sinkhorn_map(Vn, F, ops, get_filter("sinkhorn").resolve(params))(np.eye(len(V)))  # dense, column by column
+    assert point.trace == pytest.approx(float(np.trace(H[np.ix_(scored, scored)])), rel=1e-9)
+    Y = sk.sinkhorn_map(Vn, F, ops, get_filter("sinkhorn").resolve(params))(Vn)
+    assert point.residual_sq == pytest.approx(float(np.sum((Y - Vn)[scored] ** 2)), rel=1e-9)
+
+
 def test_sobolev_normal_region_search_runs_on_a_cut_region_with_the_whole_mesh_tangential(monkeypatch):
     """The wiring of region_rule: a region is cut (grown to patches x 19 x margin^2 vertices), the rule scores its
     inner vertices with the whole mesh's tangential share held, and the risk is scaled to the whole mesh. Its

@@ -80,8 +80,9 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
     minimum): on face000 the best count is 1, and the SURE rule made 148 solves instead of 224.
 
     ``scored`` (bool (n,), optional; a sampled region's inner vertices): the risk of those
-    vertices only, the residual summed over them and the probes zero elsewhere (the trace of
-    the scored block of the smoother), SURE with their count.
+    vertices only, the residual and the probes' products :math:`z_i (H z)_i` summed over them
+    (:math:`\sum_{i \in S} (H \Sigma)_{ii}`, the coupling to the unscored rows included, which
+    zeroing the probes outside would drop under correlated noise), SURE with their count.
     """
     from ..ot import MeshHeatKernel
 
@@ -92,9 +93,6 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
     n = ctx.ops.n
     Z, s = probe_block(n, ctx.exact)
     rows = slice(None) if scored is None else np.asarray(scored, dtype=bool)
-    if scored is not None:
-        Z = np.array(Z)
-        Z[~rows] = 0.0
     count = n if scored is None else int(np.count_nonzero(rows))
 
     def score(p: Point) -> float:
@@ -103,7 +101,8 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
     best_k: dict[float, int] = {}
 
     early = held is None and not ctx.oracle  # a run's length then depends on the score: rho and criterion in the key
-    key = digest(ctx.F, ctx.V, Z, steps, max(ks), *((ctx.criterion.name, float(ctx.rho or 0.0)) if early else ()))
+    key = digest(ctx.F, ctx.V, Z, steps, max(ks), *((ctx.criterion.name, float(ctx.rho or 0.0)) if early else ()),
+                 *(() if scored is None else (rows,)))
 
     def path(t: float) -> list:
         K = MeshHeatKernel(ctx.V, ctx.F, t, laplacian="graph", mass="uniform", steps=steps)
@@ -112,7 +111,7 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
             GY = K.solve(Y)
             Y = 2.0 * GY - K.solve(GY)
             X = Y[:, :3].copy()
-            out.append((X, float(np.sum((X - ctx.V)[rows] ** 2)), s * float(np.sum(Z * Y[:, 3:]))))
+            out.append((X, float(np.sum((X - ctx.V)[rows] ** 2)), s * float(np.sum(Z[rows] * Y[rows, 3:]))))
             if early:
                 scores.append(score(Point(t, out[-1][1], out[-1][2], None)))
                 if len(scores) - 1 - int(np.argmin(scores)) >= SINKHORN_PATIENCE:
