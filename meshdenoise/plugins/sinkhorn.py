@@ -81,7 +81,7 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
 
     ``scored`` (bool (n,), optional; a sampled region's inner vertices): the risk of those
     vertices only, the residual and the probes' products :math:`z_i (H z)_i` summed over them
-    (:math:`\sum_{i \in S} (H \Sigma)_{ii}`, the coupling to the unscored rows included, which
+    (:math:`\\sum_{i \\in S} (H \\Sigma)_{ii}`, the coupling to the unscored rows included, which
     zeroing the probes outside would drop under correlated noise), SURE with their count.
     """
     from ..ot import MeshHeatKernel
