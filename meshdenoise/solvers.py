@@ -495,8 +495,6 @@ class ShiftedProduct:
     True
     """
 
-    pinned = None
-
     def __init__(self, ops: Operators, mu: float, order: int):
         self.n, self.mu, self.order = ops.n, float(mu), int(order)
         self.factors = [SPDSolver(M) for M in shifted_factor_matrices(ops, self.mu, self.order)]
@@ -517,7 +515,6 @@ class ShiftedProduct:
         Y /= self.mu
         return Y.reshape(X.shape)
 
-
 def shifted_factor(ops: Operators, mu: float, order: int = 1,
                    pinned: np.ndarray | None = None) -> SPDSolver | ShiftedProduct:
     """A factorised solver of :math:`(I + \\mu L^p) Y = X`, not stored: :class:`ShiftedProduct` from ``p = 3``
@@ -525,7 +522,6 @@ def shifted_factor(ops: Operators, mu: float, order: int = 1,
     if order >= 3 and (pinned is None or not np.any(pinned)):
         return ShiftedProduct(ops, mu, order)
     return SPDSolver(shifted_matrix(ops, mu, order), pinned)
-
 
 def shifted_solver(
     ops: Operators, mu: float, order: int = 1, pinned: np.ndarray | None = None, method: str = "cholesky"
@@ -570,7 +566,6 @@ def shifted_solver(
                              lambda: shifted_factor(ops, mu, order, pinned))
     return cached_solver(ops, f"shifted-p{order}-{method}", mu, pinned,
                          lambda: CGSolver(shifted_matrix(ops, mu, order), pinned))
-
 
 class LanczosQuadrature:
     r"""Gauss quadrature of :math:`b_j^T g(M)\, b_j` for a symmetric ``M``, every column ``b_j`` of ``B``, any ``g``.
@@ -795,13 +790,11 @@ class LanczosQuadrature:
             beta_prev = b
         return out
 
-
 LANCZOS_SHIFTED_MAX_STEPS = 2000  # lanczos_shifted gives up (returns None) after this many steps
 FILTER_LANCZOS_TOL = 1e-10  # the factor-free filters' lanczos_shifted tolerance: over 10 steps the coefficients' change
 # levels off at 3e-12 to 6e-12 of their norm (the recurrence's rounding, no reorthogonalisation) on a 51,200-vertex torus at
 # mu = 6,522, order 3, so 1e-12 was never met there and the filter fell back to a factorisation of I + mu L^3 (minutes);
 # 1e-10 of the correction mu f(L) L^p X (noise-sized) is far below anything a filter result shows
-
 
 def lanczos_shifted(ops: Operators, X: np.ndarray, mu: float, order: int, tol: float = 1e-10,
                     max_steps: int = LANCZOS_SHIFTED_MAX_STEPS, growth: float = 0.0) -> np.ndarray | None:
@@ -863,7 +856,6 @@ def lanczos_shifted(ops: Operators, X: np.ndarray, mu: float, order: int, tol: f
     if Y is None:
         return None
     return (X2 - mu * Y).reshape(X.shape)
-
 
 class LanczosRows(LanczosQuadrature):
     r""":math:`g(M)\, B` on a few rows only, for any ``g``, from one Lanczos run that keeps those rows of its basis.
