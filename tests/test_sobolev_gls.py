@@ -53,7 +53,18 @@ def _dense_gls(x, F, L3, mu, beta):
     return np.linalg.solve(A, W @ x)
 
 
-def test_sobolev_gls_matches_a_dense_generalised_least_squares_solve():
+@pytest.fixture(params=["direct", "cg"])
+def solve_path(request, monkeypatch):
+    """Both ways normal_weighted_solve solves: the small mesh's dense Cholesky and the conjugate gradients it
+    takes above GLS_DENSE_MAX_VERTICES (forced here by a limit of 0)."""
+    import meshdenoise.plugins.sobolev_gls as sg
+
+    if request.param == "cg":
+        monkeypatch.setattr(sg, "GLS_DENSE_MAX_VERTICES", 0)
+    return request.param
+
+
+def test_sobolev_gls_matches_a_dense_generalised_least_squares_solve(solve_path):
     V, F = torus(12, 6)
     Vn, _ = add_normal_noise((V, F), 0.03, seed=1)
     n = len(V)
@@ -71,7 +82,7 @@ def test_sobolev_gls_matches_a_dense_generalised_least_squares_solve():
     np.testing.assert_allclose(moved, got @ R.T + 5.0, atol=1e-7)
 
 
-def test_sobolev_gls_pinned_vertices_solve_the_reduced_dense_system():
+def test_sobolev_gls_pinned_vertices_solve_the_reduced_dense_system(solve_path):
     V, F = icosphere(2)
     Vn, _ = add_normal_noise((V, F), 0.03, seed=3)
     n = len(V)
@@ -94,7 +105,7 @@ def test_sobolev_gls_pinned_vertices_solve_the_reduced_dense_system():
 
 
 @pytest.mark.parametrize("rho, gcv_regime, mu, beta", [(0.03, True, 0.3, 5.0), (0.4, False, 2.0, 3.0)])
-def test_sobolev_gls_risk_equals_the_dense_estimate_with_the_normals_jacobian(rho, gcv_regime, mu, beta):
+def test_sobolev_gls_risk_equals_the_dense_estimate_with_the_normals_jacobian(rho, gcv_regime, mu, beta, solve_path):
     """With exact traces the rule's score is built from the full Jacobian J of the filter (normals included).
 
     J is taken by central differences of a dense re-implementation (3n solves of the 3n x 3n system):
