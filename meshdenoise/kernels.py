@@ -247,6 +247,28 @@ def normal_turns(D, F, e1, e2, n, inv, out):  # pragma: no cover - compiled
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def normal_turns_many(D, F, e1, e2, n, inv, out):  # pragma: no cover - compiled
+    """:func:`normal_turns` of ``P`` displacements at once: ``D`` (n, P, 3) into ``out`` (m, P, 3), the same
+    products and sums per displacement (one pass over the faces instead of ``P`` calls: the exact traces'
+    probes on a small mesh are one per vertex)."""
+    m, P = F.shape[0], D.shape[1]
+    for f in prange(m):
+        a, b, c = F[f, 0], F[f, 1], F[f, 2]
+        p0, p1, p2 = e1[f, 0], e1[f, 1], e1[f, 2]
+        q0, q1, q2 = e2[f, 0], e2[f, 1], e2[f, 2]
+        for k in range(P):
+            u0, u1, u2 = D[b, k, 0] - D[a, k, 0], D[b, k, 1] - D[a, k, 1], D[b, k, 2] - D[a, k, 2]
+            w0, w1, w2 = D[c, k, 0] - D[a, k, 0], D[c, k, 1] - D[a, k, 1], D[c, k, 2] - D[a, k, 2]
+            c0 = (u1 * q2 - u2 * q1) + (p1 * w2 - p2 * w1)
+            c1 = (u2 * q0 - u0 * q2) + (p2 * w0 - p0 * w2)
+            c2 = (u0 * q1 - u1 * q0) + (p0 * w1 - p1 * w0)
+            t = n[f, 0] * c0 + n[f, 1] * c1 + n[f, 2] * c2
+            out[f, k, 0] = (c0 - n[f, 0] * t) * inv[f]
+            out[f, k, 1] = (c1 - n[f, 1] * t) * inv[f]
+            out[f, k, 2] = (c2 - n[f, 2] * t) * inv[f]
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def centroid_spacing_sums(C, indptr, indices, out):  # pragma: no cover - compiled
     """Per face ``i``: the sum of ``|c_i - c_j|`` over its neighbours ``j != i`` into ``out`` (m,); returns their count."""
     m = C.shape[0]

@@ -33,6 +33,20 @@ def test_jacobian_matches_finite_differences_of_the_face_normals():
     np.testing.assert_allclose(NormalJacobian(V, F)(D), fd, atol=1e-6)
 
 
+def test_jacobian_of_many_displacements_is_each_ones_product_and_the_risk_takes_either_form():
+    V, F = icosphere(1)
+    rng = np.random.default_rng(3)
+    J = NormalJacobian(V + 0.05 * rng.standard_normal(V.shape), F, min_height=0.2)
+    D = rng.standard_normal((len(V), 5, 3))
+    many = J.many(D)
+    assert many.shape == (len(F), 5, 3)
+    for k in range(5):
+        np.testing.assert_array_equal(many[:, k], J(D[:, k]))  # the same products and sums: bit for bit
+    H = rng.standard_normal((len(V), 5, 3))
+    as_lists = normal_risk(J, V, 0.9 * V, [J(D[:, k]) for k in range(5)], [H[:, k] for k in range(5)], 0.1)
+    assert normal_risk(J, V, 0.9 * V, many, H, 0.1) == pytest.approx(as_lists, rel=1e-13)
+
+
 def test_risk_against_a_dense_computation_of_its_expectation():
     """E[G] over the noise equals (1/m) E||J(HX - X0)||^2: the estimator written out densely with exact traces."""
     V0, F = icosphere(1)

@@ -117,6 +117,13 @@ class NormalJacobian:
         kernels.normal_turns(np.ascontiguousarray(D, dtype=np.float64), self.F, self.e1, self.e2, self.n, self.inv, out)
         return out
 
+    def many(self, D: np.ndarray) -> np.ndarray:
+        """:math:`J d_k` for ``D`` of shape (n, P, 3), ``P`` displacements at once: shape (m, P, 3)."""
+        D = np.ascontiguousarray(D, dtype=np.float64)
+        out = np.empty((self.F.shape[0], D.shape[1], 3))
+        kernels.normal_turns_many(D, self.F, self.e1, self.e2, self.n, self.inv, out)
+        return out
+
     def adjoint(self, W: np.ndarray, n: int) -> np.ndarray:
         """:math:`J^T w` for ``W`` of shape (m, 3), on ``n`` vertices: shape (n, 3), so that
         :math:`(J d) \\cdot w = d \\cdot (J^T w)` for every ``d``."""
@@ -152,9 +159,9 @@ def normal_risk(J: NormalJacobian, X: np.ndarray, Y: np.ndarray, JB: Sequence[np
         The noisy vertices.
     Y : ndarray, shape (n, 3)
         :math:`HX`.
-    JB : sequence of ndarray, shape (m, 3)
+    JB : ndarray, shape (m, P, 3), or sequence of ndarray, shape (m, 3)
         :math:`J b_p`.
-    HB : sequence of ndarray, shape (n, 3)
+    HB : ndarray, shape (n, P, 3), or sequence of ndarray, shape (n, 3)
         :math:`H b_p`.
     rho : float
     faces : ndarray of bool, shape (m,), optional
@@ -165,9 +172,10 @@ def normal_risk(J: NormalJacobian, X: np.ndarray, Y: np.ndarray, JB: Sequence[np
     float
     """
     faces = J.counted if faces is None else faces & J.counted
-    keep = lambda T: T[faces]  # noqa: E731
-    JR = keep(J(Y - X))
-    terms = [2.0 * float(np.sum(keep(jb) * keep(J(hb)))) - float(np.sum(keep(jb) ** 2)) for jb, hb in zip(JB, HB)]
+    JR = J(Y - X)[faces]
+    JB = (JB if isinstance(JB, np.ndarray) else np.stack(list(JB), axis=1))[faces]
+    JHB = J.many(HB if isinstance(HB, np.ndarray) else np.stack(list(HB), axis=1))[faces]
+    terms = 2.0 * np.einsum("fpc,fpc->p", JB, JHB) - np.einsum("fpc,fpc->p", JB, JB)
     m = max(int(np.count_nonzero(faces)), 1)
     return (float(np.sum(JR * JR)) + rho**2 * float(np.mean(terms))) / m
 
@@ -332,15 +340,16 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
         R = apply(values[at], V)
         N = vertex_normals(R, F)
         J = NormalJacobian(R, F, NORMAL_MIN_HEIGHT)
-        B = np.hstack([Z[:, [p]] * N for p in range(Z.shape[1])])
-        JB = [J(B[:, 3 * p:3 * p + 3]) for p in range(Z.shape[1])]
+        P = Z.shape[1]
+        B = (Z[:, :, None] * N[:, None, :]).reshape(n, 3 * P)  # probe p in columns 3p .. 3p + 2
+        JB = J.many(B.reshape(n, P, 3))
         risks: dict[int, float] = {}
         sures: dict[int, float] = {}
 
         def score(i: int, out: np.ndarray) -> None:
-            HB = [out[:, 3 + 3 * p:6 + 3 * p] for p in range(Z.shape[1])]
+            HB = out[:, 3:].reshape(n, P, 3)
             risks[i] = normal_risk(J, V, out[:, :3], JB, HB, rho, faces)
-            trace = float(np.mean([np.sum(part(B[:, 3 * p:3 * p + 3]) * part(HB[p])) for p in range(len(HB))]))
+            trace = float(np.sum(part(B) * part(out[:, 3:]))) / P
             sures[i] = float(np.sum(part(out[:, :3] - V) ** 2)) - count * rho**2 + 2.0 * rho**2 * trace
             if guard_above is not None and values[i] > guard_above and not sures[i] < count * rho**2:
                 risks[i] = math.inf  # worse positions than the input's: not a candidate past guard_above
