@@ -218,6 +218,10 @@ class AutoRule:
     :math:`I + \\mu L^3` per weight). ``normals_held``: ``(name, value)`` pairs the normals search
     scores the filter at, whatever the rule chose (``sobolev_gls``: ``beta`` 1, the isotropic
     filter, whose face normals follow the filter's at every weight for a thirtieth of the cost).
+    ``normals_step``: the parameter that is one step of ``normals`` (``heat``'s ``tau`` for its
+    ``time``), a promise that running ``j`` steps then ``k`` is running ``j + k``: the normals
+    search compares whole numbers of steps (what ``heat`` runs, ``time`` rounded up to steps) and
+    its descent runs each count on from a smaller one it has (``refine_for_normals(resume=True)``).
     """
 
     tunes: tuple[str, ...]
@@ -228,6 +232,7 @@ class AutoRule:
     linear_map: Callable[..., Callable[[Any], Any]] | None = None
     normals_region: int | None = None
     normals_held: tuple[tuple[str, Any], ...] = ()
+    normals_step: str | None = None
 
 
 @dataclass(frozen=True)

@@ -183,6 +183,49 @@ def test_descending_and_sweeping_searches_agree():
     assert a.value == b.value and a.path == b.path
 
 
+def test_heat_normals_search_compares_whole_steps_of_tau_and_runs_on_from_one_count_to_the_next(monkeypatch):
+    """heat's time is searched in whole Euler steps (AutoRule.normals_step): the counts heat runs, each run on from a
+    smaller one (resume); the chosen time is that count of steps, and the map at k steps is heat at k tau."""
+    import meshdenoise.tuning.choose as ch
+
+    V0, F, X = _sphere_case(seed=5)
+    seen = []
+    real = ch.refine_for_normals
+    monkeypatch.setattr(ch, "refine_for_normals", lambda *a, **k: seen.append((a, k)) or real(*a, **k))
+    params = choose_parameters((X, F), "heat", noise=0.012, criterion="normals")
+    (args, kw), = seen
+    apply, candidates = args[2], args[4]
+    assert kw["resume"] and not kw["additive"] and all(c == int(c) >= 1 for c in candidates)
+    count = params["time"] / params["tau"]
+    assert count in candidates and params["tau"] in (0.25, 0.5, 1.0)
+    for k in (1, 3, 7):  # the map at k steps is the filter at time k tau, and runs on additively
+        want = md.apply_filter("heat", (X, F), tau=params["tau"], time=k * params["tau"])[0]
+        np.testing.assert_allclose(apply(float(k), X), want, atol=1e-12)
+        np.testing.assert_allclose(apply(float(k - 1), apply(1.0, X)), want, atol=1e-12)
+
+
+def test_resumed_descent_chooses_as_the_plain_descent_with_fewer_steps():
+    """resume runs each candidate on from a smaller one the pass kept: the same risks, path and choice, fewer steps."""
+    V0, F, X = _sphere_case(seed=3)
+    P = get_operators(F, len(X)).P
+    taken = []
+
+    def steps(k, block):
+        taken.append(int(k))
+        for _ in range(int(k)):
+            block = P @ block
+        return block
+
+    values = normal_candidates(2, True)
+    plain = refine_for_normals(X, F, steps, 2, values, 0.012, first=6)
+    plain_steps = sum(taken)
+    taken.clear()
+    resumed = refine_for_normals(X, F, steps, 2, values, 0.012, first=6, resume=True)
+    assert (resumed.value, resumed.path, resumed.values) == (plain.value, plain.path, plain.values)
+    np.testing.assert_allclose(resumed.risks, plain.risks, rtol=1e-9)
+    assert sum(taken) < 0.7 * plain_steps
+
+
 def test_guard_keeps_the_search_from_shrinking_the_mesh_away():
     """A map that only shrinks the mesh turns no face, so the linearised risk falls without end (each face's noise
     is scaled away); past ``guard_above`` a candidate must also keep the positions better than the input's."""

@@ -210,7 +210,7 @@ def choose_heat(ctx: TuningContext) -> tuple[dict, Point]:
 
 @register(
     "heat",
-    auto=AutoRule(("tau", "time"), choose_heat, normals="time"),
+    auto=AutoRule(("tau", "time"), choose_heat, normals="time", normals_step="tau"),
     summary="Heat diffusion to time T: Euler X <- X - tau (I - D^-1 W) X, ceil(T/tau) steps, or exp(-T (I - D^-1 W)) X by Chebyshev",
     params=[
         Param("tau", float, 0.5, low=0.0, high=2.0, low_open=True, help="Euler step (stable up to 2/lambda_max)"),

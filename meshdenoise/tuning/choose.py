@@ -133,13 +133,21 @@ def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, Nor
     if len(names) == 1:
         name = names[0]
         start = float(params[name])
+        # heat's time in whole steps of tau: the counts it runs (time rounded up to steps), run on from one to the next
+        unit = float(params[rule.normals_step]) if rule.normals_step else None
+        counts = rule.integer or unit is not None
         if rule.integer:
             start = max(start, 1.0)  # a rule that chose no step: the normals may still want some
         elif start <= 0:
             return chosen, None
-        candidates = normal_candidates(start, rule.integer, spec.param(name).high, scales)
+        high = spec.param(name).high
+        if unit is not None:
+            start, high = start / unit, None if high is None else high / unit
+        candidates = normal_candidates(start, counts, high, scales)
 
         def values(value: float) -> dict:
+            if unit is not None:
+                return {name: float(value) * unit}
             return {name: int(value) if rule.integer else float(value)}
     else:  # one factor on the named weights (those the rule set to 0 stay 0)
         base = {name: float(params[name]) for name in names}
@@ -166,6 +174,7 @@ def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, Nor
         correlated = sub.noise is not None and sub.noise.correlated
         found.append(refine_for_normals(sub.V, sub.F, apply, start, candidates, sub.rho,
                                         colour=sub.colour if correlated else None, additive=rule.additive,
+                                        resume=rule.normals_step is not None and not rule.additive,
                                         first=start * NORMAL_FIRST, rows=scored,
                                         guard_above=start * NORMAL_SCALES[-1] * 1.001))
         return values(found[-1].value), Point(found[-1].value, math.nan, math.nan, None, found[-1].risk)

@@ -24,7 +24,7 @@ from .risk import EXACT_TRACE_MAX
 
 __all__ = ["NormalJacobian", "NormalChoice", "normal_risk", "refine_for_normals", "normal_probe_count", "NORMAL_PROBES",
            "NORMAL_ITERATIONS", "NORMAL_SCALES", "NORMAL_WIDE_SCALES", "NORMAL_WIDE_BELOW", "NORMAL_FIRST",
-           "NORMAL_PATIENCE"]
+           "NORMAL_PATIENCE", "NORMAL_RESUME_KEEP"]
 
 # Rademacher vector probes: NORMAL_PROBE_BUDGET / n, from NORMAL_PROBES to NORMAL_MAX_PROBES (the estimate averages
 # over the faces, so its spread falls like 1 / sqrt(n P): a constant n P keeps it; 8 probes at 50k vertices chose the
@@ -33,6 +33,7 @@ NORMAL_PROBES = 8
 NORMAL_MAX_PROBES = 64
 NORMAL_PROBE_BUDGET = 8 * 50_000
 NORMAL_PATIENCE = 3  # an additive sweep stops this many candidates past its least risk
+NORMAL_RESUME_KEEP = 3  # a resumed descent keeps this many results to run on from (each (n, 3 + 3 x probes))
 # an additive sweep costs its length (up to 10x position SURE's count: thousands of Taubin steps at lam 0.125) times
 # the probes: at most this many (Fandisk0.3, Block0.4, Twelve0.5Impulsive chose the same counts as with 50-64 probes,
 # in 4-8 s instead of 12-50 s)
@@ -228,7 +229,8 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
                        colour: Callable[[np.ndarray, float], np.ndarray] | None = None,
                        probes: int | None = None, iterations: int = NORMAL_ITERATIONS,
                        additive: bool = False, first: float | None = None, rows: np.ndarray | None = None,
-                       exact: bool | None = None, guard_above: float | None = None, seed: int = 0) -> NormalChoice:
+                       exact: bool | None = None, guard_above: float | None = None, seed: int = 0,
+                       resume: bool = False) -> NormalChoice:
     """The parameter of a linear smoother with the least estimated face-normal risk (:func:`normal_risk`).
 
     The risk is linearised at a mesh ``R`` (``J`` and the noise directions ``N``, the unit
@@ -272,6 +274,10 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
         from the candidate nearest the value it linearised at to a local minimum (a few solves).
     first : float, optional
         The value whose result the first pass linearises at (default ``start``).
+    resume : bool
+        ``apply`` is additive (as for ``additive``) but the search descends as without it: each
+        candidate's run starts from the result of the nearest smaller candidate the pass has
+        kept (the last :data:`NORMAL_RESUME_KEEP`), the same results for fewer steps.
     rows : ndarray of bool, shape (n,), optional
         The vertices scored (a sampled region's inner part): only faces with three scored
         corners count. Default: all.
@@ -363,11 +369,27 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
                 if i - min(risks, key=risks.get) >= NORMAL_PATIENCE:
                     break
         else:  # descend from the candidate linearised at (the risk is smooth in log value)
+            VB = np.hstack([V, B])
+            runs: dict[int, np.ndarray] = {}  # resume: the pass's last results, each run on from the nearest below
+
+            def result(j: int) -> np.ndarray:
+                below = [i for i in runs if i < j]
+                if not below:
+                    out = apply(values[j], VB)
+                else:
+                    i = max(below)
+                    out = apply(values[j] - values[i], runs[i])
+                runs[j] = out
+                while len(runs) > NORMAL_RESUME_KEEP:
+                    del runs[next(iter(runs))]  # the oldest
+                return out
+
             cur = at
             while True:
-                for j in (cur, cur - 1, cur + 1):  # cur first: its result was just computed for R (a cached factor)
+                # cur first: its result was just computed for R (a cached factor); resumed runs go upwards
+                for j in (cur - 1, cur, cur + 1) if resume else (cur, cur - 1, cur + 1):
                     if 0 <= j < len(values) and j not in risks:
-                        score(j, apply(values[j], np.hstack([V, B])))
+                        score(j, result(j) if resume else apply(values[j], VB))
                 nxt = min((j for j in (cur - 1, cur, cur + 1) if j in risks), key=risks.get)
                 if nxt == cur:
                     break
