@@ -450,12 +450,13 @@ def spmm(
         else:
             Y[...] = A @ X2
         return out.ravel() if squeeze else out
-    if not accumulate and not fresh:
-        Y.fill(0.0)  # the kernel adds into its output
+    clear = not accumulate and not fresh  # the kernel adds into its output
     if threads is None:
         threads = min(spmm_threads(), thread_limit() or 1 << 30) if A.nnz * k >= 3 * _THREADED_NNZ else 1  # work, not only non-zeros
     threads = max(1, min(int(threads), n))
     if threads == 1:
+        if clear:
+            Y.fill(0.0)
         _csr_matvecs(n, A.shape[1], k, A.indptr, A.indices, A.data, X2.ravel(), Y.ravel())
         return out.ravel() if squeeze else out
     # row blocks of about equal non-zero count; indptr keeps absolute offsets, so each block
@@ -467,6 +468,8 @@ def spmm(
     def block(i: int) -> None:
         r0, r1 = int(rows[i]), int(rows[i + 1])
         if r1 > r0:
+            if clear:  # each thread clears its own rows: in parallel, and just before it adds into them
+                Y[r0:r1].fill(0.0)
             _csr_matvecs(r1 - r0, A.shape[1], k, A.indptr[r0 : r1 + 1], A.indices, A.data, Xf, Y[r0:r1].ravel())
 
     for f in [_thread_pool().submit(block, i) for i in range(threads)]:

@@ -38,6 +38,9 @@ def test_spmm_matches_dense_product(threads):
     Y = Y0.copy()
     spmm(A, X, Y, accumulate=True, threads=threads)
     np.testing.assert_allclose(Y, Y0 + A.toarray() @ X, rtol=1e-13, atol=1e-13)
+    Y = Y0.copy()  # out= without accumulate: what it held is overwritten (each thread clears its own rows)
+    assert spmm(A, X, Y, threads=threads) is Y
+    np.testing.assert_allclose(Y, A.toarray() @ X, rtol=1e-13, atol=1e-13)
 
 
 def test_spmm_empty_rows_vectors_and_fallback(monkeypatch):
