@@ -94,6 +94,72 @@ def test_risk_is_unbiased_over_noise_realisations():
     assert np.mean(truth) > 0 and abs(diff.mean()) < 0.05 * np.mean(truth)
 
 
+def test_dirichlet_sure_is_unbiased_for_the_errors_dirichlet_energy_with_a_non_symmetric_smoother():
+    """E D = E (HX - X0)^T L (HX - X0), the error's energy over the edges, for H = P^3 (P = D^-1 W, not symmetric);
+    the estimate with exact probes (sqrt(n) e_i N_i) equals its closed form for each draw."""
+    from meshdenoise.tuning.normal_risk import dirichlet_sure
+
+    V0, F = icosphere(2)
+    n = V0.shape[0]
+    N = vertex_normals(V0, F)
+    ops = get_operators(F, n)
+    L, Pd = ops.L, ops.P.toarray()
+    H = np.linalg.matrix_power(Pd, 3)
+    rho, rng = 0.02, np.random.default_rng(4)
+    Bx = np.hstack([np.sqrt(n) * np.outer(np.eye(n)[i], N[i]) for i in range(n)])  # exact probes, (n, 3n)
+    Sigma = rho**2 * np.einsum("ia,ib->iab", N, N)  # per vertex, across coordinates: block-diagonal covariance
+    Ld = L.toarray()
+    est, truth = [], []
+    for _ in range(300):
+        X = V0 + rho * rng.standard_normal(n)[:, None] * N
+        Z = rng.choice([-1.0, 1.0], size=(n, 4))
+        B = (Z[:, :, None] * N[:, None, :]).reshape(n, 12)
+        out = np.hstack([H @ X, H @ B])
+        est.append(dirichlet_sure(L, X, out, B, L @ B, rho))
+        E = H @ X - V0
+        truth.append(float(np.sum(E * (Ld @ E))))
+    exact = dirichlet_sure(L, X, np.hstack([H @ X, H @ Bx]), Bx, L @ Bx, rho)
+    R = H @ X - X
+    # the closed form with Sigma's 3 x 3 blocks: tr(L S) = sum_i L_ii tr(S_i), tr(L H S) = sum_ij L_ij H_ji tr(S_i)
+    trS = np.einsum("iaa->i", Sigma)
+    closed = np.sum(R * (Ld @ R)) - np.sum(np.diag(Ld) * trS) + 2 * np.sum((Ld @ H).diagonal() * trS)
+    assert exact == pytest.approx(closed, rel=1e-10)
+    diff = np.array(est) - np.array(truth)
+    assert abs(diff.mean()) < 3 * diff.std() / np.sqrt(len(diff)) + 1e-12
+    assert abs(diff.mean()) < 0.05 * np.mean(truth)
+
+
+def test_noise_past_an_edge_length_ranks_the_candidates_by_the_dirichlet_sure_below_it_by_the_linearised_risk():
+    """From NORMAL_LINEAR_MAX edge lengths of noise the first order of the face normals does not hold: the search
+    descends the Dirichlet energy's SURE from the start (its choice the least of it over every candidate here, a
+    convex curve); below, the linearised risk is used as before."""
+    from meshdenoise.tuning.normal_risk import dirichlet_sure
+
+    V0, F = icosphere(3)
+    n = len(V0)
+    P = get_operators(F, n).P
+    h = np.mean([np.linalg.norm(V0[a] - V0[b]) for a, b, c in F])
+
+    def steps(k, block):
+        for _ in range(int(k)):
+            block = P @ block
+        return block
+
+    values = normal_candidates(4, True)
+    for rho, expect in ((1.5 * h, "dirichlet"), (0.2 * h, "normals")):
+        X = V0 + rho * np.random.default_rng(1).standard_normal(n)[:, None] * vertex_normals(V0, F)
+        got = refine_for_normals(X, F, steps, 4, values, rho, first=12, exact=False, probes=8)
+        assert got.criterion == expect
+    Z = np.random.default_rng(0).choice([-1.0, 1.0], size=(n, 8))  # refine_for_normals' probes (seed 0)
+    B = (Z[:, :, None] * vertex_normals(steps(4, X := V0 + 1.5 * h * np.random.default_rng(1).standard_normal(n)[:, None]
+                                                    * vertex_normals(V0, F)), F)[:, None, :]).reshape(n, 24)
+    L = get_operators(F, n).L
+    every = [dirichlet_sure(L, X, steps(v, np.hstack([X, B])), B, L @ B, 1.5 * h) / n for v in values]
+    got = refine_for_normals(X, F, steps, 4, values, 1.5 * h, first=12, exact=False, probes=8)
+    assert got.value == values[int(np.argmin(every))] and got.risk == pytest.approx(min(every), rel=1e-9)
+    assert np.isnan(got.rms_degrees)
+
+
 def _sphere_case(seed=0, rho=0.012):
     V0, F = icosphere(4)
     X = V0 + rho * np.random.default_rng(seed).standard_normal(len(V0))[:, None] * vertex_normals(V0, F)
