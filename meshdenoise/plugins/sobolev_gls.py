@@ -59,7 +59,8 @@ def normal_weighted_solve(
     Bk = B if many else B[:, :, None]
     n, _, k = Bk.shape
     if n <= GLS_DENSE_MAX_VERTICES:
-        Y = _dense_normal_weighted_solve(ops, N, beta, mu, order, Bk, pinned, x0 if x0 is None or many else x0[:, :, None])
+        start = x0 if x0 is None or many else x0[:, :, None]
+        Y = _dense_normal_weighted_solve(ops, N, beta, mu, order, Bk, pinned, start)
         return Y if many else Y[:, :, 0]
     M = laplacian_power(ops, order)
     if prec is None:

@@ -22,8 +22,8 @@ from .. import kernels
 from ..geometry import cross_rows, vertex_normals
 from .risk import EXACT_TRACE_MAX
 
-__all__ = ["NormalJacobian", "NormalChoice", "normal_risk", "dirichlet_sure", "refine_for_normals", "normal_probe_count", "NORMAL_PROBES",
-           "NORMAL_ITERATIONS", "NORMAL_SCALES", "NORMAL_WIDE_SCALES", "NORMAL_WIDE_BELOW", "NORMAL_FIRST",
+__all__ = ["NormalJacobian", "NormalChoice", "normal_risk", "dirichlet_sure", "refine_for_normals", "normal_probe_count",
+           "NORMAL_PROBES", "NORMAL_ITERATIONS", "NORMAL_SCALES", "NORMAL_WIDE_SCALES", "NORMAL_WIDE_BELOW", "NORMAL_FIRST",
            "NORMAL_PATIENCE", "NORMAL_RESUME_KEEP", "NORMAL_LINEAR_MAX"]
 
 # Rademacher vector probes: NORMAL_PROBE_BUDGET / n, from NORMAL_PROBES to NORMAL_MAX_PROBES (the estimate averages
@@ -238,7 +238,8 @@ class NormalChoice:
 
 def dirichlet_sure(L: Any, V: np.ndarray, out: np.ndarray, B: np.ndarray, LB: np.ndarray, rho: float,
                    rows: np.ndarray | None = None) -> float:
-    r"""Stein's estimate of the Dirichlet energy of a linear smoother's error, :math:`\mathbb E\,(HX - X^0)^T L (HX - X^0)`.
+    r"""Stein's estimate of the Dirichlet energy of a linear smoother's error,
+    :math:`\mathbb E\,(HX - X^0)^T L (HX - X^0)`.
 
     With noise :math:`X = X^0 + E`, :math:`\mathbb E\, E E^T = \Sigma` (per coordinate), probes
     :math:`b_p` with :math:`\rho^2\, \mathbb E\, b_p b_p^T = \Sigma` and :math:`L = D - W` symmetric:
@@ -293,8 +294,9 @@ def _mean_edge(X: np.ndarray, F: np.ndarray) -> float:
 def _dirichlet_choice(V: np.ndarray, F: np.ndarray, values: list[float], start: float, rho: float, count: int,
                       rows: np.ndarray | None, probes_at: Callable, position_sure: Callable, guarded: Callable,
                       search: Callable, apply: Callable, path: tuple) -> NormalChoice:
-    """:func:`refine_for_normals`' ranking where the noise is too large for its linearised estimate: :func:`dirichlet_sure`,
-    the probes along the vertex normals of the result at ``start`` (position SURE's choice), searched from there."""
+    """:func:`refine_for_normals`' ranking where the noise is too large for its linearised estimate:
+    :func:`dirichlet_sure`, the probes along the vertex normals of the result at ``start`` (position SURE's choice),
+    searched from there."""
     from ..operators import get_operators
 
     L = get_operators(np.asarray(F), V.shape[0]).L
@@ -340,6 +342,9 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
     on meshes with sharp features (the chosen weight at the search's end on Fandisk0.3 and
     Block0.4 for :math:`(I + \\mu L)^{-1}`); the fixed point is within 1 % of the normal oracle
     there (docs/automatic-parameters.md, "The normals criterion").
+    From :data:`NORMAL_LINEAR_MAX` mean edge lengths of noise (of the first pass's mesh) the first
+    order does not hold and the candidates are ranked instead by :func:`dirichlet_sure`, searched
+    from ``start`` (``NormalChoice.criterion`` "dirichlet").
 
     Parameters
     ----------
