@@ -160,6 +160,17 @@ def test_noise_past_an_edge_length_ranks_the_candidates_by_the_dirichlet_sure_be
     assert np.isnan(got.rms_degrees)
 
 
+def test_choose_parameters_says_when_it_ranked_by_the_dirichlet_energy(caplog):
+    import logging
+
+    V0, F = icosphere(3)
+    h = np.mean([np.linalg.norm(V0[a] - V0[b]) for a, b, c in F])
+    X = V0 + 1.5 * h * np.random.default_rng(2).standard_normal(len(V0))[:, None] * vertex_normals(V0, F)
+    with caplog.at_level(logging.INFO, logger="meshdenoise.auto"):
+        choose_parameters((X, F), "filtering", noise=1.5 * h, criterion="normals")
+    assert "ranked by SURE of the error's Dirichlet energy" in caplog.text and "nan" not in caplog.text
+
+
 def _sphere_case(seed=0, rho=0.012):
     V0, F = icosphere(4)
     X = V0 + rho * np.random.default_rng(seed).standard_normal(len(V0))[:, None] * vertex_normals(V0, F)

@@ -328,8 +328,10 @@ def choose_parameters(
             sure_choice, sure_score = dict(chosen), float(point.score)
             chosen, found = _for_normals(spec, ctx, chosen)
             if found is not None:
-                log.info("choose_parameters(%s): normals moved %s to %s (passes %s; rms %.3g deg)", method,
-                         sure_choice, chosen, found.path, found.rms_degrees)
+                how = (f"rms {found.rms_degrees:.3g} deg" if found.criterion == "normals" else
+                       "the noise past an edge length: ranked by SURE of the error's Dirichlet energy")
+                log.info("choose_parameters(%s): normals moved %s to %s (passes %s; %s)", method, sure_choice, chosen,
+                         found.path, how)
                 point = Point(found.value, math.nan, math.nan, None, found.risk)
                 _warn_if_worse_than_input(method, chosen, found, sure_choice, sure_score, ctx.n * ctx.rho**2)
     params = {**chosen, **given}
