@@ -127,7 +127,8 @@ def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, Nor
     params = spec.resolve({**ctx.given, **chosen})
     # below an edge length of noise the search may go on to 100 times the rule's weight (NORMAL_WIDE_SCALES)
     # (edge lengths of the SURE-smoothed mesh: the noisy one's grow with the noise; the elephant at rho = 0.2 has
-    # rho 0.88 noisy edge lengths, 29 smoothed ones, 26 clean ones)
+    # rho 0.88 noisy edge lengths, 29 smoothed ones, 26 clean ones); from one, the search ranks by the Dirichlet
+    # energy's SURE instead of the linearised normal risk (refine_for_normals' edge_length, NORMAL_LINEAR_MAX)
     h = mean_edge_length(ctx.smoothed("sure").X, ctx.ops)
     scales = NORMAL_WIDE_SCALES if ctx.rho < NORMAL_WIDE_BELOW * h else NORMAL_SCALES
     if len(names) == 1:
@@ -174,7 +175,7 @@ def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, Nor
         correlated = sub.noise is not None and sub.noise.correlated
         found.append(refine_for_normals(sub.V, sub.F, apply, start, candidates, sub.rho,
                                         colour=sub.colour if correlated else None, additive=rule.additive,
-                                        resume=rule.normals_step is not None and not rule.additive,
+                                        resume=rule.normals_step is not None and not rule.additive, edge_length=h,
                                         first=start * NORMAL_FIRST, rows=scored,
                                         guard_above=start * NORMAL_SCALES[-1] * 1.001))
         return values(found[-1].value), Point(found[-1].value, math.nan, math.nan, None, found[-1].risk)

@@ -33,7 +33,7 @@ NORMAL_PROBES = 8
 NORMAL_MAX_PROBES = 64
 NORMAL_PROBE_BUDGET = 8 * 50_000
 NORMAL_PATIENCE = 3  # an additive sweep stops this many candidates past its least risk
-NORMAL_LINEAR_MAX = 1.0  # noise (rho) from this many mean edge lengths of the first pass's mesh: the linearised risk
+NORMAL_LINEAR_MAX = 1.0  # noise (rho) from this many mean edge lengths of a smoothed mesh: the linearised risk
 # does not hold and the candidates are ranked by the Dirichlet energy's SURE (elephant rho = 0.2, 29 edge lengths:
 # filtering, heat, sinkhorn, sobolev 1.07, 1.07, 1.03, 1.10 times their normal oracles' error, against 1.21, 1.28,
 # 1.15, 1.00; every other benchmark row is below 0.7)
@@ -287,7 +287,7 @@ def _mean_edge(X: np.ndarray, F: np.ndarray) -> float:
     """Mean length of the faces' sides (an interior edge counted twice)."""
     F = np.asarray(F)
     if F.size == 0:
-        return 0.0
+        return math.inf  # no face: nothing to linearise, nothing to compare the noise with
     return float(np.linalg.norm(X[F[:, [1, 2, 0]]] - X[F], axis=2).mean())
 
 
@@ -326,7 +326,7 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
                        probes: int | None = None, iterations: int = NORMAL_ITERATIONS,
                        additive: bool = False, first: float | None = None, rows: np.ndarray | None = None,
                        exact: bool | None = None, guard_above: float | None = None, seed: int = 0,
-                       resume: bool = False) -> NormalChoice:
+                       resume: bool = False, edge_length: float | None = None) -> NormalChoice:
     """The parameter of a linear smoother with the least estimated face-normal risk (:func:`normal_risk`).
 
     The risk is linearised at a mesh ``R`` (``J`` and the noise directions ``N``, the unit
@@ -342,7 +342,7 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
     on meshes with sharp features (the chosen weight at the search's end on Fandisk0.3 and
     Block0.4 for :math:`(I + \\mu L)^{-1}`); the fixed point is within 1 % of the normal oracle
     there (docs/automatic-parameters.md, "The normals criterion").
-    From :data:`NORMAL_LINEAR_MAX` mean edge lengths of noise (of the first pass's mesh) the first
+    From :data:`NORMAL_LINEAR_MAX` mean edge lengths of noise (``edge_length``) the first
     order does not hold and the candidates are ranked instead by :func:`dirichlet_sure`, searched
     from ``start`` (``NormalChoice.criterion`` "dirichlet").
 
@@ -373,6 +373,9 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
         from the candidate nearest the value it linearised at to a local minimum (a few solves).
     first : float, optional
         The value whose result the first pass linearises at (default ``start``).
+    edge_length : float, optional
+        The mean edge length ``rho`` is compared with (:data:`NORMAL_LINEAR_MAX`); default the
+        first pass's mesh's (a smoothed mesh: the noisy one's edges grow with the noise).
     resume : bool
         ``apply`` is additive (as for ``additive``) but the search descends as without it: each
         candidate's run starts from the result of the nearest smaller candidate the pass has
@@ -493,7 +496,7 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
 
     for _ in range(int(iterations)):
         R = apply(values[at], V)
-        if not path and rho >= NORMAL_LINEAR_MAX * _mean_edge(R, F):
+        if not path and rho >= NORMAL_LINEAR_MAX * (_mean_edge(R, F) if edge_length is None else float(edge_length)):
             # the noise turns a face by about rho / h radians: past one the first order does not hold (the elephant
             # at 26 edge lengths of noise: every candidate's estimate -3,900 rad^2, the choice at the search's end)
             return _dirichlet_choice(V, F, values, start, rho, count, rows, probes_at, position_sure, guarded, search,
