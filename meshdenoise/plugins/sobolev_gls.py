@@ -127,9 +127,9 @@ def _dense_normal_weighted_solve(
     i = np.arange(n)
     blocks[i, :, i, :] += beta * np.eye(3) - (beta - 1.0) * N[:, :, None] * N[:, None, :]
     B2 = np.ascontiguousarray(Bk, dtype=np.float64).reshape(3 * n, k)
-    Y = np.zeros((3 * n, k)) if x0 is None else np.array(x0, dtype=np.float64).reshape(3 * n, k)
     if pinned is None or not np.any(pinned):
         return sla.cho_solve(sla.cho_factor(A, check_finite=False), B2, check_finite=False).reshape(n, 3, k)
+    Y = np.zeros((3 * n, k)) if x0 is None else np.array(x0, dtype=np.float64).reshape(3 * n, k)
     free = np.repeat(~np.asarray(pinned, dtype=bool), 3)
     rhs = B2[free] - A[np.ix_(free, ~free)] @ Y[~free]
     Y[free] = sla.cho_solve(sla.cho_factor(A[np.ix_(free, free)], check_finite=False), rhs, check_finite=False)
