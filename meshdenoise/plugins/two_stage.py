@@ -349,7 +349,8 @@ TWO_STAGE_PATCHES_LARGE = (100_000, 24)  # from this many vertices, this many se
 TWO_STAGE_PATIENCE = 2  # consistency runs stop this many iterations after their minimum (full runs: same choices on the 6 rows, 30 % slower)
 TWO_STAGE_PILOT_ITERATIONS = 3  # outer iterations of the pilot (defaults, keep_tangential on)
 TWO_STAGE_PILOT = {}  # the pilot's other parameters (not given ones), over the filter's defaults
-TWO_STAGE_GUARD_PROBES = 6  # Rademacher probes of the guard's Monte-Carlo SURE (coloured like the noise)
+TWO_STAGE_GUARD_PROBES = 6  # Rademacher probes of the guard's Monte-Carlo SURE (coloured like the noise) on a full region ...
+TWO_STAGE_GUARD_PROBES_MAX = 48  # ... more on a smaller mesh (guard_probes: probes times vertices held), up to this many
 TWO_STAGE_GUARD_MARGIN = 0.02  # ... which cuts iterations when SURE drops by this times n rho^2 and 2 standard errors
 TWO_STAGE_GUARD_LIGHTER = (  # the guard also tries the chosen run made lighter in these ways ...
     {"normal_iterations": 5, "vertex_iterations": 10},
@@ -506,6 +507,27 @@ class SampledRegion:
             near = inside & (near | (W @ near.astype(np.float64) > 0))
         self.inner = ~near[self.vertices]
         self.scored = self.inner[self.F].all(axis=1)
+
+
+def guard_probes(vertices: int) -> int:
+    """Probes of the guard's Monte-Carlo SURE on a region of ``vertices`` vertices.
+
+    ``TWO_STAGE_GUARD_PROBES`` on a region of ``TWO_STAGE_SAMPLE`` vertices, and on a smaller
+    mesh (the whole mesh is then the region) as many more as keep probes times vertices, up to
+    ``TWO_STAGE_GUARD_PROBES_MAX``. Why: the guard compares SURE differences with a margin
+    proportional to the vertex count and with two standard errors of the probes' differences,
+    which grow as the square root of the vertex count over the probes; on a small mesh with 6
+    probes the guard could never cut (the Nefertiti, 299 vertices: a drop of 1.2 against 2 standard
+    errors of 1.4; with 24 or more probes it cut 3 outer iterations to 1, 21.95 -> 18.66 degrees,
+    the oracle's 17.75; docs/automatic-parameters.md, session 22).
+
+    >>> guard_probes(3000), guard_probes(1500), guard_probes(299)
+    (6, 12, 48)
+    """
+    if vertices < 1:
+        raise ValueError(f"guard_probes: vertices must be at least 1, got {vertices!r}")
+    wanted = -(-TWO_STAGE_GUARD_PROBES * TWO_STAGE_SAMPLE // int(vertices))  # ceil
+    return int(min(TWO_STAGE_GUARD_PROBES_MAX, max(TWO_STAGE_GUARD_PROBES, wanted)))
 
 
 def guard_drops(per_probe: np.ndarray, last: np.ndarray, margin: float) -> bool:
@@ -672,7 +694,8 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
 
     **Guard (smooth meshes).** The synthetic copy is as smooth as the pilot, so on a mesh
     with fine detail the criterion over-smooths. Along the chosen run, Monte-Carlo SURE on
-    positions (Ramani et al. 2008, ``TWO_STAGE_GUARD_PROBES`` probes coloured like the noise,
+    positions (Ramani et al. 2008, ``TWO_STAGE_GUARD_PROBES`` probes coloured like the noise, more on a
+    mesh smaller than the region (:func:`guard_probes`),
     along the normals of the SURE-smoothed mesh) may cut the outer iterations: to the count of
     least SURE among those whose SURE is below the chosen count's by ``TWO_STAGE_GUARD_MARGIN``
     :math:`n\\rho^2` and two standard errors of the paired differences (:func:`guard_drops`).
@@ -814,8 +837,9 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     pilot_normals = face_normals(pilot, F)[region.scored]  # the candidates' angles are to these
 
     correlated = bool(ctx.correlation_length)
+    n_probes = guard_probes(region.vertices.size)
     if correlated:  # no extra scale: the estimate already reads correlated noise 1.2-1.5 times too high
-        fields = correlated_fields(ctx, region.vertices, TWO_STAGE_GUARD_PROBES)
+        fields = correlated_fields(ctx, region.vertices, n_probes)
         eps = fields[:, 0]
         synthetics = [pilot + ctx.rho * eps[:, None] * Np]
     else:  # TWO_STAGE_DRAWS copies: one draw's choice is a lottery (session 14: 1.04-1.18 times the grid's best on Fandisk0.3)
@@ -857,9 +881,9 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     # errors (the pilot's) do not see (docs/automatic-parameters.md)
     Ng = vertex_normals(ctx.smoothed().X, ctx.F)[region.vertices]
     if ctx.correlation_length:
-        probes = [fields[:, 1 + seed, None] * Ng for seed in range(TWO_STAGE_GUARD_PROBES)]
+        probes = [fields[:, 1 + seed, None] * Ng for seed in range(n_probes)]
     else:
-        probes = [sure_probe(Ng, seed) for seed in range(TWO_STAGE_GUARD_PROBES)]
+        probes = [sure_probe(Ng, seed) for seed in range(n_probes)]
     # under correlated noise the filter's response to a probe of 0.1 rho misses 10 % of its divergence (the
     # realised covariance e^T f of the noise), more after fewer iterations, so the guard cut too many: a step
     # of one rho measures it (bunny scanner l=2: 0.5265 against 0.5263 at k=2; docs/automatic-parameters.md)
