@@ -636,3 +636,106 @@ def test_curve_terms_are_the_records_sums_on_any_thread_count(monkeypatch):
         assert a.trace == pytest.approx(b.trace, rel=1e-12)
         if a.value == 12:
             break
+
+
+# --------------------------------------------------------------------------- session 22: LogSearch's two phases
+def _reference_search_log(evaluate, center, golden_steps=8, lo_limit=-8.0, hi_limit=10.0, spacing=0.75, half_width=2):
+    """The log search written out in one function (grid extended at its ends, then golden section), for comparison."""
+    import math
+
+    cache = {}
+
+    def at(t):
+        t = round(t, 12)
+        if t not in cache:
+            cache[t] = evaluate(10.0**t)
+        return cache[t]
+
+    grid = [math.log10(center) + spacing * j for j in range(-half_width, half_width + 1)]
+    while True:
+        scores = [at(t).score for t in grid]
+        i = int(np.argmin(scores))
+        if i == 0 and grid[0] > lo_limit:
+            grid.insert(0, grid[0] - spacing)
+        elif i == len(grid) - 1 and grid[-1] < hi_limit:
+            grid.append(grid[-1] + spacing)
+        else:
+            break
+    a, b = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+    g = (math.sqrt(5) - 1) / 2
+    c, d = b - g * (b - a), a + g * (b - a)
+    for _ in range(golden_steps):
+        if at(c).score < at(d).score:
+            b, d = d, c
+            c = b - g * (b - a)
+        else:
+            a, c = c, d
+            d = a + g * (b - a)
+    return min(cache.values(), key=lambda p: p.score)
+
+
+@pytest.mark.parametrize("center, minimum, kwargs", [
+    (1.0, 0.3, {}), (1e-3, 1.7, {}), (50.0, -2.2, {"golden_steps": 5}),
+    (10**0.45, 0.3, {"golden_steps": 4, "spacing": 0.2, "half_width": 1}),
+])
+def test_search_log_evaluates_the_same_points_in_the_same_order_as_the_reference(center, minimum, kwargs):
+    from meshdenoise.tuning.search import search_log
+
+    def recorder(seen):
+        def evaluate(mu):
+            seen.append(mu)
+            t = np.log10(mu)
+            return Point(mu, 0.0, 0.0, None, abs(t - minimum) ** 1.5 + 0.1 * np.sin(3 * t))
+        return evaluate
+
+    ours, ref = [], []
+    assert search_log(recorder(ours), center, **kwargs).value == _reference_search_log(recorder(ref), center, **kwargs).value
+    assert ours == ref
+
+
+def test_log_search_predicts_a_parabolas_minimum_and_its_grid_score_at_an_end():
+    from meshdenoise.tuning.search import LogSearch
+
+    f = lambda mu: Point(mu, 0.0, 0.0, None, 2.0 * (np.log10(mu) - 0.3) ** 2 + 1.0)  # noqa: E731
+    s = LogSearch(f, 1.0)
+    assert s.bracket().value == 1.0  # the grid point nearest 0.3 decades
+    assert s.predicted() == pytest.approx(1.0, abs=1e-12)  # exact for a parabola in t
+    before = len(s.cache)
+    assert abs(np.log10(s.refine().value) - 0.3) < 0.03 and len(s.cache) > before
+    edge = LogSearch(f, 1e-3, hi_limit=-2.0)  # the minimum beyond hi_limit: the grid stops at its end
+    assert edge.predicted() == edge.bracket().score
+    with pytest.raises(ValueError, match="center"):
+        LogSearch(f, 0.0)
+
+
+def test_sobolev_normal_refines_only_an_order_that_can_still_win_and_chooses_as_with_both(monkeypatch):
+    """The rule's grid for both orders, the golden section only for an order whose grid parabola comes within
+    SOBOLEV_NORMAL_ORDER_MARGIN of the least grid score: on a noisy plane (order 2's grid 0.0504, order 3's 0.0543,
+    its parabola 0.0527) one order is refined, fewer evaluations, and the choice equals the one with both refined."""
+    import meshdenoise.plugins.sobolev_normal as sn
+    from meshdenoise.tuning.search import LogSearch
+
+    V, F = grid(40, 40)
+    Vn = add_normal_noise((V, F), 0.02, seed=1)[0]
+    counts = []
+
+    class Counting(LogSearch):
+        def __init__(self, evaluate, *args, **kwargs):
+            counts.append(0)
+            i = len(counts) - 1
+
+            def counted(mu):
+                counts[i] += 1
+                return evaluate(mu)
+            super().__init__(counted, *args, **kwargs)
+
+    monkeypatch.setattr(sn, "LogSearch", Counting)
+    chosen = choose_parameters((Vn, F), "sobolev_normal", noise=0.02)
+    some = sum(counts)
+    counts.clear()
+    clear_cache()
+    MEMO.clear()
+    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_ORDER_MARGIN", np.inf)  # every order refined
+    both = choose_parameters((Vn, F), "sobolev_normal", noise=0.02)
+    assert chosen == both
+    assert some < sum(counts)

@@ -26,6 +26,7 @@ __all__ = [
     "best_on_path",
     "past_minimum",
     "search_log",
+    "LogSearch",
     "solve_shifted",
     "solve_point",
     "best_shifted",
@@ -209,9 +210,104 @@ def best_on_path(
     return found.best[0].item
 
 
+class LogSearch:
+    """Minimise ``evaluate(10**t).score`` over ``t`` (a decimal logarithm) in two phases a caller can separate.
+
+    :meth:`bracket`: ``2 half_width + 1`` points ``spacing`` decades apart around ``center``
+    (default: five points 0.75 decades apart), extended while the minimum sits at an end of the
+    grid (within ``lo_limit`` and ``hi_limit``). :meth:`refine`: golden-section search between
+    the grid minimum's neighbours (1.5 decades shrink to about 0.03 decades in 8 steps).
+    :meth:`predicted`: the least score the refinement can be expected to reach, from the parabola
+    through the grid minimum and its two neighbours, so that a caller comparing several searches
+    (one per order of a filter, say) refines only those that can still win.
+    :func:`search_log` runs both phases. Every ``t`` is evaluated once (rounded to 1e-12).
+
+    Examples
+    --------
+    >>> from meshdenoise.tuning.risk import Point
+    >>> f = lambda mu: Point(mu, 0.0, 0.0, None, (np.log10(mu) - 0.3) ** 2)
+    >>> s = LogSearch(f, 1.0)
+    >>> round(float(np.log10(s.bracket().value)), 2), round(s.predicted(), 6)
+    (0.0, 0.0)
+    >>> round(float(np.log10(s.refine().value)), 1)
+    0.3
+    """
+
+    def __init__(self, evaluate: Callable[[float], Point], center: float, lo_limit: float = -8.0,
+                 hi_limit: float = 10.0, spacing: float = 0.75, half_width: int = 2):
+        if not (spacing > 0 and int(half_width) >= 1):
+            raise ValueError(f"search_log: spacing must be > 0 and half_width >= 1, got {spacing!r}, {half_width!r}")
+        if not (center > 0 and math.isfinite(center)):
+            raise ValueError(f"search_log: center must be a finite number > 0, got {center!r}")
+        self.evaluate, self.center = evaluate, float(center)
+        self.lo_limit, self.hi_limit, self.spacing, self.half_width = lo_limit, hi_limit, float(spacing), int(half_width)
+        self.cache: dict[float, Point] = {}
+        self._grid: list[float] | None = None
+        self._i = 0
+
+    def at(self, t: float) -> Point:
+        """The point at ``mu = 10**t``, evaluated once."""
+        t = round(t, 12)
+        if t not in self.cache:
+            self.cache[t] = self.evaluate(10.0**t)
+        return self.cache[t]
+
+    @property
+    def best(self) -> Point:
+        """The least-score point evaluated so far (the first of equal ones)."""
+        return min(self.cache.values(), key=lambda p: p.score)
+
+    def bracket(self) -> Point:
+        """Run the grid phase (once) and return its least-score point."""
+        if self._grid is None:
+            c0 = math.log10(self.center)
+            grid = [c0 + self.spacing * j for j in range(-self.half_width, self.half_width + 1)]
+            while True:
+                scores = [self.at(t).score for t in grid]
+                i = int(np.argmin(scores))
+                if i == 0 and grid[0] > self.lo_limit:
+                    grid.insert(0, grid[0] - self.spacing)
+                elif i == len(grid) - 1 and grid[-1] < self.hi_limit:
+                    grid.append(grid[-1] + self.spacing)
+                else:
+                    break
+            self._grid, self._i = grid, i
+        return self.at(self._grid[self._i])
+
+    def predicted(self) -> float:
+        """The minimum of the parabola in ``t`` through the grid minimum and its two neighbours (its score when
+        at an end of the grid or where the three are not convex)."""
+        self.bracket()
+        grid, i = self._grid, self._i
+        f0 = self.at(grid[i]).score
+        if i == 0 or i == len(grid) - 1:
+            return float(f0)
+        fm, fp = self.at(grid[i - 1]).score, self.at(grid[i + 1]).score
+        a, b = (fm + fp - 2.0 * f0) / 2.0, (fp - fm) / 2.0  # f(x) = f0 + b x + a x^2, x in grid steps
+        if not a > 0:
+            return float(f0)
+        return float(f0 - b * b / (4.0 * a))
+
+    def refine(self, golden_steps: int = 8) -> Point:
+        """Golden-section search between the grid minimum's neighbours; returns the least-score point evaluated."""
+        self.bracket()
+        grid, i = self._grid, self._i
+        a, b = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
+        g = (math.sqrt(5) - 1) / 2
+        c, d = b - g * (b - a), a + g * (b - a)
+        for _ in range(golden_steps):
+            if self.at(c).score < self.at(d).score:
+                b, d = d, c
+                c = b - g * (b - a)
+            else:
+                a, c = c, d
+                d = a + g * (b - a)
+        return self.best
+
+
 def search_log(evaluate: Callable[[float], Point], center: float, golden_steps: int = 8,
                lo_limit: float = -8.0, hi_limit: float = 10.0, spacing: float = 0.75, half_width: int = 2) -> Point:
-    """Minimise ``evaluate(10**t).score`` over ``t`` (a decimal logarithm).
+    """Minimise ``evaluate(10**t).score`` over ``t`` (a decimal logarithm): :class:`LogSearch`'s two phases.
 
     ``2 half_width + 1`` points ``spacing`` decades apart around ``center`` (default: five points
     0.75 decades apart), extended while the minimum sits at an end of the grid, then
@@ -219,38 +315,9 @@ def search_log(evaluate: Callable[[float], Point], center: float, golden_steps: 
     decades in 8 steps). A narrower grid (``spacing`` 0.2, ``half_width`` 1) refines a
     choice already known roughly.
     """
-    cache: dict[float, Point] = {}
-
-    def at(t: float) -> Point:
-        t = round(t, 12)
-        if t not in cache:
-            cache[t] = evaluate(10.0**t)
-        return cache[t]
-
-    c0 = math.log10(center)
-    if not (spacing > 0 and int(half_width) >= 1):
-        raise ValueError(f"search_log: spacing must be > 0 and half_width >= 1, got {spacing!r}, {half_width!r}")
-    grid = [c0 + spacing * j for j in range(-int(half_width), int(half_width) + 1)]
-    while True:
-        scores = [at(t).score for t in grid]
-        i = int(np.argmin(scores))
-        if i == 0 and grid[0] > lo_limit:
-            grid.insert(0, grid[0] - spacing)
-        elif i == len(grid) - 1 and grid[-1] < hi_limit:
-            grid.append(grid[-1] + spacing)
-        else:
-            break
-    a, b = grid[max(i - 1, 0)], grid[min(i + 1, len(grid) - 1)]
-    g = (math.sqrt(5) - 1) / 2
-    c, d = b - g * (b - a), a + g * (b - a)
-    for _ in range(golden_steps):
-        if at(c).score < at(d).score:
-            b, d = d, c
-            c = b - g * (b - a)
-        else:
-            a, c = c, d
-            d = a + g * (b - a)
-    return min(cache.values(), key=lambda p: p.score)
+    search = LogSearch(evaluate, center, lo_limit, hi_limit, spacing, half_width)
+    search.bracket()
+    return search.refine(golden_steps)
 
 
 def solve_shifted(ops: Operators, order: int, mu: float, rhs: np.ndarray, key: str | None = None,
