@@ -149,11 +149,12 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     ``tangential`` = :func:`_tangential_share` of the noise per edge length of that mesh
     (normals of ``Y`` are meaningless above one edge length of noise). ``mu`` by the log
     search of ``sobolev`` for each order (:class:`~meshdenoise.tuning.search.LogSearch`): each
-    order's grid, then the golden section for the orders whose grid parabola predicts a score
-    within ``SOBOLEV_NORMAL_ORDER_MARGIN`` (2 %) of the least grid score (the bunny scanner:
-    order 2's grid best 0.1062, predicted 0.1057, order 3's grid 0.1001: order 2 is not refined,
-    29 -> 20 candidates, 22.3 -> 16.9 s, the same choice; the same choices on all eight benchmark rows, docs/automatic-parameters.md);
-    the smaller score wins.
+    order's grid, then, for the orders whose grid parabola predicts a score within
+    ``SOBOLEV_NORMAL_ORDER_MARGIN`` (2 %) of the least grid score, successive parabolic
+    interpolation to 0.02 decades (:meth:`~meshdenoise.tuning.search.LogSearch.refine_parabolic`,
+    1 to 4 candidates where the golden section took 9). On the eight benchmark rows: 28 -> 14 s
+    on Bunny0.2, 22 -> 10 s on the bunny scanner, normal errors within 0.5 % of the golden
+    section's (docs/automatic-parameters.md, session 22). The smaller score wins.
 
     ``scored`` (bool (n,), optional): SURE or GCV of the scored vertices only (the residual
     summed over them, the probes zero elsewhere, so the divergence is the trace of the scored
@@ -219,7 +220,7 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     best, best_order = None, None
     for order, search in searches.items():
         if search.predicted() <= least + SOBOLEV_NORMAL_ORDER_MARGIN * abs(least):
-            search.refine()
+            search.refine_parabolic()
         p = search.best
         if best is None or p.score < best.score:
             best, best_order = p, order

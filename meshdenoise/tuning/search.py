@@ -304,6 +304,42 @@ class LogSearch:
                 d = a + g * (b - a)
         return self.best
 
+    def refine_parabolic(self, tol: float = 0.02, max_steps: int = 8) -> Point:
+        """Successive parabolic interpolation between the grid minimum's neighbours; the least-score point evaluated.
+
+        Each step fits the parabola in ``t`` through the best point so far and its nearest evaluated
+        neighbours on either side and evaluates its vertex (the golden-section point of the wider
+        side where the three are not convex, or where the vertex falls outside them); it stops when the
+        vertex lies within ``tol / 2`` decades of the best point (the minimum is located to about
+        ``tol``), the neighbours are within ``2 tol`` of each other, or after ``max_steps``
+        evaluations. On a smooth score 2 to 4 evaluations where :meth:`refine` takes 9 for 0.03
+        decades; one on an exact parabola.
+        """
+        if not (tol > 0 and int(max_steps) >= 0):
+            raise ValueError(f"refine_parabolic: tol must be > 0 and max_steps >= 0, got {tol!r}, {max_steps!r}")
+        self.bracket()
+        grid, i = self._grid, self._i
+        lo, hi = round(grid[max(i - 1, 0)], 12), round(grid[min(i + 1, len(grid) - 1)], 12)  # as the cache's keys
+        g = (3.0 - math.sqrt(5.0)) / 2.0  # the golden section's share of an interval
+        for _ in range(int(max_steps)):
+            inside = sorted((t, p.score) for t, p in self.cache.items() if lo <= t <= hi)
+            j = min(range(len(inside)), key=lambda k: inside[k][1])
+            if j == 0 or j == len(inside) - 1:
+                break  # the best at the bracket's end: no parabola (the grid's minimum is interior unless at a limit)
+            (xl, fl), (x0, f0), (xr, fr) = inside[j - 1], inside[j], inside[j + 1]
+            if xr - xl <= 2.0 * tol:
+                break
+            den = (x0 - xl) * (f0 - fr) - (x0 - xr) * (f0 - fl)
+            num = (x0 - xl) ** 2 * (f0 - fr) - (x0 - xr) ** 2 * (f0 - fl)
+            v = x0 - 0.5 * num / den if den != 0 else math.nan
+            convex = (f0 - fl) * (xr - x0) + (f0 - fr) * (x0 - xl) < 0  # f0 below the chord through its neighbours
+            if not (convex and xl < v < xr):
+                v = x0 + g * (xr - x0) if xr - x0 >= x0 - xl else x0 - g * (x0 - xl)
+            elif abs(v - x0) < tol / 2.0:
+                break
+            self.at(v)
+        return self.best
+
 
 def search_log(evaluate: Callable[[float], Point], center: float, golden_steps: int = 8,
                lo_limit: float = -8.0, hi_limit: float = 10.0, spacing: float = 0.75, half_width: int = 2) -> Point:
