@@ -342,18 +342,20 @@ class LogSearch:
 
 
 def search_log(evaluate: Callable[[float], Point], center: float, golden_steps: int = 8,
-               lo_limit: float = -8.0, hi_limit: float = 10.0, spacing: float = 0.75, half_width: int = 2) -> Point:
+               lo_limit: float = -8.0, hi_limit: float = 10.0, spacing: float = 0.75, half_width: int = 2,
+               parabolic: bool = False) -> Point:
     """Minimise ``evaluate(10**t).score`` over ``t`` (a decimal logarithm): :class:`LogSearch`'s two phases.
 
     ``2 half_width + 1`` points ``spacing`` decades apart around ``center`` (default: five points
     0.75 decades apart), extended while the minimum sits at an end of the grid, then
     golden-section search between the minimum's neighbours (1.5 decades shrink to about 0.03
-    decades in 8 steps). A narrower grid (``spacing`` 0.2, ``half_width`` 1) refines a
-    choice already known roughly.
+    decades in 8 steps), or with ``parabolic`` successive parabolic interpolation to 0.02
+    decades (:meth:`LogSearch.refine_parabolic`, at most ``golden_steps`` candidates, usually 1
+    to 4). A narrower grid (``spacing`` 0.2, ``half_width`` 1) refines a choice already known roughly.
     """
     search = LogSearch(evaluate, center, lo_limit, hi_limit, spacing, half_width)
     search.bracket()
-    return search.refine(golden_steps)
+    return search.refine_parabolic(max_steps=golden_steps) if parabolic else search.refine(golden_steps)
 
 
 def solve_shifted(ops: Operators, order: int, mu: float, rhs: np.ndarray, key: str | None = None,
