@@ -9,10 +9,11 @@ wins on very large, well-conditioned systems such as ``I + mu L`` with moderate 
 
 from __future__ import annotations
 
+import contextlib
 import math
 import threading
 from collections import OrderedDict
-from typing import Any, Callable
+from typing import Any, Callable, Iterator
 
 import warnings
 
@@ -24,7 +25,7 @@ from .cache import FACTOR_BYTES_PER_NNZ, nbytes
 from .operators import Operators, mask_key, spmm, trim_cache
 
 __all__ = [
-    "DirichletSystem", "SPDSolver", "CGSolver", "block_cg", "cached_solver", "laplacian_power", "shifted_solver",
+    "DirichletSystem", "SPDSolver", "CGSolver", "block_cg", "cached_solver", "retain_factors", "laplacian_power", "shifted_solver",
     "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "FILTER_LANCZOS_TOL",
 ]
 
@@ -381,12 +382,54 @@ class CGSolver(DirichletSystem):
         return self._expand(X2, out).reshape(np.shape(X))
 
 
+_retained: list[dict] = []  # the open retain_factors scopes: {"count": int, "touched": [(ops, family), ...]}
+
+
+def _family_limit() -> int:
+    """Factorisations kept per family: :data:`FACTORS_PER_FAMILY`, more inside :func:`retain_factors`."""
+    return max([FACTORS_PER_FAMILY] + [scope["count"] for scope in _retained])
+
+
+@contextlib.contextmanager
+def retain_factors(count: int) -> Iterator[None]:
+    """Within the block, keep the last ``count`` factorisations of each family (at least :data:`FACTORS_PER_FAMILY`).
+
+    A search whose candidates each factorise several weights (``sobolev_axes``: one per axis) and
+    that comes back to earlier candidates (the normals search's second pass) would otherwise
+    factorise them again (the bunny scanner: 15 of 36 factorisations were repeats). On leaving,
+    the families the block stored into are trimmed back to the usual count: nothing more is kept
+    after the search returns.
+
+    Examples
+    --------
+    >>> with retain_factors(9):
+    ...     _family_limit()
+    9
+    >>> _family_limit() == FACTORS_PER_FAMILY
+    True
+    """
+    if not (isinstance(count, (int, np.integer)) and count >= 1):
+        raise ValueError(f"retain_factors: count must be an integer >= 1, got {count!r}")
+    scope: dict = {"count": int(count), "touched": []}
+    _retained.append(scope)
+    try:
+        yield
+    finally:
+        _retained.remove(scope)
+        limit = _family_limit()
+        for ops, family in scope["touched"]:
+            factors = ops.cache.get(family)
+            while factors is not None and len(factors) > limit:
+                factors.popitem(last=False)
+
+
 def cached_solver(
     ops: Operators, family: str, param: float, pinned: np.ndarray | None, build: Callable[[], SPDSolver]
 ) -> SPDSolver:
     """The solver of ``family`` for ``(param, pinned mask)`` stored on this topology, built on first use.
 
-    Keeps the last :data:`FACTORS_PER_FAMILY` of each family (least recently used first out).
+    Keeps the last :data:`FACTORS_PER_FAMILY` of each family (least recently used first out), more
+    inside :func:`retain_factors`.
     """
     factors = ops.cache.setdefault(family, OrderedDict())
     key = (float(param), mask_key(pinned if pinned is not None and pinned.any() else None))
@@ -395,7 +438,11 @@ def cached_solver(
         return factors[key]
     solver = build()
     factors[key] = solver
-    while len(factors) > FACTORS_PER_FAMILY:
+    for scope in _retained:
+        if not any(o is ops and f == family for o, f in scope["touched"]):
+            scope["touched"].append((ops, family))
+    limit = _family_limit()
+    while len(factors) > limit:
         factors.popitem(last=False)
     trim_cache()  # the topology grew: keep the module's operators cache under its byte limit
     return solver

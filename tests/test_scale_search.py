@@ -771,3 +771,32 @@ def test_parabolic_refinement_is_exact_on_a_parabola_and_close_with_fewer_evalua
     assert len(flat.cache) - before <= 5
     with pytest.raises(ValueError, match="tol"):
         LogSearch(parabola, 1.0).refine_parabolic(tol=0.0)
+
+
+def test_retain_factors_keeps_more_factorisations_within_the_block_and_trims_back_on_leaving(monkeypatch):
+    """cached_solver keeps FACTORS_PER_FAMILY (4) per family, least recently used out; inside retain_factors(9) the
+    last 9, so a search that comes back to an earlier weight reuses its factor; on leaving the family is trimmed back."""
+    import meshdenoise.solvers as solvers
+
+    assert solvers.FACTORS_PER_FAMILY == 4  # the sequences below are written for it
+    V, F = icosphere(2)
+    ops = Operators(F, len(V))
+    built = []
+    real = solvers.shifted_factor
+    monkeypatch.setattr(solvers, "shifted_factor", lambda *a, **k: built.append(a[1]) or real(*a, **k))
+    mus = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7]
+    L3 = np.linalg.matrix_power(ops.L.toarray(), 3)
+    with solvers.retain_factors(9):
+        for mu in mus + mus[:2]:  # seven weights, then back to the first two: no new factor
+            X = solvers.shifted_solver(ops, mu, 3).solve(V)
+            np.testing.assert_allclose(X + mu * L3 @ X, V, atol=1e-9)
+        assert built == mus
+    family = ops.cache["shifted-p3-cholesky"]
+    assert [key[0] for key in family] == [0.6, 0.7, 0.1, 0.2]  # the four most recently used
+    built.clear()
+    for mu in mus + mus[:1]:  # outside the block: four kept, so coming back to 0.1 factorises it again
+        solvers.shifted_solver(ops, mu, 3)
+    assert built == [0.3, 0.4, 0.5, 0.6, 0.7, 0.1]
+    with pytest.raises(ValueError, match="count"):
+        with solvers.retain_factors(0):
+            pass

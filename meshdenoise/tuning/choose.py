@@ -20,6 +20,7 @@ from ..locality import Relabelling, relabelling
 from ..operators import get_operators
 from ..progress import stage
 from ..registry import get_filter, list_filters
+from ..solvers import retain_factors
 from .context import TuningContext
 from .covariance import NoiseModel, estimate_noise_model
 from .noise_level import mean_edge_length
@@ -32,6 +33,7 @@ __all__ = ["choose_parameters", "auto_filters", "normal_filters", "rule_criterio
 CRITERIA = ("sure", "gcv", "oracle", "normals")
 NORMAL_REGION = 32_000  # criterion "normals" from REGION_MIN_VERTICES: the search on a sampled region of this many vertices
 NORMAL_PATCHES = 8  # ... made of this many balls
+NORMAL_RETAINED_CANDIDATES = 3  # factorisations kept through the search: this many candidates' (solvers.retain_factors)
 
 log = logging.getLogger("meshdenoise.auto")
 
@@ -186,7 +188,9 @@ def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, Nor
     # the margin for 10 times SURE's weight, also with the wide scales: for 100 times, sobolev_axes on face000 took 363 s
     # (184 s) and chose 50 (63) times SURE's weights, 8.93 (8.99) degrees against the oracle's 8.30
     margin = int(min(REGION_MAX_MARGIN, math.ceil(2.0 * math.sqrt(k * NORMAL_SCALES[-1]))))
-    region_rule(ctx, on, size, NORMAL_PATCHES, margin, min_vertices=least)
+    # the second pass comes back to the first's last candidates: their factors kept (sobolev_axes: one per weight)
+    with retain_factors(NORMAL_RETAINED_CANDIDATES * len(names)):
+        region_rule(ctx, on, size, NORMAL_PATCHES, margin, min_vertices=least)
     return {**chosen, **values(found[-1].value)}, found[-1]
 
 
