@@ -544,8 +544,11 @@ def trim_cache() -> None:
 
 
 def clear_cache() -> None:
-    """Forget every cached topology (operators and factorisations) and the kept vertex relabelling."""
+    """Forget every cached topology (operators and factorisations), the solvers' symbolic analyses and the kept
+    vertex relabelling."""
     from .locality import clear
+    from .solvers import clear_symbolic
 
     _cache.clear()
     clear()
+    clear_symbolic()

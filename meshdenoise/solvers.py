@@ -10,6 +10,7 @@ wins on very large, well-conditioned systems such as ``I + mu L`` with moderate 
 from __future__ import annotations
 
 import contextlib
+import hashlib
 import math
 import threading
 from collections import OrderedDict
@@ -25,7 +26,7 @@ from .cache import FACTOR_BYTES_PER_NNZ, nbytes
 from .operators import Operators, mask_key, spmm, trim_cache
 
 __all__ = [
-    "DirichletSystem", "SPDSolver", "CGSolver", "block_cg", "cached_solver", "retain_factors", "laplacian_power", "shifted_solver",
+    "DirichletSystem", "SPDSolver", "CHOLMOD", "CHOLMOD_MAX_ROWS", "clear_symbolic", "CGSolver", "block_cg", "cached_solver", "retain_factors", "laplacian_power", "shifted_solver",
     "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "FILTER_LANCZOS_TOL",
 ]
 
@@ -91,7 +92,7 @@ _quiet: dict = {"depth": 0, "saved": {}, "tmps": {}}  # the one redirection of d
 def _without_cholmod_warnings(build: Callable[[], Any]) -> Any:
     """``build()`` with CHOLMOD's own C-level warning lines kept off the terminal.
 
-    A failed factorisation (``RuntimeError: Matrix is not positive definite!``) is reported
+    A failed factorisation (``ValueError: Matrix is not positive definite!``) is reported
     by our error message, which names the filter and its parameters; CHOLMOD also prints
     ``CHOLMOD warning: not positive definite ...`` through C's buffered ``stdout``. File
     descriptors 1 and 2 are sent to temporary files while the factor is built (C's buffers
@@ -141,11 +142,71 @@ def _without_cholmod_warnings(build: Callable[[], Any]) -> Any:
                         os.write(fd, b"".join(kept))
 
 
+def _cholmod_installed() -> bool:
+    try:
+        import sksparse.cholmod  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+CHOLMOD = _cholmod_installed()  # scikit-sparse (the "cholmod" extra): factorisations reuse a symbolic analysis ...
+CHOLMOD_MAX_ROWS = 50_000  # ... for systems up to this many rows (larger ones by cholespy, see _cholmod_factor)
+SYMBOLIC_MAX = 16  # symbolic analyses kept (sparsity patterns), least recently used out; clear_symbolic() drops them
+_symbolic: OrderedDict = OrderedDict()
+_symbolic_lock = threading.Lock()
+
+
+def clear_symbolic() -> None:
+    """Forget the stored symbolic analyses of :class:`SPDSolver` (CHOLMOD's orderings of each sparsity pattern)."""
+    with _symbolic_lock:
+        _symbolic.clear()
+
+
+def _cholmod_factor(A: sp.csr_matrix) -> Any:
+    """A numeric CHOLMOD factor of the symmetric positive definite ``A`` (sorted CSR), its symbolic analysis
+    (METIS ordering, simplicial ``L D L^T``) computed once per sparsity pattern and reused.
+
+    The automatic rules factorise ``I + mu L^p`` for many ``mu`` on one pattern: only the numeric step is
+    repeated (bunny scanner, 28,088 vertices, idle: ``I + c L`` 131 -> 37 ms, the two-ring factor of
+    ``I + mu L^3`` 410 -> 243 ms against cholespy, which orders every matrix again; the solves cost the same;
+    a factor used once costs about the same either way: the analysis is 88 and 164 ms). Up to
+    :data:`CHOLMOD_MAX_ROWS` rows only, the same back end for a matrix whatever was factorised before: at face000's
+    85,182 vertices METIS's analysis (0.5-0.9 s) costs more than a one-off factor (0.25 s by cholespy), and
+    at 1.6M vertices cholespy's supernodal factor is the faster (docs/benchmarks.md). A simplicial ``L D L^T``
+    does not fail on an indefinite matrix: a pivot ``D <= 0`` is reported as cholespy reports it.
+    """
+    from sksparse.cholmod import analyze
+
+    pattern = hashlib.blake2b(np.int64(A.shape[0]).tobytes(), digest_size=20)
+    pattern.update(np.ascontiguousarray(A.indptr, dtype=np.int64).tobytes())
+    pattern.update(np.ascontiguousarray(A.indices, dtype=np.int64).tobytes())
+    key = pattern.digest()  # the pattern's content, not its arrays: nothing of size n kept but the analysis
+    C = sp.csc_matrix((A.data, A.indices, A.indptr), shape=A.shape)  # a symmetric matrix's CSR is its CSC
+    with _symbolic_lock:
+        symbolic = _symbolic.get(key)
+        if symbolic is not None:
+            _symbolic.move_to_end(key)
+    if symbolic is None:
+        symbolic = analyze(C, mode="simplicial", ordering_method="metis")
+        with _symbolic_lock:
+            _symbolic[key] = symbolic
+            while len(_symbolic) > SYMBOLIC_MAX:
+                _symbolic.popitem(last=False)
+    factor = symbolic.cholesky(C)
+    if not np.all(factor.D() > 0):
+        raise ValueError("Matrix is not positive definite!")  # as cholespy says it
+    return factor
+
+
 class SPDSolver(DirichletSystem):
-    """A sparse Cholesky factorisation (cholespy) of SPD ``A``, reduced to free rows when some are pinned.
+    """A sparse Cholesky factorisation of SPD ``A``, reduced to free rows when some are pinned.
 
     Solves ``A Y = X`` on the free rows with ``Y = X`` on the pinned ones, i.e. the reduced
-    system :math:`A_{ff} Y_f = X_f - A_{fp} X_p`.
+    system :math:`A_{ff} Y_f = X_f - A_{fp} X_p`. With scikit-sparse installed (the ``cholmod``
+    extra; ``make`` installs it) and up to :data:`CHOLMOD_MAX_ROWS` rows by CHOLMOD with one symbolic
+    analysis per sparsity pattern (:func:`_cholmod_factor`: a parameter search's many weights), else
+    by cholespy.
 
     Examples
     --------
@@ -158,28 +219,33 @@ class SPDSolver(DirichletSystem):
     def __init__(self, A: sp.spmatrix, pinned: np.ndarray | None = None):
         super().__init__(A, pinned)
         A = self.A
-        self._solver = (
-            _without_cholmod_warnings(lambda: CholeskySolverD(
+        self._solver = self._factor = None
+        if not self.size:
+            return
+        if CHOLMOD and self.size <= CHOLMOD_MAX_ROWS:
+            self._factor = _cholmod_factor(A)
+        else:
+            self._solver = _without_cholmod_warnings(lambda: CholeskySolverD(
                 self.size, A.indptr.astype(np.int32), A.indices.astype(np.int32), A.data.astype(np.float64),
                 MatrixType.CSR,
             ))
-            if self.size
-            else None
-        )
 
     @property
     def nbytes(self) -> int:
         """Approximate memory held: the reduced matrix plus an estimate of its Cholesky factor
-        (cholespy does not report it: :data:`~meshdenoise.cache.FACTOR_BYTES_PER_NNZ` per nonzero)."""
+        (not reported by the solvers: :data:`~meshdenoise.cache.FACTOR_BYTES_PER_NNZ` per nonzero)."""
         return super().nbytes + FACTOR_BYTES_PER_NNZ * int(self.A.nnz)
 
     def solve(self, X: np.ndarray) -> np.ndarray:
         """``Y`` of the shape of ``X`` (n,) or (n, k), with ``(A Y)_f = X_f`` and ``Y_p = X_p``."""
         X2 = self._columns(X)
         rhs = self._reduce(X2)
-        out = np.empty_like(rhs)
-        if self._solver is not None:
-            self._solver.solve(rhs, out)
+        if self._factor is not None:
+            out = np.ascontiguousarray(self._factor(rhs), dtype=np.float64)
+        else:
+            out = np.empty_like(rhs)
+            if self._solver is not None:
+                self._solver.solve(rhs, out)
         return self._expand(X2, out).reshape(np.shape(X))
 
 

@@ -339,7 +339,15 @@ def test_heat_kernel_factorises_once(sphere3, monkeypatch):
 
     import meshdenoise.solvers
 
-    monkeypatch.setattr(meshdenoise.solvers, "CholeskySolverD", Counting)  # the one place factorisations are made
+    monkeypatch.setattr(meshdenoise.solvers, "CholeskySolverD", Counting)  # the two places factorisations are made
+    real_cholmod = meshdenoise.solvers._cholmod_factor
+
+    def cholmod_counted(A):
+        factor = real_cholmod(A)
+        calls.append(1)
+        return factor
+
+    monkeypatch.setattr(meshdenoise.solvers, "_cholmod_factor", cholmod_counted)
     V, F = sphere3
     K = mo.MeshHeatKernel(V, F, 0.1)
     for _ in range(5):

@@ -1,0 +1,97 @@
+"""Each filter's automatic choice, timed: ``denoise(mesh, method=M)`` in a fresh process per cell (issue 22).
+
+Issue 22's target: automatic choices in time comparable to one peer call, under 3 s per mesh of 50,000
+vertices on 2 cores. Per (row, filter) cell one process runs :func:`peers.run_ours` (the choice and the
+filter, one call, cold: compiled kernels loaded from numba's cache, nothing memoised) and the table gives the
+call's wall seconds and the same per 50,000 vertices; **bold** over 3 s per 50,000. The default
+(``denoise(mesh)``) is the ``default`` column's filter. Rows: :data:`peers.MESHES`; filters: every filter with an
+automatic rule.
+
+    PYTHONPATH=. python benchmarks/filter_time.py --out benchmarks/results/filter-time.md
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shlex
+import sys
+from pathlib import Path
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+TARGET = 3.0  # seconds per 50,000 vertices
+PER = 50_000
+
+
+def table(cells: list[dict], command: str, note: str = "") -> str:
+    """The markdown table of ``cells`` (dicts with row, filter, vertices, time_s or error)."""
+    rows = list(dict.fromkeys(c["row"] for c in cells))
+    filters = list(dict.fromkeys(c["filter"] for c in cells))
+    by = {(c["row"], c["filter"]): c for c in cells}
+    sizes = {c["row"]: c["vertices"] for c in cells if "vertices" in c}
+    lines = ["# Each filter's automatic choice, timed (one cold call: choice and filter)\n",
+             f"Command: `{command}`\n" + (f"\n{note}\n" if note else ""),
+             "Cell: wall seconds of `denoise(mesh, method=M)` in a fresh process (`default`: `denoise(mesh)`), in "
+             f"brackets per {PER:,} vertices. **Bold**: over {TARGET:g} s per {PER:,} vertices.\n",
+             "| filter | " + " | ".join(f"{r} ({sizes.get(r, 0):,})" for r in rows) + " |",
+             "|---|" + "---|" * len(rows)]
+    met = total = 0
+    for f in filters:
+        out = []
+        for r in rows:
+            c = by.get((r, f))
+            if c is None or "error" in c:
+                out.append("fails: " + (c or {}).get("error", "not run"))
+                continue
+            rate = c["time_s"] * PER / max(c["vertices"], 1)
+            total += 1
+            met += rate <= TARGET
+            cell = f"{c['time_s']:.1f} ({rate:.1f})"
+            out.append(cell if rate <= TARGET else f"**{cell}**")
+        lines.append(f"| {f} | " + " | ".join(out) + " |")
+    lines.append(f"\n{met} of {total} cells at or under {TARGET:g} s per {PER:,} vertices.\n")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    from normal_criterion import run_cell
+    from peers import DEFAULT_MESHES, MESHES, our_methods
+
+    _main(run_cell, DEFAULT_MESHES, MESHES, our_methods)
+
+
+def _main(run_cell, default_meshes, meshes, our_methods) -> None:
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--rows", nargs="*", default=None)
+    ap.add_argument("--filters", nargs="*", default=None, help="filters; 'default' for denoise(mesh)")
+    ap.add_argument("--timeout", type=float, default=600.0)
+    ap.add_argument("--note", default="")
+    ap.add_argument("--out", required=True)
+    a = ap.parse_args()
+    rows = a.rows or default_meshes
+    filters = a.filters or ["default", *our_methods()]
+    load = os.getloadavg()
+    cells = []
+    for row in rows:
+        n = len(meshes[row]()["Vn"])
+        for f in filters:
+            got = run_cell(row, None if f == "default" else f, a.timeout)
+            cell = {"row": row, "filter": f, "vertices": n, **({"error": got["error"]} if "error" in got else
+                                                                {"time_s": got["time_s"], "params": got["params"]})}
+            cells.append(cell)
+            print(json.dumps(cell), flush=True)
+    command = "PYTHONPATH=. python benchmarks/filter_time.py " + " ".join(shlex.quote(x) for x in sys.argv[1:])
+    note = (a.note + " " if a.note else "") + f"Load average at the start {load[0]:.2f}, at the end {os.getloadavg()[0]:.2f}."
+    out = Path(a.out)
+    for path, text in ((out, table(cells, command, note)), (out.with_suffix(".json"), json.dumps(cells, indent=1))):
+        tmp = path.with_name(path.name + ".tmp")  # nothing half-written: a temporary file, then renamed
+        tmp.write_text(text)
+        tmp.replace(path)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,101 @@
+"""SPDSolver's two factorisation back ends (CHOLMOD with a reused symbolic analysis up to CHOLMOD_MAX_ROWS rows,
+cholespy), against dense solves."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import meshdenoise.solvers as solvers
+from meshdenoise.operators import Operators, clear_cache
+from meshdenoise.shapes import icosphere, torus
+
+
+def _shifted(ops, mu, order):
+    return sp.identity(ops.n, format="csr") + mu * sp.csr_matrix(np.linalg.matrix_power(ops.L.toarray(), order))
+
+
+def _backend(solver):
+    return "cholmod" if solver._factor is not None else "cholespy"
+
+
+def test_the_project_environment_has_cholmod():
+    """make installs the dev extra, which holds scikit-sparse: the CHOLMOD path is the one the suite and the
+    benchmarks run up to CHOLMOD_MAX_ROWS rows (cholespy alone is a plain pip install's, tested by switching)."""
+    assert solvers.CHOLMOD
+
+
+@pytest.mark.parametrize("cholmod", [True, False], ids=["cholmod", "cholespy"])
+@pytest.mark.parametrize("order, mu", [(1, 0.7), (2, 3.0), (3, 40.0)])
+def test_spd_solver_equals_a_dense_solve_with_and_without_pinned_rows(cholmod, order, mu, monkeypatch):
+    monkeypatch.setattr(solvers, "CHOLMOD", cholmod)
+    V, F = torus(16, 8)
+    ops = Operators(F, len(V))
+    A = _shifted(ops, mu, order)
+    Ad = A.toarray()
+    X = np.random.default_rng(0).standard_normal((ops.n, 5))
+    pinned = np.zeros(ops.n, dtype=bool)
+    pinned[::7] = True
+    free = ~pinned
+    whole, held = solvers.SPDSolver(A), solvers.SPDSolver(A, pinned)
+    assert _backend(whole) == _backend(held) == ("cholmod" if cholmod else "cholespy")
+    np.testing.assert_allclose(whole.solve(X), np.linalg.solve(Ad, X), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(whole.solve(X[:, 0]), np.linalg.solve(Ad, X[:, 0]), rtol=0, atol=1e-9)  # (n,)
+    Y = held.solve(X)
+    expected = np.linalg.solve(Ad[np.ix_(free, free)], X[free] - Ad[np.ix_(free, pinned)] @ X[pinned])
+    np.testing.assert_allclose(Y[free], expected, rtol=0, atol=1e-9)
+    assert np.array_equal(Y[pinned], X[pinned])
+
+
+def test_larger_systems_go_to_cholespy_and_a_matrix_gets_the_same_bits_whatever_came_before(monkeypatch):
+    V, F = icosphere(3)  # 642 vertices
+    ops = Operators(F, len(V))
+    A = _shifted(ops, 2.0, 2)
+    X = np.random.default_rng(1).standard_normal((ops.n, 3))
+    solvers.clear_symbolic()
+    first = solvers.SPDSolver(A).solve(X)
+    again = solvers.SPDSolver(A).solve(X)  # the analysis reused: the same ordering, the same bits
+    assert np.array_equal(first, again)
+    monkeypatch.setattr(solvers, "CHOLMOD_MAX_ROWS", ops.n - 1)
+    assert _backend(solvers.SPDSolver(A)) == "cholespy"
+
+
+def test_one_symbolic_analysis_per_sparsity_pattern_and_clear(monkeypatch):
+    import sksparse.cholmod as cholmod
+
+    analysed = []
+    real = cholmod.analyze
+    monkeypatch.setattr(cholmod, "analyze", lambda *a, **k: analysed.append(a[0].nnz) or real(*a, **k))
+    clear_cache()
+    V, F = icosphere(3)
+    ops = Operators(F, len(V))
+    for mu in (0.5, 1.0, 2.0, 4.0):  # one pattern (I + mu L), four factors
+        solvers.SPDSolver(_shifted(ops, mu, 1))
+    assert len(analysed) == 1
+    solvers.SPDSolver(_shifted(ops, 1.0, 2))  # a second pattern
+    assert len(analysed) == 2
+    pinned = np.zeros(ops.n, dtype=bool)
+    pinned[:10] = True
+    solvers.SPDSolver(_shifted(ops, 1.0, 1), pinned)  # the free rows' pattern is another one
+    assert len(analysed) == 3
+    clear_cache()  # also forgets the analyses
+    solvers.SPDSolver(_shifted(ops, 1.0, 1))
+    assert len(analysed) == 4
+
+
+def test_symbolic_analyses_are_bounded(monkeypatch):
+    monkeypatch.setattr(solvers, "SYMBOLIC_MAX", 2)
+    solvers.clear_symbolic()
+    for n in (5, 6, 7, 8):
+        solvers.SPDSolver(sp.identity(n, format="csr") * 2.0)
+    assert len(solvers._symbolic) == 2
+
+
+@pytest.mark.parametrize("cholmod", [True, False], ids=["cholmod", "cholespy"])
+def test_an_indefinite_matrix_fails_as_not_positive_definite(cholmod, monkeypatch):
+    """CHOLMOD's simplicial L D L^T would factor it: a pivot D <= 0 is reported as cholespy reports it."""
+    monkeypatch.setattr(solvers, "CHOLMOD", cholmod)
+    A = sp.csr_matrix(np.array([[2.0, -3.0, 0.0], [-3.0, 2.0, 0.0], [0.0, 0.0, 1.0]]))
+    with pytest.raises(ValueError, match="not positive definite"):
+        solvers.SPDSolver(A)
