@@ -12,15 +12,19 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import filter_time as ft  # noqa: E402
 
 
-def test_table_gives_seconds_per_50k_vertices_and_marks_cells_over_three():
-    cells = [{"row": "A", "filter": "sobolev", "vertices": 25_000, "time_s": 1.4},  # 2.8 s per 50k: met
-             {"row": "A", "filter": "taubin", "vertices": 25_000, "time_s": 1.6},  # 3.2: over
-             {"row": "B", "filter": "sobolev", "vertices": 100_000, "error": "timeout after 1 s"}]
+def test_limit_is_three_seconds_up_to_50k_vertices_then_proportional():
+    assert ft.limit(10) == ft.limit(50_000) == 3.0 and ft.limit(100_000) == 6.0
+
+
+def test_table_marks_cells_over_their_limit():
+    cells = [{"row": "A", "filter": "sobolev", "vertices": 25_000, "time_s": 2.9},
+             {"row": "A", "filter": "taubin", "vertices": 25_000, "time_s": 3.2},  # over 3 s
+             {"row": "B", "filter": "sobolev", "vertices": 100_000, "time_s": 5.5},  # within 6 s
+             {"row": "B", "filter": "taubin", "vertices": 100_000, "error": "timeout after 1 s"}]
     text = ft.table(cells, "cmd", "a note [x]")
-    assert "| sobolev | 1.4 (2.8) | fails: timeout after 1 s |" in text
-    assert "| taubin | **1.6 (3.2)** | fails: not run |" in text
-    assert "1 of 2 cells at or under 3 s per 50,000 vertices." in text and "a note [x]" in text
-    assert "A (25,000)" in text and "B (100,000)" in text
+    assert "| sobolev | 2.90 | 5.50 |" in text and "| taubin | **3.20** | fails: timeout after 1 s |" in text
+    assert "2 of 3 cells within their limit." in text and "a note [x]" in text
+    assert "A (25,000; 3.0 s)" in text and "B (100,000; 6.0 s)" in text
 
 
 def test_main_runs_every_cell_once_with_default_as_none_and_writes_both_files(tmp_path, monkeypatch):
@@ -37,5 +41,5 @@ def test_main_runs_every_cell_once_with_default_as_none_and_writes_both_files(tm
     assert runs == [("tiny", None), ("tiny", "sobolev"), ("tiny", "taubin")]
     cells = json.loads(out.with_suffix(".json").read_text())
     assert [c["filter"] for c in cells] == ["default", "sobolev", "taubin"] and cells[2]["error"] == "exit 1"
-    assert "| default | **0.5 (2500.0)** |" in out.read_text()  # 0.5 s on 10 vertices: 2,500 s per 50,000
+    assert "| default | 0.50 |" in out.read_text()
     assert not list(tmp_path.glob("*.tmp"))
