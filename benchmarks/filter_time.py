@@ -24,6 +24,8 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
+from tables import grid_lines, write_table  # noqa: E402
+
 TARGET = 3.0  # seconds for a mesh of 50,000 vertices ...
 PER = 50_000
 
@@ -50,20 +52,10 @@ def table(cells: list[dict], command: str, note: str = "") -> str:
              "proportionally more above (in the header). **Bold**: over it.\n",
              "| filter | " + " | ".join(f"{r} ({sizes.get(r, 0):,}; {limit(sizes.get(r, 0)):.1f} s)" for r in rows) + " |",
              "|---|" + "---|" * len(rows)]
-    met = total = 0
-    for f in filters:
-        out = []
-        for r in rows:
-            c = by.get((r, f))
-            if c is None or "error" in c:
-                out.append("fails: " + (c or {}).get("error", "not run"))
-                continue
-            ok = c["time_s"] <= limit(c["vertices"])
-            total += 1
-            met += ok
-            cell = f"{c['time_s']:.2f}"
-            out.append(cell if ok else f"**{cell}**")
-        lines.append(f"| {f} | " + " | ".join(out) + " |")
+    lines += grid_lines(by, rows, filters, lambda c: f"{c['time_s']:.2f}" if c["time_s"] <= limit(c["vertices"])
+                        else f"**{c['time_s']:.2f}**")
+    done = [c for c in cells if "error" not in c]
+    met, total = sum(c["time_s"] <= limit(c["vertices"]) for c in done), len(done)
     lines.append(f"\n{met} of {total} cells within their limit.\n")
     return "\n".join(lines)
 
@@ -99,10 +91,8 @@ def _main(run_cell, default_meshes, meshes, our_methods) -> None:
     command = "PYTHONPATH=. python benchmarks/filter_time.py " + " ".join(shlex.quote(x) for x in sys.argv[1:])
     note = (a.note + " " if a.note else "") + f"Load average at the start {load[0]:.2f}, at the end {os.getloadavg()[0]:.2f}."
     out = Path(a.out)
-    for path, text in ((out, table(cells, command, note)), (out.with_suffix(".json"), json.dumps(cells, indent=1))):
-        tmp = path.with_name(path.name + ".tmp")  # nothing half-written: a temporary file, then renamed
-        tmp.write_text(text)
-        tmp.replace(path)
+    write_table(out, [table(cells, command, note)])
+    write_table(out.with_suffix(".json"), [json.dumps(cells, indent=1)])
 
 
 if __name__ == "__main__":

@@ -23,6 +23,8 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
 
+from tables import grid_lines  # noqa: E402
+
 TARGET = 1.10  # issue 22: within 10 % of the filter's oracle
 ORACLES = HERE / "results" / "filter-oracle-session15.json"
 
@@ -57,16 +59,11 @@ def table(cells: list[dict], command: str, note: str = "") -> str:
              "brackets the position-SURE choice's ratio (from the same file). "
              "**Bold**: outside 10 %.\n",
              "| filter | " + " | ".join(rows) + " |", "|---|" + "---|" * len(rows)]
-    for f in filters:
-        out = []
-        for r in rows:
-            c = by.get((r, f))
-            if c is None or "error" in c:
-                out.append("fails: " + (c or {}).get("error", "not run"))
-                continue
-            cell = f"{c['ne']:.2f} / {c['oracle_ne']:.2f} = {c['ratio']:.3f} ({c['sure_ratio']:.3f})"
-            out.append(f"**{cell}**" if c["ratio"] > TARGET else cell)
-        lines.append(f"| {f} | " + " | ".join(out) + " |")
+    def ratio_cell(c: dict) -> str:
+        cell = f"{c['ne']:.2f} / {c['oracle_ne']:.2f} = {c['ratio']:.3f} ({c['sure_ratio']:.3f})"
+        return f"**{cell}**" if c["ratio"] > TARGET else cell
+
+    lines += grid_lines(by, rows, filters, ratio_cell)
     done = [c for c in cells if "error" not in c]
     inside = sum(c["ratio"] <= TARGET for c in done)
     lines.append(f"\n{inside} of {len(done)} cells within 10 % (position SURE, session 15: "

@@ -35,3 +35,16 @@ def write_table(path: Path | None, lines: list[str]) -> str:
         tmp.write_text(text)
         tmp.replace(path)
     return text
+
+
+def grid_lines(by: dict, rows: list[str], filters: list[str], cell) -> list[str]:
+    """One markdown line per filter, a cell per row: ``cell(c)`` for the measured cell ``by[(row, filter)]``,
+    "fails: <error>" for a cell with an ``error``, "fails: not run" for a missing one."""
+    lines = []
+    for f in filters:
+        out = []
+        for r in rows:
+            c = by.get((r, f))
+            out.append("fails: " + (c or {}).get("error", "not run") if c is None or "error" in c else cell(c))
+        lines.append(f"| {f} | " + " | ".join(out) + " |")
+    return lines

@@ -42,4 +42,4 @@ def test_main_runs_every_cell_once_with_default_as_none_and_writes_both_files(tm
     cells = json.loads(out.with_suffix(".json").read_text())
     assert [c["filter"] for c in cells] == ["default", "sobolev", "taubin"] and cells[2]["error"] == "exit 1"
     assert "| default | 0.50 |" in out.read_text()
-    assert not list(tmp_path.glob("*.tmp"))
+    assert {p.name for p in tmp_path.iterdir()} == {"t.md", "t.json"}  # no temporary file left
