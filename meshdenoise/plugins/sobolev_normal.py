@@ -213,7 +213,7 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
 
         searches[order] = LogSearch(evaluate, ctx.mu_guess(order))
         searches[order].bracket()
-    # each order's grid, then the golden section only for the orders that can still win: those whose parabola through
+    # each order's grid, then the refinement only for the orders that can still win: those whose parabola through
     # the grid minimum predicts a score within SOBOLEV_NORMAL_ORDER_MARGIN of the least grid score (a refinement
     # gains about 1 % on a grid 0.75 decades apart; the other order's search was half the rule's factorisations)
     least = min(s.bracket().score for s in searches.values())
