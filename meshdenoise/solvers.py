@@ -178,9 +178,9 @@ def _cholmod_factor(A: sp.csr_matrix) -> Any:
     """
     from sksparse.cholmod import analyze
 
-    pattern = hashlib.blake2b(np.int64(A.shape[0]).tobytes(), digest_size=20)
-    pattern.update(np.ascontiguousarray(A.indptr, dtype=np.int64).tobytes())
-    pattern.update(np.ascontiguousarray(A.indices, dtype=np.int64).tobytes())
+    pattern = hashlib.blake2b(f"{A.shape[0]} {A.indptr.dtype} {A.indices.dtype}".encode(), digest_size=20)
+    pattern.update(np.ascontiguousarray(A.indptr))  # the buffers themselves: no converted copy
+    pattern.update(np.ascontiguousarray(A.indices))
     key = pattern.digest()  # the pattern's content, not its arrays: nothing of size n kept but the analysis
     C = sp.csc_matrix((A.data, A.indices, A.indptr), shape=A.shape)  # a symmetric matrix's CSR is its CSC
     with _symbolic_lock:

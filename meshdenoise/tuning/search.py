@@ -210,6 +210,17 @@ def best_on_path(
     return found.best[0].item
 
 
+def _parabola_vertex(xl: float, fl: float, x0: float, f0: float, xr: float, fr: float) -> tuple[float, float] | None:
+    """``(t, f)`` at the vertex of the parabola through three points ``xl < x0 < xr``; ``None`` unless ``f0`` lies
+    below the chord of its neighbours (the parabola opens upwards)."""
+    d1, d2 = (f0 - fl) / (x0 - xl), (fr - f0) / (xr - x0)
+    a = (d2 - d1) / (xr - xl)  # f(x) = f0 + b (x - x0) + a (x - x0)^2
+    if not a > 0:
+        return None
+    b = d1 + a * (x0 - xl)
+    return x0 - b / (2.0 * a), f0 - b * b / (4.0 * a)
+
+
 class LogSearch:
     """Minimise ``evaluate(10**t).score`` over ``t`` (a decimal logarithm) in two phases a caller can separate.
 
@@ -282,11 +293,9 @@ class LogSearch:
         f0 = self.at(grid[i]).score
         if i == 0 or i == len(grid) - 1:
             return float(f0)
-        fm, fp = self.at(grid[i - 1]).score, self.at(grid[i + 1]).score
-        a, b = (fm + fp - 2.0 * f0) / 2.0, (fp - fm) / 2.0  # f(x) = f0 + b x + a x^2, x in grid steps
-        if not a > 0:
-            return float(f0)
-        return float(f0 - b * b / (4.0 * a))
+        vertex = _parabola_vertex(grid[i - 1], self.at(grid[i - 1]).score, grid[i], f0, grid[i + 1],
+                                  self.at(grid[i + 1]).score)
+        return float(f0 if vertex is None else vertex[1])
 
     def refine(self, golden_steps: int = 8) -> Point:
         """Golden-section search between the grid minimum's neighbours; returns the least-score point evaluated."""
@@ -329,11 +338,9 @@ class LogSearch:
             (xl, fl), (x0, f0), (xr, fr) = inside[j - 1], inside[j], inside[j + 1]
             if xr - xl <= 2.0 * tol:
                 break
-            den = (x0 - xl) * (f0 - fr) - (x0 - xr) * (f0 - fl)
-            num = (x0 - xl) ** 2 * (f0 - fr) - (x0 - xr) ** 2 * (f0 - fl)
-            v = x0 - 0.5 * num / den if den != 0 else math.nan
-            convex = (f0 - fl) * (xr - x0) + (f0 - fr) * (x0 - xl) < 0  # f0 below the chord through its neighbours
-            if not (convex and xl < v < xr):
+            vertex = _parabola_vertex(xl, fl, x0, f0, xr, fr)
+            v = math.nan if vertex is None else vertex[0]
+            if not (xl < v < xr):  # not convex (NaN), or outside the neighbours
                 v = x0 + g * (xr - x0) if xr - x0 >= x0 - xl else x0 - g * (x0 - xl)
             elif abs(v - x0) < tol / 2.0:
                 break
