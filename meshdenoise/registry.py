@@ -248,6 +248,7 @@ class FilterSpec:
     auto: AutoRule | None = None
     scale_free: bool = False
     public: Callable | None = field(default=None, compare=False)
+    along_normals: Callable[[dict], bool] | None = None
 
     def param(self, name: str) -> Param:
         for p in self.params:
@@ -282,6 +283,7 @@ def register(
     translation_equivariant: bool = True,
     auto: AutoRule | None = None,
     scale_free: bool = False,
+    along_normals: Callable[[dict], bool] | None = None,
 ) -> Callable[[Callable], Callable]:
     """Register an array-core filter and return its public, mesh-type-agnostic function.
 
@@ -291,7 +293,10 @@ def register(
     scaling (no parameter in length units): the core then runs on ``V / s`` and its result
     is multiplied by ``s``, a power of two near the mesh's size, which is exact in floating
     point and keeps squared lengths and cross products of huge or tiny meshes (1e80, 1e-80)
-    from overflowing or underflowing.
+    from overflowing or underflowing. ``along_normals(values)`` (resolved parameters) says whether
+    a run with those parameters already moves every vertex along its own vertex normal only
+    (``two_stage`` with ``keep_tangential``): ``boundary_motion="normal"`` then keeps the free run
+    (:func:`boundary_along_normals`).
 
     The core is called as ``core(V, F, ops=ops, pinned=pinned, **params)`` with ``V``
     read-only ``(n, 3) float64``, ``F (m, 3) int64``, ``ops`` the cached
@@ -306,7 +311,8 @@ def register(
             raise ValueError(f"register({name!r}): auto= must be an AutoRule tuning the filter's parameters, got {auto!r}")
 
     def decorate(core: Callable) -> Callable:
-        spec = FilterSpec(name, summary, tuple(params), core, linear, translation_equivariant, auto, scale_free)
+        spec = FilterSpec(name, summary, tuple(params), core, linear, translation_equivariant, auto, scale_free,
+                          along_normals=along_normals)
 
         @functools.wraps(core)
         def public(mesh, **kwargs):
@@ -432,7 +438,12 @@ def boundary_along_normals(
 
     which removes the noise across the surface (what a scanner adds) but not the inward
     pull; the filter then runs again with the boundary held at :math:`x_b'` as Dirichlet
-    data, so the interior meets the border without a step. Costs a second run.
+    data, so the interior meets the border without a step. Costs a second run, except for a
+    filter whose run with these parameters already moves every vertex along its own normal
+    (``spec.along_normals(values)``: ``two_stage`` with ``keep_tangential``, whose vertices keep
+    their input's tangential part): its free run is the result. On the range scan face000 with
+    scanner noise its second run changed the border's error by 2 % (``benchmarks/results/borders.md``)
+    and took as long as the first.
 
     Parameters
     ----------
@@ -456,7 +467,7 @@ def boundary_along_normals(
     from .geometry import vertex_normals
 
     b = ops.boundary_vertices if pinned is None else ops.boundary_vertices & ~pinned
-    if not b.any():
+    if not b.any() or (spec.along_normals is not None and spec.along_normals(values)):
         return V_free
     N = vertex_normals(V_free, F)[b]
     along = np.einsum("ij,ij->i", V_free[b] - V[b], N)

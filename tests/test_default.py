@@ -292,6 +292,29 @@ def test_boundary_motion_normal_moves_border_vertices_along_their_normals_and_so
     np.testing.assert_allclose(out[i], np.linalg.solve(A[np.ix_(i, i)], rhs), atol=1e-9)
 
 
+def test_boundary_motion_normal_keeps_the_free_run_of_a_filter_that_moves_vertices_along_their_normals():
+    # two_stage with keep_tangential gives every vertex back its input's tangential part: with one outer iteration
+    # the move is along the vertex normal of the fitted mesh (the same run without keep_tangential), so the free run
+    # already moves the border along normals and boundary_motion="normal" keeps it (no second run)
+    V, F = open_cap(3)
+    Vn = md.add_normal_noise((V, F), 0.02, seed=0)[0]
+    b = get_operators(F, V.shape[0]).boundary_vertices
+    free = md.two_stage((Vn, F), iterations=1, keep_tangential=True)[0]
+    fitted = md.two_stage((Vn, F), iterations=1, keep_tangential=False)[0]
+    N = vertex_normals(fitted, F)
+    d = free - Vn
+    tangential = d - np.einsum("ij,ij->i", d, N)[:, None] * N
+    assert np.abs(tangential).max() < 1e-12 and np.abs(d[b]).max() > 1e-3
+    np.testing.assert_array_equal(md.two_stage((Vn, F), iterations=1, keep_tangential=True, boundary_motion="normal")[0],
+                                  free)
+    # without keep_tangential the border still takes the projection and the second run
+    held = md.two_stage((Vn, F), iterations=1, boundary_motion="normal")[0]
+    d = held - Vn
+    N = vertex_normals(fitted, F)[b]
+    assert np.abs(held[b] - fitted[b]).max() > 1e-4
+    np.testing.assert_allclose(held[b], Vn[b] + np.einsum("ij,ij->i", fitted[b] - Vn[b], N)[:, None] * N, atol=1e-12)
+
+
 def test_open_scan_border_moves_at_most_twice_the_interior():
     # the measure: mean displacement of border vertices <= 2 x the interior's; free borders fail it
     V, F = open_cap(4)

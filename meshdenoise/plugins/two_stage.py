@@ -976,6 +976,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     "two_stage",
     scale_free=True,
     auto=AutoRule(TUNED, choose_two_stage),
+    along_normals=lambda values: bool(values["keep_tangential"]),  # every vertex moves along its normal only
     summary="Feature-preserving: guided/bilateral filtering of face normals, then vertex update (Zheng 2011, Zhang 2015)",
     params=[
         Param("iterations", int, 3, low=0, high=MAX_ITERATIONS, help="outer iterations (normal filtering + vertex update)"),
