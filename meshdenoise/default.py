@@ -1567,6 +1567,14 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
     >>> choose_default((Vn, F)).method  # 642 vertices: three candidates; the smallest estimated error
     'sobolev_normal'
     """
+    return _choose(mesh, noise, boundary_motion)[0]
+
+
+def _choose(mesh: Any, noise: float | NoiseModel | None, boundary_motion: str) -> tuple[DefaultChoice, np.ndarray | None]:
+    """:func:`choose_default`, and the chosen filter's result on the whole mesh at the chosen parameters, (n, 3) in
+    the caller's vertex order, when the choice made it (``two_stage`` scored on the whole mesh: its probes' runs'
+    unprobed run) and the border's option leaves it as it is (None otherwise): :func:`denoise` then does not run
+    the filter again (the same bits: ``tests/test_default.py``)."""
     start = time.perf_counter()
     data = read_mesh(mesh)
     V, F = data.V, data.F
@@ -1662,6 +1670,14 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
                 post = feature_post_step(feature, region.F if region is not None else F,
                                          ops=region.ops if region is not None else ops)
             reasons.append(post.reason)
+    # the chosen filter's run on the whole mesh, made for its probes, is denoise's result where the border's option
+    # changes nothing (no open border, or a filter that moves every vertex along its normal)
+    free = None
+    if feature is not None and region is None and method == FEATURE_METHOD:
+        spec = get_filter(method)
+        if boundary_motion == "free" or not ops.boundary_vertices.any() or (
+                spec.along_normals is not None and spec.along_normals(spec.resolve(dict(params)))):
+            free = feature.out if relabel is None else relabel.restore(feature.out)
     feature = None
     if method in SMOOTH_PRIORS and rho > 0:  # the smooth prior's mu (SURE on positions) under-smooths the normals
         with stage("choosing the smooth prior's post-step"):  # along sobolev_bilaplacian's normals when computed
@@ -1686,7 +1702,7 @@ def choose_default(mesh: Any, *, noise: float | NoiseModel | None = None, bounda
                            (int(region.V.shape[0]), int(np.count_nonzero(region.rows))) if region is not None else (0, 0))
     for line in choice.lines():
         log.info("default: %s", line)
-    return choice
+    return choice, free
 
 
 def denoise(
@@ -1750,7 +1766,7 @@ def denoise(
     """
     options = {k: params.pop(k) for k in list(params) if k in COMMON_OPTIONS}
     options["boundary_motion"] = boundary_motion
-    choice = None
+    choice, free = None, None
     if method is None:
         if params:
             raise TypeError(f"denoise: filter parameters {sorted(params)} need method=; "
@@ -1758,7 +1774,7 @@ def denoise(
         if criterion is not None:
             raise TypeError(f"denoise: criterion={criterion!r} needs method=; with no method the default "
                             "chooses by its own estimates (normal error under a position-error guard)")
-        choice = choose_default(mesh, noise=noise, boundary_motion=boundary_motion)
+        choice, free = _choose(mesh, noise, boundary_motion)
         method, chosen = choice.method, dict(choice.params)
         release_before_filter()  # the choice's memo entries are dead weight beside the filter
     else:
@@ -1773,7 +1789,10 @@ def denoise(
             chosen = dict(params)
     before = read_mesh(mesh).V.copy() if choice is not None else None
     with stage(f"running {method}"):
-        out = apply_filter(method, mesh, **chosen, **options)
+        if choice is not None and free is not None and set(options) == {"boundary_motion"}:
+            out = _finish_run(mesh, free)
+        else:
+            out = apply_filter(method, mesh, **chosen, **options)
     if choice is not None and choice.post_steps:
         out = run_post_step(choice, out, **options)
     if choice is not None:
@@ -1781,6 +1800,12 @@ def denoise(
     if return_params:
         return out, (choice if choice is not None else chosen)
     return out
+
+
+def _finish_run(mesh: Any, free: np.ndarray) -> Any:
+    """``mesh`` with the vertices ``free`` (n, 3): ``apply_filter``'s result when ``free`` is the filter's run on it and
+    the border's option changes nothing (:func:`_choose`)."""
+    return read_mesh(mesh).write(np.array(free, dtype=np.float64))
 
 
 def run_post_step(choice: DefaultChoice, mesh: Any, **options: Any) -> Any:

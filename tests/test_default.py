@@ -871,6 +871,25 @@ def test_the_default_adds_taubin_steps_after_two_stage_on_a_scan_with_correlated
     assert "no Taubin steps after two_stage: they would round the sharp features" in choice.reasons
 
 
+def test_the_default_keeps_the_chosen_filters_run_from_its_estimates_the_same_bits_as_running_it_again():
+    # two_stage scored on the whole mesh: its unprobed run is denoise's result (no second run), on a closed CAD box
+    # and on the box with an open border (two_stage's vertices move along their normals: the border's option keeps it)
+    Vb, Fb = box(16)
+    Vn = md.add_normal_noise((Vb, Fb), 0.02, seed=2)[0]
+    for F in (Fb, Fb[4:]):
+        used = np.unique(F)
+        V, F = Vn[used], np.searchsorted(used, F)
+        choice, free = default._choose((V, F), None, "normal")
+        assert choice.method == "two_stage" and free is not None
+        assert get_operators(F, len(V)).boundary_vertices.any() == (F.shape[0] < Fb.shape[0])
+        out = md.denoise((V, F))[0]
+        again = md.apply_filter("two_stage", (V, F), **choice.params, boundary_motion="normal")[0]
+        if choice.post_steps:
+            again = md.apply_filter("taubin", (again, F), iterations=choice.post_steps, lam=0.5, mu=-0.53,
+                                    boundary_motion="normal")[0]
+        np.testing.assert_array_equal(out, again)
+
+
 _TORUS_RESULT: dict = {}  # the array result, computed once for every mesh type
 
 
