@@ -20,8 +20,8 @@ def test_a_two_stage_run_allocates_its_buffers_and_not_more_than_one_extra_verte
     spec.core(Vn, F, ops=ops, pinned=None, **values)  # the topology is cached: the run's own memory is measured
     topo = _two_stage_topology(ops)
     n, m, nnz, E = len(V), len(F), topo.nb.indices.size, topo.nb.edge_a.size
-    # S (nnz); N, areas, C, out (10 m); the guided filter's phi (E); X, Y and the result (3 of (n, 3))
-    buffers = 8 * (nnz + 10 * m + E + 3 * 3 * n)
+    # S (nnz); N, areas, C, out (10 m); the guided filter's phi (E) and packed keys (m); X, Y and the result (3 of (n, 3))
+    buffers = 8 * (nnz + 11 * m + E + 3 * 3 * n)
     tracemalloc.start()
     try:
         spec.core(Vn, F, ops=ops, pinned=None, **values)

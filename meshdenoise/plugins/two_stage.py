@@ -133,8 +133,16 @@ def _quantisation(H: np.ndarray) -> float:
     return QUANTUM / scale if scale > 0 else 0.0
 
 
+def _label_bits(m: int) -> int:
+    """Bits that hold every face label below ``m`` beside a quantised score (at most 2^30, :data:`QUANTUM`) in an int64."""
+    bits = max(1, int(m - 1).bit_length())
+    if bits > 33:
+        raise ValueError(f"two_stage: {m:,} faces, more than the guided filter's 2^33")
+    return bits
+
+
 class _GuidanceBuffers:
-    """Scratch arrays of the guided filter, (m, 3) and (m,) and (E,), allocated once per run.
+    """Scratch arrays of the guided filter, (m, 3), two (m,) and (E,), allocated once per run.
 
     ``g`` (the patch means, (m, 3)) is needed only inside :meth:`guidance`: a caller may set it
     to an (m, 3) array of its own that is dead at that time (the next pass's output) instead.
@@ -143,6 +151,7 @@ class _GuidanceBuffers:
     def __init__(self, nb: FaceNeighbourhood, g: np.ndarray | None = None):
         self.g = np.empty((nb.m, 3)) if g is None else g
         self.H = np.empty(nb.m)
+        self.key = np.empty(nb.m, dtype=np.int64)  # pick_guidance's packed (score, label)
         self.phi = np.empty(nb.edge_a.size)
 
     def guidance(self, N: np.ndarray, areas: np.ndarray, nb: FaceNeighbourhood, out: np.ndarray) -> np.ndarray:
@@ -150,7 +159,8 @@ class _GuidanceBuffers:
 
         kernels.patch_scores(N, areas, nb.indptr, nb.indices, nb.edge_a, nb.edge_b, nb.patch_ptr, nb.patch_edge,
                              self.g, self.H, self.phi)
-        kernels.pick_guidance(self.H, _quantisation(self.H), self.g, nb.indptr, nb.indices, nb.label, out)
+        kernels.pick_guidance(self.H, _quantisation(self.H), self.g, nb.indptr, nb.indices, nb.label,
+                              _label_bits(nb.m), self.key, out)
         return out
 
 
