@@ -124,6 +124,9 @@ REGION_FROM = 50_000
 # up to this many vertices the smooth prior's rule runs beside two_stage's (_candidate_rules; idle, same choices: bunny
 # scanner 28k 3.20 -> 2.98 s, face000 scanner 85k 4.99 -> 4.70 s); larger meshes are not measured: one after another
 RULES_BESIDE_UP_TO = 100_000
+# the smooth prior's run for the probes' normals on the whole mesh: two Lanczos passes, no factor (the bunny scanner at
+# mu 3: 0.14 s against 0.43 s for the factor, the normals within 2e-12; the region's runs below share one factor)
+PRIOR_NORMALS_SOLVER = "lanczos"
 RISK_REGION = 40_000  # the region: about this many vertices ...
 RISK_PATCHES = 12  # ... in this many balls (the 400k elephant: 8, 12 and 24 chose the post-step as the whole mesh did) ...
 RISK_MARGIN = 10  # ... scored from this many rings from a cut on (more where the smooth prior reaches farther):
@@ -1638,8 +1641,8 @@ def _choose(mesh: Any, noise: float | NoiseModel | None, boundary_motion: str) -
                     feature = probed if m == FEATURE_METHOD else feature
                     del probed
             else:  # on the whole mesh
-                smooth = np.asarray(get_filter(SMOOTH_METHOD).public((V, F), operators=ops,
-                                                                     **scored[SMOOTH_METHOD][0])[0])
+                smooth = np.asarray(get_filter(SMOOTH_METHOD).public((V, F), operators=ops, **scored[SMOOTH_METHOD][0],
+                                                                     solver=PRIOR_NORMALS_SOLVER)[0])
                 normals = vertex_normals(smooth, F)
                 smooth_params = scored[SMOOTH_METHOD][0]
                 del smooth
