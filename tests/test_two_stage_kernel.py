@@ -226,3 +226,19 @@ def test_edge_side_pairs_are_the_stable_sorts(dtype):
     ptr, members = kernels._csr_of_groups(groups, n + 5, np.int32)
     np.testing.assert_array_equal(members, np.argsort(groups, kind="stable"))
     np.testing.assert_array_equal(ptr, np.concatenate([[0], np.cumsum(np.bincount(groups, minlength=n + 5))]))
+
+
+def test_the_guided_pass_exponential_is_within_one_ulp_of_numpys_and_zero_below_its_floor():
+    from meshdenoise.kernels import EXP_FLOOR, exp_nonpositive
+
+    rng = np.random.default_rng(0)
+    x = -np.concatenate([rng.random(200_000) * 30, rng.random(20_000) * -EXP_FLOOR, np.logspace(-300, 2.8, 2_000),
+                         [0.0, 5e-324, 1e-17, 0.5 * np.log(2), np.log(2), 699.99]])
+    y = x.copy()
+    exp_nonpositive(y, y.view(np.int64), y.size)
+    ref = np.exp(x)
+    assert np.all(np.abs(y - ref) <= np.spacing(ref)), np.max(np.abs(y - ref) / np.spacing(ref))
+    assert y[x == 0.0][0] == 1.0 and np.all(y[x.size - 6:x.size - 4] == 1.0)  # exp(-0) and exp(-5e-324) are 1 exactly
+    below = np.array([EXP_FLOOR - 1e-9, -745.0, -1e300, -np.inf])
+    exp_nonpositive(below, below.view(np.int64), below.size)
+    np.testing.assert_array_equal(below, 0.0)
