@@ -334,16 +334,27 @@ def centroid_spacing_sums(C, indptr, indices, out):  # pragma: no cover - compil
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def spatial_weights(C, A, indptr, indices, denom, S):  # pragma: no cover - compiled
-    """``S[k] = A_j exp(-|c_i - c_j|^2 / denom)`` for every pair ``k = (i, j)`` of the CSR pattern."""
+    """``S[k] = A_j exp(-|c_i - c_j|^2 / denom)`` for every pair ``k = (i, j)`` of the CSR pattern.
+
+    The exponentials by blocks of :data:`EXP_BLOCK` rows, in ``S`` itself (:func:`exp_nonpositive`).
+    """
     m = C.shape[0]
-    for i in prange(m):
-        for k in range(indptr[i], indptr[i + 1]):
-            j = indices[k]
-            d0 = C[i, 0] - C[j, 0]
-            d1 = C[i, 1] - C[j, 1]
-            d2 = C[i, 2] - C[j, 2]
-            r2 = d0 * d0 + d1 * d1 + d2 * d2
-            S[k] = A[j] * np.exp(-r2 / denom) if r2 != 0.0 else A[j]  # exp(-0) is 1 exactly
+    bits = S.view(np.int64)
+    for b in prange((m + EXP_BLOCK - 1) // EXP_BLOCK):
+        lo = b * EXP_BLOCK
+        hi = min(m, lo + EXP_BLOCK)
+        for i in range(lo, hi):
+            for k in range(indptr[i], indptr[i + 1]):
+                j = indices[k]
+                d0 = C[i, 0] - C[j, 0]
+                d1 = C[i, 1] - C[j, 1]
+                d2 = C[i, 2] - C[j, 2]
+                S[k] = -(d0 * d0 + d1 * d1 + d2 * d2) / denom
+        start, stop = indptr[lo], indptr[hi]
+        exp_nonpositive(S[start:stop], bits[start:stop], stop - start)  # exp(-0) is 1 exactly
+        for i in range(lo, hi):
+            for k in range(indptr[i], indptr[i + 1]):
+                S[k] *= A[indices[k]]
 
 
 # --------------------------------------------------------------------------- guided filter
