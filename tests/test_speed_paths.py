@@ -70,34 +70,67 @@ def test_spmm_threads_env(monkeypatch):
 
 
 def test_spmm_stays_on_the_calling_thread_inside_single_threaded(monkeypatch):
-    """A product large enough to thread hands row blocks to the pool; inside kernels.single_threaded (runs going side by
-    side) it runs on the calling thread only, with the same bits, and the cap ends with the block."""
+    """A product large enough to thread runs the compiled kernel on every allowed thread; inside
+    kernels.single_threaded (runs going side by side) on the calling thread only, with the same bits; the cap ends
+    with the block, and the caller's numba thread count is given back."""
+    import numba
+
     from meshdenoise import kernels
 
+    if numba.config.NUMBA_NUM_THREADS < 2:
+        pytest.skip("numba has one thread here")  # pragma: no cover - CI has 2 cores
     monkeypatch.setenv("MESHDENOISE_THREADS", "2")
     A = _random_csr(4000, 4000, 0.003, 4)  # 48k non-zeros x 80 columns: above the threading threshold
     X = np.random.default_rng(5).standard_normal((4000, 80))
-    assert A.nnz * X.shape[1] >= 3 * op_module._THREADED_NNZ
-    handed = []
-    pool = op_module._thread_pool()
-
-    class Counting:
-        def submit(self, fn, *args):
-            handed.append(args)
-            return pool.submit(fn, *args)
-
-    monkeypatch.setattr(op_module, "_thread_pool", lambda: Counting())
+    assert A.nnz * X.shape[1] >= op_module._THREADED_WORK
+    counts = []
+    kernel = kernels.csr_matmat
+    monkeypatch.setattr(kernels, "csr_matmat", lambda *a: (counts.append(numba.get_num_threads()), kernel(*a)))
+    before = numba.get_num_threads()
     threaded = spmm(A, X)
-    assert len(handed) == 2
-    handed.clear()
+    assert counts == [2] and numba.get_num_threads() == before
+    counts.clear()
     with kernels.single_threaded():
         assert op_module.thread_limit() == 1
         alone = spmm(A, X)
-    assert handed == []
+    assert counts == [1]
     np.testing.assert_array_equal(alone, threaded)
     assert op_module.thread_limit() is None
     spmm(A, X)
-    assert len(handed) == 2
+    assert counts == [1, 2]
+
+
+@pytest.mark.parametrize("columns", [1, 2, 3, 5, 16, 40])
+@pytest.mark.parametrize("threads", [1, 2])
+def test_spmm_gives_scipys_product_bit_for_bit(columns, threads):
+    # each row summed over its non-zeros in storage order from 0 (or from out's value): scipy's own A @ X, exactly,
+    # with unsorted indices and 64-bit indices too
+    rng = np.random.default_rng(columns)
+    A = _random_csr(300, 250, 0.04, columns)
+    X = rng.standard_normal((250, columns)) * 10.0 ** rng.integers(-8, 8, size=(250, 1))
+    for M in (A, _shuffled_rows(A, rng), sp.csr_matrix((A.data, A.indices.astype(np.int64), A.indptr.astype(np.int64)),
+                                                       shape=A.shape)):
+        np.testing.assert_array_equal(spmm(M, X, threads=threads), M @ X)
+        Y0 = rng.standard_normal((300, columns))
+        Y = Y0.copy()
+        spmm(M, X, Y, accumulate=True, threads=threads)
+        expected = Y0.copy()
+        for i in range(300):  # Y0 + each product in turn, as the kernels add them
+            for t in range(M.indptr[i], M.indptr[i + 1]):
+                expected[i] += M.data[t] * X[M.indices[t]]
+        np.testing.assert_array_equal(Y, expected)
+
+
+def _shuffled_rows(A, rng):
+    """``A`` with each row's non-zeros stored in a random order (unsorted indices)."""
+    data, indices = A.data.copy(), A.indices.copy()
+    for i in range(A.shape[0]):
+        lo, hi = A.indptr[i], A.indptr[i + 1]
+        order = lo + rng.permutation(hi - lo)
+        data[lo:hi], indices[lo:hi] = data[order], indices[order]
+    B = sp.csr_matrix((data, indices, A.indptr.copy()), shape=A.shape)
+    B.has_sorted_indices = False
+    return B
 
 
 def test_every_thread_lifts_a_workers_cap_for_the_block_only():
