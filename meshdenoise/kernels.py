@@ -54,6 +54,9 @@ __all__ = [
     "bilateral_pass",
     "csr_matmat",
     "csr_matmat3",
+    "cg_product",
+    "cg_step",
+    "cg_direction",
     "fit_vertices",
     "restore_tangential",
     "unit_into",
@@ -400,6 +403,63 @@ def csr_matmat3(indptr, indices, data, X, Y, accumulate):  # pragma: no cover - 
         Y[i, 0] = s0
         Y[i, 1] = s1
         Y[i, 2] = s2
+
+
+# --------------------------------------------------------------------------- block conjugate gradients
+CG_BLOCK = 2048  # rows per partial sum of block_cg's dot products: their order is fixed whatever the thread count
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def cg_product(indptr, indices, data, P, Q, partial):  # pragma: no cover - compiled
+    """``Q = A P`` (rows summed as :func:`csr_matmat` sums them) and ``partial[b, c]``, the sum of ``P[i, c] Q[i, c]``
+    over the rows ``i`` of block ``b`` (:data:`CG_BLOCK` rows), in row order."""
+    n = Q.shape[0]
+    k = Q.shape[1]
+    for b in prange(partial.shape[0]):
+        for c in range(k):
+            partial[b, c] = 0.0
+        for i in range(b * CG_BLOCK, min(n, (b + 1) * CG_BLOCK)):
+            for c in range(k):
+                Q[i, c] = 0.0
+            for t in range(indptr[i], indptr[i + 1]):
+                a = data[t]
+                j = indices[t]
+                for c in range(k):
+                    Q[i, c] += a * P[j, c]
+            for c in range(k):
+                partial[b, c] += P[i, c] * Q[i, c]
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def cg_step(X, R, P, Q, alpha, dinv, partial_rr, partial_rz):  # pragma: no cover - compiled
+    """``X += alpha P``, ``R -= alpha Q`` (per column), and per block of :data:`CG_BLOCK` rows the sums of ``R^2``
+    and of ``R (R dinv)`` (the new residual's norm and its product with the preconditioned residual)."""
+    n = X.shape[0]
+    k = X.shape[1]
+    for b in prange(partial_rr.shape[0]):
+        for c in range(k):
+            partial_rr[b, c] = 0.0
+            partial_rz[b, c] = 0.0
+        for i in range(b * CG_BLOCK, min(n, (b + 1) * CG_BLOCK)):
+            d = dinv[i]
+            for c in range(k):
+                X[i, c] += P[i, c] * alpha[c]
+                r = R[i, c] - Q[i, c] * alpha[c]
+                R[i, c] = r
+                partial_rr[b, c] += r * r
+                partial_rz[b, c] += r * (r * d)
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def cg_direction(P, R, dinv, beta):  # pragma: no cover - compiled
+    """``P = beta P + R dinv`` (per column): the next search direction from the preconditioned residual."""
+    n = P.shape[0]
+    k = P.shape[1]
+    for b in prange((n + CG_BLOCK - 1) // CG_BLOCK):
+        for i in range(b * CG_BLOCK, min(n, (b + 1) * CG_BLOCK)):
+            d = dinv[i]
+            for c in range(k):
+                P[i, c] = P[i, c] * beta[c] + R[i, c] * d
 
 
 # --------------------------------------------------------------------------- guided filter

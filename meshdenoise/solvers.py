@@ -346,31 +346,31 @@ def block_cg(
     target = tol * bnorm
     rnorm = np.sqrt(np.einsum("ij,ij->j", R, R))
     active = rnorm > target
-    Z = R * dinv
-    P = Z.copy()
+    d = np.ascontiguousarray(dinv.ravel())
+    P = R * dinv
+    rz = np.einsum("ij,ij->j", R, P)
     Q = np.empty_like(P)
-    tmp = np.empty_like(P)
-    rz = np.einsum("ij,ij->j", R, Z)
+    # each iteration is three compiled passes (product and p.q, update and norms, direction) where numpy made
+    # about ten over the (n, k) arrays; the dot products are summed by fixed blocks of rows (kernels.CG_BLOCK)
+    from . import kernels
+
+    kernels.set_threads()
+    blocks = (n + kernels.CG_BLOCK - 1) // kernels.CG_BLOCK
+    pq_parts, rr_parts, rz_parts = (np.empty((blocks, k)) for _ in range(3))
     it = 0
     while active.any() and it < maxiter:
-        spmm(A, P, out=Q)
-        pq = np.einsum("ij,ij->j", P, Q)
-        alpha = np.divide(rz, pq, out=np.zeros(k), where=active)
-        np.multiply(P, alpha, out=tmp)
-        X += tmp
-        np.multiply(Q, alpha, out=tmp)
-        R -= tmp
+        kernels.cg_product(A.indptr, A.indices, A.data, P, Q, pq_parts)
+        alpha = np.divide(rz, pq_parts.sum(axis=0), out=np.zeros(k), where=active)
+        kernels.cg_step(X, R, P, Q, alpha, d, rr_parts, rz_parts)
         it += 1
-        rnorm = np.sqrt(np.einsum("ij,ij->j", R, R))
+        rnorm = np.sqrt(rr_parts.sum(axis=0))
         active &= rnorm > target
         if not active.any():
             break
-        np.multiply(R, dinv, out=Z)
-        rz_new = np.einsum("ij,ij->j", R, Z)
+        rz_new = rz_parts.sum(axis=0)
         beta = np.divide(rz_new, rz, out=np.zeros(k), where=active)
         rz = np.where(active, rz_new, rz)
-        P *= beta
-        P += Z
+        kernels.cg_direction(P, R, d, beta)
     relres = np.divide(rnorm, bnorm, out=np.zeros(k), where=bnorm > 0)
     if active.any():
         warnings.warn(

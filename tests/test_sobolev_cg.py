@@ -44,6 +44,37 @@ def test_block_cg_matches_dense_solve_on_each_column():
     assert np.all(true_res < 1e-11)
 
 
+def test_block_cg_gives_the_same_bits_on_one_thread_or_two_and_follows_the_recurrence():
+    # the dot products are summed by fixed blocks of rows (kernels.CG_BLOCK), whatever the thread count; on a mesh of
+    # several blocks the iterates are the textbook Jacobi-preconditioned recurrence written out here in numpy
+    from meshdenoise import kernels
+
+    V, F = icosphere(5)  # 10,242 rows: 6 blocks
+    n = len(V)
+    assert n > 4 * kernels.CG_BLOCK
+    A = sp.csr_matrix(sp.identity(n) + 3.0 * get_operators(F, n).L)
+    B = np.random.default_rng(1).normal(size=(n, 4))
+    with kernels.single_threaded():
+        one = block_cg(A, B, tol=1e-9)
+    two = block_cg(A, B, tol=1e-9)
+    np.testing.assert_array_equal(one[0], two[0])
+    assert one[1] == two[1]
+    d = 1.0 / A.diagonal()
+    X, R = np.zeros((n, 4)), B.copy()
+    P = R * d[:, None]
+    rz = np.sum(R * P, axis=0)
+    for _ in range(two[1]):
+        Q = A @ P
+        alpha = rz / np.sum(P * Q, axis=0)
+        X += alpha * P
+        R -= alpha * Q
+        rz_new = np.sum(R * R * d[:, None], axis=0)
+        P = R * d[:, None] + (rz_new / rz) * P
+        rz = rz_new
+    np.testing.assert_allclose(two[0], X, rtol=0, atol=1e-9 * np.abs(X).max())
+    np.testing.assert_allclose(two[0], np.linalg.solve(A.toarray(), B), rtol=0, atol=1e-7 * np.abs(B).max())
+
+
 def test_block_cg_vector_rhs_and_warm_start():
     V, F = icosphere(2)
     n = len(V)
