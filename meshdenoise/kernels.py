@@ -337,6 +337,22 @@ def centroid_spacing_sums(C, indptr, indices, out):  # pragma: no cover - compil
     return count
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def gaussian_block(X, indptr, indices, denom, lo, hi, out, bits):  # pragma: no cover - compiled
+    """``out[k - indptr[lo]] = exp(-|x_i - x_j|^2 / denom)`` for the pairs ``k = (i, j)`` of rows ``lo`` to ``hi - 1``
+    of the CSR pattern, ``X`` (m, 3); ``bits`` is ``out.view(int64)``. The exponents first, then their exponentials
+    at once (:func:`exp_nonpositive`; exp(-0) is 1 exactly)."""
+    base = indptr[lo]
+    for i in range(lo, hi):
+        for k in range(indptr[i], indptr[i + 1]):
+            j = indices[k]
+            d0 = X[i, 0] - X[j, 0]
+            d1 = X[i, 1] - X[j, 1]
+            d2 = X[i, 2] - X[j, 2]
+            out[k - base] = -(d0 * d0 + d1 * d1 + d2 * d2) / denom
+    exp_nonpositive(out, bits, indptr[hi] - base)
+
+
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def spatial_weights(C, A, indptr, indices, denom, S):  # pragma: no cover - compiled
     """``S[k] = A_j exp(-|c_i - c_j|^2 / denom)`` for every pair ``k = (i, j)`` of the CSR pattern.
@@ -348,15 +364,8 @@ def spatial_weights(C, A, indptr, indices, denom, S):  # pragma: no cover - comp
     for b in prange((m + EXP_BLOCK - 1) // EXP_BLOCK):
         lo = b * EXP_BLOCK
         hi = min(m, lo + EXP_BLOCK)
-        for i in range(lo, hi):
-            for k in range(indptr[i], indptr[i + 1]):
-                j = indices[k]
-                d0 = C[i, 0] - C[j, 0]
-                d1 = C[i, 1] - C[j, 1]
-                d2 = C[i, 2] - C[j, 2]
-                S[k] = -(d0 * d0 + d1 * d1 + d2 * d2) / denom
         start, stop = indptr[lo], indptr[hi]
-        exp_nonpositive(S[start:stop], bits[start:stop], stop - start)  # exp(-0) is 1 exactly
+        gaussian_block(C, indptr, indices, denom, lo, hi, S[start:stop], bits[start:stop])
         for i in range(lo, hi):
             for k in range(indptr[i], indptr[i + 1]):
                 S[k] *= A[indices[k]]
@@ -379,11 +388,18 @@ def csr_matmat(indptr, indices, data, X, Y, accumulate):  # pragma: no cover - c
         if not accumulate:
             for c in range(k):
                 Y[i, c] = 0.0
-        for t in range(indptr[i], indptr[i + 1]):
-            a = data[t]
-            j = indices[t]
-            for c in range(k):
-                Y[i, c] += a * X[j, c]
+        add_row_product(indptr, indices, data, X, Y, i)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def add_row_product(indptr, indices, data, X, Y, i):  # pragma: no cover - compiled
+    """``Y[i] += A[i] X``: row ``i`` of CSR ``A`` times ``X``, its non-zeros in storage order (scipy's order)."""
+    k = X.shape[1]
+    for t in range(indptr[i], indptr[i + 1]):
+        a = data[t]
+        j = indices[t]
+        for c in range(k):
+            Y[i, c] += a * X[j, c]
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
@@ -421,11 +437,7 @@ def cg_product(indptr, indices, data, P, Q, partial):  # pragma: no cover - comp
         for i in range(b * CG_BLOCK, min(n, (b + 1) * CG_BLOCK)):
             for c in range(k):
                 Q[i, c] = 0.0
-            for t in range(indptr[i], indptr[i + 1]):
-                a = data[t]
-                j = indices[t]
-                for c in range(k):
-                    Q[i, c] += a * P[j, c]
+            add_row_product(indptr, indices, data, P, Q, i)
             for c in range(k):
                 partial[b, c] += P[i, c] * Q[i, c]
 
@@ -555,14 +567,7 @@ def bilateral_pass(N, G, S, indptr, indices, denom, out):  # pragma: no cover - 
         base = indptr[lo]
         count = indptr[hi] - base
         w = np.empty(count)
-        for i in range(lo, hi):
-            for k in range(indptr[i], indptr[i + 1]):
-                j = indices[k]
-                d0 = G[i, 0] - G[j, 0]
-                d1 = G[i, 1] - G[j, 1]
-                d2 = G[i, 2] - G[j, 2]
-                w[k - base] = -(d0 * d0 + d1 * d1 + d2 * d2) / denom
-        exp_nonpositive(w, w.view(np.int64), count)  # exp(-0) is 1 exactly
+        gaussian_block(G, indptr, indices, denom, lo, hi, w, w.view(np.int64))
         for i in range(lo, hi):
             s0 = 0.0
             s1 = 0.0
