@@ -70,11 +70,11 @@ class DirichletSystem:
             raise ValueError(f"{type(self).__name__}.solve: X has {X.shape[0]} rows, the system {self.n}")
         return X.reshape(self.n, -1)
 
-    def _reduce(self, X2: np.ndarray) -> np.ndarray:
-        """The right-hand side of the reduced system: a new C-contiguous array (solvers may write into it)."""
+    def _reduce(self, X2: np.ndarray, order: str = "C") -> np.ndarray:
+        """The right-hand side of the reduced system: a new array in ``order`` (solvers may write into it)."""
         if self.free is None:
-            return np.array(X2, dtype=np.float64, order="C")
-        return np.ascontiguousarray(X2[self.free] - self._coupling @ X2[self._pinned_rows])
+            return np.array(X2, dtype=np.float64, order=order)
+        return np.asarray(X2[self.free] - self._coupling @ X2[self._pinned_rows], order=order)
 
     def _expand(self, X2: np.ndarray, out: np.ndarray) -> np.ndarray:
         """The full solution: ``out`` on the free rows, the pinned rows of ``X2`` bit for bit."""
@@ -239,7 +239,9 @@ class SPDSolver(DirichletSystem):
     def solve(self, X: np.ndarray) -> np.ndarray:
         """``Y`` of the shape of ``X`` (n,) or (n, k), with ``(A Y)_f = X_f`` and ``Y_p = X_p``."""
         X2 = self._columns(X)
-        rhs = self._reduce(X2)
+        # CHOLMOD solves column-major right-hand sides (scikit-sparse converts any other): one copy fewer, the same
+        # bits (51 columns at 28k rows: 37 -> 32 ms)
+        rhs = self._reduce(X2, order="F" if self._factor is not None else "C")
         if self._factor is not None:
             out = np.ascontiguousarray(self._factor(rhs), dtype=np.float64)
         else:
