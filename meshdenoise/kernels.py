@@ -209,7 +209,7 @@ EXP_BLOCK = 256  # rows of face pairs whose arguments are gathered, then exponen
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def exp_nonpositive(buf, bits, count):  # pragma: no cover - compiled
-    """``buf[t] = exp(buf[t])`` for ``t < count`` and ``buf[t] <= 0`` (0 below :data:`EXP_FLOOR`); ``bits`` is ``buf.view(int64)``.
+    r"""``buf[t] = exp(buf[t])`` for ``t < count`` and ``buf[t] <= 0`` (0 below :data:`EXP_FLOOR`); ``bits`` is ``buf.view(int64)``.
 
     :math:`e^x = 2^k e^r` with :math:`k = \mathrm{round}(x / \ln 2)`, :math:`|r| \le \ln 2 / 2`
     (Cody and Waite's reduction), :math:`e^r` by its Taylor polynomial of degree 13 (truncation

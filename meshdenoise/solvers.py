@@ -905,6 +905,20 @@ class LanczosQuadrature:
             beta_prev = b
         return out
 
+
+def shifted_cg_bound(ops: Operators, mu: float, order: int, tol: float) -> float:
+    r"""Iterations CG needs at most for :math:`I + \mu L^p` (up to rounding): :math:`\tfrac12\sqrt\kappa\,\ln(2/\mathrm{tol})`,
+    :math:`\kappa \le 1 + \mu (2 d_{max})^p` (the eigenvalues of ``L`` are at most :math:`2 d_{max}`, Gershgorin).
+
+    >>> from meshdenoise.operators import Operators
+    >>> import numpy as np
+    >>> round(shifted_cg_bound(Operators(np.array([[0, 1, 2]]), 3), 1.0, 2, 1e-10))  # d_max 2: kappa <= 17
+    49
+    """
+    d_max = float(ops.degree.max()) if ops.n else 0.0
+    return 0.5 * math.sqrt(1.0 + mu * (2.0 * d_max) ** order) * math.log(2.0 / tol)
+
+
 LANCZOS_SHIFTED_MAX_STEPS = 2000  # lanczos_shifted gives up (returns None) after this many steps
 FILTER_LANCZOS_TOL = 1e-10  # the factor-free filters' lanczos_shifted tolerance: over 10 steps the coefficients' change
 # levels off at 3e-12 to 6e-12 of their norm (the recurrence's rounding, no reorthogonalisation) on a 51,200-vertex torus at

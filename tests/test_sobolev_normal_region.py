@@ -91,3 +91,34 @@ def test_region_rule_under_a_correlated_noise_model_colours_the_regions_probes_b
     params = choose_parameters((Vn, F), "sobolev_normal", noise=model)
     assert cuts and cuts[0].vertices.size < len(V)  # on a region
     assert snr(V, apply_filter("sobolev_normal", (Vn, F), **params)[0]) > snr(V, Vn)
+
+
+def test_the_filter_with_held_vertices_on_a_large_mesh_solves_by_cg_within_its_bound_the_factors_result(monkeypatch):
+    # from SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES (here lowered) a held border (the border option's second run) is solved
+    # by CG while shifted_cg_bound allows it, a factorisation beyond: the same result to the solve's tolerance
+    import meshdenoise.plugins.sobolev_normal as sn
+    import meshdenoise.solvers as solvers
+    from meshdenoise.operators import clear_cache, get_operators
+
+    V, F = torus(40, 20)
+    F = F[F.max(axis=1) < 700]  # an open strip: a border to hold
+    V = V[:700]
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=1)
+    pinned = get_operators(F, len(V)).boundary_vertices
+    assert pinned.any()
+    factor = apply_filter("sobolev_normal", (Vn, F), mu=3.0, order=2, tangential=0.2, pinned=pinned)[0]
+    clear_cache()  # the factor just made would be used again
+    methods = []
+    real = solvers.shifted_solver
+    monkeypatch.setattr(sn, "shifted_solver", lambda *a, **k: methods.append(a[4] if len(a) > 4 else "cholesky") or real(*a, **k))
+    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES", 500)
+    cg = apply_filter("sobolev_normal", (Vn, F), mu=3.0, order=2, tangential=0.2, pinned=pinned)[0]
+    assert methods == ["cg"]
+    np.testing.assert_allclose(cg, factor, rtol=0, atol=1e-8 * np.abs(factor).max())
+    np.testing.assert_array_equal(cg[pinned], Vn[pinned])
+    methods.clear()
+    clear_cache()
+    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_PINNED_CG_BOUND", 1.0)  # beyond the bound: the factor
+    np.testing.assert_array_equal(apply_filter("sobolev_normal", (Vn, F), mu=3.0, order=2, tangential=0.2,
+                                               pinned=pinned)[0], factor)
+    assert methods == ["cholesky"]

@@ -11,7 +11,7 @@ from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import best_shifted
 from ..operators import Operators, mask_key, spmm
-from ..solvers import LanczosQuadrature, shifted_solver
+from ..solvers import LanczosQuadrature, shifted_cg_bound, shifted_solver
 from .sobolev import AUTO_CG_MAX_ITERATIONS, AUTO_CG_MIN_VERTICES
 
 SOLVERS = ("auto", "cholesky", "cg", "lanczos")
@@ -24,10 +24,8 @@ __all__ = ["sobolev_bilaplacian", "choose_sobolev_bilaplacian", "bilaplacian_cg_
 
 
 def bilaplacian_cg_bound(ops: Operators, mu: float, tol: float) -> float:
-    """Iterations CG needs at most for :math:`I + \\mu L^2` (up to rounding): :math:`\\tfrac12\\sqrt\\kappa\\,\\ln(2/\\mathrm{tol})`,
-    :math:`\\kappa \\le 1 + \\mu (2 d_{max})^2` (the eigenvalues of ``L`` are at most :math:`2 d_{max}`, Gershgorin)."""
-    d_max = float(ops.degree.max()) if ops.n else 0.0
-    return 0.5 * math.sqrt(1.0 + mu * (2.0 * d_max) ** 2) * math.log(2.0 / tol)
+    """:func:`~meshdenoise.solvers.shifted_cg_bound` for :math:`I + \\mu L^2`."""
+    return shifted_cg_bound(ops, mu, 2, tol)
 
 
 def _choose_solver(ops: Operators, mu: float, pinned: np.ndarray | None, tol: float) -> str:

@@ -2,13 +2,16 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ..geometry import area_normals  # re-exported: the filter's normals
 from ..registry import AutoRule, Param, get_filter, register
 from ..geometry import vertex_normals
-from ..operators import spmm
-from ..solvers import FILTER_LANCZOS_TOL, LanczosRows, SPDSolver, lanczos_shifted, shifted_matrix, shifted_solver
+from ..operators import mask_key, spmm
+from ..solvers import (FILTER_LANCZOS_TOL, LanczosRows, SPDSolver, lanczos_shifted, shifted_cg_bound, shifted_matrix,
+                       shifted_solver)
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
 from ..tuning.noise_level import mean_edge_length, normal_trust
@@ -41,7 +44,10 @@ def project_update(X: np.ndarray, Y: np.ndarray, N: np.ndarray, tangential: floa
 SOBOLEV_NORMAL_ORDERS = (2, 3)  # candidate Laplacian powers of the automatic sobolev_normal rule
 SOBOLEV_NORMAL_ORDER_MARGIN = 0.02  # an order's log search is refined when its grid's parabola predicts a score within this share of the least grid score
 SOBOLEV_NORMAL_PROBES = 16  # Monte-Carlo SURE probes (along the normals) of sobolev_normal
-SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES = 50_000  # without pinned vertices the filter factorises nothing from this size
+SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES = 50_000  # without pinned vertices the filter factorises nothing from this size ...
+SOBOLEV_NORMAL_PINNED_CG_BOUND = 600  # ... and with them solves by CG while its iteration bound is at most this (face000,
+# its border held, mu 6.7: order 2, bound 370, 192 iterations, 0.58 s against a 1.22 s factor; order 3, bound 1,280,
+# 531 iterations, 2.8 against 3.3 s)
 SOBOLEV_NORMAL_REGION = 16_000  # from search.REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices
 SOBOLEV_NORMAL_PATCHES = 8  # ... made of this many balls of vertices
 SOBOLEV_NORMAL_MARGIN = 8  # ... scoring only its vertices more than this many rings from a cut
@@ -260,7 +266,9 @@ def sobolev_normal(V, F, *, ops, pinned, mu, order, tangential):
     ``sobolev_axes``; pinned vertices do not move (their update is zero). From
     ``SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES`` vertices, with no pinned vertex and no stored factor,
     ``Y`` comes from two Lanczos passes on ``L`` (:func:`~meshdenoise.solvers.lanczos_shifted`), no
-    factorisation (the same ``Y`` to about 1e-13 of the coordinates).
+    factorisation (the same ``Y`` to about 1e-13 of the coordinates); with pinned vertices from
+    Jacobi-preconditioned CG while its iteration bound (:func:`~meshdenoise.solvers.shifted_cg_bound`)
+    is at most ``SOBOLEV_NORMAL_PINNED_CG_BOUND`` (the same ``Y`` to about 1e-9).
 
     Choosing ``mu`` for a scan: no rule of thumb holds across shapes (with noise of 0.1, 0.3 and 1
     mean edge lengths along the normals the oracle chose 21, 31 and 12 on a sphere, 4.5, 11 and 24
@@ -303,9 +311,15 @@ def sobolev_normal(V, F, *, ops, pinned, mu, order, tangential):
     if F.shape[0] == 0 or mu == 0:
         return X
     Y = None
-    if ops.n >= SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES and (pinned is None or not pinned.any()) and (
-            (float(mu), None) not in ops.cache.get(f"shifted-p{order}-cholesky", {})):
-        Y = lanczos_shifted(ops, X, mu, order, tol=FILTER_LANCZOS_TOL, growth=0.25)  # a 100k factor of I + mu L^3: 20 s
+    held = pinned is not None and pinned.any()
+    stored = ((float(mu), mask_key(pinned if held else None)) in ops.cache.get(f"shifted-p{order}-cholesky", {}))
+    if ops.n >= SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES and not stored:
+        if not held:
+            Y = lanczos_shifted(ops, X, mu, order, tol=FILTER_LANCZOS_TOL, growth=0.25)  # a 100k factor of I + mu L^3: 20 s
+        elif (bound := shifted_cg_bound(ops, mu, order, FILTER_LANCZOS_TOL)) <= SOBOLEV_NORMAL_PINNED_CG_BOUND:
+            # held vertices (the border option's second run): CG from the input, no factor
+            Y = shifted_solver(ops, mu, order, pinned, "cg").solve(X, tol=FILTER_LANCZOS_TOL, x0=X,
+                                                                 maxiter=int(4 * math.ceil(bound)) + 50)
     if Y is None:
         Y = shifted_solver(ops, mu, order, pinned).solve(X)
     return project_update(X, Y, area_normals(Y, F), tangential)
