@@ -44,7 +44,6 @@ _COMPILED_FROM_COLUMNS = 16
 
 CACHE_BYTES = 1 << 30  # operators of recent topologies, with their stored factorisations, up to 1 GiB
 _cache = ByteLRU(CACHE_BYTES)  # topology key -> Operators
-_lock = threading.Lock()
 
 
 def topology_key(F: np.ndarray, n: int) -> tuple:
