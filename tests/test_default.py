@@ -915,6 +915,31 @@ def test_the_post_steps_on_every_mesh_type_give_the_array_result(mesh_kind):
         np.testing.assert_array_equal(np.asarray(mesh.vertices), Vn)  # the input is unchanged
 
 
+_BOX_RESULT: dict = {}  # the array result, computed once for every mesh type
+
+
+def test_the_kept_two_stage_run_on_every_mesh_type_gives_the_array_result(mesh_kind):
+    # the default's result taken from its estimates' run (default._choose) is written back through each adapter as
+    # apply_filter writes it: the caller's type, a MeshSet changed in place, an Open3D input untouched
+    from .conftest import make_mesh, vertices_of
+
+    Vb, Fb = box(16)
+    Vn = md.add_normal_noise((Vb, Fb), 0.02, seed=2)[0]
+    if not _BOX_RESULT:  # once for the four mesh types
+        _BOX_RESULT["out"] = md.denoise((Vn, Fb), return_params=True)
+        assert default._choose((Vn, Fb), None, "normal")[1] is not None
+    expected, choice = _BOX_RESULT["out"]
+    assert choice.method == "two_stage"
+    mesh = make_mesh(mesh_kind, Vn, Fb)
+    out = md.denoise(mesh)
+    assert type(out) is type(mesh)
+    np.testing.assert_array_equal(vertices_of(out), expected[0])
+    if mesh_kind == "meshset":
+        assert out is mesh
+    elif mesh_kind == "open3d":
+        np.testing.assert_array_equal(np.asarray(mesh.vertices), Vn)
+
+
 def test_choose_default_runs_the_feature_test_beside_the_noise_estimate_with_the_same_answer(monkeypatch):
     """The feature test runs on a worker thread while the noise is estimated: the choice states
     detect_features' own reason, and an error in the test reaches the caller."""
