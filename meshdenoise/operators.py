@@ -20,11 +20,13 @@ import os
 import threading
 from functools import cached_property
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 from scipy.sparse.linalg import eigsh
 
+from . import kernels
 from .cache import ByteLRU, nbytes
 
 __all__ = ["Operators", "get_operators", "topology_key", "clear_cache", "trim_cache", "CACHE_BYTES", "spmm", "spmm_threads", "gather_rows"]
@@ -456,10 +458,6 @@ def spmm(
             Y.fill(0.0)
         _csr_matvecs(n, A.shape[1], k, A.indptr, A.indices, A.data, X2.ravel(), Y.ravel())
         return out.ravel() if squeeze else out
-    import numba
-
-    from . import kernels
-
     previous = numba.get_num_threads()
     numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
     try:
