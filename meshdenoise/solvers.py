@@ -14,7 +14,7 @@ import hashlib
 import math
 import threading
 from collections import OrderedDict
-from typing import Any, Callable, Iterator
+from typing import Any, Callable, Iterator, Sequence
 
 import warnings
 
@@ -27,7 +27,7 @@ from .operators import Operators, mask_key, spmm, trim_cache
 
 __all__ = [
     "DirichletSystem", "SPDSolver", "CHOLMOD", "CHOLMOD_MAX_ROWS", "clear_symbolic", "CGSolver", "block_cg", "cached_solver", "retain_factors", "laplacian_power", "shifted_solver",
-    "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "FILTER_LANCZOS_TOL",
+    "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "LanczosDots", "FILTER_LANCZOS_TOL",
 ]
 
 FACTORS_PER_FAMILY = 4  # a parameter sweep keeps only the last few factorisations of each filter
@@ -1038,3 +1038,105 @@ class LanczosRows(LanczosQuadrature):
             if c.size:
                 out[:, j] = np.stack([q[:, j] for q in self._kept[: c.size]], axis=1) @ c
         return out
+
+
+class LanczosDots(LanczosQuadrature):
+    r""":math:`u_j^T g(M)\, b_j` for every column :math:`b_j` of ``B`` and its dual columns :math:`u_j`, any ``g``,
+    from one Lanczos run that records the duals' projections on its basis.
+
+    The Lanczos approximation :math:`g(M)\, b \approx \|b\|\, Q_k\, g(T_k)\, e_1`
+    (:meth:`LanczosQuadrature.apply`) dotted with ``u`` needs only :math:`Q_k^T u`: the
+    projections are summed as the recurrence runs (``k`` numbers per column and dual, nothing of
+    size ``n x k``), so every further ``g`` (every candidate weight of a search) costs one small
+    tridiagonal eigenproblem per column (kept per size) and no sparse product unless the run must
+    be extended. With :math:`T_k = U \Theta U^T`:
+
+    .. math:: u^T g(M)\, b \approx \|b\| \sum_{i=1}^k (U^T Q_k^T u)_i\; g(\theta_i)\; U_{1i}
+
+    Parameters
+    ----------
+    M : scipy.sparse matrix, shape (n, n), symmetric
+    B : ndarray, shape (n, k)
+    duals : sequence of ndarray, each of shape (n, k)
+        Column ``j`` of each is dotted with :math:`g(M) b_j`.
+    max_steps : int
+
+    Examples
+    --------
+    >>> import numpy as np, scipy.sparse as sp
+    >>> M = sp.csr_matrix(np.diag([0.0, 1.0, 2.0, 4.0]))
+    >>> run = LanczosDots(M, np.ones((4, 1)), [np.array([[1.0], [0.0], [0.0], [2.0]])])
+    >>> np.round(run.dots(lambda t: 1.0 / (1.0 + t)), 12).tolist()  # 1 + 2/5
+    [[1.4]]
+    """
+
+    def __init__(self, M: sp.spmatrix, B: np.ndarray, duals: Sequence[np.ndarray], *, max_steps: int = 1000):
+        super().__init__(M, B, max_steps=max_steps)
+        self.duals = [np.ascontiguousarray(U, dtype=np.float64) for U in duals]
+        for U in self.duals:
+            if U.shape != self._B.shape:
+                raise ValueError(f"LanczosDots: a dual has shape {U.shape}, B {self._B.shape}")
+        self.dual_norms = np.array([np.sqrt(np.einsum("ij,ij->j", U, U)) for U in self.duals]).reshape(len(self.duals), -1)
+        self._proj: list[np.ndarray] = []  # per step, (duals, k): u_j . q_i
+        self._rules: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+
+    def extend(self, steps: int) -> None:
+        """Run ``steps`` more steps, recording the duals' projections on each basis vector."""
+        for _ in range(int(steps)):
+            before = self.steps
+            proj = np.array([np.einsum("ij,ij->j", U, self._q) for U in self.duals]).reshape(len(self.duals), -1)
+            super().extend(1)
+            if self.steps == before:  # every column exhausted: nothing was run
+                break
+            self._proj.append(proj)
+
+    def _rule(self, j: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Column ``j``'s ``k``-step rule: nodes, :math:`\\|b\\| U_{1i}` and the duals' :math:`U^T Q_k^T u` (duals, k)."""
+        k = max(0, min(int(k), int(self.lengths[j])))
+        if (j, k) not in self._rules:
+            if k == 0:
+                rule = (np.zeros(0), np.zeros(0), np.zeros((len(self.duals), 0)))
+            else:
+                from scipy.linalg import eigh_tridiagonal
+
+                theta, U = eigh_tridiagonal(self._alpha[:k, j], self._beta[: k - 1, j])
+                proj = np.array([p[:, j] for p in self._proj[:k]])  # (k, duals)
+                rule = (theta, math.sqrt(self.norms2[j]) * U[0], (U.T @ proj).T)
+            if len(self._rules) > 4 * self._q.shape[1]:  # the sizes a search reads again are the last few
+                self._rules.clear()
+            self._rules[(j, k)] = rule
+        return self._rules[(j, k)]
+
+    def _estimate(self, g: Callable[[np.ndarray], np.ndarray], k: int) -> tuple[np.ndarray, np.ndarray]:
+        """The ``k``-step estimates (duals, columns) and the norms of the approximations of :math:`g(M) b_j`."""
+        ncols = self._q.shape[1]
+        out, norms = np.zeros((len(self.duals), ncols)), np.zeros(ncols)
+        for j in range(ncols):
+            theta, w, proj = self._rule(j, k)
+            if w.size:
+                c = g(theta) * w
+                out[:, j] = proj @ c
+                norms[j] = np.linalg.norm(c)
+        return out, norms
+
+    def dots(self, g: Callable[[np.ndarray], np.ndarray], *, rtol: float = 1e-10, check: int = 10,
+             growth: float = 0.0) -> np.ndarray | None:
+        """:math:`u_j^T g(M)\\, b_j`, shape (duals, columns), the run extended until converged; ``None`` if
+        :attr:`max_steps` is reached first.
+
+        Converged when no estimate of an active column moved by more than ``rtol`` times
+        :math:`\\|u_j\\|\\, \\|g(M) b_j\\|` (its Cauchy-Schwarz scale) over the last ``check`` steps;
+        ``growth`` as for :meth:`LanczosQuadrature.apply` (tests at geometrically growing sizes).
+        """
+        if self.steps < check:
+            self.extend(check - self.steps)
+        while True:
+            k = self.steps
+            now, norms = self._estimate(g, k)
+            before, _ = self._estimate(g, k - check)
+            moved = np.abs(now - before) > rtol * self.dual_norms * norms
+            if not (moved & self._active).any():
+                return now
+            if k >= self.max_steps:
+                return None
+            self.extend(min(max(check, int(growth * k)), self.max_steps - k))

@@ -11,6 +11,7 @@ from ..tuning.memo import MEMO, digest
 from ..tuning.risk import Point, probe_block
 from ..tuning import search
 from ..tuning.search import region_rule, search_log, shifted_reach
+from ..tuning.spectral import Spectral, heat_kernel_spectral
 
 __all__ = ["sinkhorn", "sinkhorn_map"]
 
@@ -157,9 +158,16 @@ def sinkhorn_map(V: np.ndarray, F: np.ndarray, ops: object, params: dict):
     return apply
 
 
+def sinkhorn_spectral(ops: object, params: dict) -> Spectral:
+    """:func:`sinkhorn_map` as :math:`g(L)`, :math:`g = (2\\gamma - \\gamma^2)^k`, :math:`\\gamma(y) = (1 + \\tfrac{t}{s} y)^{-s}`
+    (:func:`~meshdenoise.tuning.spectral.heat_kernel_spectral`; ``AutoRule.spectral``)."""
+    return heat_kernel_spectral(ops, float(params["t"]), int(params["steps"]), int(params["iterations"]))
+
+
 @register(
     "sinkhorn",
-    auto=AutoRule(("t", "iterations"), choose_sinkhorn, normals="t", linear_map=sinkhorn_map),
+    auto=AutoRule(("t", "iterations"), choose_sinkhorn, normals="t", linear_map=sinkhorn_map, spectral=
+                  lambda ops, p: sinkhorn_spectral(ops, p)),
     summary="OT: move each vertex to its barycentric projection under the Sinkhorn-scaled heat-kernel plan",
     params=[
         Param("t", float, 10.0, low=0.0, low_open=True, help="diffusion time of the heat kernel (I + tL)^-1"),

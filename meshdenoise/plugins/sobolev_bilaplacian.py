@@ -10,6 +10,7 @@ from ..registry import AutoRule, Param, register
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import best_shifted
+from ..tuning.spectral import shifted_spectral
 from ..operators import Operators, mask_key, spmm
 from ..solvers import LanczosQuadrature, shifted_cg_bound, shifted_solver
 from .sobolev import AUTO_CG_MAX_ITERATIONS, AUTO_CG_MIN_VERTICES
@@ -73,7 +74,8 @@ def choose_sobolev_bilaplacian(ctx: TuningContext) -> tuple[dict, Point]:
 
 @register(
     "sobolev_bilaplacian",
-    auto=AutoRule(("mu",), choose_sobolev_bilaplacian, normals="mu"),
+    auto=AutoRule(("mu",), choose_sobolev_bilaplacian, normals="mu",
+                  spectral=lambda ops, p: shifted_spectral(ops, p["mu"], 2)),
     summary="Higher-order Sobolev regularisation: solve (I + mu L^2) Y = X by cached sparse Cholesky",
     params=[
         Param("mu", float, 1.0, low=0.0, help="weight of the bending term ||L Y||^2 (0 returns the input)"),

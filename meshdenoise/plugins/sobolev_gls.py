@@ -20,6 +20,7 @@ from ..tuning.context import TuningContext
 from ..tuning.noise_level import mean_edge_length, normal_spread, normal_trust
 from ..tuning.risk import Point, gcv
 from ..tuning.search import best_shifted, region_rule, search_log, shifted_reach, solve_shifted
+from ..tuning.spectral import Spectral, shifted_spectral
 
 log = logging.getLogger("meshdenoise.auto")
 
@@ -495,11 +496,20 @@ def sobolev_gls_map(V: np.ndarray, F: np.ndarray, ops: Operators, params: dict):
     return apply
 
 
+def sobolev_gls_spectral(ops: Operators, params: dict) -> Spectral | None:
+    """:func:`sobolev_gls_map` at ``beta`` 1 (what the normals search scores, ``AutoRule.normals_held``):
+    :math:`(I + \\mu L^p)^{-1}` (:func:`~meshdenoise.tuning.spectral.shifted_spectral`); ``None`` at another ``beta``."""
+    if float(params["beta"]) != 1.0:
+        return None
+    return shifted_spectral(ops, float(params["mu"]), int(params["order"]))
+
+
 @register(
     "sobolev_gls",
     scale_free=True,
     auto=AutoRule(("mu", "beta"), choose_sobolev_gls, normals="mu", linear_map=sobolev_gls_map,
-                  normals_region=GLS_NORMAL_REGION, normals_held=(("beta", 1.0),)),
+                  normals_region=GLS_NORMAL_REGION, normals_held=(("beta", 1.0),), spectral=
+                  lambda ops, p: sobolev_gls_spectral(ops, p)),
     summary="Polyharmonic Sobolev with the data term weighted beta times more across the estimated normals",
     params=[
         Param("mu", float, 1000.0, low=0.0, help="weight of the penalty ||L^{p/2} Y||^2 (0 returns the input)"),

@@ -10,6 +10,7 @@ from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import averaging_step, best_on_curve, best_on_path, iterative_path, path_curve
+from ..tuning.spectral import Spectral, averaging_spectral
 
 __all__ = ["taubin", "meshlab_taubin_operator", "pass_matrix", "TAUBIN_WEIGHTS"]
 
@@ -127,9 +128,18 @@ def choose_taubin(ctx: TuningContext) -> tuple[dict, Point]:
     return out, best
 
 
+def taubin_spectral(ops: Operators, params: dict) -> Spectral | None:
+    """The filter at ``params`` as :math:`S^{-1} g(M) S` (:func:`~meshdenoise.tuning.spectral.averaging_spectral`), with
+    the uniform weights :math:`D^{-1} W` (``AutoRule.spectral``); ``None`` with the others, not symmetric in any scale."""
+    if params["weights"] != "uniform":
+        return None
+    return averaging_spectral(ops, (float(params["lam"]), float(params["mu"])), int(params["iterations"]))
+
+
 @register(
     "taubin",
-    auto=AutoRule(("iterations", "lam", "mu"), choose_taubin, normals="iterations", additive=True, integer=True),
+    auto=AutoRule(("iterations", "lam", "mu"), choose_taubin, normals="iterations", additive=True, integer=True,
+                  spectral=lambda ops, p: taubin_spectral(ops, p)),
     summary="Taubin lambda/mu smoothing: per iteration X += lam (AX - X), then X += mu (AX - X), mu < 0",
     params=[
         Param("iterations", int, 10, low=0, high=MAX_ITERATIONS, help="number of (lambda pass + mu pass) pairs"),

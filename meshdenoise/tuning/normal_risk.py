@@ -14,17 +14,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, NamedTuple, Sequence
 
 import numpy as np
 
 from .. import kernels
 from ..geometry import cross_rows, vertex_normals
 from .risk import EXACT_TRACE_MAX
+from .spectral import Spectral, SpectralFailed, SpectralSearch
 
 __all__ = ["NormalJacobian", "NormalChoice", "normal_risk", "dirichlet_sure", "refine_for_normals", "normal_probe_count",
            "NORMAL_PROBES", "NORMAL_ITERATIONS", "NORMAL_SCALES", "NORMAL_WIDE_SCALES", "NORMAL_WIDE_BELOW", "NORMAL_FIRST",
-           "NORMAL_PATIENCE", "NORMAL_RESUME_KEEP", "NORMAL_LINEAR_MAX"]
+           "NORMAL_PATIENCE", "NORMAL_RESUME_KEEP", "NORMAL_LINEAR_MAX", "SPECTRAL_MIN_VERTICES"]
 
 # Rademacher vector probes: NORMAL_PROBE_BUDGET / n, from NORMAL_PROBES to NORMAL_MAX_PROBES (the estimate averages
 # over the faces, so its spread falls like 1 / sqrt(n P): a constant n P keeps it; 8 probes at 50k vertices chose the
@@ -42,6 +43,7 @@ NORMAL_RESUME_KEEP = 3  # a resumed descent keeps this many results to run on fr
 # the probes: at most this many (Fandisk0.3, Block0.4, Twelve0.5Impulsive chose the same counts as with 50-64 probes,
 # in 4-8 s instead of 12-50 s)
 NORMAL_SWEEP_PROBES = 16
+SPECTRAL_MIN_VERTICES = 2_000  # refine_for_normals(spectral=...): from this size the candidates by Lanczos runs
 # the first pass linearises at this multiple of position SURE's choice, the middle of NORMAL_SCALES: at SURE's own
 # choice a rough mesh's J overstates the turns of further smoothing (filtering on Fandisk0.3 stayed at 1 step, its
 # normal oracle 2; from the middle it found 2)
@@ -177,10 +179,17 @@ def normal_risk(J: NormalJacobian, X: np.ndarray, Y: np.ndarray, JB: Sequence[np
     float
     """
     faces = J.counted if faces is None else faces & J.counted
-    JR = J(Y - X)[faces]
     JB = (JB if isinstance(JB, np.ndarray) else np.stack(list(JB), axis=1))[faces]
     JHB = J.many(HB if isinstance(HB, np.ndarray) else np.stack(list(HB), axis=1))[faces]
-    terms = 2.0 * np.einsum("fpc,fpc->p", JB, JHB) - np.einsum("fpc,fpc->p", JB, JB)
+    return _normal_risk_sum(J, X, Y, np.einsum("fpc,fpc->p", JB, JHB), np.einsum("fpc,fpc->p", JB, JB), rho, faces)
+
+
+def _normal_risk_sum(J: NormalJacobian, X: np.ndarray, Y: np.ndarray, cross: np.ndarray, own: np.ndarray, rho: float,
+                     faces: np.ndarray) -> float:
+    """:func:`normal_risk` from its probe terms: ``cross[p]`` :math:`= (J b_p)^T (J H b_p)`, ``own[p]`` :math:`= \\|J b_p\\|^2`
+    over the counted ``faces``."""
+    JR = J(Y - X)[faces]
+    terms = 2.0 * cross - own
     m = max(int(np.count_nonzero(faces)), 1)
     return (float(np.sum(JR * JR)) + rho**2 * float(np.mean(terms))) / m
 
@@ -274,12 +283,19 @@ def dirichlet_sure(L: Any, V: np.ndarray, out: np.ndarray, B: np.ndarray, LB: np
     >>> float(dirichlet_sure(L, V, np.hstack([V, B]), B, L @ B, 0.1))  # H = I, no probes: the error's energy is 0
     0.0
     """
-    R = out[:, :3] - V
     P = B.shape[1] // 3
     keep = (lambda A: A) if rows is None else (lambda A: A[rows])  # noqa: E731
-    energy = float(np.sum(keep(R) * keep(np.asarray(L @ R))))
     noise = float(np.sum(keep(B) * keep(LB))) / P
     cross = float(np.sum(keep(LB) * keep(out[:, 3:]))) / P
+    return _dirichlet_sum(L, V, out[:, :3], noise, cross, rho, rows)
+
+
+def _dirichlet_sum(L: Any, V: np.ndarray, Y: np.ndarray, noise: float, cross: float, rho: float,
+                   rows: np.ndarray | None) -> float:
+    """:func:`dirichlet_sure` from its probe terms (``noise``, ``cross``: the means over the probes)."""
+    R = Y - V
+    keep = (lambda A: A) if rows is None else (lambda A: A[rows])  # noqa: E731
+    energy = float(np.sum(keep(R) * keep(np.asarray(L @ R))))
     return energy - rho**2 * noise + 2.0 * rho**2 * cross
 
 
@@ -291,9 +307,18 @@ def _mean_edge(X: np.ndarray, F: np.ndarray) -> float:
     return float(np.linalg.norm(X[F[:, [1, 2, 0]]] - X[F], axis=2).mean())
 
 
+class _Result(NamedTuple):
+    """A candidate's result: ``Y`` :math:`= HX`, with the whole block ``out`` (:math:`[HX, HB]`, the filter run) or
+    the probes' terms ``terms`` (duals, 3P) :math:`u^T H b` per probe column (:class:`~.spectral.SpectralSearch`)."""
+
+    Y: np.ndarray
+    out: np.ndarray | None = None
+    terms: np.ndarray | None = None
+
+
 def _dirichlet_choice(V: np.ndarray, F: np.ndarray, values: list[float], start: float, rho: float, count: int,
                       rows: np.ndarray | None, probes_at: Callable, position_sure: Callable, guarded: Callable,
-                      search: Callable, apply: Callable, path: tuple) -> NormalChoice:
+                      search: Callable, results: Callable, at_value: Callable, path: tuple) -> NormalChoice:
     """:func:`refine_for_normals`' ranking where the noise is too large for its linearised estimate:
     :func:`dirichlet_sure`, the probes along the vertex normals of the result at ``start`` (position SURE's choice),
     searched from there."""
@@ -301,18 +326,28 @@ def _dirichlet_choice(V: np.ndarray, F: np.ndarray, values: list[float], start: 
 
     L = get_operators(np.asarray(F), V.shape[0]).L
     i0 = int(np.argmin(np.abs(np.log(values) - math.log(float(start)))))
-    B = probes_at(apply(values[i0], V))
+    B = probes_at(at_value(values[i0]))
     LB = np.asarray(L @ B)
+    P = B.shape[1] // 3
+    keep = (lambda A: A) if rows is None else (lambda A: np.where(rows[:, None], A, 0.0))  # noqa: E731
+    noise = None
     scores: dict[int, float] = {}
     sures: dict[int, float] = {}
 
-    def score(i: int, out: np.ndarray) -> None:
-        scores[i] = dirichlet_sure(L, V, out, B, LB, rho, rows) / max(count, 1)
-        sures[i] = position_sure(B, out)
+    def score(i: int, r: _Result) -> None:
+        nonlocal noise
+        if r.out is not None:
+            scores[i] = dirichlet_sure(L, V, r.out, B, LB, rho, rows) / max(count, 1)
+        else:
+            if noise is None:
+                noise = float(np.sum(keep(B) * LB)) / P
+            cross = float(np.sum(r.terms[0])) / P
+            scores[i] = _dirichlet_sum(L, V, r.Y, noise, cross, rho, rows) / max(count, 1)
+        sures[i] = position_sure(B, r)
         if guarded(i, sures[i]):
             scores[i] = math.inf
 
-    search(i0, np.hstack([V, B]), score, scores)
+    search(i0, results(B, [keep(LB), keep(B)]), score, scores)
     best = min(scores, key=scores.get)
     order = sorted(scores)
     return NormalChoice(values[best], float(scores[best]), path + (values[best],), tuple(values[i] for i in order),
@@ -326,7 +361,8 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
                        probes: int | None = None, iterations: int = NORMAL_ITERATIONS,
                        additive: bool = False, first: float | None = None, rows: np.ndarray | None = None,
                        exact: bool | None = None, guard_above: float | None = None, seed: int = 0,
-                       resume: bool = False, edge_length: float | None = None) -> NormalChoice:
+                       resume: bool = False, edge_length: float | None = None,
+                       spectral: Callable[[float], Spectral] | None = None) -> NormalChoice:
     """The parameter of a linear smoother with the least estimated face-normal risk (:func:`normal_risk`).
 
     The risk is linearised at a mesh ``R`` (``J`` and the noise directions ``N``, the unit
@@ -380,6 +416,17 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
         ``apply`` is additive (as for ``additive``) but the search descends as without it: each
         candidate's run starts from the result of the nearest smaller candidate the pass has
         kept (the last :data:`NORMAL_RESUME_KEEP`), the same results for fewer steps.
+    spectral : callable, optional
+        ``spectral(value)``: the map at ``value`` as :math:`S^{-1} g(M) S`
+        (:class:`~meshdenoise.tuning.spectral.Spectral`, every value on the same ``M``). From
+        :data:`SPECTRAL_MIN_VERTICES` vertices (Rademacher probes) the candidates are then scored
+        without running ``apply`` on the probes: their terms :math:`u_p^T H b_p` (the normal
+        risk's :math:`(J b_p)^T (J H b_p)` with :math:`u_p = J^T J b_p`, position SURE's and the
+        Dirichlet estimate's) from one Lanczos run per pass that records the duals' projections,
+        the coordinates :math:`HX` from one run for the whole search
+        (:class:`~meshdenoise.tuning.spectral.SpectralSearch`): the same estimates to about 1e-10,
+        no factorisation or filter run per candidate. ``apply`` is used where a run does not
+        converge.
     rows : ndarray of bool, shape (n,), optional
         The vertices scored (a sampled region's inner part): only faces with three scored
         corners count. Default: all.
@@ -424,7 +471,8 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
     if int(probes) < 1 or int(iterations) < 1:
         raise ValueError(f"refine_for_normals: probes and iterations must be >= 1, got {probes!r}, {iterations!r}")
     n = V.shape[0]
-    if exact if exact is not None else n <= EXACT_TRACE_MAX:  # probes sqrt(n) e_i: the mean over them is the trace
+    exact_probes = exact if exact is not None else n <= EXACT_TRACE_MAX
+    if exact_probes:  # probes sqrt(n) e_i: the mean over them is the trace
         Z = math.sqrt(n) * np.eye(n)
     else:
         Z = np.random.default_rng(seed).choice([-1.0, 1.0], size=(n, int(probes)))
@@ -439,96 +487,136 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
         faces = rows[np.asarray(F)].all(axis=1)
     count = n if rows is None else int(np.count_nonzero(rows))
     part = (lambda A: A) if rows is None else (lambda A: A[rows])  # noqa: E731  the scored vertices
-    # the fixed point, bracketed: linearised at a smoother mesh the estimate asks for less smoothing, at a rougher one
-    # for more (face000: 2 and 20 steps asked for each other); once both sides are seen, bisect between them
-    at = int(np.argmin(np.abs(logs - math.log(float(first) if first is not None else float(start)))))
-    lo, hi = -1, len(values)
-    path: list[float] = []
     P = Z.shape[1]
 
     def probes_at(R: np.ndarray) -> np.ndarray:  # (n, 3P): probe p in columns 3p .. 3p + 2, along R's vertex normals
         N = vertex_normals(R, F)
         return (Z[:, :, None] * N[:, None, :]).reshape(n, 3 * P)
 
-    def position_sure(B: np.ndarray, out: np.ndarray) -> float:
-        trace = float(np.sum(part(B) * part(out[:, 3:]))) / P
-        return float(np.sum(part(out[:, :3] - V) ** 2)) - count * rho**2 + 2.0 * rho**2 * trace
+    def position_sure(B: np.ndarray, r: _Result) -> float:
+        if r.out is not None:
+            trace = float(np.sum(part(B) * part(r.out[:, 3:]))) / P
+        else:  # the terms of dual 1, the probes on the scored vertices
+            trace = float(np.sum(r.terms[1])) / P
+        return float(np.sum(part(r.Y - V) ** 2)) - count * rho**2 + 2.0 * rho**2 * trace
 
     def guarded(i: int, sure: float) -> bool:  # past guard_above, positions worse than the input's: not a candidate
         return guard_above is not None and values[i] > guard_above and not sure < count * rho**2
 
-    def search(at: int, VB: np.ndarray, score: Callable[[int, np.ndarray], None], risks: dict[int, float]) -> None:
-        """Score candidates into ``risks``: one additive run, or a descent from ``at`` to a local minimum."""
-        if additive:  # one run, on from each candidate to the next, until PATIENCE candidates past the best
-            block, done = VB, 0.0
-            for i, value in enumerate(values):
-                if value > done:
-                    block, done = apply(value - done, block), value
-                score(i, block)
+    def search(at: int, result: Callable[[int], _Result], score: Callable[[int, _Result], None],
+               risks: dict[int, float]) -> None:
+        """Score candidates into ``risks``: along the values until PATIENCE past the best (additive), or a descent
+        from ``at`` to a local minimum."""
+        if additive:
+            for i in range(len(values)):
+                score(i, result(i))
                 if i - min(risks, key=risks.get) >= NORMAL_PATIENCE:
                     break
             return
-        # descend from the candidate linearised at (the risk is smooth in log value)
-        runs: dict[int, np.ndarray] = {}  # resume: the last results, each run on from the nearest below
-
-        def result(j: int) -> np.ndarray:
-            below = [i for i in runs if i < j]
-            if not below:
-                out = apply(values[j], VB)
-            else:
-                i = max(below)
-                out = apply(values[j] - values[i], runs[i])
-            runs[j] = out
-            while len(runs) > NORMAL_RESUME_KEEP:
-                del runs[next(iter(runs))]  # the oldest
-            return out
-
-        cur = at
+        cur = at  # descend from the candidate linearised at (the risk is smooth in log value)
         while True:
             # cur first: its result was just computed for R (a cached factor); resumed runs go upwards
             for j in (cur - 1, cur, cur + 1) if resume else (cur, cur - 1, cur + 1):
                 if 0 <= j < len(values) and j not in risks:
-                    score(j, result(j) if resume else apply(values[j], VB))
+                    score(j, result(j))
             nxt = min((j for j in (cur - 1, cur, cur + 1) if j in risks), key=risks.get)
             if nxt == cur:
                 break
             cur = nxt
 
-    for _ in range(int(iterations)):
-        R = apply(values[at], V)
-        if not path and rho >= NORMAL_LINEAR_MAX * (_mean_edge(R, F) if edge_length is None else float(edge_length)):
-            # the noise turns a face by about rho / h radians: past one the first order does not hold (the elephant
-            # at 26 edge lengths of noise: every candidate's estimate -3,900 rad^2, the choice at the search's end)
-            return _dirichlet_choice(V, F, values, start, rho, count, rows, probes_at, position_sure, guarded, search,
-                                     apply, ())
-        J = NormalJacobian(R, F, NORMAL_MIN_HEIGHT)
-        B = probes_at(R)
-        JB = J.many(B.reshape(n, P, 3))
-        risks: dict[int, float] = {}
-        sures: dict[int, float] = {}
+    def run_results(B: np.ndarray, duals: list[np.ndarray]) -> Callable[[int], _Result]:
+        """Each candidate's result by the filter on ``[V, B]``: one run on from each candidate to the next
+        (additive), each count on from the nearest kept below (resume), or one run per candidate."""
+        VB = np.hstack([V, B])
+        state: dict = {"block": VB, "done": 0.0}
+        runs: dict[int, np.ndarray] = {}  # resume: the last results, each run on from the nearest below
 
-        def score(i: int, out: np.ndarray) -> None:
-            risks[i] = normal_risk(J, V, out[:, :3], JB, out[:, 3:].reshape(n, P, 3), rho, faces)
-            sures[i] = position_sure(B, out)
-            if guarded(i, sures[i]):
-                risks[i] = math.inf
+        def result(j: int) -> _Result:
+            value = values[j]
+            if additive:  # asked in increasing order
+                if value > state["done"]:
+                    state["block"], state["done"] = apply(value - state["done"], state["block"]), value
+                out = state["block"]
+            elif resume:
+                below = [i for i in runs if i < j]
+                out = apply(value, VB) if not below else apply(value - values[max(below)], runs[max(below)])
+                runs[j] = out
+                while len(runs) > NORMAL_RESUME_KEEP:
+                    del runs[next(iter(runs))]  # the oldest
+            else:
+                out = apply(value, VB)
+            return _Result(out[:, :3], out=out)
 
-        search(at, np.hstack([V, B]), score, risks)
-        best = min(risks, key=risks.get)
-        path.append(values[best])
-        if abs(best - at) <= 1:  # the fixed point, or a candidate one grid step (26 %) from it: a further pass, a
-            break  # run of every candidate, would choose between the two on a curve that is flat there
-        if best > at:
-            lo = at
-        else:
-            hi = at
-        if lo >= 0 and hi < len(values):
-            if hi - lo <= 1:  # adjacent: the better of the two as this pass sees them
-                best = min((i for i in (lo, hi) if i in risks), key=risks.get, default=best)
-                break
-            at = (lo + hi) // 2
-        else:
-            at = best
-    order = sorted(risks)
-    return NormalChoice(values[best], float(risks[best]), tuple(path), tuple(values[i] for i in order),
-                        tuple(float(risks[i]) for i in order), float(sures[best]), float(count * rho**2))
+        return result
+
+    def passes(spectral_search: SpectralSearch | None) -> NormalChoice:
+        at_value = (lambda value: apply(value, V)) if spectral_search is None else spectral_search.coordinates
+
+        def results(B: np.ndarray, duals: list[np.ndarray]) -> Callable[[int], _Result]:
+            if spectral_search is None:
+                return run_results(B, duals)
+            terms = spectral_search.probes(B, duals)
+            return lambda j: _Result(spectral_search.coordinates(values[j]), terms=terms(values[j]))
+
+        # the fixed point, bracketed: linearised at a smoother mesh the estimate asks for less smoothing, at a
+        # rougher one for more (face000: 2 and 20 steps asked for each other); once both sides are seen, bisect
+        at = int(np.argmin(np.abs(logs - math.log(float(first) if first is not None else float(start)))))
+        lo, hi = -1, len(values)
+        path: list[float] = []
+        for _ in range(int(iterations)):
+            R = at_value(values[at])
+            if not path and rho >= NORMAL_LINEAR_MAX * (_mean_edge(R, F) if edge_length is None else float(edge_length)):
+                # the noise turns a face by about rho / h radians: past one the first order does not hold (the
+                # elephant at 26 edge lengths of noise: every candidate's estimate -3,900 rad^2, the choice at the
+                # search's end)
+                return _dirichlet_choice(V, F, values, start, rho, count, rows, probes_at, position_sure, guarded,
+                                         search, results, at_value, ())
+            J = NormalJacobian(R, F, NORMAL_MIN_HEIGHT)
+            B = probes_at(R)
+            JB = J.many(B.reshape(n, P, 3))
+            counted = J.counted if faces is None else faces & J.counted
+            duals: list[np.ndarray] = []
+            own = None
+            if spectral_search is not None:  # u_p = J^T (J b_p on the counted faces): (J b_p).(J H b_p) = u_p . H b_p
+                masked = np.where(counted[:, None, None], JB, 0.0)
+                duals = [np.hstack([J.adjoint(masked[:, p], n) for p in range(P)]),
+                         B if rows is None else np.where(rows[:, None], B, 0.0)]
+                own = np.einsum("fpc,fpc->p", JB[counted], JB[counted])
+            risks: dict[int, float] = {}
+            sures: dict[int, float] = {}
+
+            def score(i: int, r: _Result) -> None:
+                if r.out is not None:
+                    risks[i] = normal_risk(J, V, r.Y, JB, r.out[:, 3:].reshape(n, P, 3), rho, faces)
+                else:
+                    risks[i] = _normal_risk_sum(J, V, r.Y, r.terms[0].reshape(P, 3).sum(axis=1), own, rho, counted)
+                sures[i] = position_sure(B, r)
+                if guarded(i, sures[i]):
+                    risks[i] = math.inf
+
+            search(at, results(B, duals), score, risks)
+            best = min(risks, key=risks.get)
+            path.append(values[best])
+            if abs(best - at) <= 1:  # the fixed point, or a candidate one grid step (26 %) from it: a further pass,
+                break  # a run of every candidate, would choose between the two on a curve that is flat there
+            if best > at:
+                lo = at
+            else:
+                hi = at
+            if lo >= 0 and hi < len(values):
+                if hi - lo <= 1:  # adjacent: the better of the two as this pass sees them
+                    best = min((i for i in (lo, hi) if i in risks), key=risks.get, default=best)
+                    break
+                at = (lo + hi) // 2
+            else:
+                at = best
+        order = sorted(risks)
+        return NormalChoice(values[best], float(risks[best]), tuple(path), tuple(values[i] for i in order),
+                            tuple(float(risks[i]) for i in order), float(sures[best]), float(count * rho**2))
+
+    if spectral is not None and not exact_probes and n >= SPECTRAL_MIN_VERTICES:
+        try:
+            return passes(SpectralSearch(V, spectral))
+        except SpectralFailed:  # a run past SPECTRAL_MAX_STEPS: the filter's own runs
+            pass
+    return passes(None)

@@ -1,0 +1,255 @@
+r"""A linear smoother as a function of one symmetric matrix, for searches that score many of its weights.
+
+Generic machinery: it knows a transfer function on the spectrum of a symmetric positive semi-definite
+matrix ``M``, never a filter. A filter's rule describes its map in its rule's configuration as
+
+.. math:: H = S^{-1}\, g(M)\, S, \qquad S = \mathrm{diag}(s),
+
+the same on every column (``sobolev``: :math:`M = L`, :math:`g(y) = 1/(1 + \mu y)`; the averaging
+filters: :math:`M = I - D^{-1/2} W D^{-1/2}`, :math:`s = \sqrt{d}`, :math:`D^{-1} W = S^{-1}(I - M)S`).
+A search over the weight then needs no factorisation and no run of the filter per candidate: the
+coordinates :math:`HX = X - S^{-1} h(M)\, M S X`, :math:`h(y) = (1 - g(y))/y`, come from one Lanczos
+run on ``M`` (:class:`~meshdenoise.solvers.LanczosQuadrature`, a second pass over three columns per
+candidate), and the probes' terms :math:`u^T H b = (S^{-1}u)^T g(M)\, (S b)` from one run that records
+the duals' projections (:class:`~meshdenoise.solvers.LanczosDots`, no second pass).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+import scipy.sparse as sp
+
+from ..operators import Operators, spmm
+from ..solvers import LanczosDots, LanczosQuadrature
+
+__all__ = ["Spectral", "SpectralFailed", "SpectralSearch", "shifted_spectral", "averaging_spectral",
+           "heat_kernel_spectral", "normalized_laplacian", "SPECTRAL_TOL", "SPECTRAL_MAX_STEPS"]
+
+SPECTRAL_TOL = 1e-10  # relative change over 10 Lanczos steps at which a search's estimates are taken (their rounding
+# levels off at a few 1e-12, solvers.FILTER_LANCZOS_TOL); far below the spacing of the candidates' scores
+SPECTRAL_MAX_STEPS = 2000  # a run longer than this gives up (SpectralFailed): the caller runs the filter instead
+_TINY = 1e-300  # h at y = 0 is its limit: every h below is written without cancellation, so h(1e-300) is that limit
+
+
+@dataclass(frozen=True)
+class Spectral:
+    r"""The map :math:`H = S^{-1} g(M)\, S` on every column.
+
+    Attributes
+    ----------
+    M : scipy.sparse.csr_matrix, shape (n, n)
+        Symmetric positive semi-definite.
+    g : callable
+        The transfer function on eigenvalues of ``M`` (an array), :math:`g(0) = 1`.
+    h : callable
+        :math:`(1 - g(y)) / y`, written without cancellation (its limit at 0).
+    scale : ndarray, shape (n,), optional
+        The diagonal of ``S`` (default the identity).
+    """
+
+    M: sp.csr_matrix
+    g: Callable[[np.ndarray], np.ndarray]
+    h: Callable[[np.ndarray], np.ndarray]
+    scale: np.ndarray | None = None
+
+    def dense(self) -> np.ndarray:
+        """``H`` as a dense matrix, by an eigendecomposition of ``M`` (tests and small meshes only)."""
+        theta, U = np.linalg.eigh(self.M.toarray())
+        H = (U * self.g(np.maximum(theta, 0.0))) @ U.T
+        if self.scale is not None:
+            H = H * self.scale[None, :] / self.scale[:, None]
+        return H
+
+
+def shifted_spectral(ops: Operators, mu: float, order: int = 1) -> Spectral:
+    r""":math:`(I + \mu L^p)^{-1}`: :math:`M = L = D - W`, :math:`g(y) = 1/(1 + \mu y^p)`.
+
+    >>> import numpy as np
+    >>> from meshdenoise.operators import Operators
+    >>> ops = Operators(np.array([[0, 1, 2], [0, 2, 3]]), 4)
+    >>> H = shifted_spectral(ops, 0.5, 2).dense()
+    >>> bool(np.allclose(H, np.linalg.inv(np.eye(4) + 0.5 * np.linalg.matrix_power(ops.L.toarray(), 2))))
+    True
+    """
+    mu, p = float(mu), int(order)
+
+    def g(y: np.ndarray) -> np.ndarray:
+        return 1.0 / (1.0 + mu * np.maximum(y, 0.0) ** p)
+
+    def h(y: np.ndarray) -> np.ndarray:
+        y = np.maximum(y, 0.0)
+        return mu * y ** (p - 1) / (1.0 + mu * y**p)
+
+    return Spectral(ops.L, g, h)
+
+
+def normalized_laplacian(ops: Operators) -> tuple[sp.csr_matrix, np.ndarray]:
+    r""":math:`M = I - D^{-1/2} W D^{-1/2}` (zero rows at isolated vertices) and :math:`s = \sqrt d` (1 there),
+    so that ``ops.P`` :math:`= D^{-1}W = S^{-1}(I - M)S` (cached on ``ops``).
+
+    >>> import numpy as np
+    >>> from meshdenoise.operators import Operators
+    >>> ops = Operators(np.array([[0, 1, 2], [0, 2, 3]]), 5)  # vertex 4 isolated
+    >>> M, s = normalized_laplacian(ops)
+    >>> bool(np.allclose((np.eye(5) - M.toarray()) * s[None, :] / s[:, None], ops.P.toarray()))
+    True
+    """
+    if "normalized_laplacian" not in ops.cache:
+        keep = ~ops.isolated
+        s = np.ones(ops.n)
+        s[keep] = np.sqrt(ops.degree[keep])
+        inv = 1.0 / s
+        S = sp.diags(inv) @ ops.W @ sp.diags(inv)
+        M = sp.csr_matrix(sp.diags(keep.astype(np.float64)) - S)
+        M.sort_indices()
+        ops.cache["normalized_laplacian"] = (M, s)
+    return ops.cache["normalized_laplacian"]
+
+
+def averaging_spectral(ops: Operators, steps: Sequence[float], count: int) -> Spectral:
+    r"""``count`` times the steps :math:`Y \leftarrow Y + c\,(PY - Y)`, one per ``c`` in ``steps``, with ``P = ops.P``.
+
+    On :math:`M = I - D^{-1/2}WD^{-1/2}` a step is :math:`1 - c\,y`:
+    :math:`g(y) = \prod_c (1 - c\,y)^{k}` (``filtering``: ``steps`` (1,); ``heat``: (tau,); ``taubin``: (lam, mu)).
+
+    >>> import numpy as np
+    >>> from meshdenoise.operators import Operators
+    >>> ops = Operators(np.array([[0, 1, 2], [0, 2, 3]]), 4)
+    >>> A = np.eye(4) + 0.5 * (ops.P.toarray() - np.eye(4)); B = np.eye(4) - 0.53 * (ops.P.toarray() - np.eye(4))
+    >>> bool(np.allclose(averaging_spectral(ops, (0.5, -0.53), 3).dense(), np.linalg.matrix_power(B @ A, 3)))
+    True
+    """
+    M, s = normalized_laplacian(ops)
+    cs, k = np.array([float(c) for c in steps]), int(count)
+
+    def g(y: np.ndarray) -> np.ndarray:
+        y = np.maximum(y, 0.0)
+        return np.prod([(1.0 - c * y) ** k for c in cs], axis=0)
+
+    def h(y: np.ndarray) -> np.ndarray:
+        y = np.maximum(y, _TINY)
+        factors = 1.0 - cs[:, None] * y[None, :]
+        positive = (factors > 0).all(axis=0)
+        logs = np.sum(np.log1p(-cs[:, None] * np.where(positive, y, 0.0)[None, :]), axis=0)
+        smooth = -np.expm1(k * logs) / y  # no cancellation at small y, where 1 - g(y) ~ k y sum(c)
+        return np.where(positive, smooth, (1.0 - g(y)) / y)
+
+    return Spectral(M, g, h, s)
+
+
+def heat_kernel_spectral(ops: Operators, t: float, steps: int, iterations: int, debias: bool = True) -> Spectral:
+    r"""``iterations`` times :math:`2G - G^2` (``debias``) or :math:`G`, :math:`G = (I + \tfrac{t}{s} L)^{-s}`
+    (``s = steps``): ``sinkhorn``'s map with the graph Laplacian and the uniform measure.
+
+    With :math:`e(y) = 1 - (1 + ty/s)^{-s}`: :math:`g = (1 - e^2)^k` (:math:`2\gamma - \gamma^2 = 1 - (1 - \gamma)^2`).
+
+    >>> import numpy as np
+    >>> from meshdenoise.operators import Operators
+    >>> ops = Operators(np.array([[0, 1, 2], [0, 2, 3]]), 4)
+    >>> G = np.linalg.inv(np.eye(4) + 0.7 * ops.L.toarray())
+    >>> bool(np.allclose(heat_kernel_spectral(ops, 0.7, 1, 2).dense(), np.linalg.matrix_power(2 * G - G @ G, 2)))
+    True
+    """
+    t, sub, k = float(t), int(steps), int(iterations)
+
+    def log_step(y: np.ndarray) -> np.ndarray:  # log of one iteration's gain
+        log_gamma = -sub * np.log1p(t * y / sub)
+        if not debias:
+            return log_gamma
+        e = -np.expm1(log_gamma)
+        return np.log1p(-e * e)
+
+    def g(y: np.ndarray) -> np.ndarray:
+        return np.exp(k * log_step(np.maximum(y, 0.0)))
+
+    def h(y: np.ndarray) -> np.ndarray:
+        y = np.maximum(y, _TINY)
+        return -np.expm1(k * log_step(y)) / y
+
+    return Spectral(ops.L, g, h)
+
+
+class SpectralFailed(RuntimeError):
+    """A Lanczos run did not converge within :data:`SPECTRAL_MAX_STEPS`: run the filter instead."""
+
+
+class SpectralSearch:
+    r"""The coordinates :math:`HX` and the probes' terms :math:`u^T H b` of every candidate of a search.
+
+    ``family(value)`` gives the candidate's :class:`Spectral`; every candidate shares ``M`` and
+    ``scale`` (those of the first asked for). The coordinates' run starts at the high-pass
+    :math:`M S X` (three columns; its tolerance is relative to the correction, not to the
+    coordinates), kept for the whole search; :meth:`probes` starts a run for one set of probes
+    and their duals.
+
+    Parameters
+    ----------
+    V : ndarray, shape (n, 3)
+    family : callable
+        ``family(value) -> Spectral``.
+    tol : float
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from meshdenoise.shapes import icosphere
+    >>> from meshdenoise.operators import get_operators
+    >>> V, F = icosphere(2)
+    >>> ops = get_operators(F, len(V))
+    >>> search = SpectralSearch(V, lambda mu: shifted_spectral(ops, mu, 2))
+    >>> bool(np.allclose(search.coordinates(0.3), shifted_spectral(ops, 0.3, 2).dense() @ V, atol=1e-12))
+    True
+    """
+
+    def __init__(self, V: np.ndarray, family: Callable[[float], Spectral], tol: float = SPECTRAL_TOL):
+        self.V = np.asarray(V, dtype=np.float64)
+        self.family, self.tol = family, float(tol)
+        self._first: Spectral | None = None
+        self._coords: LanczosQuadrature | None = None
+
+    def spectral(self, value: float) -> Spectral:
+        """The candidate's :class:`Spectral`, checked to share the first one's ``M`` and ``scale``."""
+        spec = self.family(value)
+        if self._first is None:
+            self._first = spec
+        elif spec.M is not self._first.M or spec.scale is not self._first.scale:
+            raise ValueError("SpectralSearch: every candidate must share the first one's M and scale")
+        return spec
+
+    def _scaled(self, A: np.ndarray, inverse: bool = False) -> np.ndarray:
+        s = self._first.scale
+        if s is None:
+            return np.ascontiguousarray(A, dtype=np.float64)
+        return np.ascontiguousarray(A / s[:, None] if inverse else A * s[:, None])
+
+    def coordinates(self, value: float) -> np.ndarray:
+        """:math:`HX` (n, 3) at ``value``; :class:`SpectralFailed` when the run does not converge."""
+        spec = self.spectral(value)
+        if self._coords is None:
+            self._coords = LanczosQuadrature(spec.M, spmm(spec.M, self._scaled(self.V)), max_steps=SPECTRAL_MAX_STEPS)
+        Z = self._coords.apply(spec.h, rtol=self.tol, growth=0.25)
+        if Z is None:
+            raise SpectralFailed(f"SpectralSearch: the coordinates at {value!r} did not converge")
+        return self.V - self._scaled(Z, inverse=True)
+
+    def probes(self, B: np.ndarray, duals: Sequence[np.ndarray]) -> Callable[[float], np.ndarray]:
+        """``terms(value)``: :math:`u_j^T H b_j` for every column ``b_j`` of ``B`` and each dual, shape (duals, columns).
+
+        One run on the columns of :math:`S B` recording the projections of :math:`S^{-1} U`;
+        :class:`SpectralFailed` when a candidate's estimates do not converge.
+        """
+        if self._first is None:
+            raise ValueError("SpectralSearch.probes: ask for a candidate first (coordinates or spectral)")
+        run = LanczosDots(self._first.M, self._scaled(B), [self._scaled(U, inverse=True) for U in duals],
+                          max_steps=SPECTRAL_MAX_STEPS)
+
+        def terms(value: float) -> np.ndarray:
+            out = run.dots(self.spectral(value).g, rtol=self.tol, growth=0.25)
+            if out is None:
+                raise SpectralFailed(f"SpectralSearch: the probes' terms at {value!r} did not converge")
+            return out
+
+        return terms

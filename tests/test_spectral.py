@@ -1,0 +1,197 @@
+"""Linear smoothers as functions of one symmetric matrix (meshdenoise.tuning.spectral, solvers.LanczosDots) and the
+normals search that scores its candidates from them (refine_for_normals(spectral=...))."""
+
+import numpy as np
+import pytest
+
+import meshdenoise as md
+import meshdenoise.tuning.normal_risk as nr
+import meshdenoise.tuning.spectral as spectral_module
+from meshdenoise.geometry import vertex_normals
+from meshdenoise.operators import get_operators
+from meshdenoise.registry import get_filter
+from meshdenoise.shapes import icosphere
+from meshdenoise.solvers import LanczosDots
+from meshdenoise.tuning.choose import choose_parameters, normal_candidates
+from meshdenoise.tuning.spectral import (SpectralSearch, averaging_spectral, heat_kernel_spectral, shifted_spectral)
+
+
+def _noisy(level=2, rho=0.02, seed=1):
+    V0, F = icosphere(level)
+    X = V0 + rho * np.random.default_rng(seed).standard_normal(len(V0))[:, None] * vertex_normals(V0, F)
+    return V0, F, X
+
+
+def _open_noisy():
+    """A sphere with a cap cut off: a border, and a vertex left on no face (isolated)."""
+    V0, F, X = _noisy(2)
+    keep = V0[F].mean(axis=1)[:, 2] < 0.7
+    return V0, F[keep], X
+
+
+@pytest.mark.parametrize("case", [_noisy, _open_noisy])
+@pytest.mark.parametrize("method, params", [
+    ("sobolev", {"mu": 0.7}),
+    ("sobolev_bilaplacian", {"mu": 0.4}),
+    ("taubin", {"iterations": 7, "lam": 0.5, "mu": -0.53, "weights": "uniform"}),
+    ("sinkhorn", {"t": 0.8, "iterations": 3, "steps": 2}),
+    ("sobolev_gls", {"mu": 0.3, "beta": 1.0, "order": 3}),
+])
+def test_each_filters_spectral_form_is_its_own_map(case, method, params):
+    """``AutoRule.spectral`` against the filter itself (its linear map, or its core on the coordinates): the dense
+    S^-1 g(M) S from an eigendecomposition of M."""
+    V0, F, X = case()
+    ops = get_operators(F, len(X))
+    spec = get_filter(method)
+    p = spec.resolve(params)
+    H = spec.auto.spectral(ops, p).dense()
+    if spec.auto.linear_map is not None:
+        block = np.hstack([X, np.random.default_rng(0).standard_normal((len(X), 6))])
+        want = spec.auto.linear_map(X, F, ops, p)(block)
+        np.testing.assert_allclose(H @ block, want, atol=1e-7 * np.abs(block).max())  # gls: CG to GLS_MAP_TOL
+    else:
+        np.testing.assert_allclose(H @ X, spec.core(X, F, ops=ops, pinned=None, **p), atol=1e-10)
+
+
+def test_no_spectral_form_for_the_non_symmetric_weightings():
+    _, F, X = _noisy(1)
+    ops = get_operators(F, len(X))
+    assert get_filter("taubin").auto.spectral(ops, {"iterations": 3, "lam": 0.5, "mu": -0.53, "weights": "meshlab"}) is None
+    gls = get_filter("sobolev_gls").resolve({"mu": 0.3, "beta": 4.0})
+    assert get_filter("sobolev_gls").auto.spectral(ops, gls) is None
+
+
+@pytest.mark.parametrize("g", [lambda t: 1.0 / (1.0 + 3.0 * t), lambda t: np.exp(-0.5 * t), lambda t: (1 - 0.2 * t) ** 9])
+def test_lanczos_dots_against_dense_bilinear_forms(g):
+    _, F, X = _noisy(2)
+    L = get_operators(F, len(X)).L
+    rng = np.random.default_rng(2)
+    B, U1, U2 = (rng.standard_normal((len(X), 5)) for _ in range(3))
+    theta, Q = np.linalg.eigh(L.toarray())
+    G = (Q * g(np.maximum(theta, 0.0))) @ Q.T
+    run = LanczosDots(L, B, [U1, U2])
+    got = run.dots(g)
+    want = np.array([np.einsum("ij,ij->j", U, G @ B) for U in (U1, U2)])
+    np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-9 * np.abs(want).max())
+    assert run.steps < len(X)  # converged long before the Krylov space is the whole space
+    assert LanczosDots(L, B, [U1], max_steps=3).dots(lambda t: 1.0 / (1.0 + 1e4 * t**3), check=2) is None
+
+
+def test_lanczos_dots_is_exact_once_the_krylov_space_is_exhausted_and_checks_shapes():
+    import scipy.sparse as sp
+
+    M = sp.csr_matrix(np.diag([0.0, 1.0, 3.0]))
+    b, u = np.array([[1.0], [1.0], [0.0]]), np.array([[2.0], [5.0], [7.0]])
+    assert LanczosDots(M, b, [u]).dots(lambda t: np.exp(-t))[0, 0] == pytest.approx(2.0 + 5.0 * np.exp(-1.0), abs=1e-14)
+    with pytest.raises(ValueError, match="dual has shape"):
+        LanczosDots(M, b, [np.ones((3, 2))])
+
+
+@pytest.mark.parametrize("family, values", [
+    (lambda ops: lambda v: shifted_spectral(ops, v, 1), [0.05, 2.0, 80.0]),
+    (lambda ops: lambda v: shifted_spectral(ops, v, 3), [0.01, 1.0, 30.0]),
+    (lambda ops: lambda v: averaging_spectral(ops, (0.5, -0.53), int(v)), [1, 12, 250]),
+    (lambda ops: lambda v: heat_kernel_spectral(ops, v, 1, 4), [0.2, 2.0, 20.0]),
+])
+def test_spectral_search_coordinates_and_probe_terms_against_dense(family, values):
+    """One coordinates' run and one probes' run serve every candidate: HX and u^T H b as the dense matrices give them,
+    to 1e-10 of the smoothing's correction HX - X (the run's tolerance is relative to it, not to X)."""
+    _, F, X = _open_noisy()
+    ops = get_operators(F, len(X))
+    fam = family(ops)
+    search = SpectralSearch(X, fam)
+    rng = np.random.default_rng(4)
+    B, U = rng.choice([-1.0, 1.0], size=(len(X), 6)), rng.standard_normal((len(X), 6))
+    search.coordinates(values[0])
+    terms = search.probes(B, [U])
+    for v in values:
+        H = fam(v).dense()
+        correction = np.abs(H @ X - X).max()
+        np.testing.assert_allclose(search.coordinates(v), H @ X, atol=1e-9 * correction)
+        want = np.einsum("ij,ij->j", U, H @ B)
+        np.testing.assert_allclose(terms(v)[0], want, atol=1e-9 * np.abs(want).max())
+
+
+def test_spectral_search_refuses_candidates_on_another_matrix():
+    _, F, X = _noisy(1)
+    ops = get_operators(F, len(X))
+    search = SpectralSearch(X, lambda v: shifted_spectral(ops, v, 1) if v < 1 else averaging_spectral(ops, (1.0,), 2))
+    search.coordinates(0.5)
+    with pytest.raises(ValueError, match="share the first"):
+        search.coordinates(2.0)
+
+
+def _sphere(seed=3, rho=0.012):
+    V0, F = icosphere(4)  # 2,562 vertices: at least SPECTRAL_MIN_VERTICES
+    X = V0 + rho * np.random.default_rng(seed).standard_normal(len(V0))[:, None] * vertex_normals(V0, F)
+    return V0, F, X
+
+
+@pytest.mark.parametrize("additive", [True, False])
+@pytest.mark.parametrize("rho", [0.012, 0.2])  # 0.2: past an edge length, the Dirichlet ranking
+def test_refine_for_normals_scores_the_same_by_lanczos_runs_as_by_running_the_filter(additive, rho):
+    """The spectral search against the filter run on the probes: the same candidates visited, the same choice and path,
+    the risks and position SURE to 1e-8."""
+    V0, F, X = _sphere(rho=rho)
+    ops = get_operators(F, len(X))
+    assert len(X) >= nr.SPECTRAL_MIN_VERTICES
+    if additive:
+        M = ops.P
+
+        def apply(k, block):
+            for _ in range(int(k)):
+                block = M @ block
+            return block
+
+        family, values, start = (lambda k: averaging_spectral(ops, (1.0,), int(k))), normal_candidates(2, True), 2
+    else:
+        def apply(mu, block):
+            return md.apply_filter("sobolev", (block, F), mu=mu)[0] if block.shape[1] == 3 else np.hstack(
+                [md.apply_filter("sobolev", (block[:, i:i + 3], F), mu=mu)[0] for i in range(0, block.shape[1], 3)])
+
+        family, values, start = (lambda mu: shifted_spectral(ops, mu, 1)), normal_candidates(0.3, False), 0.3
+    rows = np.ones(len(X), dtype=bool)
+    rows[:200] = False  # a scored part, as on a region
+    kw = dict(additive=additive, first=start * 3, rows=rows)
+    direct = nr.refine_for_normals(X, F, apply, start, values, rho, **kw)
+    fast = nr.refine_for_normals(X, F, apply, start, values, rho, spectral=family, **kw)
+    assert direct.criterion == fast.criterion == ("dirichlet" if rho == 0.2 else "normals")
+    assert (fast.value, fast.path, fast.values) == (direct.value, direct.path, direct.values)
+    np.testing.assert_allclose(fast.risks, direct.risks, rtol=1e-8)
+    assert fast.position_risk == pytest.approx(direct.position_risk, rel=1e-8)
+
+
+def test_refine_for_normals_runs_the_filter_where_a_lanczos_run_does_not_converge(monkeypatch):
+    V0, F, X = _sphere()
+    ops = get_operators(F, len(X))
+    calls = []
+
+    def apply(mu, block):
+        calls.append(block.shape[1])
+        return np.hstack([md.apply_filter("sobolev", (block[:, i:i + 3], F), mu=mu)[0] for i in range(0, block.shape[1], 3)])
+
+    values = normal_candidates(0.3, False)
+    direct = nr.refine_for_normals(X, F, apply, 0.3, values, 0.012)
+    calls.clear()
+    monkeypatch.setattr(spectral_module, "SPECTRAL_MAX_STEPS", 3)
+    fallback = nr.refine_for_normals(X, F, apply, 0.3, values, 0.012, spectral=lambda mu: shifted_spectral(ops, mu, 1))
+    assert fallback == direct and any(c > 3 for c in calls)  # the filter's own runs, the same choice to the bit
+
+
+@pytest.mark.filterwarnings("ignore:choose_parameters.*shrinks the mesh:UserWarning")
+@pytest.mark.parametrize("method", ["sobolev", "sobolev_bilaplacian", "taubin", "sinkhorn", "sobolev_gls"])
+def test_normals_criterion_chooses_the_same_with_and_without_the_spectral_search(method, monkeypatch):
+    V0, F, X = _sphere(seed=5)
+    runs = []
+
+    class Counted(SpectralSearch):
+        def probes(self, B, duals):
+            runs.append(B.shape)
+            return super().probes(B, duals)
+
+    monkeypatch.setattr(nr, "SpectralSearch", Counted)
+    fast = choose_parameters((X, F), method, noise=0.012, criterion="normals")
+    assert runs  # the candidates were scored by the Lanczos runs
+    monkeypatch.setattr(nr, "SPECTRAL_MIN_VERTICES", 10**9)
+    direct = choose_parameters((X, F), method, noise=0.012, criterion="normals")
+    assert fast == direct
