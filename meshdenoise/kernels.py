@@ -476,6 +476,67 @@ def cg_direction(P, R, dinv, beta):  # pragma: no cover - compiled
 
 # --------------------------------------------------------------------------- guided filter
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def lanczos_product(indptr, indices, data, Q, W, U, partial_a, partial_d):  # pragma: no cover - compiled
+    """``W = M Q`` (rows summed as :func:`csr_matmat` sums them); per block of :data:`CG_BLOCK` rows ``partial_a[b, c]``,
+    the sum of ``Q[i, c] W[i, c]``, and ``partial_d[f, b, c]``, of ``U[f, i, c] Q[i, c]`` (the duals' projections)."""
+    n = Q.shape[0]
+    k = Q.shape[1]
+    duals = U.shape[0]
+    for b in prange(partial_a.shape[0]):
+        for c in range(k):
+            partial_a[b, c] = 0.0
+        for f in range(duals):
+            for c in range(k):
+                partial_d[f, b, c] = 0.0
+        for i in range(b * CG_BLOCK, min(n, (b + 1) * CG_BLOCK)):
+            for c in range(k):
+                W[i, c] = 0.0
+            add_row_product(indptr, indices, data, Q, W, i)
+            for c in range(k):
+                partial_a[b, c] += Q[i, c] * W[i, c]
+            for f in range(duals):
+                for c in range(k):
+                    partial_d[f, b, c] += U[f, i, c] * Q[i, c]
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def lanczos_update(Q, Qp, W, alpha, beta_prev, partial_b):  # pragma: no cover - compiled
+    """``W = W - Q alpha - Qp beta_prev`` (per column) and per block of :data:`CG_BLOCK` rows the sum of ``W^2``."""
+    n = Q.shape[0]
+    k = Q.shape[1]
+    for b in prange(partial_b.shape[0]):
+        for c in range(k):
+            partial_b[b, c] = 0.0
+        for i in range(b * CG_BLOCK, min(n, (b + 1) * CG_BLOCK)):
+            for c in range(k):
+                w = W[i, c] - Q[i, c] * alpha[c] - Qp[i, c] * beta_prev[c]
+                W[i, c] = w
+                partial_b[b, c] += w * w
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def lanczos_accumulate(Q, Y, out):  # pragma: no cover - compiled
+    """``out[:, m] += Q Y[m]`` (per column) for every set ``m`` of coefficients: several functions' second pass at once."""
+    n = Q.shape[0]
+    k = Q.shape[1]
+    sets = Y.shape[0]
+    for i in prange(n):
+        for m in range(sets):
+            for c in range(k):
+                out[i, m, c] += Q[i, c] * Y[m, c]
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def lanczos_scale(W, inv, out):  # pragma: no cover - compiled
+    """``out = W inv`` (per column): the next basis vectors."""
+    n = W.shape[0]
+    k = W.shape[1]
+    for i in prange(n):
+        for c in range(k):
+            out[i, c] = W[i, c] * inv[c]
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def patch_scores(N, A, indptr, indices, edge_a, edge_b, patch_ptr, patch_edge, g, H, phi):  # pragma: no cover
     """Mean normal ``g`` (m, 3) and inconsistency ``H`` (m,) of every patch (Zhang et al. 2015).
 

@@ -22,12 +22,13 @@ import numpy as np
 import scipy.sparse as sp
 from cholespy import CholeskySolverD, MatrixType
 
+from . import kernels
 from .cache import FACTOR_BYTES_PER_NNZ, nbytes
 from .operators import Operators, mask_key, spmm, trim_cache
 
 __all__ = [
     "DirichletSystem", "SPDSolver", "CHOLMOD", "CHOLMOD_MAX_ROWS", "clear_symbolic", "CGSolver", "block_cg", "cached_solver", "retain_factors", "laplacian_power", "shifted_solver",
-    "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "LanczosDots", "FILTER_LANCZOS_TOL",
+    "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "CompiledLanczos", "LanczosDots", "FILTER_LANCZOS_TOL",
 ]
 
 FACTORS_PER_FAMILY = 4  # a parameter sweep keeps only the last few factorisations of each filter
@@ -354,8 +355,6 @@ def block_cg(
     Q = np.empty_like(P)
     # each iteration is three compiled passes (product and p.q, update and norms, direction) where numpy made
     # about ten over the (n, k) arrays; the dot products are summed by fixed blocks of rows (kernels.CG_BLOCK)
-    from . import kernels
-
     kernels.set_threads()
     blocks = (n + kernels.CG_BLOCK - 1) // kernels.CG_BLOCK
     pq_parts, rr_parts, rz_parts = (np.empty((blocks, k)) for _ in range(3))
@@ -1040,16 +1039,134 @@ class LanczosRows(LanczosQuadrature):
         return out
 
 
-class LanczosDots(LanczosQuadrature):
+class CompiledLanczos(LanczosQuadrature):
+    r""":class:`LanczosQuadrature` whose steps are compiled passes over the rows, both passes of :meth:`apply` alike.
+
+    Each step is :func:`~meshdenoise.kernels.lanczos_product` (:math:`W = MQ`, the :math:`\alpha` sums),
+    :func:`~meshdenoise.kernels.lanczos_update` (the three-term recurrence, the :math:`\beta` sums) and
+    :func:`~meshdenoise.kernels.lanczos_scale`, on numba's threads, the sums by fixed blocks of rows
+    (:data:`~meshdenoise.kernels.CG_BLOCK`: the same numbers on any thread count); the second pass of
+    :meth:`apply` runs the same kernels, so it regenerates the first pass's basis to the bit. Per step
+    a few compiled passes where the numpy recurrence makes about ten, with no Python work per column
+    (the spectral searches run hundreds of steps, :mod:`meshdenoise.tuning.spectral`). The numbers
+    differ from :class:`LanczosQuadrature`'s in the last places (sums in another order).
+
+    Parameters
+    ----------
+    M : scipy.sparse matrix, shape (n, n), symmetric
+    B : ndarray, shape (n, k)
+    max_steps : int
+    duals : sequence of ndarray, each (n, k), optional
+        Their projections on each basis vector are recorded as the run goes (:class:`LanczosDots`).
+
+    Examples
+    --------
+    >>> import numpy as np, scipy.sparse as sp
+    >>> M = sp.csr_matrix(np.diag([0.0, 1.0, 2.0, 4.0]))
+    >>> np.round(CompiledLanczos(M, np.ones((4, 1))).apply(lambda t: 1.0 / (1.0 + t)).ravel(), 12).tolist()
+    [1.0, 0.5, 0.333333333333, 0.2]
+    """
+
+    def __init__(self, M: sp.spmatrix, B: np.ndarray, *, max_steps: int = 1000, duals: Sequence[np.ndarray] = ()):
+        super().__init__(M, B, max_steps=max_steps)
+        n, k = self._B.shape
+        self.M.sort_indices()
+        self._U = np.ascontiguousarray(np.stack([np.asarray(U, dtype=np.float64) for U in duals])) if len(duals) \
+            else np.zeros((0, n, k))
+        if self._U.shape[1:] != (n, k):
+            raise ValueError(f"CompiledLanczos: a dual has shape {self._U.shape[1:]}, B {(n, k)}")
+        self._blocks = (n + kernels.CG_BLOCK - 1) // kernels.CG_BLOCK
+        self._proj: list[np.ndarray] = []  # per step, (duals, k): u_j . q_i
+        self._q = np.ascontiguousarray(self._q)
+        self._q_prev = np.ascontiguousarray(self._q_prev)
+
+    def _step(self, q: np.ndarray, q_prev: np.ndarray, W: np.ndarray, alpha: np.ndarray | None, beta_prev: np.ndarray,
+              duals: bool = False):
+        """One step into ``W``: returns ``(alpha, beta, projections)`` (``alpha`` summed here unless given)."""
+        k = q.shape[1]
+        U = self._U if duals else self._U[:0]
+        pa, pd, pb = np.empty((self._blocks, k)), np.empty((U.shape[0], self._blocks, k)), np.empty((self._blocks, k))
+        kernels.lanczos_product(self.M.indptr, self.M.indices, self.M.data, q, W, U, pa, pd)
+        if alpha is None:
+            alpha = pa.sum(axis=0)
+        kernels.lanczos_update(q, q_prev, W, alpha, beta_prev, pb)
+        return alpha, np.sqrt(pb.sum(axis=0)), pd.sum(axis=1)
+
+    def extend(self, steps: int) -> None:
+        """Run ``steps`` more steps on the columns still active (recording the duals' projections)."""
+        kernels.set_threads()
+        k = self._q.shape[1]
+        alphas, betas = np.zeros((steps, k)), np.zeros((steps, k))
+        W = np.empty_like(self._q)
+        for i in range(steps):
+            if not self._active.any():
+                alphas, betas = alphas[:i], betas[:i]
+                break
+            a, b, proj = self._step(self._q, self._q_prev, W, None, self._beta_prev, duals=True)
+            a[~self._active] = 0.0
+            alphas[i] = a
+            self._proj.append(proj)
+            self.lengths[self._active] += 1
+            self._active &= b > 1e-13 * self._scale  # an exhausted Krylov space: the rule is exact
+            b[~self._active] = 0.0
+            betas[i] = b
+            inv = np.divide(1.0, b, out=np.zeros(k), where=self._active)
+            kernels.lanczos_scale(W, inv, self._q_prev)  # q_prev is not needed any more: its buffer takes q_next
+            self._q_prev, self._q = self._q, self._q_prev
+            self._beta_prev = b
+        self._alpha = np.vstack([self._alpha, alphas])
+        self._beta = np.vstack([self._beta, betas])
+
+    def apply(self, g: Callable[[np.ndarray], np.ndarray], *, rtol: float = 1e-10, check: int = 10, columns=None,
+              growth: float = 0.0) -> np.ndarray | None:
+        """:meth:`LanczosQuadrature.apply` (every column: ``columns`` must be None), its second pass compiled."""
+        if columns is not None:
+            raise ValueError("CompiledLanczos.apply: columns is not supported; run on those columns alone")
+        out = self.apply_many([g], rtol=rtol, check=check, growth=growth)
+        return None if out is None else out[0]
+
+    def apply_many(self, gs: Sequence[Callable[[np.ndarray], np.ndarray]], *, rtol: float = 1e-10, check: int = 10,
+                   growth: float = 0.0) -> list[np.ndarray] | None:
+        """:meth:`apply` for each function of ``gs``, in one second pass (each converged as :meth:`apply`;
+        ``None`` if one is not within :attr:`max_steps`)."""
+        coefs = []
+        for g in gs:
+            coef = self._converged_coefficients(g, rtol, check, None, growth)
+            if coef is None:
+                return None
+            coefs.append(coef)
+        kernels.set_threads()
+        n, k = self._B.shape
+        steps = max((c.size for coef in coefs for c in coef), default=0)
+        Y = np.zeros((steps, len(gs), k))  # the coefficients of step i, per function and column
+        for m, coef in enumerate(coefs):
+            for j, c in enumerate(coef):
+                Y[: c.size, m, j] = c
+        inv = np.divide(1.0, np.sqrt(self.norms2), out=np.zeros(k), where=self.norms2 > 0)
+        q_prev, q = np.zeros_like(self._B), np.ascontiguousarray(self._B * inv)
+        beta_prev = np.zeros(k)
+        out = np.zeros((n, len(gs), k))
+        W = np.empty_like(q)
+        for i in range(steps):
+            kernels.lanczos_accumulate(q, Y[i], out)
+            self._step(q, q_prev, W, self._alpha[i], beta_prev)
+            b = self._beta[i]
+            kernels.lanczos_scale(W, np.divide(1.0, b, out=np.zeros(k), where=b > 0), q_prev)
+            q_prev, q = q, q_prev
+            beta_prev = b
+        return [np.ascontiguousarray(out[:, m]) for m in range(len(gs))]
+
+
+class LanczosDots(CompiledLanczos):
     r""":math:`u_j^T g(M)\, b_j` for every column :math:`b_j` of ``B`` and its dual columns :math:`u_j`, any ``g``,
     from one Lanczos run that records the duals' projections on its basis.
 
     The Lanczos approximation :math:`g(M)\, b \approx \|b\|\, Q_k\, g(T_k)\, e_1`
     (:meth:`LanczosQuadrature.apply`) dotted with ``u`` needs only :math:`Q_k^T u`: the
     projections are summed as the recurrence runs (``k`` numbers per column and dual, nothing of
-    size ``n x k``), so every further ``g`` (every candidate weight of a search) costs one small
-    tridiagonal eigenproblem per column (kept per size) and no sparse product unless the run must
-    be extended. With :math:`T_k = U \Theta U^T`:
+    size ``n x k``; :class:`CompiledLanczos`), so every further ``g`` (every candidate weight of a
+    search) costs one small tridiagonal eigenproblem per column (kept per size) and no sparse
+    product unless the run must be extended. With :math:`T_k = U \Theta U^T`:
 
     .. math:: u^T g(M)\, b \approx \|b\| \sum_{i=1}^k (U^T Q_k^T u)_i\; g(\theta_i)\; U_{1i}
 
@@ -1071,37 +1188,28 @@ class LanczosDots(LanczosQuadrature):
     """
 
     def __init__(self, M: sp.spmatrix, B: np.ndarray, duals: Sequence[np.ndarray], *, max_steps: int = 1000):
-        super().__init__(M, B, max_steps=max_steps)
-        self.duals = [np.ascontiguousarray(U, dtype=np.float64) for U in duals]
-        for U in self.duals:
-            if U.shape != self._B.shape:
-                raise ValueError(f"LanczosDots: a dual has shape {U.shape}, B {self._B.shape}")
-        self.dual_norms = np.array([np.sqrt(np.einsum("ij,ij->j", U, U)) for U in self.duals]).reshape(len(self.duals), -1)
-        self._proj: list[np.ndarray] = []  # per step, (duals, k): u_j . q_i
+        B = np.asarray(B, dtype=np.float64)
+        for U in duals:
+            if np.shape(U) != B.shape:
+                raise ValueError(f"LanczosDots: a dual has shape {np.shape(U)}, B {B.shape}")
+        super().__init__(M, B, max_steps=max_steps, duals=duals)
+        self.dual_norms = np.sqrt(np.einsum("fij,fij->fj", self._U, self._U))
         self._rules: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
-
-    def extend(self, steps: int) -> None:
-        """Run ``steps`` more steps, recording the duals' projections on each basis vector."""
-        for _ in range(int(steps)):
-            before = self.steps
-            proj = np.array([np.einsum("ij,ij->j", U, self._q) for U in self.duals]).reshape(len(self.duals), -1)
-            super().extend(1)
-            if self.steps == before:  # every column exhausted: nothing was run
-                break
-            self._proj.append(proj)
+        self._stacked = np.zeros((0, self._U.shape[0], self._B.shape[1]))
 
     def _rule(self, j: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Column ``j``'s ``k``-step rule: nodes, :math:`\\|b\\| U_{1i}` and the duals' :math:`U^T Q_k^T u` (duals, k)."""
         k = max(0, min(int(k), int(self.lengths[j])))
         if (j, k) not in self._rules:
             if k == 0:
-                rule = (np.zeros(0), np.zeros(0), np.zeros((len(self.duals), 0)))
+                rule = (np.zeros(0), np.zeros(0), np.zeros((self._U.shape[0], 0)))
             else:
                 from scipy.linalg import eigh_tridiagonal
 
                 theta, U = eigh_tridiagonal(self._alpha[:k, j], self._beta[: k - 1, j])
-                proj = np.array([p[:, j] for p in self._proj[:k]])  # (k, duals)
-                rule = (theta, math.sqrt(self.norms2[j]) * U[0], (U.T @ proj).T)
+                if self._stacked.shape[0] != len(self._proj):
+                    self._stacked = np.stack(self._proj)  # (steps, duals, columns)
+                rule = (theta, math.sqrt(self.norms2[j]) * U[0], (U.T @ self._stacked[:k, :, j]).T)
             if len(self._rules) > 4 * self._q.shape[1]:  # the sizes a search reads again are the last few
                 self._rules.clear()
             self._rules[(j, k)] = rule
@@ -1110,7 +1218,7 @@ class LanczosDots(LanczosQuadrature):
     def _estimate(self, g: Callable[[np.ndarray], np.ndarray], k: int) -> tuple[np.ndarray, np.ndarray]:
         """The ``k``-step estimates (duals, columns) and the norms of the approximations of :math:`g(M) b_j`."""
         ncols = self._q.shape[1]
-        out, norms = np.zeros((len(self.duals), ncols)), np.zeros(ncols)
+        out, norms = np.zeros((self._U.shape[0], ncols)), np.zeros(ncols)
         for j in range(ncols):
             theta, w, proj = self._rule(j, k)
             if w.size:

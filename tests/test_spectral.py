@@ -31,7 +31,6 @@ def _open_noisy():
 
 @pytest.mark.parametrize("case", [_noisy, _open_noisy])
 @pytest.mark.parametrize("method, params", [
-    ("sobolev", {"mu": 0.7}),
     ("sobolev_bilaplacian", {"mu": 0.4}),
     ("taubin", {"iterations": 7, "lam": 0.5, "mu": -0.53, "weights": "uniform"}),
     ("sinkhorn", {"t": 0.8, "iterations": 3, "steps": 2}),
@@ -179,7 +178,7 @@ def test_refine_for_normals_runs_the_filter_where_a_lanczos_run_does_not_converg
 
 
 @pytest.mark.filterwarnings("ignore:choose_parameters.*shrinks the mesh:UserWarning")
-@pytest.mark.parametrize("method", ["sobolev", "sobolev_bilaplacian", "taubin", "sinkhorn", "sobolev_gls"])
+@pytest.mark.parametrize("method", ["sobolev_bilaplacian", "taubin", "sinkhorn", "sobolev_gls"])
 def test_normals_criterion_chooses_the_same_with_and_without_the_spectral_search(method, monkeypatch):
     V0, F, X = _sphere(seed=5)
     runs = []

@@ -11,7 +11,6 @@ from ..registry import AutoRule, Param, register
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import best_shifted
-from ..tuning.spectral import shifted_spectral
 from ..solvers import SPDSolver, shifted_matrix, shifted_solver
 
 __all__ = ["sobolev", "SobolevSolver", "choose_sobolev", "choose_solver", "SOLVERS"]
@@ -99,7 +98,7 @@ def choose_sobolev(ctx: TuningContext) -> tuple[dict, Point]:
 
 @register(
     "sobolev",
-    auto=AutoRule(("mu",), choose_sobolev, normals="mu", spectral=lambda ops, p: shifted_spectral(ops, p["mu"], 1)),
+    auto=AutoRule(("mu",), choose_sobolev, normals="mu"),
     summary="Sobolev regularisation: solve (I + mu L) Y = X, L = D - W, by cached sparse Cholesky or block CG",
     params=[
         Param("mu", float, 1.0, low=0.0, help="regularisation weight (0 returns the input)"),

@@ -616,7 +616,7 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
 
     if spectral is not None and not exact_probes and n >= SPECTRAL_MIN_VERTICES:
         try:
-            return passes(SpectralSearch(V, spectral))
+            return passes(SpectralSearch(V, spectral, candidates=values))
         except SpectralFailed:  # a run past SPECTRAL_MAX_STEPS: the filter's own runs
             pass
     return passes(None)

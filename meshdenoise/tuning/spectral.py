@@ -23,14 +23,15 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..operators import Operators, spmm
-from ..solvers import LanczosDots, LanczosQuadrature
+from ..solvers import CompiledLanczos, LanczosDots
 
 __all__ = ["Spectral", "SpectralFailed", "SpectralSearch", "shifted_spectral", "averaging_spectral",
-           "heat_kernel_spectral", "normalized_laplacian", "SPECTRAL_TOL", "SPECTRAL_MAX_STEPS"]
+           "heat_kernel_spectral", "normalized_laplacian", "SPECTRAL_TOL", "SPECTRAL_MAX_STEPS", "SPECTRAL_WINDOW"]
 
 SPECTRAL_TOL = 1e-10  # relative change over 10 Lanczos steps at which a search's estimates are taken (their rounding
 # levels off at a few 1e-12, solvers.FILTER_LANCZOS_TOL); far below the spacing of the candidates' scores
 SPECTRAL_MAX_STEPS = 2000  # a run longer than this gives up (SpectralFailed): the caller runs the filter instead
+SPECTRAL_WINDOW = 2  # SpectralSearch.coordinates: a candidate's coordinates with this many neighbours on each side
 _TINY = 1e-300  # h at y = 0 is its limit: every h below is written without cancellation, so h(1e-300) is that limit
 
 
@@ -204,11 +205,14 @@ class SpectralSearch:
     True
     """
 
-    def __init__(self, V: np.ndarray, family: Callable[[float], Spectral], tol: float = SPECTRAL_TOL):
+    def __init__(self, V: np.ndarray, family: Callable[[float], Spectral], tol: float = SPECTRAL_TOL,
+                 candidates: Sequence[float] = ()):
         self.V = np.asarray(V, dtype=np.float64)
         self.family, self.tol = family, float(tol)
+        self.candidates = [float(c) for c in candidates]
         self._first: Spectral | None = None
-        self._coords: LanczosQuadrature | None = None
+        self._coords: CompiledLanczos | None = None
+        self._done: dict[float, np.ndarray] = {}  # HX per candidate value (at most len(candidates) + 1 of (n, 3))
 
     def spectral(self, value: float) -> Spectral:
         """The candidate's :class:`Spectral`, checked to share the first one's ``M`` and ``scale``."""
@@ -226,14 +230,26 @@ class SpectralSearch:
         return np.ascontiguousarray(A / s[:, None] if inverse else A * s[:, None])
 
     def coordinates(self, value: float) -> np.ndarray:
-        """:math:`HX` (n, 3) at ``value``; :class:`SpectralFailed` when the run does not converge."""
-        spec = self.spectral(value)
-        if self._coords is None:
-            self._coords = LanczosQuadrature(spec.M, spmm(spec.M, self._scaled(self.V)), max_steps=SPECTRAL_MAX_STEPS)
-        Z = self._coords.apply(spec.h, rtol=self.tol, growth=0.25)
-        if Z is None:
-            raise SpectralFailed(f"SpectralSearch: the coordinates at {value!r} did not converge")
-        return self.V - self._scaled(Z, inverse=True)
+        """:math:`HX` (n, 3) at ``value``; :class:`SpectralFailed` when the run does not converge.
+
+        A value among ``candidates`` is computed with its neighbours, up to :data:`SPECTRAL_WINDOW`
+        on each side not yet computed, in one second pass (a search asks for them next)."""
+        value = float(value)
+        if value not in self._done:
+            spec = self.spectral(value)
+            if self._coords is None:
+                self._coords = CompiledLanczos(spec.M, spmm(spec.M, self._scaled(self.V)), max_steps=SPECTRAL_MAX_STEPS)
+            values = [value]
+            if value in self.candidates:
+                i = self.candidates.index(value)
+                near = self.candidates[max(0, i - SPECTRAL_WINDOW): i + SPECTRAL_WINDOW + 1]
+                values = [v for v in near if v not in self._done]
+            Z = self._coords.apply_many([self.spectral(v).h for v in values], rtol=self.tol, growth=0.25)
+            if Z is None:
+                raise SpectralFailed(f"SpectralSearch: the coordinates at {value!r} did not converge")
+            for v, z in zip(values, Z):
+                self._done[v] = self.V - self._scaled(z, inverse=True)
+        return self._done[value].copy()
 
     def probes(self, B: np.ndarray, duals: Sequence[np.ndarray]) -> Callable[[float], np.ndarray]:
         """``terms(value)``: :math:`u_j^T H b_j` for every column ``b_j`` of ``B`` and each dual, shape (duals, columns).
