@@ -254,7 +254,9 @@ def test_bilaplacian_cg_equals_dense_solve_and_auto_picks_cg_only_when_large(mon
     monkeypatch.setattr(bl, "LANCZOS_MIN_VERTICES", 0)
     assert bl._choose_solver(ops, 1.0, None, 1e-10) == "lanczos"
     assert bl.bilaplacian_cg_bound(ops, 1.0, 1e-10) == pytest.approx(0.5 * np.sqrt(1 + 12.0**2) * np.log(2e10))  # 143
-    assert bl._choose_solver(ops, 1.0, pinned, 1e-10) == "cg"  # pinned: CG while its bound is under PINNED_CG_BOUND
+    assert bl._choose_solver(ops, 1.0, pinned, 1e-10) == "cholesky"  # pinned: a factor below PINNED_CG_MIN_VERTICES
+    monkeypatch.setattr(bl, "PINNED_CG_MIN_VERTICES", 0)
+    assert bl._choose_solver(ops, 1.0, pinned, 1e-10) == "cg"  # ... then CG while its bound is under PINNED_CG_BOUND
     monkeypatch.setattr(bl, "PINNED_CG_BOUND", 100)
     assert bl._choose_solver(ops, 1.0, pinned, 1e-10) == "cholesky"
     monkeypatch.setattr(bl, "AUTO_CG_MIN_VERTICES", 0)

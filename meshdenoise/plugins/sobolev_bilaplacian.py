@@ -17,12 +17,14 @@ from .sobolev import AUTO_CG_MAX_ITERATIONS, AUTO_CG_MIN_VERTICES
 
 SOLVERS = ("auto", "cholesky", "cg", "lanczos")
 LANCZOS_MAX_STEPS = 1000
-LANCZOS_MIN_VERTICES = 20_000  # "auto" without pinned vertices: two Lanczos passes from this size (100k, load 15:
-# 2.9 s against a 15 s factorisation of I + mu L^2, same SNR to 13 digits; 50,000 until session 24: the Bunny0.2 at
-# mu 0.26 0.22 s against 0.53 s, the bunny scanner at 6.6 0.13 against 0.43, the elephant at 163 0.32 against 0.31)
-PINNED_CG_BOUND = 500  # ... with pinned vertices from that size CG while its iteration bound is at most this (the
+LANCZOS_MIN_VERTICES = 50_000  # "auto" without pinned vertices: two Lanczos passes from this size (100k, load 15:
+# 2.9 s against a 15 s factorisation of I + mu L^2, same SNR to 13 digits; 20,000 was tried in session 24, 2-3 times
+# faster than a factor for one run, but the default's smooth prior runs the filter at one mu once per probe: the
+# elephant's whole call 2.2 -> 7.7 s)
+PINNED_CG_BOUND = 500  # with pinned vertices (the border option's one run) from 20,000 vertices CG while its bound is at most this (the
 # Bunny0.2's border at mu 0.26: bound 135, 0.09 s against a 0.49 s factor; face000 at 12: 496, 0.76 against 1.19 s;
 # the elephant at 163: 2,726, 1.5 against 0.14 s), from AUTO_CG_MIN_VERTICES the bound AUTO_CG_MAX_ITERATIONS as for sobolev
+PINNED_CG_MIN_VERTICES = 20_000
 
 __all__ = ["sobolev_bilaplacian", "choose_sobolev_bilaplacian", "bilaplacian_cg_bound", "lanczos_bilaplacian"]
 
@@ -37,7 +39,7 @@ def _choose_solver(ops: Operators, mu: float, pinned: np.ndarray | None, tol: fl
 
     Cholesky when its factor is stored; without pinned vertices two Lanczos passes
     (:func:`lanczos_bilaplacian`) from :data:`LANCZOS_MIN_VERTICES` vertices, Cholesky below; with
-    them Cholesky below that size, else CG while :func:`bilaplacian_cg_bound` is at most
+    them Cholesky below :data:`PINNED_CG_MIN_VERTICES` vertices, else CG while :func:`bilaplacian_cg_bound` is at most
     :data:`PINNED_CG_BOUND` (from :data:`AUTO_CG_MIN_VERTICES` vertices :data:`AUTO_CG_MAX_ITERATIONS`),
     Cholesky otherwise (the 400k scale mesh at the chosen mu = 1.1: a 14 s factorisation, 4.4 s of
     CG, 2.1 s of Lanczos on a loaded machine).
@@ -47,7 +49,7 @@ def _choose_solver(ops: Operators, mu: float, pinned: np.ndarray | None, tol: fl
         return "cholesky"
     if pinned is None or not pinned.any():  # its steps grow like mu^(1/4): no bound needed (a factor at 1.6M took
         return "lanczos" if ops.n >= LANCZOS_MIN_VERTICES else "cholesky"  # over 3 minutes and 6.7 GB)
-    if ops.n < LANCZOS_MIN_VERTICES:
+    if ops.n < PINNED_CG_MIN_VERTICES:
         return "cholesky"
     bound = PINNED_CG_BOUND if ops.n < AUTO_CG_MIN_VERTICES else AUTO_CG_MAX_ITERATIONS
     return "cg" if bilaplacian_cg_bound(ops, mu, tol) <= bound else "cholesky"
