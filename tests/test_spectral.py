@@ -133,7 +133,7 @@ def test_refine_for_normals_scores_the_same_by_lanczos_runs_as_by_running_the_fi
     the risks and position SURE to 1e-8."""
     V0, F, X = _sphere(rho=rho)
     ops = get_operators(F, len(X))
-    assert len(X) >= nr.SPECTRAL_MIN_VERTICES
+    assert len(X) >= spectral_module.SPECTRAL_MIN_VERTICES
     if additive:
         M = ops.P
 
@@ -191,6 +191,27 @@ def test_normals_criterion_chooses_the_same_with_and_without_the_spectral_search
     monkeypatch.setattr(nr, "SpectralSearch", Counted)
     fast = choose_parameters((X, F), method, noise=0.012, criterion="normals")
     assert runs  # the candidates were scored by the Lanczos runs
-    monkeypatch.setattr(nr, "SPECTRAL_MIN_VERTICES", 10**9)
+    monkeypatch.setattr(spectral_module, "SPECTRAL_MIN_VERTICES", 10**9)
     direct = choose_parameters((X, F), method, noise=0.012, criterion="normals")
     assert fast == direct
+
+
+def test_sinkhorn_rule_reads_its_sure_curves_from_lanczos_runs_as_from_its_factors(monkeypatch):
+    """choose_sinkhorn_whole's curves over (t, k) by SpectralSearch (the probes' run shared by every t) and by the heat
+    kernel's factors: the same t (to the search's rounding) and iterations; strong kernels (past the CG bound) by factors."""
+    import meshdenoise.plugins.sinkhorn as sk
+
+    V0, F, X = _sphere(seed=7)
+    calls = []
+    real = SpectralSearch.coordinates_many
+    monkeypatch.setattr(SpectralSearch, "coordinates_many", lambda self, values: calls.append(values) or real(self, values))
+    fast = choose_parameters((X, F), "sinkhorn", noise=0.012, criterion="sure")
+    assert calls and all(len(v) == sk.SINKHORN_MAX_ITERATIONS for v in calls)  # every k of a t in one pass
+    monkeypatch.setattr(spectral_module, "SPECTRAL_MIN_VERTICES", 10**9)
+    direct = choose_parameters((X, F), "sinkhorn", noise=0.012, criterion="sure")
+    assert fast["iterations"] == direct["iterations"] and fast["t"] == pytest.approx(direct["t"], rel=1e-6)
+    monkeypatch.setattr(spectral_module, "SPECTRAL_MIN_VERTICES", 0)
+    monkeypatch.setattr(sk, "SINKHORN_SPECTRAL_MAX_BOUND", 0)  # every t past the bound: the factors' runs
+    calls.clear()
+    gated = choose_parameters((X, F), "sinkhorn", noise=0.012, criterion="sure")
+    assert gated == direct and not [v for v in calls if len(v) == sk.SINKHORN_MAX_ITERATIONS]

@@ -10,8 +10,10 @@ from ..tuning.context import TuningContext
 from ..tuning.memo import MEMO, digest
 from ..tuning.risk import Point, probe_block
 from ..tuning import search
+from ..solvers import shifted_cg_bound
 from ..tuning.search import region_rule, search_log, shifted_reach
-from ..tuning.spectral import Spectral, heat_kernel_spectral
+from ..tuning import spectral as spectral_module
+from ..tuning.spectral import Spectral, SpectralFailed, SpectralSearch, heat_kernel_spectral
 
 __all__ = ["sinkhorn", "sinkhorn_map"]
 
@@ -19,6 +21,10 @@ __all__ = ["sinkhorn", "sinkhorn_map"]
 # ----------------------------------------------------------------------------- automatic rule
 SINKHORN_MAX_ITERATIONS = 8
 SINKHORN_PATIENCE = 2  # a run over k stops after this many iterations past its best score (not with the oracle)
+SINKHORN_SPECTRAL_MAX_ITERATIONS = 16  # the rule's runs over k by Lanczos (all k at once) up to this many iterations
+SINKHORN_SPECTRAL_MAX_BOUND = 100  # ... and for a t whose substep (I + (t/s) L) has a CG bound (solvers.shifted_cg_bound, a
+# proxy of the Lanczos steps) at most this: the steps grow like sqrt(t) where a factor's path costs the same at any t (the
+# elephant's grid reached t = 200: 1.6 s by Lanczos, 0.2 s by factors)
 # from REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices in this many balls (each candidate t
 # is a factorisation and up to 16 solves of 3 + probes columns of the whole mesh: face000, 85k vertices, 54 s)
 SINKHORN_REGION = 32_000
@@ -105,6 +111,10 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
     key = digest(ctx.F, ctx.V, Z, steps, max(ks), *((ctx.criterion.name, float(ctx.rho or 0.0)) if early else ()),
                  *(() if scored is None else (rows,)))
 
+    def stop(out: list, scores: list, t: float) -> bool:  # early: past SINKHORN_PATIENCE iterations after the best
+        scores.append(score(Point(t, out[-1][1], out[-1][2], None)))
+        return len(scores) - 1 - int(np.argmin(scores)) >= SINKHORN_PATIENCE
+
     def path(t: float) -> list:
         K = MeshHeatKernel(ctx.V, ctx.F, t, laplacian="graph", mass="uniform", steps=steps)
         Y, out, scores = np.hstack([ctx.V, Z]), [], []
@@ -113,11 +123,34 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
             Y = 2.0 * GY - K.solve(GY)
             X = Y[:, :3].copy()
             out.append((X, float(np.sum((X - ctx.V)[rows] ** 2)), s * float(np.sum(Z[rows] * Y[rows, 3:]))))
-            if early:
-                scores.append(score(Point(t, out[-1][1], out[-1][2], None)))
-                if len(scores) - 1 - int(np.argmin(scores)) >= SINKHORN_PATIENCE:
-                    break
+            if early and stop(out, scores, t):
+                break
         return out
+
+    # the map is g(L) (sinkhorn_spectral): every (t, k) from two Lanczos runs, the probes' one shared by the whole
+    # search (tuning/spectral.py), no factorisation; the same terms to about 1e-10, the same early stop
+    lanczos = (not ctx.oracle and Z.shape[1] < n and n >= spectral_module.SPECTRAL_MIN_VERTICES
+               and max(ks) <= SINKHORN_SPECTRAL_MAX_ITERATIONS)
+    if lanczos:
+        family = lambda tk: heat_kernel_spectral(ctx.ops, tk[0], steps, tk[1])  # noqa: E731
+        spectral = SpectralSearch(ctx.V, family)
+        spectral.spectral((1.0, 1))  # the matrix every (t, k) shares, for the probes' run
+        terms = spectral.probes(Z, [np.where(np.asarray(rows)[:, None], Z, 0.0) if scored is not None else Z])
+        exact_path = path
+
+        def path(t: float) -> list:  # noqa: F811
+            if shifted_cg_bound(ctx.ops, t / steps, 1, spectral.tol) > SINKHORN_SPECTRAL_MAX_BOUND:
+                return exact_path(t)  # Lanczos's steps grow like sqrt(t): a strong kernel by its factor
+            try:
+                Xs = spectral.coordinates_many([(t, k) for k in range(1, max(ks) + 1)])
+                out, scores = [], []
+                for k, X in enumerate(Xs, start=1):
+                    out.append((X, float(np.sum((X - ctx.V)[rows] ** 2)), s * float(np.sum(terms((t, k))[0]))))
+                    if early and stop(out, scores, t):
+                        break
+                return out
+            except SpectralFailed:  # a run past SPECTRAL_MAX_STEPS: the factor's path
+                return exact_path(t)
 
     def evaluate(t: float) -> Point:
         best = None

@@ -21,11 +21,12 @@ import numpy as np
 from .. import kernels
 from ..geometry import cross_rows, vertex_normals
 from .risk import EXACT_TRACE_MAX
+from . import spectral as _spectral_module
 from .spectral import Spectral, SpectralFailed, SpectralSearch
 
 __all__ = ["NormalJacobian", "NormalChoice", "normal_risk", "dirichlet_sure", "refine_for_normals", "normal_probe_count",
            "NORMAL_PROBES", "NORMAL_ITERATIONS", "NORMAL_SCALES", "NORMAL_WIDE_SCALES", "NORMAL_WIDE_BELOW", "NORMAL_FIRST",
-           "NORMAL_PATIENCE", "NORMAL_RESUME_KEEP", "NORMAL_LINEAR_MAX", "SPECTRAL_MIN_VERTICES"]
+           "NORMAL_PATIENCE", "NORMAL_RESUME_KEEP", "NORMAL_LINEAR_MAX"]
 
 # Rademacher vector probes: NORMAL_PROBE_BUDGET / n, from NORMAL_PROBES to NORMAL_MAX_PROBES (the estimate averages
 # over the faces, so its spread falls like 1 / sqrt(n P): a constant n P keeps it; 8 probes at 50k vertices chose the
@@ -43,7 +44,6 @@ NORMAL_RESUME_KEEP = 3  # a resumed descent keeps this many results to run on fr
 # the probes: at most this many (Fandisk0.3, Block0.4, Twelve0.5Impulsive chose the same counts as with 50-64 probes,
 # in 4-8 s instead of 12-50 s)
 NORMAL_SWEEP_PROBES = 16
-SPECTRAL_MIN_VERTICES = 2_000  # refine_for_normals(spectral=...): from this size the candidates by Lanczos runs
 # the first pass linearises at this multiple of position SURE's choice, the middle of NORMAL_SCALES: at SURE's own
 # choice a rough mesh's J overstates the turns of further smoothing (filtering on Fandisk0.3 stayed at 1 step, its
 # normal oracle 2; from the middle it found 2)
@@ -419,7 +419,7 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
     spectral : callable, optional
         ``spectral(value)``: the map at ``value`` as :math:`S^{-1} g(M) S`
         (:class:`~meshdenoise.tuning.spectral.Spectral`, every value on the same ``M``). From
-        :data:`SPECTRAL_MIN_VERTICES` vertices (Rademacher probes) the candidates are then scored
+        :data:`~meshdenoise.tuning.spectral.SPECTRAL_MIN_VERTICES` vertices (Rademacher probes) the candidates are then scored
         without running ``apply`` on the probes: their terms :math:`u_p^T H b_p` (the normal
         risk's :math:`(J b_p)^T (J H b_p)` with :math:`u_p = J^T J b_p`, position SURE's and the
         Dirichlet estimate's) from one Lanczos run per pass that records the duals' projections,
@@ -614,7 +614,7 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
         return NormalChoice(values[best], float(risks[best]), tuple(path), tuple(values[i] for i in order),
                             tuple(float(risks[i]) for i in order), float(sures[best]), float(count * rho**2))
 
-    if spectral is not None and not exact_probes and n >= SPECTRAL_MIN_VERTICES:
+    if spectral is not None and not exact_probes and n >= _spectral_module.SPECTRAL_MIN_VERTICES:
         try:
             return passes(SpectralSearch(V, spectral, candidates=values))
         except SpectralFailed:  # a run past SPECTRAL_MAX_STEPS: the filter's own runs

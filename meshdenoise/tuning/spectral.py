@@ -26,11 +26,13 @@ from ..operators import Operators, spmm
 from ..solvers import CompiledLanczos, LanczosDots
 
 __all__ = ["Spectral", "SpectralFailed", "SpectralSearch", "shifted_spectral", "averaging_spectral",
-           "heat_kernel_spectral", "normalized_laplacian", "SPECTRAL_TOL", "SPECTRAL_MAX_STEPS", "SPECTRAL_WINDOW"]
+           "heat_kernel_spectral", "normalized_laplacian", "SPECTRAL_TOL", "SPECTRAL_MAX_STEPS", "SPECTRAL_WINDOW", "SPECTRAL_MIN_VERTICES"]
 
 SPECTRAL_TOL = 1e-10  # relative change over 10 Lanczos steps at which a search's estimates are taken (their rounding
 # levels off at a few 1e-12, solvers.FILTER_LANCZOS_TOL); far below the spacing of the candidates' scores
 SPECTRAL_MAX_STEPS = 2000  # a run longer than this gives up (SpectralFailed): the caller runs the filter instead
+SPECTRAL_MIN_VERTICES = 2_000  # searches score by these Lanczos runs from this size (with Rademacher probes; the exact
+# traces of small meshes are 3n columns, and a few solves of a small factor cost less)
 SPECTRAL_WINDOW = 2  # SpectralSearch.coordinates: a candidate's coordinates with this many neighbours on each side
 _TINY = 1e-300  # h at y = 0 is its limit: every h below is written without cancellation, so h(1e-300) is that limit
 
@@ -229,6 +231,20 @@ class SpectralSearch:
             return np.ascontiguousarray(A, dtype=np.float64)
         return np.ascontiguousarray(A / s[:, None] if inverse else A * s[:, None])
 
+    def _coordinates_run(self, spec: Spectral) -> CompiledLanczos:
+        if self._coords is None:
+            self._coords = CompiledLanczos(spec.M, spmm(spec.M, self._scaled(self.V)), max_steps=SPECTRAL_MAX_STEPS)
+        return self._coords
+
+    def coordinates_many(self, values: Sequence) -> list[np.ndarray]:
+        """:math:`HX` (n, 3) at each of ``values`` (any hashable values ``family`` takes), in one second pass, nothing
+        kept; :class:`SpectralFailed` when the run does not converge."""
+        specs = [self.spectral(v) for v in values]
+        Z = self._coordinates_run(specs[0]).apply_many([spec.h for spec in specs], rtol=self.tol, growth=0.25)
+        if Z is None:
+            raise SpectralFailed(f"SpectralSearch: the coordinates at {list(values)!r} did not converge")
+        return [self.V - self._scaled(z, inverse=True) for z in Z]
+
     def coordinates(self, value: float) -> np.ndarray:
         """:math:`HX` (n, 3) at ``value``; :class:`SpectralFailed` when the run does not converge.
 
@@ -236,19 +252,12 @@ class SpectralSearch:
         on each side not yet computed, in one second pass (a search asks for them next)."""
         value = float(value)
         if value not in self._done:
-            spec = self.spectral(value)
-            if self._coords is None:
-                self._coords = CompiledLanczos(spec.M, spmm(spec.M, self._scaled(self.V)), max_steps=SPECTRAL_MAX_STEPS)
             values = [value]
             if value in self.candidates:
                 i = self.candidates.index(value)
                 near = self.candidates[max(0, i - SPECTRAL_WINDOW): i + SPECTRAL_WINDOW + 1]
                 values = [v for v in near if v not in self._done]
-            Z = self._coords.apply_many([self.spectral(v).h for v in values], rtol=self.tol, growth=0.25)
-            if Z is None:
-                raise SpectralFailed(f"SpectralSearch: the coordinates at {value!r} did not converge")
-            for v, z in zip(values, Z):
-                self._done[v] = self.V - self._scaled(z, inverse=True)
+            self._done.update(zip(values, self.coordinates_many(values)))
         return self._done[value].copy()
 
     def probes(self, B: np.ndarray, duals: Sequence[np.ndarray]) -> Callable[[float], np.ndarray]:
