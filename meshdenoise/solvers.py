@@ -1216,38 +1216,35 @@ class LanczosDots(CompiledLanczos):
                 raise ValueError(f"LanczosDots: a dual has shape {np.shape(U)}, B {B.shape}")
         super().__init__(M, B, max_steps=max_steps, duals=duals)
         self.dual_norms = np.sqrt(np.einsum("fij,fij->fj", self._U, self._U))
-        self._rules: dict[tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._rules: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         self._stacked = np.zeros((0, self._U.shape[0], self._B.shape[1]))
 
-    def _rule(self, j: int, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Column ``j``'s ``k``-step rule: nodes, :math:`\\|b\\| U_{1i}` and the duals' :math:`U^T Q_k^T u` (duals, k)."""
-        k = max(0, min(int(k), int(self.lengths[j])))
-        if (j, k) not in self._rules:
-            if k == 0:
-                rule = (np.zeros(0), np.zeros(0), np.zeros((self._U.shape[0], 0)))
-            else:
-                from scipy.linalg import eigh_tridiagonal
+    def _rules_at(self, k: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every column's rule after ``k`` steps (a shorter column's padded with zero weights): nodes (columns, k),
+        :math:`\\|b\\| U_{1i}` (columns, k) and the duals' :math:`U^T Q_k^T u` (duals, columns, k); the last few sizes kept."""
+        if k not in self._rules:
+            from scipy.linalg import eigh_tridiagonal
 
-                theta, U = eigh_tridiagonal(self._alpha[:k, j], self._beta[: k - 1, j])
-                if self._stacked.shape[0] != len(self._proj):
-                    self._stacked = np.stack(self._proj)  # (steps, duals, columns)
-                rule = (theta, math.sqrt(self.norms2[j]) * U[0], (U.T @ self._stacked[:k, :, j]).T)
-            if len(self._rules) > 4 * self._q.shape[1]:  # the sizes a search reads again are the last few
-                self._rules.clear()
-            self._rules[(j, k)] = rule
-        return self._rules[(j, k)]
+            ncols, duals = self._q.shape[1], self._U.shape[0]
+            if self._stacked.shape[0] != len(self._proj):
+                self._stacked = np.stack(self._proj)  # (steps, duals, columns)
+            theta, w, proj = np.zeros((ncols, k)), np.zeros((ncols, k)), np.zeros((duals, ncols, k))
+            for j in range(ncols):
+                kj = max(0, min(int(k), int(self.lengths[j])))
+                if kj:
+                    t, U = eigh_tridiagonal(self._alpha[:kj, j], self._beta[: kj - 1, j])
+                    theta[j, :kj], w[j, :kj] = t, math.sqrt(self.norms2[j]) * U[0]
+                    proj[:, j, :kj] = (U.T @ self._stacked[:kj, :, j]).T
+            if len(self._rules) >= 4:  # the sizes a search reads again are the last few
+                self._rules.pop(next(iter(self._rules)))
+            self._rules[k] = (theta, w, proj)
+        return self._rules[k]
 
     def _estimate(self, g: Callable[[np.ndarray], np.ndarray], k: int) -> tuple[np.ndarray, np.ndarray]:
         """The ``k``-step estimates (duals, columns) and the norms of the approximations of :math:`g(M) b_j`."""
-        ncols = self._q.shape[1]
-        out, norms = np.zeros((self._U.shape[0], ncols)), np.zeros(ncols)
-        for j in range(ncols):
-            theta, w, proj = self._rule(j, k)
-            if w.size:
-                c = g(theta) * w
-                out[:, j] = proj @ c
-                norms[j] = np.linalg.norm(c)
-        return out, norms
+        theta, w, proj = self._rules_at(max(int(k), 0))
+        c = g(theta) * w  # zero where a column has fewer nodes
+        return np.einsum("fjk,jk->fj", proj, c), np.sqrt(np.einsum("jk,jk->j", c, c))
 
     def dots(self, g: Callable[[np.ndarray], np.ndarray], *, rtol: float = 1e-10, check: int = 10,
              growth: float = 0.0) -> np.ndarray | None:
