@@ -222,10 +222,11 @@ class AutoRule:
     ``time``), a promise that running ``j`` steps then ``k`` is running ``j + k``: the normals
     search compares whole numbers of steps (what ``heat`` runs, ``time`` rounded up to steps) and
     its descent runs each count on from a smaller one it has (``refine_for_normals(resume=True)``).
-    ``spectral``: ``spectral(ops, params)`` gives the filter's map at ``params`` as a function of one
-    symmetric matrix (:class:`~meshdenoise.tuning.spectral.Spectral`), or ``None`` for a configuration
-    that is not: the normals search then scores its candidates by Lanczos runs, with no filter run per
-    candidate (``refine_for_normals(spectral=...)``).
+    ``spectral``: ``spectral(V, F, ops, params)`` gives the filter's map at ``params`` (what it reads of
+    the mesh taken from ``V``, as for ``linear_map``) as functions of one symmetric matrix
+    (:class:`~meshdenoise.tuning.spectral.Spectral`), or ``None`` for a configuration that is not: the
+    normals search then scores its candidates by Lanczos runs, with no filter run per candidate
+    (``refine_for_normals(spectral=...)``).
     """
 
     tunes: tuple[str, ...]
@@ -237,7 +238,7 @@ class AutoRule:
     normals_region: int | None = None
     normals_held: tuple[tuple[str, Any], ...] = ()
     normals_step: str | None = None
-    spectral: Callable[[Any, dict], Any] | None = None
+    spectral: Callable[..., Any] | None = None
 
 
 @dataclass(frozen=True)

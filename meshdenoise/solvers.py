@@ -28,7 +28,7 @@ from .operators import Operators, mask_key, spmm, trim_cache
 
 __all__ = [
     "DirichletSystem", "SPDSolver", "CHOLMOD", "CHOLMOD_MAX_ROWS", "clear_symbolic", "CGSolver", "block_cg", "cached_solver", "retain_factors", "laplacian_power", "shifted_solver",
-    "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "CompiledLanczos", "LanczosDots", "FILTER_LANCZOS_TOL",
+    "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "CompiledLanczos", "LanczosDots", "column_function", "FILTER_LANCZOS_TOL",
 ]
 
 FACTORS_PER_FAMILY = 4  # a parameter sweep keeps only the last few factorisations of each filter
@@ -1039,6 +1039,15 @@ class LanczosRows(LanczosQuadrature):
         return out
 
 
+def column_function(g: Callable | Sequence[Callable], j: int) -> Callable:
+    """``g``, or column ``j``'s function ``g[j % len(g)]`` of a sequence of functions (one per axis of a frame).
+
+    >>> column_function((abs, round), 3) is round
+    True
+    """
+    return g if callable(g) else g[j % len(g)]
+
+
 class CompiledLanczos(LanczosQuadrature):
     r""":class:`LanczosQuadrature` whose steps are compiled passes over the rows, both passes of :meth:`apply` alike.
 
@@ -1131,7 +1140,7 @@ class CompiledLanczos(LanczosQuadrature):
                 self._eig.clear()
             self._eig[(j, k)] = eigh_tridiagonal(self._alpha[:k, j], self._beta[: k - 1, j])
         theta, U = self._eig[(j, k)]
-        return math.sqrt(self.norms2[j]) * (U @ (g(theta) * U[0]))
+        return math.sqrt(self.norms2[j]) * (U @ (column_function(g, j)(theta) * U[0]))
 
     def apply(self, g: Callable[[np.ndarray], np.ndarray], *, rtol: float = 1e-10, check: int = 10, columns=None,
               growth: float = 0.0) -> np.ndarray | None:
@@ -1141,10 +1150,11 @@ class CompiledLanczos(LanczosQuadrature):
         out = self.apply_many([g], rtol=rtol, check=check, growth=growth)
         return None if out is None else out[0]
 
-    def apply_many(self, gs: Sequence[Callable[[np.ndarray], np.ndarray]], *, rtol: float = 1e-10, check: int = 10,
+    def apply_many(self, gs: Sequence[Callable | Sequence[Callable]], *, rtol: float = 1e-10, check: int = 10,
                    growth: float = 0.0) -> list[np.ndarray] | None:
         """:meth:`apply` for each function of ``gs``, in one second pass (each converged as :meth:`apply`;
-        ``None`` if one is not within :attr:`max_steps`)."""
+        ``None`` if one is not within :attr:`max_steps`). An entry of ``gs`` may be a sequence of functions,
+        column ``j`` then taking ``g[j % len(g)]`` (:func:`column_function`)."""
         coefs = []
         for g in gs:
             coef = self._converged_coefficients(g, rtol, check, None, growth)
@@ -1243,13 +1253,19 @@ class LanczosDots(CompiledLanczos):
     def _estimate(self, g: Callable[[np.ndarray], np.ndarray], k: int) -> tuple[np.ndarray, np.ndarray]:
         """The ``k``-step estimates (duals, columns) and the norms of the approximations of :math:`g(M) b_j`."""
         theta, w, proj = self._rules_at(max(int(k), 0))
-        c = g(theta) * w  # zero where a column has fewer nodes
+        if callable(g):
+            c = g(theta) * w  # zero where a column has fewer nodes
+        else:  # one function per column j, g[j % len(g)] (the axes of a frame)
+            c = np.empty_like(theta)
+            for a, ga in enumerate(g):
+                c[a::len(g)] = ga(theta[a::len(g)]) * w[a::len(g)]
         return np.einsum("fjk,jk->fj", proj, c), np.sqrt(np.einsum("jk,jk->j", c, c))
 
     def dots(self, g: Callable[[np.ndarray], np.ndarray], *, rtol: float = 1e-10, check: int = 10,
              growth: float = 0.0) -> np.ndarray | None:
         """:math:`u_j^T g(M)\\, b_j`, shape (duals, columns), the run extended until converged; ``None`` if
-        :attr:`max_steps` is reached first.
+        :attr:`max_steps` is reached first. ``g`` may be a sequence of functions, column ``j`` taking
+        ``g[j % len(g)]`` (:func:`column_function`).
 
         Converged when no estimate of an active column moved by more than ``rtol`` times
         :math:`\\|u_j\\|\\, \\|g(M) b_j\\|` (its Cauchy-Schwarz scale) over the last ``check`` steps;

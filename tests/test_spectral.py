@@ -35,6 +35,7 @@ def _open_noisy():
     ("taubin", {"iterations": 7, "lam": 0.5, "mu": -0.53, "weights": "uniform"}),
     ("sinkhorn", {"t": 0.8, "iterations": 3, "steps": 2}),
     ("sobolev_gls", {"mu": 0.3, "beta": 1.0, "order": 3}),
+    ("sobolev_axes", {"mu1": 0.2, "mu2": 0.0, "mu3": 1.5, "order": 2, "frame_steps": 2}),
 ])
 def test_each_filters_spectral_form_is_its_own_map(case, method, params):
     """``AutoRule.spectral`` against the filter itself (its linear map, or its core on the coordinates): the dense
@@ -43,21 +44,21 @@ def test_each_filters_spectral_form_is_its_own_map(case, method, params):
     ops = get_operators(F, len(X))
     spec = get_filter(method)
     p = spec.resolve(params)
-    H = spec.auto.spectral(ops, p).dense()
+    form = spec.auto.spectral(X, F, ops, p)
     if spec.auto.linear_map is not None:
         block = np.hstack([X, np.random.default_rng(0).standard_normal((len(X), 6))])
         want = spec.auto.linear_map(X, F, ops, p)(block)
-        np.testing.assert_allclose(H @ block, want, atol=1e-7 * np.abs(block).max())  # gls: CG to GLS_MAP_TOL
+        np.testing.assert_allclose(form.apply_dense(block), want, atol=1e-7 * np.abs(block).max())  # gls: CG's tol
     else:
-        np.testing.assert_allclose(H @ X, spec.core(X, F, ops=ops, pinned=None, **p), atol=1e-10)
+        np.testing.assert_allclose(form.apply_dense(X), spec.core(X, F, ops=ops, pinned=None, **p), atol=1e-10)
 
 
 def test_no_spectral_form_for_the_non_symmetric_weightings():
     _, F, X = _noisy(1)
     ops = get_operators(F, len(X))
-    assert get_filter("taubin").auto.spectral(ops, {"iterations": 3, "lam": 0.5, "mu": -0.53, "weights": "meshlab"}) is None
+    assert get_filter("taubin").auto.spectral(X, F, ops, {"iterations": 3, "lam": 0.5, "mu": -0.53, "weights": "meshlab"}) is None
     gls = get_filter("sobolev_gls").resolve({"mu": 0.3, "beta": 4.0})
-    assert get_filter("sobolev_gls").auto.spectral(ops, gls) is None
+    assert get_filter("sobolev_gls").auto.spectral(X, F, ops, gls) is None
 
 
 @pytest.mark.parametrize("g", [lambda t: 1.0 / (1.0 + 3.0 * t), lambda t: np.exp(-0.5 * t), lambda t: (1 - 0.2 * t) ** 9])
@@ -109,6 +110,29 @@ def test_spectral_search_coordinates_and_probe_terms_against_dense(family, value
         np.testing.assert_allclose(search.coordinates(v), H @ X, atol=1e-9 * correction)
         want = np.einsum("ij,ij->j", U, H @ B)
         np.testing.assert_allclose(terms(v)[0], want, atol=1e-9 * np.abs(want).max())
+
+
+def test_spectral_search_with_a_frame_against_dense():
+    """Per-axis functions in a frame (sobolev_axes): the coordinates and u . H b as the dense per-axis maps give them."""
+    _, F, X = _open_noisy()
+    ops = get_operators(F, len(X))
+    E = np.linalg.qr(np.random.default_rng(5).standard_normal((3, 3)))[0]
+
+    def fam(v):
+        axes = [shifted_spectral(ops, v * w, 2) for w in (0.1, 0.0, 1.0)]
+        return spectral_module.Spectral(ops.L, tuple(a.g for a in axes), tuple(a.h for a in axes), frame=E)
+
+    search = SpectralSearch(X, fam)
+    rng = np.random.default_rng(6)
+    B, U = rng.choice([-1.0, 1.0], size=(len(X), 6)), rng.standard_normal((len(X), 6))
+    search.coordinates(1.0)
+    terms = search.probes(B, [U])
+    for v in (0.3, 1.0, 5.0):
+        HX, HB = fam(v).apply_dense(X), fam(v).apply_dense(B)
+        np.testing.assert_allclose(search.coordinates(v), HX, atol=1e-9 * np.abs(HX - X).max())
+        got = terms(v)[0].reshape(2, 3).sum(axis=1)  # per probe triple: the frame mixes its three columns
+        want = np.einsum("ipc,ipc->p", U.reshape(-1, 2, 3), HB.reshape(-1, 2, 3))
+        np.testing.assert_allclose(got, want, atol=1e-9 * np.abs(want).max())
 
 
 def test_spectral_search_refuses_candidates_on_another_matrix():
@@ -178,7 +202,7 @@ def test_refine_for_normals_runs_the_filter_where_a_lanczos_run_does_not_converg
 
 
 @pytest.mark.filterwarnings("ignore:choose_parameters.*shrinks the mesh:UserWarning")
-@pytest.mark.parametrize("method", ["sobolev_bilaplacian", "taubin", "sinkhorn", "sobolev_gls"])
+@pytest.mark.parametrize("method", ["sobolev_bilaplacian", "taubin", "sinkhorn", "sobolev_gls", "sobolev_axes"])
 def test_normals_criterion_chooses_the_same_with_and_without_the_spectral_search(method, monkeypatch):
     V0, F, X = _sphere(seed=5)
     runs = []

@@ -200,7 +200,7 @@ def sinkhorn_spectral(ops: object, params: dict) -> Spectral:
 @register(
     "sinkhorn",
     auto=AutoRule(("t", "iterations"), choose_sinkhorn, normals="t", linear_map=sinkhorn_map, spectral=
-                  lambda ops, p: sinkhorn_spectral(ops, p)),
+                  lambda V, F, ops, p: sinkhorn_spectral(ops, p)),
     summary="OT: move each vertex to its barycentric projection under the Sinkhorn-scaled heat-kernel plan",
     params=[
         Param("t", float, 10.0, low=0.0, low_open=True, help="diffusion time of the heat kernel (I + tL)^-1"),

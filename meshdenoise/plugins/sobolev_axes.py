@@ -16,6 +16,7 @@ from ..tuning.memo import digest
 from ..tuning.noise_level import fourth_difference, mean_edge_length, normal_trust
 from ..tuning.risk import N_PROBES, Point, probe_block
 from ..tuning.search import QUADRATURE_MIN_VERTICES, best_shifted, probe_count, solve_shifted
+from ..tuning.spectral import Spectral, shifted_spectral
 
 AXES_SCALE_MIN_VERTICES = 50_000  # from this size: the filter without a factor, the frame's estimate by Lanczos
 AXES_QUADRATURE_MIN_VERTICES = QUADRATURE_MIN_VERTICES  # from this size the search by Lanczos quadrature (the same
@@ -246,10 +247,20 @@ def sobolev_axes_map(V: np.ndarray, F: np.ndarray, ops: Operators, params: dict)
     return apply
 
 
+def sobolev_axes_spectral(V: np.ndarray, F: np.ndarray, ops: Operators, params: dict) -> Spectral:
+    """:func:`sobolev_axes_map` as functions of ``L`` on the axes of its frame: :math:`g_d(y) = 1/(1 + \\mu_d y^p)`
+    (:class:`~meshdenoise.tuning.spectral.Spectral` with ``frame``; ``AutoRule.spectral``)."""
+    E, _ = normal_frame(V, F, ops, int(params["frame_steps"]))
+    order = int(params["order"])
+    axes = [shifted_spectral(ops, float(params[name]), order) for name in ("mu1", "mu2", "mu3")]
+    return Spectral(ops.L, tuple(a.g for a in axes), tuple(a.h for a in axes), frame=E)
+
+
 @register(
     "sobolev_axes",
     auto=AutoRule(("mu1", "mu2", "mu3"), choose_sobolev_axes, normals=("mu1", "mu2", "mu3"),
-                  linear_map=sobolev_axes_map, normals_region=AXES_NORMAL_REGION),
+                  linear_map=sobolev_axes_map, normals_region=AXES_NORMAL_REGION,
+                  spectral=sobolev_axes_spectral),
     summary="Polyharmonic Sobolev (I + mu_d L^p) y_d = x_d, one mu per principal axis of the normals",
     params=[
         Param("mu1", float, 1.0, low=0.0, help="weight on the axis the normals point along least (0 keeps it)"),

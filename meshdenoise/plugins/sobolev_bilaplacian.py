@@ -81,7 +81,7 @@ def choose_sobolev_bilaplacian(ctx: TuningContext) -> tuple[dict, Point]:
 @register(
     "sobolev_bilaplacian",
     auto=AutoRule(("mu",), choose_sobolev_bilaplacian, normals="mu",
-                  spectral=lambda ops, p: shifted_spectral(ops, p["mu"], 2)),
+                  spectral=lambda V, F, ops, p: shifted_spectral(ops, p["mu"], 2)),
     summary="Higher-order Sobolev regularisation: solve (I + mu L^2) Y = X by cached sparse Cholesky",
     params=[
         Param("mu", float, 1.0, low=0.0, help="weight of the bending term ||L Y||^2 (0 returns the input)"),

@@ -509,7 +509,7 @@ def sobolev_gls_spectral(ops: Operators, params: dict) -> Spectral | None:
     scale_free=True,
     auto=AutoRule(("mu", "beta"), choose_sobolev_gls, normals="mu", linear_map=sobolev_gls_map,
                   normals_region=GLS_NORMAL_REGION, normals_held=(("beta", 1.0),), spectral=
-                  lambda ops, p: sobolev_gls_spectral(ops, p)),
+                  lambda V, F, ops, p: sobolev_gls_spectral(ops, p)),
     summary="Polyharmonic Sobolev with the data term weighted beta times more across the estimated normals",
     params=[
         Param("mu", float, 1000.0, low=0.0, help="weight of the penalty ||L^{p/2} Y||^2 (0 returns the input)"),

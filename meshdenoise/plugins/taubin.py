@@ -139,7 +139,7 @@ def taubin_spectral(ops: Operators, params: dict) -> Spectral | None:
 @register(
     "taubin",
     auto=AutoRule(("iterations", "lam", "mu"), choose_taubin, normals="iterations", additive=True, integer=True,
-                  spectral=lambda ops, p: taubin_spectral(ops, p)),
+                  spectral=lambda V, F, ops, p: taubin_spectral(ops, p)),
     summary="Taubin lambda/mu smoothing: per iteration X += lam (AX - X), then X += mu (AX - X), mu < 0",
     params=[
         Param("iterations", int, 10, low=0, high=MAX_ITERATIONS, help="number of (lambda pass + mu pass) pairs"),

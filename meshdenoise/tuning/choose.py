@@ -176,9 +176,10 @@ def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, Nor
 
         correlated = sub.noise is not None and sub.noise.correlated
         family = None
-        if rule.spectral is not None and rule.spectral(sub.ops, {**params, **values(start), **dict(rule.normals_held)}):
+        if rule.spectral is not None and rule.spectral(sub.V, sub.F, sub.ops,
+                                                       {**params, **values(start), **dict(rule.normals_held)}):
             def family(value: float):
-                return rule.spectral(sub.ops, {**params, **values(value), **dict(rule.normals_held)})
+                return rule.spectral(sub.V, sub.F, sub.ops, {**params, **values(value), **dict(rule.normals_held)})
         found.append(refine_for_normals(sub.V, sub.F, apply, start, candidates, sub.rho, spectral=family,
                                         colour=sub.colour if correlated else None, additive=rule.additive,
                                         resume=rule.normals_step is not None and not rule.additive, edge_length=h,

@@ -39,32 +39,49 @@ _TINY = 1e-300  # h at y = 0 is its limit: every h below is written without canc
 
 @dataclass(frozen=True)
 class Spectral:
-    r"""The map :math:`H = S^{-1} g(M)\, S` on every column.
+    r"""The map :math:`H = S^{-1} g(M)\, S` on every column, or on the axes of a frame one function each.
+
+    With a ``frame`` :math:`E` (3, 3, orthonormal columns) and three functions, each coordinate triple
+    ``B`` (n, 3) maps to :math:`\sum_d S^{-1} g_d(M) S\, (B e_d)\, e_d^T` (``sobolev_axes``).
 
     Attributes
     ----------
     M : scipy.sparse.csr_matrix, shape (n, n)
         Symmetric positive semi-definite.
-    g : callable
+    g : callable, or tuple of three callables (with ``frame``)
         The transfer function on eigenvalues of ``M`` (an array), :math:`g(0) = 1`.
-    h : callable
+    h : callable, or tuple of three callables
         :math:`(1 - g(y)) / y`, written without cancellation (its limit at 0).
     scale : ndarray, shape (n,), optional
         The diagonal of ``S`` (default the identity).
+    frame : ndarray, shape (3, 3), optional
     """
 
     M: sp.csr_matrix
-    g: Callable[[np.ndarray], np.ndarray]
-    h: Callable[[np.ndarray], np.ndarray]
+    g: Callable[[np.ndarray], np.ndarray] | tuple
+    h: Callable[[np.ndarray], np.ndarray] | tuple
     scale: np.ndarray | None = None
+    frame: np.ndarray | None = None
 
-    def dense(self) -> np.ndarray:
-        """``H`` as a dense matrix, by an eigendecomposition of ``M`` (tests and small meshes only)."""
+    def dense(self, axis: int = 0) -> np.ndarray:
+        """``H`` (the function of ``axis`` with a frame) as a dense matrix, by an eigendecomposition of ``M``
+        (tests and small meshes only)."""
         theta, U = np.linalg.eigh(self.M.toarray())
-        H = (U * self.g(np.maximum(theta, 0.0))) @ U.T
+        g = self.g if callable(self.g) else self.g[axis]
+        H = (U * g(np.maximum(theta, 0.0))) @ U.T
         if self.scale is not None:
             H = H * self.scale[None, :] / self.scale[:, None]
         return H
+
+    def apply_dense(self, B: np.ndarray) -> np.ndarray:
+        """The map on a block ``B`` (n, 3k) of coordinate triples, by :meth:`dense` (tests only)."""
+        B = np.asarray(B, dtype=np.float64)
+        if self.frame is None:
+            return self.dense() @ B
+        n, k = B.shape[0], B.shape[1] // 3
+        C = B.reshape(n, k, 3) @ self.frame
+        out = np.stack([self.dense(d) @ C[:, :, d] for d in range(3)], axis=2)
+        return (out @ self.frame.T).reshape(n, 3 * k)
 
 
 def shifted_spectral(ops: Operators, mu: float, order: int = 1) -> Spectral:
@@ -217,19 +234,35 @@ class SpectralSearch:
         self._done: dict[float, np.ndarray] = {}  # HX per candidate value (at most len(candidates) + 1 of (n, 3))
 
     def spectral(self, value: float) -> Spectral:
-        """The candidate's :class:`Spectral`, checked to share the first one's ``M`` and ``scale``."""
+        """The candidate's :class:`Spectral`, checked to share the first one's ``M``, ``scale`` and ``frame``."""
         spec = self.family(value)
         if self._first is None:
             self._first = spec
-        elif spec.M is not self._first.M or spec.scale is not self._first.scale:
-            raise ValueError("SpectralSearch: every candidate must share the first one's M and scale")
+        elif (spec.M is not self._first.M or spec.scale is not self._first.scale
+              or (spec.frame is None) != (self._first.frame is None)
+              or (spec.frame is not None and not np.array_equal(spec.frame, self._first.frame))):
+            raise ValueError("SpectralSearch: every candidate must share the first one's M, scale and frame")
         return spec
 
     def _scaled(self, A: np.ndarray, inverse: bool = False) -> np.ndarray:
-        s = self._first.scale
-        if s is None:
-            return np.ascontiguousarray(A, dtype=np.float64)
-        return np.ascontiguousarray(A / s[:, None] if inverse else A * s[:, None])
+        """``S A`` (``S^-1 A``), each triple of columns in the frame (out of it with ``inverse``)."""
+        A = np.asarray(A, dtype=np.float64)
+        E, s = self._first.frame, self._first.scale
+        if E is not None and not inverse:
+            A = (A.reshape(A.shape[0], -1, 3) @ E).reshape(A.shape)
+        if s is not None:
+            A = A / s[:, None] if inverse else A * s[:, None]
+        if E is not None and inverse:
+            A = (A.reshape(A.shape[0], -1, 3) @ E.T).reshape(A.shape)
+        return np.ascontiguousarray(A)
+
+    def _dual(self, U: np.ndarray) -> np.ndarray:
+        """:math:`S^{-1} U`, each triple in the frame: :math:`u^T H b = (S^{-1} u E)^T g(M) (S b E)` per axis."""
+        U = np.asarray(U, dtype=np.float64)
+        E, s = self._first.frame, self._first.scale
+        if E is not None:
+            U = (U.reshape(U.shape[0], -1, 3) @ E).reshape(U.shape)
+        return np.ascontiguousarray(U if s is None else U / s[:, None])
 
     def _coordinates_run(self, spec: Spectral) -> CompiledLanczos:
         if self._coords is None:
@@ -268,7 +301,7 @@ class SpectralSearch:
         """
         if self._first is None:
             raise ValueError("SpectralSearch.probes: ask for a candidate first (coordinates or spectral)")
-        run = LanczosDots(self._first.M, self._scaled(B), [self._scaled(U, inverse=True) for U in duals],
+        run = LanczosDots(self._first.M, self._scaled(B), [self._dual(U) for U in duals],
                           max_steps=SPECTRAL_MAX_STEPS)
 
         def terms(value: float) -> np.ndarray:
