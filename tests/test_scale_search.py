@@ -503,7 +503,7 @@ def test_sobolev_axes_factor_free_filter_equals_the_factor_filter(monkeypatch):
     params = dict(mu1=0.3, mu2=0.0, mu3=4.0, order=3, frame_steps=2)
     clear_cache()
     before = apply_filter("sobolev_axes", (Vn, F), **params)[0]
-    monkeypatch.setattr(ax, "AXES_SCALE_MIN_VERTICES", 0)
+    monkeypatch.setattr(ax, "AXES_LANCZOS_MIN_VERTICES", 0)
     monkeypatch.setattr(ax, "shifted_solver", lambda *a, **k: pytest.fail("a factor was built"))
     clear_cache()
     after = apply_filter("sobolev_axes", (Vn, F), **params)[0]

@@ -104,10 +104,37 @@ def test_sobolev_axes_large_path_uses_one_run_and_equals_the_factor_filter(monke
         calls.append((float(mu), kw["tol"]))
         return real(ops, X, mu, order, **kw)
 
-    monkeypatch.setattr(ax, "AXES_SCALE_MIN_VERTICES", 0)
+    monkeypatch.setattr(ax, "AXES_LANCZOS_MIN_VERTICES", 0)
     monkeypatch.setattr(ax, "lanczos_shifted", spy)
     monkeypatch.setattr(ax, "shifted_solver", lambda *a, **k: pytest.fail("a factor was built"))
     clear_cache()
     after = apply_filter("sobolev_axes", (Vn, F), **params)[0]
     assert calls == [(0.3, 1e-10), (4.0, 1e-10)]  # an axis with mu = 0 is not solved
     np.testing.assert_allclose(after, before, atol=1e-11)
+
+
+def test_sobolev_axes_with_held_vertices_by_cg_equals_its_factor(monkeypatch):
+    """The border option's second run (held vertices): CG while shifted_cg_bound is at most AXES_PINNED_CG_BOUND, the
+    factor's Dirichlet solve otherwise; the same result to 1e-9 of the coordinates."""
+    import meshdenoise.plugins.sobolev_axes as ax
+    V, F = icosphere(3)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
+    pinned = np.zeros(len(Vn), dtype=bool)
+    pinned[::13] = True
+    params = dict(mu1=0.3, mu2=0.0, mu3=0.05, order=3, frame_steps=2)
+    clear_cache()
+    before = apply_filter("sobolev_axes", (Vn, F), pinned=pinned, **params)[0]  # 642 vertices: the factor
+    methods = []
+    real = ax.shifted_solver
+    monkeypatch.setattr(ax, "shifted_solver", lambda *a, **k: methods.append(a[4] if len(a) > 4 else "cholesky") or real(*a, **k))
+    monkeypatch.setattr(ax, "AXES_LANCZOS_MIN_VERTICES", 0)
+    clear_cache()
+    after = apply_filter("sobolev_axes", (Vn, F), pinned=pinned, **params)[0]
+    assert methods == ["cg", "cg"]  # the two weighted axes
+    np.testing.assert_allclose(after, before, atol=1e-9 * np.abs(Vn).max())
+    np.testing.assert_array_equal(after[pinned], Vn[pinned])
+    monkeypatch.setattr(ax, "AXES_PINNED_CG_BOUND", 0)
+    methods.clear()
+    clear_cache()
+    apply_filter("sobolev_axes", (Vn, F), pinned=pinned, **params)
+    assert methods == ["cholesky", "cholesky"]

@@ -9,8 +9,8 @@ import numpy as np
 from ..geometry import vertex_normals
 from ..operators import Operators
 from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
-from ..operators import spmm
-from ..solvers import FILTER_LANCZOS_TOL, LanczosQuadrature, lanczos_shifted, shifted_solver
+from ..operators import mask_key, spmm
+from ..solvers import FILTER_LANCZOS_TOL, LanczosQuadrature, lanczos_shifted, shifted_cg_bound, shifted_solver
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
 from ..tuning.noise_level import fourth_difference, mean_edge_length, normal_trust
@@ -18,7 +18,10 @@ from ..tuning.risk import N_PROBES, Point, probe_block
 from ..tuning.search import QUADRATURE_MIN_VERTICES, best_shifted, probe_count, solve_shifted
 from ..tuning.spectral import Spectral, shifted_spectral
 
-AXES_SCALE_MIN_VERTICES = 50_000  # from this size: the filter without a factor, the frame's estimate by Lanczos
+AXES_SCALE_MIN_VERTICES = 50_000  # from this size: the frame's estimate by Lanczos
+AXES_LANCZOS_MIN_VERTICES = 20_000  # from this size the filter runs without a factor: two Lanczos passes per axis, and
+AXES_PINNED_CG_BOUND = 600  # ... with held vertices CG while its bound is at most this (50,000 until session 24; a
+# factor of I + mu L^3 with a held border took 1.2 s per axis on Bunny0.2, 3.5 of the filter's 4.9 s)
 AXES_QUADRATURE_MIN_VERTICES = QUADRATURE_MIN_VERTICES  # from this size the search by Lanczos quadrature (the same
 # candidates and probes as by a factor per mu, the same scores to about 1e-12; session 19, was 50,000)
 AXES_NORMAL_REGION = 8_000  # the normals criterion's search on a region of this size from twice as many vertices: each
@@ -340,13 +343,20 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps):
     E, _ = normal_frame(X, F, ops, frame_steps)
     C = X @ E
     out = np.empty_like(C)
-    factor_free = ops.n >= AXES_SCALE_MIN_VERTICES and (pinned is None or not pinned.any())
+    held = pinned is not None and pinned.any()
+    factor_free = ops.n >= AXES_LANCZOS_MIN_VERTICES and not held
+    stored = ops.cache.get(f"shifted-p{order}-cholesky", {})
     for d, mu in enumerate((mu1, mu2, mu3)):
         y = None
-        if mu != 0 and factor_free and (float(mu), None) not in ops.cache.get(f"shifted-p{order}-cholesky", {}):
+        if mu != 0 and factor_free and (float(mu), None) not in stored:
             # a 100k factor of I + mu L^3: 20 s. One column per run: at 400k three one-column runs took 2.2 CPU s,
             # one three-column run 3.0 (numpy's passes over (n, 3) blocks, measured in session 10)
             y = lanczos_shifted(ops, C[:, d], mu, order, tol=FILTER_LANCZOS_TOL, growth=0.25)
+        elif (mu != 0 and held and ops.n >= AXES_LANCZOS_MIN_VERTICES and (float(mu), mask_key(pinned)) not in stored
+              and (bound := shifted_cg_bound(ops, mu, order, FILTER_LANCZOS_TOL)) <= AXES_PINNED_CG_BOUND):
+            # held vertices (the border option's second run): CG from the input, no factor of I + mu L^p with them
+            y = shifted_solver(ops, mu, order, pinned, "cg").solve(C[:, d], tol=FILTER_LANCZOS_TOL, x0=C[:, d],
+                                                                 maxiter=int(4 * math.ceil(bound)) + 50)
         if y is None:
             y = C[:, d] if mu == 0 else shifted_solver(ops, mu, order, pinned).solve(C[:, d])
         out[:, d] = y
