@@ -10,7 +10,8 @@ from ..geometry import vertex_normals
 from ..operators import Operators
 from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
 from ..operators import mask_key, spmm
-from ..solvers import FILTER_LANCZOS_TOL, LanczosQuadrature, lanczos_shifted, shifted_cg_bound, shifted_solver
+from ..solvers import (FILTER_LANCZOS_TOL, CompiledLanczos, LanczosQuadrature, lanczos_shifted, shifted_cg_bound,
+                       shifted_solver)
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
 from ..tuning.noise_level import fourth_difference, mean_edge_length, normal_trust
@@ -24,6 +25,8 @@ AXES_PINNED_CG_BOUND = 600  # ... with held vertices CG while its bound is at mo
 # factor of I + mu L^3 with a held border took 1.2 s per axis on Bunny0.2, 3.5 of the filter's 4.9 s)
 AXES_QUADRATURE_MIN_VERTICES = QUADRATURE_MIN_VERTICES  # from this size the search by Lanczos quadrature (the same
 # candidates and probes as by a factor per mu, the same scores to about 1e-12; session 19, was 50,000)
+AXES_ONE_RUN_MAX_VERTICES = 100_000  # below this size the rule's quadrature is one compiled Lanczos run of its 3 + 3m
+# columns (solvers.CompiledLanczos: Bunny0.2's 75 one-column numpy runs took 1.3 s), above it one run per column (memory)
 AXES_NORMAL_REGION = 8_000  # the normals criterion's search on a region of this size from twice as many vertices: each
 # candidate factorises I + mu L^3 three times (3.3 s each at 35k vertices; the whole-mesh search took 170 s on Bunny0.2)
 
@@ -161,24 +164,32 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
         # (n, 3 + 3m) (at 1.6M vertices 2 x 14 columns = 360 MB less), and numpy's passes over one contiguous column
         # cost less per number than over (n, k) blocks (30 steps at 400k: 2.0 CPU s for 15 one-column runs, 2.4 for
         # one 15-column run, 3.0 for three 5-column runs)
-        quad = [LanczosQuadrature(ctx.ops.L, np.ascontiguousarray(hp[:, [j]]), max_steps=600) for j in range(3)] + [
-            LanczosQuadrature(ctx.ops.L, np.ascontiguousarray(probe[:, [k]]), max_steps=600)
-            for probe in (probes(d) for d in range(3)) for k in range(m)]
+        if n < AXES_ONE_RUN_MAX_VERTICES:  # one compiled run of all the columns: per-step work, not per column
+            one = CompiledLanczos(ctx.ops.L, np.hstack([hp] + [probes(d) for d in range(3)]), max_steps=600)
+            quad = None
+        else:
+            quad = [LanczosQuadrature(ctx.ops.L, np.ascontiguousarray(hp[:, [j]]), max_steps=600) for j in range(3)] + [
+                LanczosQuadrature(ctx.ops.L, np.ascontiguousarray(probe[:, [k]]), max_steps=600)
+                for probe in (probes(d) for d in range(3)) for k in range(m)]
 
     def by_quadrature(mu: float) -> list | None:
         """Per-axis SURE: :math:`\\|H x_d - x_d\\|^2 = c_d^T \\mu^2 (I + \\mu L^p)^{-2} c_d`, :math:`c_d = L^p x_d`,
         and the weighted traces :math:`q^T (I + \\mu L^p)^{-1} q`, Gauss quadrature on the Lanczos runs."""
-        parts = [run.evaluate(lambda x: mu**2 / (1.0 + mu * np.maximum(x, 0.0) ** order) ** 2) for run in quad[:3]]
-        parts += [run.evaluate(lambda x: 1.0 / (1.0 + mu * np.maximum(x, 0.0) ** order)) for run in quad[3:]]
+        residual = lambda x: mu**2 / (1.0 + mu * np.maximum(x, 0.0) ** order) ** 2  # noqa: E731
+        trace = lambda x: 1.0 / (1.0 + mu * np.maximum(x, 0.0) ** order)  # noqa: E731
+        if quad is None:
+            parts = [one.evaluate(residual, columns=range(3)), one.evaluate(trace, columns=range(3, 3 + 3 * m))]
+        else:
+            parts = [run.evaluate(residual) for run in quad[:3]] + [run.evaluate(trace) for run in quad[3:]]
         if any(part is None for part in parts):
             return None
-        r, q = np.concatenate(parts[:3]), np.concatenate(parts[3:])
+        r, q = (parts[0], parts[1]) if quad is None else (np.concatenate(parts[:3]), np.concatenate(parts[3:]))
         return [float(r[d]) - ctx.rho**2 * float(c[:, d].sum()) + 2 * ctx.rho**2 * s * float(q[d * m:(d + 1) * m].sum())
                 for d in range(3)]
 
     def at(t: float) -> list:
         t = round(t, 9)
-        if t not in evaluated and quad is not None:
+        if t not in evaluated and use_quadrature:
             scores = by_quadrature(10.0**t)
             if scores is not None:
                 evaluated[t] = scores
