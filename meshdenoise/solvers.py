@@ -1144,20 +1144,21 @@ class CompiledLanczos(LanczosQuadrature):
 
     def apply(self, g: Callable[[np.ndarray], np.ndarray], *, rtol: float = 1e-10, check: int = 10, columns=None,
               growth: float = 0.0) -> np.ndarray | None:
-        """:meth:`LanczosQuadrature.apply` (every column: ``columns`` must be None), its second pass compiled."""
-        if columns is not None:
-            raise ValueError("CompiledLanczos.apply: columns is not supported; run on those columns alone")
-        out = self.apply_many([g], rtol=rtol, check=check, growth=growth)
+        """:meth:`LanczosQuadrature.apply`, its second pass compiled (on ``columns`` alone when given: each
+        column's basis depends on its own recurrence only)."""
+        out = self.apply_many([g], rtol=rtol, check=check, growth=growth, columns=columns)
         return None if out is None else out[0]
 
     def apply_many(self, gs: Sequence[Callable | Sequence[Callable]], *, rtol: float = 1e-10, check: int = 10,
-                   growth: float = 0.0) -> list[np.ndarray] | None:
+                   growth: float = 0.0, columns=None) -> list[np.ndarray] | None:
         """:meth:`apply` for each function of ``gs``, in one second pass (each converged as :meth:`apply`;
         ``None`` if one is not within :attr:`max_steps`). An entry of ``gs`` may be a sequence of functions,
-        column ``j`` then taking ``g[j % len(g)]`` (:func:`column_function`)."""
+        column ``j`` then taking ``g[j % len(g)]`` (:func:`column_function`). ``columns``: those columns
+        only, in that order (the result ``(n, len(columns))`` each)."""
+        cols = list(range(self._B.shape[1])) if columns is None else [int(j) for j in columns]
         coefs = []
         for g in gs:
-            coef = self._converged_coefficients(g, rtol, check, None, growth)
+            coef = self._converged_coefficients(g, rtol, check, cols, growth)
             if coef is None:
                 return None
             # the coefficients fall geometrically: the steps past where their tail is under rtol / 10 of their norm
@@ -1168,21 +1169,23 @@ class CompiledLanczos(LanczosQuadrature):
                 coef[j] = c[:max(keep, 1)] if c.size else c
             coefs.append(coef)
         kernels.set_threads()
-        n, k = self._B.shape
+        n, k = self._B.shape[0], len(cols)
+        B = self._B if columns is None else np.ascontiguousarray(self._B[:, cols])
+        norms2, alpha, beta = self.norms2[cols], self._alpha[:, cols], self._beta[:, cols]
         steps = max((c.size for coef in coefs for c in coef), default=0)
         Y = np.zeros((steps, len(gs), k))  # the coefficients of step i, per function and column
         for m, coef in enumerate(coefs):
             for j, c in enumerate(coef):
                 Y[: c.size, m, j] = c
-        inv = np.divide(1.0, np.sqrt(self.norms2), out=np.zeros(k), where=self.norms2 > 0)
-        q_prev, q = np.zeros_like(self._B), np.ascontiguousarray(self._B * inv)
+        inv = np.divide(1.0, np.sqrt(norms2), out=np.zeros(k), where=norms2 > 0)
+        q_prev, q = np.zeros_like(B), np.ascontiguousarray(B * inv)
         beta_prev = np.zeros(k)
         out = np.zeros((n, len(gs), k))
         W = np.empty_like(q)
         for i in range(steps):
             kernels.lanczos_accumulate(q, Y[i], out)
-            self._step(q, q_prev, W, self._alpha[i], beta_prev)
-            b = self._beta[i]
+            self._step(q, q_prev, W, np.ascontiguousarray(alpha[i]), beta_prev)
+            b = np.ascontiguousarray(beta[i])
             kernels.lanczos_scale(W, np.divide(1.0, b, out=np.zeros(k), where=b > 0), q_prev)
             q_prev, q = q, q_prev
             beta_prev = b

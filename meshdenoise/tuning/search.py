@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..operators import Operators, spmm
-from ..solvers import LanczosQuadrature, shifted_factor, shifted_solver
+from ..solvers import CompiledLanczos, LanczosQuadrature, shifted_factor, shifted_solver
 from .memo import MEMO, digest
 from .risk import N_PROBES, Criterion, Point, as_criterion, probe_block
 from .walk import past_minimum, walk
@@ -413,7 +413,7 @@ def shifted_quadrature(V: np.ndarray, ops: Operators, order: int, Z: np.ndarray,
     c = np.array(V, dtype=np.float64)
     for _ in range(order):
         c = spmm(L, c)
-    quad = LanczosQuadrature(L, np.hstack([c, Z]), max_steps=max_steps)
+    quad = CompiledLanczos(L, np.hstack([c, Z]), max_steps=max_steps)  # compiled steps: the same rule to ~1e-13
     res_cols, probe_cols = range(3), range(3, 3 + Z.shape[1])
 
     def evaluate(mu: float) -> Point | None:
