@@ -239,3 +239,24 @@ def test_sinkhorn_rule_reads_its_sure_curves_from_lanczos_runs_as_from_its_facto
     calls.clear()
     gated = choose_parameters((X, F), "sinkhorn", noise=0.012, criterion="sure")
     assert gated == direct and not [v for v in calls if len(v) == sk.SINKHORN_MAX_ITERATIONS]
+
+
+def test_compiled_lanczos_applies_as_the_numpy_recurrence_and_its_second_pass_on_any_columns():
+    """CompiledLanczos against LanczosQuadrature (the same recurrence, sums in another order; both to 1e-10), several functions in
+    one second pass as one at a time, and a subset of columns to the bit as the same columns of the whole run."""
+    from meshdenoise.solvers import CompiledLanczos, LanczosQuadrature
+
+    _, F, X = _noisy(3)
+    L = get_operators(F, len(X)).L
+    B = np.hstack([L @ X, np.random.default_rng(8).standard_normal((len(X), 4))])
+    gs = [lambda t: 1.0 / (1.0 + 0.7 * t), lambda t: np.exp(-0.3 * t)]
+    run = CompiledLanczos(L, B)
+    many = run.apply_many(gs)
+    for g, got in zip(gs, many):
+        want = LanczosQuadrature(L, B).apply(g)
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-10 * np.abs(want).max())  # both converged to 1e-10
+        np.testing.assert_array_equal(run.apply(g), got)
+    np.testing.assert_array_equal(run.apply(gs[0], columns=[4, 1]), many[0][:, [4, 1]])
+    per_axis = run.apply_many([(gs[0], gs[1])])[0]  # column j takes g[j % 2]
+    np.testing.assert_array_equal(per_axis[:, 0::2], many[0][:, 0::2])
+    np.testing.assert_array_equal(per_axis[:, 1::2], many[1][:, 1::2])
