@@ -122,3 +122,38 @@ def test_the_filter_with_held_vertices_on_a_large_mesh_solves_by_cg_within_its_b
     np.testing.assert_array_equal(apply_filter("sobolev_normal", (Vn, F), mu=3.0, order=2, tangential=0.2,
                                                pinned=pinned)[0], factor)
     assert methods == ["cholesky"]
+
+
+def test_whole_mesh_rule_by_one_lanczos_run_chooses_as_by_factors(monkeypatch):
+    """From SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES the whole-mesh rule's candidates (both orders) come from one Lanczos
+    run (the first grid in one second pass, LogSearch's evaluate_many) where d_max mu^(1/p) is at most the reach: the
+    same order and mu (to the search's rounding) as with a factor per candidate."""
+    import meshdenoise.plugins.sobolev_normal as sn
+    from meshdenoise.shapes import icosphere
+    from meshdenoise.geometry import vertex_normals as vn
+    from meshdenoise.solvers import CompiledLanczos
+    from meshdenoise.tuning.choose import choose_parameters
+
+    V0, F = icosphere(4)
+    X = V0 + 0.01 * np.random.default_rng(2).standard_normal(len(V0))[:, None] * vn(V0, F)
+    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES", 10**9)
+    direct = choose_parameters((X, F), "sobolev_normal", noise=0.01)
+    runs = []
+    monkeypatch.setattr(sn, "CompiledLanczos", lambda *a, **k: runs.append(a[1].shape) or CompiledLanczos(*a, **k))
+    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES", 0)
+    fast = choose_parameters((X, F), "sobolev_normal", noise=0.01)
+    assert runs == [(len(X), 3 + 3 * sn.SOBOLEV_NORMAL_PROBES)]  # one run: coordinates and the probes
+    assert fast["order"] == direct["order"] and fast["mu"] == pytest.approx(direct["mu"], rel=1e-6)
+    assert fast["tangential"] == direct["tangential"]
+
+
+def test_log_search_evaluate_many_gives_the_points_one_at_a_time_would():
+    from meshdenoise.tuning.risk import Point
+    from meshdenoise.tuning.search import LogSearch
+
+    f = lambda mu: Point(mu, 0.0, 0.0, None, (np.log10(mu) - 0.3) ** 2)  # noqa: E731
+    calls = []
+    many = LogSearch(f, 1.0, evaluate_many=lambda mus: calls.append(len(mus)) or [f(mu) for mu in mus])
+    one = LogSearch(f, 1.0)
+    assert many.bracket().value == one.bracket().value and many.refine_parabolic().value == one.refine_parabolic().value
+    assert sorted(many.cache) == sorted(one.cache) and calls == [5]  # the first grid in one call, the rest one by one

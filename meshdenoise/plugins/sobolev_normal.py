@@ -10,8 +10,8 @@ from ..geometry import area_normals  # re-exported: the filter's normals
 from ..registry import AutoRule, Param, get_filter, register
 from ..geometry import vertex_normals
 from ..operators import mask_key, spmm
-from ..solvers import (FILTER_LANCZOS_TOL, LanczosRows, SPDSolver, lanczos_shifted, shifted_cg_bound, shifted_matrix,
-                       shifted_solver)
+from ..solvers import (FILTER_LANCZOS_TOL, LANCZOS_SHIFTED_MAX_STEPS, CompiledLanczos, LanczosRows, SPDSolver, lanczos_shifted,
+                       shifted_cg_bound, shifted_matrix, shifted_solver)
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
 from ..tuning.noise_level import mean_edge_length, normal_trust
@@ -44,10 +44,15 @@ def project_update(X: np.ndarray, Y: np.ndarray, N: np.ndarray, tangential: floa
 SOBOLEV_NORMAL_ORDERS = (2, 3)  # candidate Laplacian powers of the automatic sobolev_normal rule
 SOBOLEV_NORMAL_ORDER_MARGIN = 0.02  # an order's log search is refined when its grid's parabola predicts a score within this share of the least grid score
 SOBOLEV_NORMAL_PROBES = 16  # Monte-Carlo SURE probes (along the normals) of sobolev_normal
-SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES = 50_000  # without pinned vertices the filter factorises nothing from this size ...
+SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES = 20_000  # without pinned vertices the filter factorises nothing from this size
+# (50,000 until session 24; the default runs sobolev_normal on small meshes only, so a run is a one-off here) ...
 SOBOLEV_NORMAL_PINNED_CG_BOUND = 600  # ... and with them solves by CG while its iteration bound is at most this (face000,
 # its border held, mu 6.7: order 2, bound 370, 192 iterations, 0.58 s against a 1.22 s factor; order 3, bound 1,280,
 # 531 iterations, 2.8 against 3.3 s)
+SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES = 20_000  # the whole-mesh rule's candidates by one Lanczos run from this size
+# (the Bunny0.2's 14 candidates were 21 factors and 23 51-column solves, 8.5 s), for the candidates whose poles lie
+SOBOLEV_NORMAL_RULE_LANCZOS_REACH = 25.0  # ... near enough: d_max mu^(1/p) at most this (the steps grow like its square
+# root, a factor costs the same at any mu: the elephant's grid reached mu = 10^3.9, 1.9 s a candidate by Lanczos)
 SOBOLEV_NORMAL_REGION = 16_000  # from search.REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices
 SOBOLEV_NORMAL_PATCHES = 8  # ... made of this many balls of vertices
 SOBOLEV_NORMAL_MARGIN = 8  # ... scoring only its vertices more than this many rings from a cut
@@ -197,19 +202,22 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
         if scored is not None and (pinned & rows).any():
             raise ValueError("choose_sobolev_normal_whole: a pinned vertex is scored; pin fewer rings than the margin")
         pinned_values = boundary[1]
+    # the whole mesh from SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES: every candidate of either order from one Lanczos
+    # run on L (H rhs = rhs - mu f(L) L rhs, f(t) = t^(p-1) / (1 + mu t^p)), a compiled second pass each, no factor
+    run, d_max = None, float(ctx.ops.degree.max()) if n else 0.0
+    if pinned is None and scored is None and n >= SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES:
+        run = CompiledLanczos(ctx.ops.L, spmm(ctx.ops.L, np.ascontiguousarray(rhs)), max_steps=LANCZOS_SHIFTED_MAX_STEPS)
     searches: dict[int, LogSearch] = {}
     for order in orders:
         key = digest(ctx.ops.F, order, rhs)
 
-        def evaluate(mu: float, order=order, key=key) -> Point:
-            held = pinned_values(mu, order) if pinned is not None else None
-            if held is not None:  # the probes are zero there, and the held values do not follow them
-                rhs_p = rhs.copy()
-                rhs_p[pinned, :3] = held
-                rhs_p[pinned, 3:] = 0.0
-                out = SPDSolver(shifted_matrix(ctx.ops, mu, order), pinned).solve(rhs_p)
-            else:
-                out = solve_shifted(ctx.ops, order, mu, rhs, key, memo=scored is None)  # a region: nothing kept
+        def by_lanczos(mu: float, order: int) -> bool:
+            return run is not None and d_max * mu ** (1.0 / order) <= SOBOLEV_NORMAL_RULE_LANCZOS_REACH
+
+        def g(mu: float, order: int):
+            return lambda x: np.maximum(x, 0.0) ** (order - 1) / (1.0 + mu * np.maximum(x, 0.0) ** order)
+
+        def point(mu: float, out: np.ndarray) -> Point:
             Y = out[:, :3]
             X = project_update(ctx.V, Y, area_normals(Y, ctx.F), t)
             div = float(n) if ctx.reference is not None else _projected_divergence(ctx.V, ctx.F, out, Bp, t, delta)
@@ -217,7 +225,26 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
             p.score = gcv(p.residual_sq, div, n_scored) if use_gcv else ctx.criterion.score(p, n_scored, ctx.rho)
             return p
 
-        searches[order] = LogSearch(evaluate, ctx.mu_guess(order))
+        def evaluate(mu: float, order=order, key=key) -> Point:
+            held = pinned_values(mu, order) if pinned is not None else None
+            if held is not None:  # the probes are zero there, and the held values do not follow them
+                rhs_p = rhs.copy()
+                rhs_p[pinned, :3] = held
+                rhs_p[pinned, 3:] = 0.0
+                return point(mu, SPDSolver(shifted_matrix(ctx.ops, mu, order), pinned).solve(rhs_p))
+            if by_lanczos(mu, order):
+                Z = run.apply(g(mu, order), rtol=FILTER_LANCZOS_TOL, growth=0.25)
+                if Z is not None:
+                    return point(mu, rhs - mu * Z)
+            return point(mu, solve_shifted(ctx.ops, order, mu, rhs, key, memo=scored is None))  # a region: nothing kept
+
+        def evaluate_many(mus: list, order=order) -> list:  # a grid's candidates in one second pass of the run
+            batch = [mu for mu in mus if by_lanczos(mu, order)]
+            Zs = run.apply_many([g(mu, order) for mu in batch], rtol=FILTER_LANCZOS_TOL, growth=0.25) if batch else None
+            done = dict(zip(batch, Zs)) if Zs is not None else {}
+            return [point(mu, rhs - mu * done[mu]) if mu in done else evaluate(mu) for mu in mus]
+
+        searches[order] = LogSearch(evaluate, ctx.mu_guess(order), evaluate_many=evaluate_many if run is not None else None)
         searches[order].bracket()
     # each order's grid, then the refinement only for the orders that can still win: those whose parabola through
     # the grid minimum predicts a score within SOBOLEV_NORMAL_ORDER_MARGIN of the least grid score (a refinement

@@ -232,6 +232,8 @@ class LogSearch:
     through the grid minimum and its two neighbours, so that a caller comparing several searches
     (one per order of a filter, say) refines only those that can still win.
     :func:`search_log` runs both phases. Every ``t`` is evaluated once (rounded to 1e-12).
+    ``evaluate_many(mus)``, optional: the points of several ``mu`` at once, as ``evaluate`` gives them (the
+    first grid is asked for in one call: a caller that can share work between candidates).
 
     Examples
     --------
@@ -245,12 +247,13 @@ class LogSearch:
     """
 
     def __init__(self, evaluate: Callable[[float], Point], center: float, lo_limit: float = -8.0,
-                 hi_limit: float = 10.0, spacing: float = 0.75, half_width: int = 2):
+                 hi_limit: float = 10.0, spacing: float = 0.75, half_width: int = 2,
+                 evaluate_many: Callable[[list], list] | None = None):
         if not (spacing > 0 and int(half_width) >= 1):
             raise ValueError(f"search_log: spacing must be > 0 and half_width >= 1, got {spacing!r}, {half_width!r}")
         if not (center > 0 and math.isfinite(center)):
             raise ValueError(f"search_log: center must be a finite number > 0, got {center!r}")
-        self.evaluate, self.center = evaluate, float(center)
+        self.evaluate, self.center, self.evaluate_many = evaluate, float(center), evaluate_many
         self.lo_limit, self.hi_limit, self.spacing, self.half_width = lo_limit, hi_limit, float(spacing), int(half_width)
         self.cache: dict[float, Point] = {}
         self._grid: list[float] | None = None
@@ -273,6 +276,9 @@ class LogSearch:
         if self._grid is None:
             c0 = math.log10(self.center)
             grid = [c0 + self.spacing * j for j in range(-self.half_width, self.half_width + 1)]
+            todo = [round(t, 12) for t in grid if round(t, 12) not in self.cache]
+            if self.evaluate_many is not None and len(todo) > 1:  # the first grid at once (the same points)
+                self.cache.update(zip(todo, self.evaluate_many([10.0**t for t in todo])))
             while True:
                 scores = [self.at(t).score for t in grid]
                 i = int(np.argmin(scores))
