@@ -5,13 +5,14 @@ matrix ``M``, never a filter. A filter's rule describes its map in its rule's co
 
 .. math:: H = S^{-1}\, g(M)\, S, \qquad S = \mathrm{diag}(s),
 
-the same on every column (``sobolev``: :math:`M = L`, :math:`g(y) = 1/(1 + \mu y)`; the averaging
-filters: :math:`M = I - D^{-1/2} W D^{-1/2}`, :math:`s = \sqrt{d}`, :math:`D^{-1} W = S^{-1}(I - M)S`).
+the same on every column (the Sobolev filters: :math:`M = L`, :math:`g(y) = 1/(1 + \mu y^p)`; the
+averaging filters: :math:`M = I - D^{-1/2} W D^{-1/2}`, :math:`s = \sqrt{d}`,
+:math:`D^{-1} W = S^{-1}(I - M)S`), or one function per axis of a frame (``sobolev_axes``).
 A search over the weight then needs no factorisation and no run of the filter per candidate: the
 coordinates :math:`HX = X - S^{-1} h(M)\, M S X`, :math:`h(y) = (1 - g(y))/y`, come from one Lanczos
-run on ``M`` (:class:`~meshdenoise.solvers.LanczosQuadrature`, a second pass over three columns per
-candidate), and the probes' terms :math:`u^T H b = (S^{-1}u)^T g(M)\, (S b)` from one run that records
-the duals' projections (:class:`~meshdenoise.solvers.LanczosDots`, no second pass).
+run on ``M`` (:class:`~meshdenoise.solvers.CompiledLanczos`, a second pass over three columns for a
+few candidates at once), and the probes' terms :math:`u^T H b = (S^{-1}u)^T g(M)\, (S b)` from one run
+that records the duals' projections (:class:`~meshdenoise.solvers.LanczosDots`, no second pass).
 """
 
 from __future__ import annotations
@@ -199,11 +200,11 @@ class SpectralFailed(RuntimeError):
 class SpectralSearch:
     r"""The coordinates :math:`HX` and the probes' terms :math:`u^T H b` of every candidate of a search.
 
-    ``family(value)`` gives the candidate's :class:`Spectral`; every candidate shares ``M`` and
-    ``scale`` (those of the first asked for). The coordinates' run starts at the high-pass
-    :math:`M S X` (three columns; its tolerance is relative to the correction, not to the
-    coordinates), kept for the whole search; :meth:`probes` starts a run for one set of probes
-    and their duals.
+    ``family(value)`` gives the candidate's :class:`Spectral`; every candidate shares ``M``,
+    ``scale`` and ``frame`` (those of the first asked for). The coordinates' run starts at the
+    high-pass :math:`M S X` (three columns; its tolerance is relative to the correction, not to
+    the coordinates), kept for the whole search; :meth:`probes` starts a run for one set of
+    probes and their duals.
 
     Parameters
     ----------
@@ -211,6 +212,8 @@ class SpectralSearch:
     family : callable
         ``family(value) -> Spectral``.
     tol : float
+    candidates : sequence of float, optional
+        The search's values in order: :meth:`coordinates` computes a value's neighbours with it.
 
     Examples
     --------
