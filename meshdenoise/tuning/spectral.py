@@ -235,9 +235,13 @@ class SpectralSearch:
         self._first: Spectral | None = None
         self._coords: CompiledLanczos | None = None
         self._done: dict[float, np.ndarray] = {}  # HX per candidate value (at most len(candidates) + 1 of (n, 3))
+        self._specs: dict = {}  # the Spectral of each value asked for (functions and shared arrays: small)
 
     def spectral(self, value: float) -> Spectral:
-        """The candidate's :class:`Spectral`, checked to share the first one's ``M``, ``scale`` and ``frame``."""
+        """The candidate's :class:`Spectral`, checked to share the first one's ``M``, ``scale`` and ``frame``
+        (asked of ``family`` once per value: a frame is read from the mesh each time it is built)."""
+        if value in self._specs:
+            return self._specs[value]
         spec = self.family(value)
         if self._first is None:
             self._first = spec
@@ -245,6 +249,7 @@ class SpectralSearch:
               or (spec.frame is None) != (self._first.frame is None)
               or (spec.frame is not None and not np.array_equal(spec.frame, self._first.frame))):
             raise ValueError("SpectralSearch: every candidate must share the first one's M, scale and frame")
+        self._specs[value] = spec
         return spec
 
     def _scaled(self, A: np.ndarray, inverse: bool = False) -> np.ndarray:
