@@ -64,6 +64,7 @@ __all__ = [
     "patch_edge_lists",
     "inverse_distance_pass",
     "curve_terms",
+    "projected_divergence_terms",
 ]
 
 
@@ -986,3 +987,53 @@ def curve_terms(Y: np.ndarray, V: np.ndarray, Z: np.ndarray) -> tuple[float, flo
     out = np.empty(((n + CURVE_CHUNK - 1) // CURVE_CHUNK, 2))
     _curve_partials(Y, V, Z, out)
     return float(out[:, 0].sum()), float(out[:, 1].sum())
+
+
+# --------------------------------------------------------------------------- sobolev_normal's divergence
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def projected_divergence_terms(V, F, Y, X, O, B, t, delta, k0, out):  # pragma: no cover - compiled
+    """``out[j] = b * (proj(V + delta b, Y + delta o) - X)`` for probe ``k = k0 + j`` (``b``, ``o``: columns
+    ``3k .. 3k + 2`` of ``B`` and ``O``), one probe per thread.
+
+    ``proj(X0, Yb) = X0 + n n^T D + t (I - n n^T) D``, ``D = Yb - X0``, ``n`` the area-weighted unit vertex
+    normals of ``Yb``: numpy's arithmetic in :func:`meshdenoise.geometry.area_normals` (cross products
+    summed onto the corners in ``np.bincount``'s order: first corners, then second, then third) and
+    :func:`meshdenoise.plugins.sobolev_normal.project_update`, so the same numbers bit for bit.
+    """
+    n = V.shape[0]
+    m = F.shape[0]
+    for j in prange(out.shape[0]):
+        k = k0 + j
+        Yb = np.empty((n, 3))
+        for i in range(n):
+            for d in range(3):
+                Yb[i, d] = Y[i, d] + delta * O[i, 3 * k + d]
+        C = np.empty((m, 3))
+        for f in range(m):
+            c0, c1, c2 = face_cross(Yb, F[f, 0], F[f, 1], F[f, 2])
+            C[f, 0] = c0
+            C[f, 1] = c1
+            C[f, 2] = c2
+        S = np.zeros((n, 3))
+        for corner in range(3):
+            for f in range(m):
+                v = F[f, corner]
+                S[v, 0] += C[f, 0]
+                S[v, 1] += C[f, 1]
+                S[v, 2] += C[f, 2]
+        N = np.empty((n, 3))
+        for i in range(n):
+            unit_into(N, i, S[i, 0], S[i, 1], S[i, 2])
+            x0 = V[i, 0] + delta * B[i, 3 * k]
+            x1 = V[i, 1] + delta * B[i, 3 * k + 1]
+            x2 = V[i, 2] + delta * B[i, 3 * k + 2]
+            d0 = Yb[i, 0] - x0
+            d1 = Yb[i, 1] - x1
+            d2 = Yb[i, 2] - x2
+            dot = (d0 * N[i, 0] + d2 * N[i, 2]) + d1 * N[i, 1]  # numpy's einsum('ij,ij->i') order here (two lanes)
+            p0 = dot * N[i, 0]
+            p1 = dot * N[i, 1]
+            p2 = dot * N[i, 2]
+            out[j, i, 0] = B[i, 3 * k] * ((x0 + p0) + t * (d0 - p0) - X[i, 0])
+            out[j, i, 1] = B[i, 3 * k + 1] * ((x1 + p1) + t * (d1 - p1) - X[i, 1])
+            out[j, i, 2] = B[i, 3 * k + 2] * ((x2 + p2) + t * (d2 - p2) - X[i, 2])

@@ -475,6 +475,35 @@ def test_sobolev_normal_monte_carlo_divergence_matches_the_per_vertex_brute_forc
     assert brute > 1.2 * np.trace(H)
 
 
+@pytest.mark.parametrize("index_dtype", [np.int32, np.int64])
+def test_sobolev_normal_divergence_kernel_equals_the_numpy_loop_over_probes(monkeypatch, index_dtype):
+    """The compiled divergence (kernels.projected_divergence_terms) against numpy's area normals and projection,
+    probe by probe, on an open grid with an isolated vertex and a collapsed face (zero normals), in chunks or not."""
+    import meshdenoise.plugins.sobolev_normal as sn
+    from meshdenoise.geometry import area_normals
+
+    V, F = grid(9, 7)
+    V = np.vstack([V, [[5.0, 5.0, 5.0]]])  # on no face
+    F = np.vstack([F, [[0, 0, 1]]]).astype(index_dtype)  # collapsed: no vote
+    rng = np.random.default_rng(4)
+    V = V + 0.05 * rng.standard_normal(V.shape)
+    n, K, t, delta = len(V), 5, 0.3, 0.01
+    out = np.hstack([V + 0.02 * rng.standard_normal((n, 3)), rng.standard_normal((n, 3 * K))])
+    Bp = rng.choice([-1.0, 1.0], size=(n, 3 * K))
+
+    Y = out[:, :3]
+    X = sn.project_update(V, Y, area_normals(Y, F), t)
+    expected = 0.0
+    for k in range(K):  # the numpy loop the kernel replaced
+        b, Yb = Bp[:, 3 * k:3 * k + 3], Y + delta * out[:, 3 + 3 * k:6 + 3 * k]
+        expected += float(np.sum(b * (sn.project_update(V + delta * b, Yb, area_normals(Yb, F), t) - X))) / delta
+    expected /= K
+    whole = sn._projected_divergence(V, F, out, Bp, t, delta)
+    assert whole == pytest.approx(expected, rel=1e-12, abs=1e-9)  # bit for bit here; einsum's lanes vary by CPU
+    monkeypatch.setattr(sn, "DIVERGENCE_CHUNK_BYTES", 24 * n * 2)  # two probes at a time: the same sums
+    assert sn._projected_divergence(V, F, out, Bp, t, delta) == whole
+
+
 def test_sobolev_normal_scores_by_gcv_over_the_normal_coordinates():
     """Tangential share 0: the rule's score is n ||f(X) - X||^2 / (n - div)^2, f(X) from a dense solve and the test's own projection."""
     from meshdenoise.plugins.sobolev_normal import choose_sobolev_normal
