@@ -517,14 +517,14 @@ def lanczos_update(Q, Qp, W, alpha, beta_prev, partial_b):  # pragma: no cover -
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def lanczos_accumulate(Q, Y, out):  # pragma: no cover - compiled
-    """``out[:, m] += Q Y[m]`` (per column) for every set ``m`` of coefficients: several functions' second pass at once."""
+    """``out[m] += Q Y[m]`` (per column) for every set ``m`` of coefficients: several functions' second pass at once."""
     n = Q.shape[0]
     k = Q.shape[1]
     sets = Y.shape[0]
     for i in prange(n):
         for m in range(sets):
             for c in range(k):
-                out[i, m, c] += Q[i, c] * Y[m, c]
+                out[m, i, c] += Q[i, c] * Y[m, c]
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")

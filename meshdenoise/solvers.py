@@ -1154,7 +1154,8 @@ class CompiledLanczos(LanczosQuadrature):
         """:meth:`apply` for each function of ``gs``, in one second pass (each converged as :meth:`apply`;
         ``None`` if one is not within :attr:`max_steps`). An entry of ``gs`` may be a sequence of functions,
         column ``j`` then taking ``g[j % len(g)]`` (:func:`column_function`). ``columns``: those columns
-        only, in that order (the result ``(n, len(columns))`` each)."""
+        only, in that order (the result ``(n, len(columns))`` each). The results are views of one
+        ``(len(gs), n, k)`` array (no copies: a caller keeping one keeps them all)."""
         cols = list(range(self._B.shape[1])) if columns is None else [int(j) for j in columns]
         coefs = []
         for g in gs:
@@ -1180,7 +1181,7 @@ class CompiledLanczos(LanczosQuadrature):
         inv = np.divide(1.0, np.sqrt(norms2), out=np.zeros(k), where=norms2 > 0)
         q_prev, q = np.zeros_like(B), np.ascontiguousarray(B * inv)
         beta_prev = np.zeros(k)
-        out = np.zeros((n, len(gs), k))
+        out = np.zeros((len(gs), n, k))
         W = np.empty_like(q)
         for i in range(steps):
             kernels.lanczos_accumulate(q, Y[i], out)
@@ -1189,7 +1190,7 @@ class CompiledLanczos(LanczosQuadrature):
             kernels.lanczos_scale(W, np.divide(1.0, b, out=np.zeros(k), where=b > 0), q_prev)
             q_prev, q = q, q_prev
             beta_prev = b
-        return [np.ascontiguousarray(out[:, m]) for m in range(len(gs))]
+        return list(out)
 
 
 class LanczosDots(CompiledLanczos):

@@ -146,6 +146,18 @@ def test_whole_mesh_rule_by_one_lanczos_run_chooses_as_by_factors(monkeypatch):
     assert fast["order"] == direct["order"] and fast["mu"] == pytest.approx(direct["mu"], rel=1e-6)
     assert fast["tangential"] == direct["tangential"]
 
+    # both orders' first grids in one second pass; in passes of one candidate (the byte bound) the same choice
+    passes = []
+    real = CompiledLanczos.apply_many
+    monkeypatch.setattr(CompiledLanczos, "apply_many", lambda self, gs, **k: passes.append(len(gs)) or real(self, gs, **k))
+    again = choose_parameters((X, F), "sobolev_normal", noise=0.01)
+    assert passes[0] == 10 and again == fast
+    passes.clear()
+    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_BATCH_BYTES", 1)
+    single = choose_parameters((X, F), "sobolev_normal", noise=0.01)
+    assert passes[:10] == [1] * 10
+    assert single["order"] == fast["order"] and single["mu"] == pytest.approx(fast["mu"], rel=1e-6)
+
 
 def test_log_search_evaluate_many_gives_the_points_one_at_a_time_would():
     from meshdenoise.tuning.risk import Point
@@ -157,3 +169,18 @@ def test_log_search_evaluate_many_gives_the_points_one_at_a_time_would():
     one = LogSearch(f, 1.0)
     assert many.bracket().value == one.bracket().value and many.refine_parabolic().value == one.refine_parabolic().value
     assert sorted(many.cache) == sorted(one.cache) and calls == [5]  # the first grid in one call, the rest one by one
+
+
+def test_log_search_first_grid_points_added_are_not_evaluated_again():
+    from meshdenoise.tuning.risk import Point
+    from meshdenoise.tuning.search import LogSearch
+
+    f = lambda mu: Point(mu, 0.0, 0.0, None, (np.log10(mu) - 0.3) ** 2)  # noqa: E731
+    seen = []
+    s = LogSearch(lambda mu: seen.append(mu) or f(mu), 1.0)
+    grid = s.first_grid()
+    assert np.allclose(np.log10(grid), [-1.5, -0.75, 0.0, 0.75, 1.5])
+    for mu in grid[:3]:
+        s.add(mu, f(mu))
+    assert np.allclose(s.first_grid(), grid[3:])
+    assert s.bracket().value == LogSearch(f, 1.0).bracket().value and np.allclose(seen, grid[3:])

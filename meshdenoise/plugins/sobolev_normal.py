@@ -53,6 +53,8 @@ SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES = 20_000  # the whole-mesh rule's candi
 # (the Bunny0.2's 14 candidates were 21 factors and 23 51-column solves, 8.5 s), for the candidates whose poles lie
 SOBOLEV_NORMAL_RULE_LANCZOS_REACH = 25.0  # ... near enough: d_max mu^(1/p) at most this (the steps grow like its square
 # root, a factor costs the same at any mu: the elephant's grid reached mu = 10^3.9, 1.9 s a candidate by Lanczos)
+SOBOLEV_NORMAL_BATCH_BYTES = 256 << 20  # ... both orders' first grids in one second pass while their results take at most
+# this many bytes (Bunny0.2: 10 candidates of 51 columns, 142 MB; one pass fewer than a pass per order)
 SOBOLEV_NORMAL_REGION = 16_000  # from search.REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices
 SOBOLEV_NORMAL_PATCHES = 8  # ... made of this many balls of vertices
 SOBOLEV_NORMAL_MARGIN = 8  # ... scoring only its vertices more than this many rings from a cut
@@ -222,22 +224,23 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     if pinned is None and scored is None and n >= SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES:
         run = CompiledLanczos(ctx.ops.L, spmm(ctx.ops.L, np.ascontiguousarray(rhs)), max_steps=LANCZOS_SHIFTED_MAX_STEPS)
     searches: dict[int, LogSearch] = {}
+
+    def by_lanczos(mu: float, order: int) -> bool:
+        return run is not None and d_max * mu ** (1.0 / order) <= SOBOLEV_NORMAL_RULE_LANCZOS_REACH
+
+    def g(mu: float, order: int):
+        return lambda x: np.maximum(x, 0.0) ** (order - 1) / (1.0 + mu * np.maximum(x, 0.0) ** order)
+
+    def point(mu: float, out: np.ndarray) -> Point:
+        Y = out[:, :3]
+        X = project_update(ctx.V, Y, area_normals(Y, ctx.F), t)
+        div = float(n) if ctx.reference is not None else _projected_divergence(ctx.V, ctx.F, out, Bp, t, delta)
+        p = Point(mu, float(np.sum((X - ctx.V)[rows] ** 2)), div, X)
+        p.score = gcv(p.residual_sq, div, n_scored) if use_gcv else ctx.criterion.score(p, n_scored, ctx.rho)
+        return p
+
     for order in orders:
         key = digest(ctx.ops.F, order, rhs)
-
-        def by_lanczos(mu: float, order: int) -> bool:
-            return run is not None and d_max * mu ** (1.0 / order) <= SOBOLEV_NORMAL_RULE_LANCZOS_REACH
-
-        def g(mu: float, order: int):
-            return lambda x: np.maximum(x, 0.0) ** (order - 1) / (1.0 + mu * np.maximum(x, 0.0) ** order)
-
-        def point(mu: float, out: np.ndarray) -> Point:
-            Y = out[:, :3]
-            X = project_update(ctx.V, Y, area_normals(Y, ctx.F), t)
-            div = float(n) if ctx.reference is not None else _projected_divergence(ctx.V, ctx.F, out, Bp, t, delta)
-            p = Point(mu, float(np.sum((X - ctx.V)[rows] ** 2)), div, X)
-            p.score = gcv(p.residual_sq, div, n_scored) if use_gcv else ctx.criterion.score(p, n_scored, ctx.rho)
-            return p
 
         def evaluate(mu: float, order=order, key=key) -> Point:
             held = pinned_values(mu, order) if pinned is not None else None
@@ -259,7 +262,19 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
             return [point(mu, rhs - mu * done[mu]) if mu in done else evaluate(mu) for mu in mus]
 
         searches[order] = LogSearch(evaluate, ctx.mu_guess(order), evaluate_many=evaluate_many if run is not None else None)
-        searches[order].bracket()
+    if run is not None:  # both orders' first grids in one second pass of the run (in groups of bounded size)
+        todo = [(order, mu) for order, search in searches.items() for mu in search.first_grid() if by_lanczos(mu, order)]
+        per = max(1, SOBOLEV_NORMAL_BATCH_BYTES // (8 * n * rhs.shape[1]))
+        for i in range(0, len(todo), per):
+            group = todo[i:i + per]
+            Zs = run.apply_many([g(mu, order) for order, mu in group], rtol=FILTER_LANCZOS_TOL, growth=0.25)
+            if Zs is None:
+                break  # a candidate past max_steps: the searches' own calls fall back to the factor
+            for (order, mu), Z in zip(group, Zs):
+                searches[order].add(mu, point(mu, rhs - mu * Z))
+            del Zs
+    for search in searches.values():
+        search.bracket()
     # each order's grid, then the refinement only for the orders that can still win: those whose parabola through
     # the grid minimum predicts a score within SOBOLEV_NORMAL_ORDER_MARGIN of the least grid score (a refinement
     # gains about 1 % on a grid 0.75 decades apart; the other order's search was half the rule's factorisations)

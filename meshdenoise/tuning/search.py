@@ -266,6 +266,17 @@ class LogSearch:
             self.cache[t] = self.evaluate(10.0**t)
         return self.cache[t]
 
+    def first_grid(self) -> list[float]:
+        """The ``mu`` of the first grid (:meth:`bracket`'s, before any extension) not yet evaluated: a caller may
+        evaluate them together with other searches' and :meth:`add` the points."""
+        c0 = math.log10(self.center)
+        grid = [round(c0 + self.spacing * j, 12) for j in range(-self.half_width, self.half_width + 1)]
+        return [10.0**t for t in grid if t not in self.cache]
+
+    def add(self, mu: float, point: Point) -> None:
+        """Record ``point`` as the evaluation at ``mu`` (from :meth:`first_grid`; ``evaluate`` is not called for it)."""
+        self.cache[round(math.log10(mu), 12)] = point
+
     @property
     def best(self) -> Point:
         """The least-score point evaluated so far (the first of equal ones)."""
@@ -278,7 +289,7 @@ class LogSearch:
             grid = [c0 + self.spacing * j for j in range(-self.half_width, self.half_width + 1)]
             todo = [round(t, 12) for t in grid if round(t, 12) not in self.cache]
             if self.evaluate_many is not None and len(todo) > 1:  # the first grid at once (the same points)
-                self.cache.update(zip(todo, self.evaluate_many([10.0**t for t in todo])))
+                self.cache.update(zip(todo, self.evaluate_many(self.first_grid())))
             while True:
                 scores = [self.at(t).score for t in grid]
                 i = int(np.argmin(scores))
