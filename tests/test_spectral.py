@@ -93,13 +93,14 @@ def test_lanczos_dots_is_exact_once_the_krylov_space_is_exhausted_and_checks_sha
     (lambda ops: lambda v: averaging_spectral(ops, (0.5, -0.53), int(v)), [1, 12, 250]),
     (lambda ops: lambda v: heat_kernel_spectral(ops, v, 1, 4), [0.2, 2.0, 20.0]),
 ])
-def test_spectral_search_coordinates_and_probe_terms_against_dense(family, values):
+@pytest.mark.parametrize("tol, accuracy", [(1e-10, 1e-9), (None, 1e-5)])  # None: SPECTRAL_TOL, the searches' own
+def test_spectral_search_coordinates_and_probe_terms_against_dense(family, values, tol, accuracy):
     """One coordinates' run and one probes' run serve every candidate: HX and u^T H b as the dense matrices give them,
-    to 1e-10 of the smoothing's correction HX - X (the run's tolerance is relative to it, not to X)."""
+    to ``accuracy`` of the smoothing's correction HX - X (the run's tolerance is relative to it, not to X)."""
     _, F, X = _open_noisy()
     ops = get_operators(F, len(X))
     fam = family(ops)
-    search = SpectralSearch(X, fam)
+    search = SpectralSearch(X, fam, tol=tol)
     rng = np.random.default_rng(4)
     B, U = rng.choice([-1.0, 1.0], size=(len(X), 6)), rng.standard_normal((len(X), 6))
     search.coordinates(values[0])
@@ -107,12 +108,13 @@ def test_spectral_search_coordinates_and_probe_terms_against_dense(family, value
     for v in values:
         H = fam(v).dense()
         correction = np.abs(H @ X - X).max()
-        np.testing.assert_allclose(search.coordinates(v), H @ X, atol=1e-9 * correction)
+        np.testing.assert_allclose(search.coordinates(v), H @ X, atol=accuracy * correction)
         want = np.einsum("ij,ij->j", U, H @ B)
-        np.testing.assert_allclose(terms(v)[0], want, atol=1e-9 * np.abs(want).max())
+        np.testing.assert_allclose(terms(v)[0], want, atol=accuracy * np.abs(want).max())
 
 
-def test_spectral_search_with_a_frame_against_dense():
+@pytest.mark.parametrize("tol, accuracy", [(1e-10, 1e-9), (None, 1e-5)])
+def test_spectral_search_with_a_frame_against_dense(tol, accuracy):
     """Per-axis functions in a frame (sobolev_axes): the coordinates and u . H b as the dense per-axis maps give them."""
     _, F, X = _open_noisy()
     ops = get_operators(F, len(X))
@@ -122,17 +124,17 @@ def test_spectral_search_with_a_frame_against_dense():
         axes = [shifted_spectral(ops, v * w, 2) for w in (0.1, 0.0, 1.0)]
         return spectral_module.Spectral(ops.L, tuple(a.g for a in axes), tuple(a.h for a in axes), frame=E)
 
-    search = SpectralSearch(X, fam)
+    search = SpectralSearch(X, fam, tol=tol)
     rng = np.random.default_rng(6)
     B, U = rng.choice([-1.0, 1.0], size=(len(X), 6)), rng.standard_normal((len(X), 6))
     search.coordinates(1.0)
     terms = search.probes(B, [U])
     for v in (0.3, 1.0, 5.0):
         HX, HB = fam(v).apply_dense(X), fam(v).apply_dense(B)
-        np.testing.assert_allclose(search.coordinates(v), HX, atol=1e-9 * np.abs(HX - X).max())
+        np.testing.assert_allclose(search.coordinates(v), HX, atol=accuracy * np.abs(HX - X).max())
         got = terms(v)[0].reshape(2, 3).sum(axis=1)  # per probe triple: the frame mixes its three columns
         want = np.einsum("ipc,ipc->p", U.reshape(-1, 2, 3), HB.reshape(-1, 2, 3))
-        np.testing.assert_allclose(got, want, atol=1e-9 * np.abs(want).max())
+        np.testing.assert_allclose(got, want, atol=accuracy * np.abs(want).max())
 
 
 def test_spectral_search_refuses_candidates_on_another_matrix():
@@ -150,11 +152,14 @@ def _sphere(seed=3, rho=0.012):
     return V0, F, X
 
 
+@pytest.mark.parametrize("tol, accuracy", [(1e-10, 1e-8), (spectral_module.SPECTRAL_TOL, 1e-5)])
 @pytest.mark.parametrize("additive", [True, False])
 @pytest.mark.parametrize("rho", [0.012, 0.2])  # 0.2: past an edge length, the Dirichlet ranking
-def test_refine_for_normals_scores_the_same_by_lanczos_runs_as_by_running_the_filter(additive, rho):
+def test_refine_for_normals_scores_the_same_by_lanczos_runs_as_by_running_the_filter(additive, rho, tol, accuracy,
+                                                                                         monkeypatch):
     """The spectral search against the filter run on the probes: the same candidates visited, the same choice and path,
-    the risks and position SURE to 1e-8."""
+    the risks and position SURE to ``accuracy`` (at the searches' tolerance and at 1e-10)."""
+    monkeypatch.setattr(spectral_module, "SPECTRAL_TOL", tol)
     V0, F, X = _sphere(rho=rho)
     ops = get_operators(F, len(X))
     assert len(X) >= spectral_module.SPECTRAL_MIN_VERTICES
@@ -180,8 +185,8 @@ def test_refine_for_normals_scores_the_same_by_lanczos_runs_as_by_running_the_fi
     fast = nr.refine_for_normals(X, F, apply, start, values, rho, spectral=family, **kw)
     assert direct.criterion == fast.criterion == ("dirichlet" if rho == 0.2 else "normals")
     assert (fast.value, fast.path, fast.values) == (direct.value, direct.path, direct.values)
-    np.testing.assert_allclose(fast.risks, direct.risks, rtol=1e-8)
-    assert fast.position_risk == pytest.approx(direct.position_risk, rel=1e-8)
+    np.testing.assert_allclose(fast.risks, direct.risks, rtol=accuracy)
+    assert fast.position_risk == pytest.approx(direct.position_risk, rel=accuracy)
 
 
 def test_refine_for_normals_runs_the_filter_where_a_lanczos_run_does_not_converge(monkeypatch):

@@ -29,8 +29,10 @@ from ..solvers import CompiledLanczos, LanczosDots
 __all__ = ["Spectral", "SpectralFailed", "SpectralSearch", "shifted_spectral", "averaging_spectral",
            "heat_kernel_spectral", "normalized_laplacian", "SPECTRAL_TOL", "SPECTRAL_MAX_STEPS", "SPECTRAL_WINDOW", "SPECTRAL_MIN_VERTICES"]
 
-SPECTRAL_TOL = 1e-10  # relative change over 10 Lanczos steps at which a search's estimates are taken (their rounding
-# levels off at a few 1e-12, solvers.FILTER_LANCZOS_TOL); far below the spacing of the candidates' scores
+SPECTRAL_TOL = 1e-6  # relative change over 10 Lanczos steps (of an estimate's Cauchy-Schwarz scale) at which a search's
+# estimates are taken: its scores to about 1e-6, where the probes' own Monte-Carlo spread is 1/sqrt(P) (10-30 %) and
+# neighbouring candidates 26 % apart score 1e-3 to 1e-2 apart near the minimum; 1e-10 (until session 25) chose the same
+# on all 88 benchmark cells with 10-30 % more steps (benchmarks/results/filter-time-session25.md)
 SPECTRAL_MAX_STEPS = 2000  # a run longer than this gives up (SpectralFailed): the caller runs the filter instead
 SPECTRAL_MIN_VERTICES = 2_000  # searches score by these Lanczos runs from this size (with Rademacher probes; the exact
 # traces of small meshes are 3n columns, and a few solves of a small factor cost less)
@@ -211,7 +213,9 @@ class SpectralSearch:
     V : ndarray, shape (n, 3)
     family : callable
         ``family(value) -> Spectral``.
-    tol : float
+    tol : float, optional
+        The runs' relative tolerance (:meth:`~meshdenoise.solvers.CompiledLanczos.apply_many`,
+        :meth:`~meshdenoise.solvers.LanczosDots.dots`); default :data:`SPECTRAL_TOL`, read when the search is made.
     candidates : sequence of float, optional
         The search's values in order: :meth:`coordinates` computes a value's neighbours with it.
 
@@ -222,15 +226,15 @@ class SpectralSearch:
     >>> from meshdenoise.operators import get_operators
     >>> V, F = icosphere(2)
     >>> ops = get_operators(F, len(V))
-    >>> search = SpectralSearch(V, lambda mu: shifted_spectral(ops, mu, 2))
+    >>> search = SpectralSearch(V, lambda mu: shifted_spectral(ops, mu, 2), tol=1e-10)
     >>> bool(np.allclose(search.coordinates(0.3), shifted_spectral(ops, 0.3, 2).dense() @ V, atol=1e-12))
     True
     """
 
-    def __init__(self, V: np.ndarray, family: Callable[[float], Spectral], tol: float = SPECTRAL_TOL,
+    def __init__(self, V: np.ndarray, family: Callable[[float], Spectral], tol: float | None = None,
                  candidates: Sequence[float] = ()):
         self.V = np.asarray(V, dtype=np.float64)
-        self.family, self.tol = family, float(tol)
+        self.family, self.tol = family, float(SPECTRAL_TOL if tol is None else tol)
         self.candidates = [float(c) for c in candidates]
         self._first: Spectral | None = None
         self._coords: CompiledLanczos | None = None
