@@ -12,6 +12,7 @@ from ..geometry import vertex_normals
 from ..operators import mask_key, spmm
 from ..solvers import (FILTER_LANCZOS_TOL, LANCZOS_SHIFTED_MAX_STEPS, CompiledLanczos, LanczosRows, SPDSolver, lanczos_shifted,
                        shifted_cg_bound, shifted_matrix, shifted_solver)
+from ..tuning import spectral as spectral_module
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
 from ..tuning.noise_level import mean_edge_length, normal_trust
@@ -51,8 +52,9 @@ SOBOLEV_NORMAL_PINNED_CG_BOUND = 600  # ... and with them solves by CG while its
 # 531 iterations, 2.8 against 3.3 s)
 SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES = 20_000  # the whole-mesh rule's candidates by one Lanczos run from this size
 # (the Bunny0.2's 14 candidates were 21 factors and 23 51-column solves, 8.5 s), for the candidates whose poles lie
-SOBOLEV_NORMAL_RULE_LANCZOS_REACH = 25.0  # ... near enough: d_max mu^(1/p) at most this (the steps grow like its square
-# root, a factor costs the same at any mu: the elephant's grid reached mu = 10^3.9, 1.9 s a candidate by Lanczos)
+SOBOLEV_NORMAL_RULE_LANCZOS_REACH = 50.0  # ... near enough: d_max mu^(1/p) at most this (the steps grow like its square
+# root, a factor costs the same at any mu: the elephant's grid reached mu = 10^3.9, 1.9 s a candidate by Lanczos at 1e-10;
+# at the searches' 1e-6, 25 -> 50 took the bunny scanner's two factored candidates into the run, 3.7 -> 3.2 s)
 SOBOLEV_NORMAL_BATCH_BYTES = 256 << 20  # ... both orders' first grids in one second pass while their results take at most
 # this many bytes (Bunny0.2: 10 candidates of 51 columns, 142 MB; one pass fewer than a pass per order)
 SOBOLEV_NORMAL_REGION = 16_000  # from search.REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices
@@ -221,6 +223,7 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     # the whole mesh from SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES: every candidate of either order from one Lanczos
     # run on L (H rhs = rhs - mu f(L) L rhs, f(t) = t^(p-1) / (1 + mu t^p)), a compiled second pass each, no factor
     run, d_max = None, float(ctx.ops.degree.max()) if n else 0.0
+    tol = spectral_module.SPECTRAL_TOL  # a search's scores, to about 1e-6 (tuning/spectral.py), not the filter's 1e-10
     if pinned is None and scored is None and n >= SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES:
         run = CompiledLanczos(ctx.ops.L, spmm(ctx.ops.L, np.ascontiguousarray(rhs)), max_steps=LANCZOS_SHIFTED_MAX_STEPS)
     searches: dict[int, LogSearch] = {}
@@ -250,14 +253,14 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
                 rhs_p[pinned, 3:] = 0.0
                 return point(mu, SPDSolver(shifted_matrix(ctx.ops, mu, order), pinned).solve(rhs_p))
             if by_lanczos(mu, order):
-                Z = run.apply(g(mu, order), rtol=FILTER_LANCZOS_TOL, growth=0.25)
+                Z = run.apply(g(mu, order), rtol=tol, growth=0.25)
                 if Z is not None:
                     return point(mu, rhs - mu * Z)
             return point(mu, solve_shifted(ctx.ops, order, mu, rhs, key, memo=scored is None))  # a region: nothing kept
 
         def evaluate_many(mus: list, order=order) -> list:  # a grid's candidates in one second pass of the run
             batch = [mu for mu in mus if by_lanczos(mu, order)]
-            Zs = run.apply_many([g(mu, order) for mu in batch], rtol=FILTER_LANCZOS_TOL, growth=0.25) if batch else None
+            Zs = run.apply_many([g(mu, order) for mu in batch], rtol=tol, growth=0.25) if batch else None
             done = dict(zip(batch, Zs)) if Zs is not None else {}
             return [point(mu, rhs - mu * done[mu]) if mu in done else evaluate(mu) for mu in mus]
 
@@ -267,7 +270,7 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
         per = max(1, SOBOLEV_NORMAL_BATCH_BYTES // (8 * n * rhs.shape[1]))
         for i in range(0, len(todo), per):
             group = todo[i:i + per]
-            Zs = run.apply_many([g(mu, order) for order, mu in group], rtol=FILTER_LANCZOS_TOL, growth=0.25)
+            Zs = run.apply_many([g(mu, order) for order, mu in group], rtol=tol, growth=0.25)
             if Zs is None:
                 break  # a candidate past max_steps: the searches' own calls fall back to the factor
             for (order, mu), Z in zip(group, Zs):
