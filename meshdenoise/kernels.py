@@ -528,6 +528,33 @@ def lanczos_accumulate(Q, Y, out):  # pragma: no cover - compiled
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def lanczos_regenerate(indptr, indices, data, Q, Qp, alpha, beta_prev, inv, Y, out):  # pragma: no cover - compiled
+    """One step of a second pass, in one sweep of the rows: ``out[m] += Q Y[m]`` (per column, as
+    :func:`lanczos_accumulate`), then the next basis vectors into ``Qp``, in place: ``((M Q - Q alpha) - Qp beta_prev)
+    inv`` with the first pass's ``alpha`` and ``inv = 1 / beta`` (the arithmetic of :func:`lanczos_product`,
+    :func:`lanczos_update` and :func:`lanczos_scale`, so the same basis to the bit, with no sums and a third of the
+    memory traffic). Row ``i`` reads ``Qp[i]`` before writing it and ``Q`` only: safe on any number of threads."""
+    n = Q.shape[0]
+    k = Q.shape[1]
+    sets = Y.shape[0]
+    for b in prange((n + CG_BLOCK - 1) // CG_BLOCK):
+        w = np.empty(k)
+        for i in range(b * CG_BLOCK, min(n, (b + 1) * CG_BLOCK)):
+            for m in range(sets):
+                for c in range(k):
+                    out[m, i, c] += Q[i, c] * Y[m, c]
+            for c in range(k):
+                w[c] = 0.0
+            for t in range(indptr[i], indptr[i + 1]):
+                a = data[t]
+                j = indices[t]
+                for c in range(k):
+                    w[c] += a * Q[j, c]
+            for c in range(k):
+                Qp[i, c] = ((w[c] - Q[i, c] * alpha[c]) - Qp[i, c] * beta_prev[c]) * inv[c]
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def lanczos_scale(W, inv, out):  # pragma: no cover - compiled
     """``out = W inv`` (per column): the next basis vectors."""
     n = W.shape[0]

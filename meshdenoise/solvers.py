@@ -1055,7 +1055,9 @@ class CompiledLanczos(LanczosQuadrature):
     :func:`~meshdenoise.kernels.lanczos_update` (the three-term recurrence, the :math:`\beta` sums) and
     :func:`~meshdenoise.kernels.lanczos_scale`, on numba's threads, the sums by fixed blocks of rows
     (:data:`~meshdenoise.kernels.CG_BLOCK`: the same numbers on any thread count); the second pass of
-    :meth:`apply` runs the same kernels, so it regenerates the first pass's basis to the bit. Per step
+    :meth:`apply` does their arithmetic in one sweep of the rows per step with the first pass's :math:`\alpha`,
+    :math:`\beta` (:func:`~meshdenoise.kernels.lanczos_regenerate`, the results summed in the same sweep), so it
+    regenerates the first pass's basis to the bit. Per step
     a few compiled passes where the numpy recurrence makes about ten, with no Python work per column
     (the spectral searches run hundreds of steps, :mod:`meshdenoise.tuning.spectral`). The numbers
     differ from :class:`LanczosQuadrature`'s in the last places (sums in another order).
@@ -1182,12 +1184,11 @@ class CompiledLanczos(LanczosQuadrature):
         q_prev, q = np.zeros_like(B), np.ascontiguousarray(B * inv)
         beta_prev = np.zeros(k)
         out = np.zeros((len(gs), n, k))
-        W = np.empty_like(q)
-        for i in range(steps):
-            kernels.lanczos_accumulate(q, Y[i], out)
-            self._step(q, q_prev, W, np.ascontiguousarray(alpha[i]), beta_prev)
+        M = self.M
+        for i in range(steps):  # accumulate, product, recurrence and scaling in one sweep: the first pass's basis
             b = np.ascontiguousarray(beta[i])
-            kernels.lanczos_scale(W, np.divide(1.0, b, out=np.zeros(k), where=b > 0), q_prev)
+            kernels.lanczos_regenerate(M.indptr, M.indices, M.data, q, q_prev, np.ascontiguousarray(alpha[i]), beta_prev,
+                                       np.divide(1.0, b, out=np.zeros(k), where=b > 0), np.ascontiguousarray(Y[i]), out)
             q_prev, q = q, q_prev
             beta_prev = b
         return list(out)

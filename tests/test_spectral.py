@@ -265,3 +265,36 @@ def test_compiled_lanczos_applies_as_the_numpy_recurrence_and_its_second_pass_on
     per_axis = run.apply_many([(gs[0], gs[1])])[0]  # column j takes g[j % 2]
     np.testing.assert_array_equal(per_axis[:, 0::2], many[0][:, 0::2])
     np.testing.assert_array_equal(per_axis[:, 1::2], many[1][:, 1::2])
+
+
+def test_compiled_lanczos_second_pass_sweep_is_the_first_pass_kernels_to_the_bit():
+    """The fused second pass (kernels.lanczos_regenerate) against the first pass's kernels (product, update, scale)
+    and lanczos_accumulate run one after the other with the same coefficients: equal to the bit."""
+    from meshdenoise import kernels
+    from meshdenoise.solvers import CompiledLanczos
+
+    _, F, X = _noisy(4)
+    L = get_operators(F, len(X)).L
+    B = np.hstack([L @ X, np.random.default_rng(9).standard_normal((len(X), 5))])
+    run = CompiledLanczos(L, B)
+    gs = [lambda t: 1.0 / (1.0 + 0.7 * t), lambda t: np.exp(-0.3 * t)]
+    got = run.apply_many(gs)
+    coefs = [run._converged_coefficients(g, 1e-10, 10, None, 0.0) for g in gs]  # already converged: the same sizes
+    steps = max(c.size for coef in coefs for c in coef)
+    Y = np.zeros((steps, 2, B.shape[1]))
+    for m, coef in enumerate(coefs):
+        for j, c in enumerate(coef):
+            tail = np.sqrt(np.cumsum((c * c)[::-1]))[::-1]
+            c = c[:max(int(np.count_nonzero(tail > 1e-11 * tail[0])), 1)]
+            Y[: c.size, m, j] = c
+    inv = 1.0 / np.sqrt(run.norms2)
+    q_prev, q, W = np.zeros_like(run._B), np.ascontiguousarray(run._B * inv), np.empty_like(run._B)
+    beta_prev, want = np.zeros(B.shape[1]), np.zeros((2,) + B.shape)
+    for i in range(steps):
+        kernels.lanczos_accumulate(q, np.ascontiguousarray(Y[i]), want)
+        run._step(q, q_prev, W, np.ascontiguousarray(run._alpha[i]), beta_prev)
+        b = np.ascontiguousarray(run._beta[i])
+        kernels.lanczos_scale(W, np.divide(1.0, b, out=np.zeros_like(b), where=b > 0), q_prev)
+        q_prev, q, beta_prev = q, q_prev, b
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
