@@ -13,6 +13,7 @@ import scipy.linalg as sla
 
 from ..geometry import coherent_normals  # re-exported: the filter's normals
 from ..geometry import coherent_normals_derivative, vertex_normals
+from ..multishift import shifted_family_cg
 from ..operators import Operators, spmm
 from ..registry import AutoRule, Param, get_filter, register
 from ..solvers import lanczos_shifted, laplacian_power, shifted_solver
@@ -244,6 +245,8 @@ SOBOLEV_GLS_MARGIN = 8  # ... scoring only its vertices more than this many ring
 SOBOLEV_GLS_SPREAD_SAMPLES = 4  # simulated noise draws of the parametric bootstrap of the normals' spread
 SOBOLEV_GLS_LOOSE_TOL = 1e-6  # on a region, or before the normals search: CG's relative residual per candidate (1e-9
 # on a whole mesh), each solve started from the nearest candidate's solution
+GLS_FAMILY_MIN_BETAS = 2  # a sweep over at least this many betas at one mu solves them by one CG run (shifted_family_cg:
+# Block0.4's sweep 71 -> 21 preconditioner solves, its choice 3.0-3.4 -> 2.4 s; bunny scanner 6.5 -> 5.4 s, the same betas)
 SOBOLEV_GLS_LOOSE_WARM = 4  # ... of the last this many candidates
 GLS_SWEEP_REGION_FROM = 20_000  # before the normals search the beta sweep runs on the region from this size (not
 # REGION_MIN_VERTICES): measured 1.1 to 1.8 times faster on 25k-35k meshes, the same beta but the bunny scanner's
@@ -410,6 +413,27 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
         near = min(warm, key=lambda w: abs(w[0] - math.log10(mu)) + abs(w[1] - math.log10(beta)))
         return near[2]
 
+    presolved: dict[tuple, np.ndarray] = {}  # a sweep's solves at one mu, by one CG run for all its betas
+
+    def presolve(mu: float, betas: tuple) -> None:
+        """The sweep's systems :math:`(I + \\mu L^p + (\\beta - 1) P_T) Y = [P_T (X - X_0), B]` for every ``beta``
+        (> 1, not yet evaluated) at once (:func:`~meshdenoise.multishift.shifted_family_cg`: one CG run preconditioned
+        by the factor of :math:`I + \\mu L^p`, the correction's right-hand side scaled by :math:`\\beta - 1` after)."""
+        todo = [b for b in betas if b != 1.0 and (round(math.log10(mu), 9), float(b)) not in evaluated]
+        if ctx.reference is not None or n <= GLS_DENSE_MAX_VERTICES or len(todo) < GLS_FAMILY_MIN_BETAS:
+            return
+        S = shifted_solver(ctx.ops, mu, order)
+        X0 = S.solve(ctx.V)
+        N = coherent_normals(X0, ctx.F)
+        rhs = np.concatenate([_correction_rhs(N, 2.0, ctx.V, X0)[:, :, None], B], axis=2)  # beta 2: P_T (X - X0)
+        k = rhs.shape[2]
+        outs = shifted_family_cg(lambda Y: S.solve(Y.reshape(n, 3 * k)).reshape(n, 3, k),
+                                 lambda Y: Y - N[:, :, None] * np.sum(N[:, :, None] * Y, axis=1, keepdims=True),
+                                 rhs, [b - 1.0 for b in todo], tol=tol, maxiter=CG_MAXITER)
+        for b, out in zip(todo, outs):
+            out[:, :, 0] *= b - 1.0
+            presolved[(round(math.log10(mu), 9), float(b))] = out
+
     def evaluate(mu: float, beta: float) -> Point:
         key = (round(math.log10(mu), 9), float(beta))
         if key not in evaluated:
@@ -427,9 +451,11 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
                     tr = s * float(np.sum(B * HB))
                 else:
                     # A^-1 b only: b^T A^-1 W b = (A^-1 b)^T W b (A symmetric), and the normals' part needs A^-1 b too
-                    rhs = np.concatenate([_correction_rhs(N, beta, ctx.V, X0)[:, :, None], B], axis=2)
-                    out = normal_weighted_solve(ctx.ops, N, beta, mu, order, rhs, tol=tol,
-                                                x0=start(mu, beta) if loose else None)
+                    out = presolved.pop(key, None)
+                    if out is None:
+                        rhs = np.concatenate([_correction_rhs(N, beta, ctx.V, X0)[:, :, None], B], axis=2)
+                        out = normal_weighted_solve(ctx.ops, N, beta, mu, order, rhs, tol=tol,
+                                                    x0=start(mu, beta) if loose else None)
                     if loose:
                         warm.append((math.log10(mu), math.log10(beta), out))
                         del warm[:-SOBOLEV_GLS_LOOSE_WARM]
@@ -451,6 +477,7 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
     held_mu = "mu" in ctx.given
     mu = float(full["mu"]) if held_mu else float(search_log(lambda m: evaluate(m, beta), ctx.mu_guess(order), golden_steps=6).value)
     if "beta" not in ctx.given:
+        presolve(mu, SOBOLEV_GLS_BETAS)
         beta = min(SOBOLEV_GLS_BETAS, key=lambda b: evaluate(mu, b).score)
         if not held_mu:
             mu = float(search_log(lambda m: evaluate(m, beta), mu, golden_steps=6).value)
