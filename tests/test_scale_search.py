@@ -19,7 +19,7 @@ from meshdenoise import add_normal_noise, apply_filter, choose_parameters, snr
 from meshdenoise.operators import clear_cache, get_operators
 from meshdenoise.operators import Operators
 from meshdenoise.shapes import grid, icosphere, torus
-from meshdenoise.solvers import LanczosQuadrature
+from meshdenoise.solvers import LanczosQuadrature, shifted_cg_bound
 from meshdenoise.tuning.memo import MEMO
 from meshdenoise.tuning import TuningContext
 from meshdenoise.tuning.risk import Criterion, Point, probe_block
@@ -145,6 +145,27 @@ def test_best_shifted_without_coordinates_and_shifted_coordinates_against_dense(
         A = np.eye(ops.n) + mu * np.linalg.matrix_power(ops.L.toarray(), order)
         X = shifted_coordinates(Vn, ops, order, mu)
         np.testing.assert_allclose(X, np.linalg.solve(A, Vn), rtol=0, atol=1e-9 * np.abs(Vn).max())
+
+
+def test_best_shifted_strong_weight_coordinates_by_its_lanczos_run_not_cg(monkeypatch):
+    """Past COORDINATES_CG_BOUND the best point's coordinates come from the search's Lanczos run (no CG), as the
+    dense solve gives them; below it by CG."""
+    import meshdenoise.tuning.search as search
+
+    _, Vn, F = _noisy(torus(30, 15), 0.3)  # strong noise: a large weight
+    ops = Operators(F, len(Vn))
+    calls = []
+    real = search.shifted_coordinates
+    monkeypatch.setattr(search, "shifted_coordinates", lambda *a, **k: calls.append(a[3]) or real(*a, **k))
+    monkeypatch.setattr(search, "COORDINATES_CG_BOUND", 50)  # this small mesh's choice: a bound near 116
+    p = best_shifted(Vn, ops, 2, 0.3, "sure", False, center=30.0, search="quadrature")
+    assert shifted_cg_bound(ops, p.value, 2, 1e-10) > search.COORDINATES_CG_BOUND and not calls
+    A = np.eye(ops.n) + p.value * np.linalg.matrix_power(ops.L.toarray(), 2)
+    np.testing.assert_allclose(p.X, np.linalg.solve(A, Vn), rtol=0, atol=1e-9 * np.abs(Vn).max())
+    monkeypatch.setattr(search, "COORDINATES_CG_BOUND", 1e12)
+    q = best_shifted(Vn, ops, 2, 0.3, "sure", False, center=30.0, search="quadrature")
+    assert calls == [q.value] and q.value == p.value
+    np.testing.assert_allclose(q.X, p.X, rtol=0, atol=1e-9 * np.abs(Vn).max())
 
 
 # --------------------------------------------------------------------------- probes

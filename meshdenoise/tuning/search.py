@@ -15,7 +15,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..operators import Operators, spmm
-from ..solvers import CompiledLanczos, LanczosQuadrature, shifted_factor, shifted_solver
+from ..solvers import CompiledLanczos, LanczosQuadrature, shifted_cg_bound, shifted_factor, shifted_solver
 from .memo import MEMO, digest
 from .risk import N_PROBES, Criterion, Point, as_criterion, probe_block
 from .walk import past_minimum, walk
@@ -48,6 +48,8 @@ __all__ = [
 
 PROBE_REFERENCE_VERTICES = 50_000  # up to this size every search keeps N_PROBES probes (all quality-table meshes)
 MIN_PROBES = 4
+COORDINATES_CG_BOUND = 600  # best_shifted: the best point's coordinates by CG while its bound is at most this, else by
+# the search's own Lanczos run (the elephant's sobolev_axes, order 2, mu = 129: bound 2,429, CG 1.36 s)
 QUADRATURE_MIN_VERTICES = 1_000  # best_shifted(search="auto"): Lanczos quadrature from this size (above the exact-trace
 # meshes), one factor per mu below; the two choose the same mu (scores equal to 1e-12 relative, docs/scale.md)
 SHIFTED_SEARCHES = ("auto", "quadrature", "factor")
@@ -524,7 +526,8 @@ def best_shifted(
         return p
 
     best = search_log(evaluate, center, golden_steps)
-    if best.X is None and coordinates and coordinates_by == "lanczos":
+    strong = best.X is None and coordinates and shifted_cg_bound(ops, best.value, order, 1e-10) > COORDINATES_CG_BOUND
+    if best.X is None and coordinates and (coordinates_by == "lanczos" or strong):
         best.X = quadrature_coordinates(V, at.quadrature, order, best.value)
     if best.X is None and coordinates:
         best.X = shifted_coordinates(V, ops, order, best.value)
