@@ -800,12 +800,14 @@ class LanczosQuadrature:
         return np.array(out)
 
     def evaluate(self, g: Callable[[np.ndarray], np.ndarray], columns=None, *, rtol: float = 1e-10,
-                 check: int = 10) -> np.ndarray | None:
+                 check: int = 10, growth: float = 0.0) -> np.ndarray | None:
         """:math:`b_j^T g(M) b_j` on ``columns``, extending the recurrence until converged.
 
         Converged when the rule changes by at most ``rtol`` (relative, per column) over the
         last ``check`` steps (the error falls geometrically, so the last rule is several times
-        closer); ``None`` if :attr:`max_steps` is reached first.
+        closer); ``None`` if :attr:`max_steps` is reached first. ``growth`` > 0: after a failed test the run is
+        extended by ``max(check, growth x steps)`` steps (as for :meth:`_converged_coefficients`: each test solves
+        every column's tridiagonal eigenproblem at a new size).
         """
         cols = list(range(self._q.shape[1])) if columns is None else list(columns)
         if self.steps < check:
@@ -819,7 +821,7 @@ class LanczosQuadrature:
                 return now
             if k >= self.max_steps:
                 return None
-            self.extend(min(check, self.max_steps - k))
+            self.extend(min(max(check, int(growth * k)), self.max_steps - k))
 
     def _coefficients(self, g: Callable[[np.ndarray], np.ndarray], j: int, k: int) -> np.ndarray:
         """:math:`\\|b_j\\| U g(\\Theta) U^T e_1` of column ``j``'s ``k``-step rule (length ``k``)."""

@@ -178,9 +178,11 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
         residual = lambda x: mu**2 / (1.0 + mu * np.maximum(x, 0.0) ** order) ** 2  # noqa: E731
         trace = lambda x: 1.0 / (1.0 + mu * np.maximum(x, 0.0) ** order)  # noqa: E731
         if quad is None:
-            parts = [one.evaluate(residual, columns=range(3)), one.evaluate(trace, columns=range(3, 3 + 3 * m))]
-        else:
-            parts = [run.evaluate(residual) for run in quad[:3]] + [run.evaluate(trace) for run in quad[3:]]
+            parts = [one.evaluate(residual, columns=range(3), growth=0.25),
+                     one.evaluate(trace, columns=range(3, 3 + 3 * m), growth=0.25)]
+        else:  # growth: tests at geometrically spaced sizes (the elephant's strong weights: 4.5 -> 4.0 s)
+            parts = [run.evaluate(residual, growth=0.25) for run in quad[:3]] + [
+                run.evaluate(trace, growth=0.25) for run in quad[3:]]
         if any(part is None for part in parts):
             return None
         r, q = (parts[0], parts[1]) if quad is None else (np.concatenate(parts[:3]), np.concatenate(parts[3:]))

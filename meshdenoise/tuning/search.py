@@ -436,8 +436,8 @@ def shifted_quadrature(V: np.ndarray, ops: Operators, order: int, Z: np.ndarray,
     res_cols, probe_cols = range(3), range(3, 3 + Z.shape[1])
 
     def evaluate(mu: float) -> Point | None:
-        r = quad.evaluate(lambda t: mu**2 / (1.0 + mu * np.maximum(t, 0.0) ** order) ** 2, res_cols)
-        t = quad.evaluate(lambda t: 1.0 / (1.0 + mu * np.maximum(t, 0.0) ** order), probe_cols)
+        r = quad.evaluate(lambda t: mu**2 / (1.0 + mu * np.maximum(t, 0.0) ** order) ** 2, res_cols, growth=0.25)
+        t = quad.evaluate(lambda t: 1.0 / (1.0 + mu * np.maximum(t, 0.0) ** order), probe_cols, growth=0.25)
         if r is None or t is None:
             return None
         return Point(mu, float(r.sum()), s * float(t.sum()), None)
