@@ -184,3 +184,27 @@ def test_log_search_first_grid_points_added_are_not_evaluated_again():
         s.add(mu, f(mu))
     assert np.allclose(s.first_grid(), grid[3:])
     assert s.bracket().value == LogSearch(f, 1.0).bracket().value and np.allclose(seen, grid[3:])
+
+
+def test_past_an_edge_length_of_noise_the_rule_scores_by_quadrature_as_by_its_solves(monkeypatch):
+    """Tangential 1 (noise past an edge length): the update is H X, so SURE's residual and divergence are Gauss
+    quadratures of L from one Lanczos run (no solve per candidate): the same order and mu as the solves give."""
+    import meshdenoise.plugins.sobolev_normal as sn
+    import meshdenoise.tuning.spectral as spectral_module
+    from meshdenoise.geometry import vertex_normals as vn
+    from meshdenoise.shapes import icosphere
+    from meshdenoise.solvers import CompiledLanczos
+    from meshdenoise.tuning.choose import choose_parameters
+
+    V0, F = icosphere(4)  # 2,562 vertices: at least SPECTRAL_MIN_VERTICES
+    h = float(np.linalg.norm(V0[F[:, 0]] - V0[F[:, 1]], axis=1).mean())
+    rho = 1.5 * h
+    X = V0 + rho * np.random.default_rng(4).standard_normal(len(V0))[:, None] * vn(V0, F)
+    runs = []
+    monkeypatch.setattr(sn, "CompiledLanczos", lambda *a, **k: runs.append(a[1].shape) or CompiledLanczos(*a, **k))
+    fast = choose_parameters((X, F), "sobolev_normal", noise=rho)
+    assert fast["tangential"] == 1.0
+    assert runs == [(len(X), 3 * len(sn.SOBOLEV_NORMAL_ORDERS) + 3 * sn.SOBOLEV_NORMAL_PROBES)]
+    monkeypatch.setattr(spectral_module, "SPECTRAL_MIN_VERTICES", 10**9)  # every candidate by its solve
+    direct = choose_parameters((X, F), "sobolev_normal", noise=rho)
+    assert fast["order"] == direct["order"] and fast["mu"] == pytest.approx(direct["mu"], rel=1e-6)

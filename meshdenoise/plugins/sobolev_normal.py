@@ -55,6 +55,7 @@ SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES = 20_000  # the whole-mesh rule's candi
 SOBOLEV_NORMAL_RULE_LANCZOS_REACH = 50.0  # ... near enough: d_max mu^(1/p) at most this (the steps grow like its square
 # root, a factor costs the same at any mu: the elephant's grid reached mu = 10^3.9, 1.9 s a candidate by Lanczos at 1e-10;
 # at the searches' 1e-6, 25 -> 50 took the bunny scanner's two factored candidates into the run, 3.7 -> 3.2 s)
+SOBOLEV_NORMAL_QUADRATURE_MAX_STEPS = 1000  # tangential 1: the quadrature run's steps before a candidate is solved instead
 SOBOLEV_NORMAL_BATCH_BYTES = 256 << 20  # ... both orders' first grids in one second pass while their results take at most
 # this many bytes (Bunny0.2: 10 candidates of 51 columns, 142 MB; one pass fewer than a pass per order)
 SOBOLEV_NORMAL_REGION = 16_000  # from search.REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices
@@ -172,7 +173,9 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     0.5 %, ``tangential`` 0.64, where SURE loses 0.02).
 
     ``H`` is linear, so :math:`f(X + \\delta b) = Y + \\delta H b` projected on the normals of
-    that point: one factorisation per ``mu`` serves the ``3 + 3K`` right-hand sides. Using
+    that point: one factorisation per ``mu`` serves the ``3 + 3K`` right-hand sides (with ``tangential`` 1 the
+    update is :math:`HX` itself and both terms are Gauss quadratures of ``L`` from one Lanczos run, no solve per
+    candidate: the elephant's rule 5.2 -> 1.7 s, the same choice). Using
     :math:`\\mathrm{tr} H` instead (normals held pinned) under-estimates the risk of strong
     smoothing (Nefertiti rho = 0.2: divergence 70.7 vs trace 53.7 at the best mu).
     ``tangential`` = :func:`_tangential_share` of the noise per edge length of that mesh
@@ -224,8 +227,36 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     # run on L (H rhs = rhs - mu f(L) L rhs, f(t) = t^(p-1) / (1 + mu t^p)), a compiled second pass each, no factor
     run, d_max = None, float(ctx.ops.degree.max()) if n else 0.0
     tol = spectral_module.SPECTRAL_TOL  # a search's scores, to about 1e-6 (tuning/spectral.py), not the filter's 1e-10
-    if pinned is None and scored is None and n >= SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES:
+    # tangential 1 (noise past an edge length): the update is H X itself, the filter linear, and SURE's two terms are
+    # quadratures of L, ||HX - X||^2 = c^T mu^2 (I + mu L^p)^-2 c (c = L^p X) and b^T H b, from one Lanczos run for
+    # every candidate of both orders, no solve (the divergence through perturbed normals is b^T H b to rounding)
+    quad = None
+    if (t == 1.0 and pinned is None and scored is None and ctx.reference is None
+            and n >= spectral_module.SPECTRAL_MIN_VERTICES):
+        highs = []
+        for order in orders:
+            c = np.ascontiguousarray(ctx.V, dtype=np.float64)
+            for _ in range(order):
+                c = spmm(ctx.ops.L, c)
+            highs.append(c)
+        quad = CompiledLanczos(ctx.ops.L, np.hstack(highs + [Bp]), max_steps=SOBOLEV_NORMAL_QUADRATURE_MAX_STEPS)
+    elif pinned is None and scored is None and n >= SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES:
         run = CompiledLanczos(ctx.ops.L, spmm(ctx.ops.L, np.ascontiguousarray(rhs)), max_steps=LANCZOS_SHIFTED_MAX_STEPS)
+
+    def linear_point(mu: float, order: int) -> Point | None:
+        """The candidate's SURE terms by quadrature (``quad``); ``None`` if a rule has not converged."""
+        i = orders.index(order)
+        # to 1e-10 as the Sobolev rules' quadrature (search.shifted_quadrature): Gauss rules need no second pass, and
+        # at 1e-6 the refinement's parabola moved the elephant's mu by 1.6e-6
+        r = quad.evaluate(lambda x: mu**2 / (1.0 + mu * np.maximum(x, 0.0) ** order) ** 2, range(3 * i, 3 * i + 3),
+                          growth=0.25)
+        tr = quad.evaluate(lambda x: 1.0 / (1.0 + mu * np.maximum(x, 0.0) ** order),
+                           range(3 * len(orders), 3 * len(orders) + Bp.shape[1]), growth=0.25)
+        if r is None or tr is None:
+            return None
+        p = Point(mu, float(r.sum()), float(tr.sum()) / K, None)
+        p.score = ctx.criterion.score(p, n_scored, ctx.rho)
+        return p
     searches: dict[int, LogSearch] = {}
 
     def by_lanczos(mu: float, order: int) -> bool:
@@ -246,6 +277,8 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
         key = digest(ctx.ops.F, order, rhs)
 
         def evaluate(mu: float, order=order, key=key) -> Point:
+            if quad is not None and (p := linear_point(mu, order)) is not None:
+                return p
             held = pinned_values(mu, order) if pinned is not None else None
             if held is not None:  # the probes are zero there, and the held values do not follow them
                 rhs_p = rhs.copy()
