@@ -89,15 +89,17 @@ def test_lanczos_recurrence_in_place_gives_the_same_numbers_bit_for_bit():
 
 
 def test_sobolev_axes_large_path_uses_one_run_and_equals_the_factor_filter(monkeypatch):
-    """One factor-free solve per axis with a weight, at FILTER_LANCZOS_TOL, equal to the factor path."""
+    """The axes with a weight by one compiled Lanczos run (one function per column), no factor, equal to the factor
+    path; a run past its steps falls back to a factor-free solve per axis."""
     import meshdenoise.plugins.sobolev_axes as ax
+    from meshdenoise.solvers import CompiledLanczos
 
     V, F = icosphere(3)
     Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
     params = dict(mu1=0.3, mu2=0.0, mu3=4.0, order=3, frame_steps=2)
     clear_cache()
     before = apply_filter("sobolev_axes", (Vn, F), **params)[0]
-    calls = []
+    runs, calls = [], []
     real = ax.lanczos_shifted
 
     def spy(ops, X, mu, order, **kw):
@@ -106,11 +108,18 @@ def test_sobolev_axes_large_path_uses_one_run_and_equals_the_factor_filter(monke
 
     monkeypatch.setattr(ax, "AXES_LANCZOS_MIN_VERTICES", 0)
     monkeypatch.setattr(ax, "lanczos_shifted", spy)
+    monkeypatch.setattr(ax, "CompiledLanczos", lambda *a, **k: runs.append(a[1].shape) or CompiledLanczos(*a, **k))
     monkeypatch.setattr(ax, "shifted_solver", lambda *a, **k: pytest.fail("a factor was built"))
     clear_cache()
     after = apply_filter("sobolev_axes", (Vn, F), **params)[0]
-    assert calls == [(0.3, 1e-10), (4.0, 1e-10)]  # an axis with mu = 0 is not solved
+    assert runs == [(len(Vn), 2)] and not calls  # an axis with mu = 0 is not solved
     np.testing.assert_allclose(after, before, atol=1e-11)
+    monkeypatch.setattr(ax, "LANCZOS_SHIFTED_MAX_STEPS", 3)  # the run gives up: each axis on its own
+    clear_cache()
+    runs.clear()
+    again = apply_filter("sobolev_axes", (Vn, F), **params)[0]
+    assert runs == [(len(Vn), 2)] and calls == [(0.3, 1e-10), (4.0, 1e-10)]
+    np.testing.assert_allclose(again, before, atol=1e-11)
 
 
 def test_sobolev_axes_with_held_vertices_by_cg_equals_its_factor(monkeypatch):
