@@ -681,8 +681,10 @@ class HeldByProduct(DirichletSystem):
 
     @property
     def nbytes(self) -> int:
-        """Approximate memory held: the matrices (and a fallback factor; the free factors are stored on their own)."""
-        return super().nbytes + nbytes(self._matrix) + (self._factor.nbytes if self._factor is not None else 0)
+        """Approximate memory held: the matrices, the free factors (counted here too: this solver keeps them alive when
+        the cache has let them go) and a fallback factor."""
+        return (super().nbytes + nbytes(self._matrix) + self.product.nbytes
+                + (self._factor.nbytes if self._factor is not None else 0))
 
     def solve(self, X: np.ndarray, *, tol: float = HELD_CG_TOL, maxiter: int | None = None) -> np.ndarray:
         """``Y`` of the shape of ``X`` (n,) or (n, k): ``Y_p = X_p`` bit for bit, the free rows to a relative residual
