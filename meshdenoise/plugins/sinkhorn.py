@@ -134,7 +134,7 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
     if lanczos:
         family = lambda tk: heat_kernel_spectral(ctx.ops, tk[0], steps, tk[1])  # noqa: E731
         spectral = SpectralSearch(ctx.V, family)
-        spectral.spectral((1.0, 1))  # the matrix every (t, k) shares, for the probes' run
+        spectral.spectral((ctx.mu_guess(1), 1))  # the search's start: its matrix (every (t, k)'s) for the probes' run
         terms = spectral.probes(Z, [np.where(np.asarray(rows)[:, None], Z, 0.0) if scored is not None else Z])
         exact_path = path
 
