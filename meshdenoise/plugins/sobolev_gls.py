@@ -417,6 +417,15 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
         return near[2]
 
     presolved: dict[tuple, np.ndarray] = {}  # a sweep's solves at one mu, by one CG run for all its betas
+    isotropic: dict[float, tuple] = {}  # the last mu's solver, X0 and normals: a sweep's betas share them
+
+    def isotropic_at(mu: float) -> tuple:
+        if mu not in isotropic:
+            isotropic.clear()
+            S = shifted_solver(ctx.ops, mu, order)
+            X0 = S.solve(ctx.V)
+            isotropic[mu] = (S, X0, coherent_normals(X0, ctx.F))
+        return isotropic[mu]
 
     def presolve(mu: float, betas: tuple) -> None:
         """The sweep's systems :math:`(I + \\mu L^p + (\\beta - 1) P_T) Y = [P_T (X - X_0), B]` for every ``beta``
@@ -425,9 +434,7 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
         todo = [b for b in betas if b != 1.0 and (round(math.log10(mu), 9), float(b)) not in evaluated]
         if ctx.reference is not None or n <= GLS_DENSE_MAX_VERTICES or len(todo) < GLS_FAMILY_MIN_BETAS:
             return
-        S = shifted_solver(ctx.ops, mu, order)
-        X0 = S.solve(ctx.V)
-        N = coherent_normals(X0, ctx.F)
+        S, X0, N = isotropic_at(mu)
         rhs = np.concatenate([_correction_rhs(N, 2.0, ctx.V, X0)[:, :, None], B], axis=2)  # beta 2: P_T (X - X0)
         k = rhs.shape[2]
         outs = shifted_family_cg(lambda Y: S.solve(Y.reshape(n, 3 * k)).reshape(n, 3, k),
@@ -440,9 +447,7 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
     def evaluate(mu: float, beta: float) -> Point:
         key = (round(math.log10(mu), 9), float(beta))
         if key not in evaluated:
-            S = shifted_solver(ctx.ops, mu, order)
-            X0 = S.solve(ctx.V)
-            N = coherent_normals(X0, ctx.F)
+            S, X0, N = isotropic_at(mu)
             if ctx.reference is not None:
                 X = X0 if beta == 1.0 else X0 + normal_weighted_solve(ctx.ops, N, beta, mu, order, _correction_rhs(N, beta, ctx.V, X0))
                 p = Point(mu, float(np.sum((X - ctx.V) ** 2)), 0.0, X)
