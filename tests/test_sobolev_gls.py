@@ -104,6 +104,66 @@ def test_sobolev_gls_pinned_vertices_solve_the_reduced_dense_system(solve_path):
     np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
 
 
+@pytest.mark.parametrize("order", [2, 3])
+def test_sobolev_gls_factor_free_path_with_held_rows_solves_the_reduced_dense_system(monkeypatch, order):
+    """With held rows (the border option's second run) and CG's bound under GLS_FACTOR_FREE_CG_BOUND the filter
+    factorises nothing either: Jacobi CG for the isotropic pass, block-Jacobi CG on the free rows for the correction.
+    The reference is the reduced dense system, as in the test above."""
+    import meshdenoise.plugins.sobolev_gls as sg
+    from meshdenoise.operators import clear_cache
+
+    V, F = icosphere(2)
+    Vn, _ = add_normal_noise((V, F), 0.03, seed=3)
+    n = len(V)
+    Lp = np.linalg.matrix_power(_dense_L(F, n), order)
+    mu, beta, pinned = 0.3, 6.0, np.arange(7)
+    free = np.setdiff1d(np.arange(n), pinned)
+    Ai = np.eye(n) + mu * Lp
+    X0 = Vn.copy()
+    X0[free] = np.linalg.solve(Ai[np.ix_(free, free)], Vn[free] - Ai[np.ix_(free, pinned)] @ Vn[pinned])
+    N = coherent_normals(X0, F)
+    W, A = _dense_system(N, beta, mu, Lp)
+    f3 = (3 * free[:, None] + np.arange(3)).ravel()
+    p3 = (3 * pinned[:, None] + np.arange(3)).ravel()
+    x = Vn.ravel()
+    y = x.copy()
+    y[f3] = np.linalg.solve(A[np.ix_(f3, f3)], (W @ x)[f3] - A[np.ix_(f3, p3)] @ x[p3])
+    monkeypatch.setattr(sg, "GLS_FACTOR_FREE_MIN_VERTICES", 0)
+    monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", np.inf)
+    monkeypatch.setattr(sg, "GLS_ITERATIVE_TOL", 1e-12)
+    clear_cache()
+    real = sg.shifted_solver
+    monkeypatch.setattr(sg, "shifted_solver", lambda *a, **k: real(*a, **k) if a[4:] == ("cg",)
+                        else pytest.fail("a factor was built"))
+    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=order, pinned=pinned)[0]
+    assert np.array_equal(got[pinned], Vn[pinned])
+    np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
+    # the gate: a stored factor, or a bound above the limit, keeps the factor path (here: the test fails on a factor)
+    monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", 0.0)
+    with pytest.raises(pytest.fail.Exception, match="a factor was built"):
+        apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=order, pinned=pinned)
+
+
+def test_normal_weighted_cg_with_held_rows_solves_the_reduced_system():
+    from meshdenoise.plugins.sobolev_gls import normal_weighted_cg
+
+    V, F = icosphere(2)
+    n = len(V)
+    ops = get_operators(F, n)
+    N = _unit_normals(V + 0.05 * np.random.default_rng(0).standard_normal(V.shape), F)
+    B = np.random.default_rng(1).standard_normal((n, 3))
+    held = np.zeros(n, dtype=bool)
+    held[[0, 5, 9, 30]] = True
+    x0 = np.where(held[:, None], np.random.default_rng(2).standard_normal((n, 3)), 0.0)  # Dirichlet data
+    _, A = _dense_system(N, 8.0, 0.5, np.linalg.matrix_power(_dense_L(F, n), 3))
+    f3 = np.repeat(~held, 3)
+    y = x0.ravel().copy()
+    y[f3] = np.linalg.solve(A[np.ix_(f3, f3)], B.ravel()[f3] - A[np.ix_(f3, ~f3)] @ y[~f3])
+    Y, ok = normal_weighted_cg(ops, N, 8.0, 0.5, 3, B, tol=1e-12, x0=x0, pinned=held)
+    assert ok and np.array_equal(Y[held], x0[held])
+    np.testing.assert_allclose(Y.ravel(), y, atol=1e-9)
+
+
 @pytest.mark.parametrize("rho, gcv_regime, mu, beta", [(0.03, True, 0.3, 5.0), (0.4, False, 2.0, 3.0)])
 def test_sobolev_gls_risk_equals_the_dense_estimate_with_the_normals_jacobian(rho, gcv_regime, mu, beta, solve_path):
     """With exact traces the rule's score is built from the full Jacobian J of the filter (normals included).

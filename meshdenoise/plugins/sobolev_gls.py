@@ -14,9 +14,9 @@ import scipy.linalg as sla
 from ..geometry import coherent_normals  # re-exported: the filter's normals
 from ..geometry import coherent_normals_derivative, vertex_normals
 from ..multishift import shifted_family_cg
-from ..operators import Operators, spmm
+from ..operators import Operators, mask_key, spmm
 from ..registry import AutoRule, Param, get_filter, register
-from ..solvers import lanczos_shifted, laplacian_power, shifted_solver
+from ..solvers import FILTER_LANCZOS_TOL, lanczos_shifted, laplacian_power, shifted_cg_bound, shifted_solver
 from ..tuning.context import TuningContext
 from ..tuning.noise_level import mean_edge_length, normal_spread, normal_trust
 from ..tuning.risk import Point, gcv
@@ -142,6 +142,10 @@ def _dense_normal_weighted_solve(
 
 
 GLS_ITERATIVE_MIN_VERTICES = 50_000  # without pinned vertices the filter factorises nothing from this size
+GLS_FACTOR_FREE_MIN_VERTICES = 20_000  # ... nor, held rows or not, from this size while CG's bound for I + mu L^p at
+GLS_FACTOR_FREE_CG_BOUND = 700  # GLS_ITERATIVE_TOL is at most this: measured, factor-free (Lanczos or Jacobi CG, then
+# block-Jacobi CG) against a factor and CG preconditioned by it, beta 12, cold: Bunny0.2 0.21 against 0.86 s at mu 0.1,
+# the two equal near a bound of 1,000 (mu 4), the elephant near 760 (mu 3 to 10), face000 near 710 (mu 10 to 12)
 GLS_JACOBI_MAX_ITERATIONS = 3000  # block-Jacobi CG's cap before the Lanczos-preconditioned solve takes over
 GLS_ITERATIVE_TOL = 1e-4  # block-Jacobi CG's relative residual in the filter. A >= I, so the correction's error is at
 # most tol ||b|| <= tol (beta - 1) ||X - X0||: about 1e-3 rho RMS at beta = 12. Measured at 400k (mu = 3.6, beta = 12):
@@ -162,8 +166,9 @@ def _laplacian_power_diagonal(ops: Operators, order: int) -> np.ndarray:
 def normal_weighted_cg(
     ops: Operators, N: np.ndarray, beta: float, mu: float, order: int, B: np.ndarray,
     tol: float = CG_TOL, maxiter: int = GLS_JACOBI_MAX_ITERATIONS, x0: np.ndarray | None = None,
+    pinned: np.ndarray | None = None,
 ) -> tuple[np.ndarray, bool]:
-    """:math:`(W + \\mu L^p \\otimes I_3)\\, Y = B` (``B`` (n, 3)) by block-Jacobi CG, nothing factorised, no pinned rows.
+    """:math:`(W + \\mu L^p \\otimes I_3)\\, Y = B` (``B`` (n, 3)) by block-Jacobi CG, nothing factorised.
 
     The operator is applied matrix-free (``p`` products with ``L`` on the three columns, not
     :math:`L^p`); the preconditioner is the inverse of its 3 x 3 diagonal blocks
@@ -175,9 +180,11 @@ def normal_weighted_cg(
     :math:`\\sqrt{\\mu}\\,\\lambda_{max}^{p/2}` (no longer bounded by :math:`\\sqrt\\beta` as
     :func:`normal_weighted_solve`'s), but each costs ``p`` products on three columns where the
     factor-preconditioned iteration costs a solve with the factor of :math:`I + \\mu L^p` (at 100k
-    vertices and ``p = 3``: a 20 s factorisation). ``x0`` (n, 3): a starting guess. Returns
-    ``(Y, converged)`` (relative residual ``tol``, relative to ``B``, within ``maxiter`` iterations).
-    The vector work of an iteration is done in place (no (n, 3) temporaries beyond the products').
+    vertices and ``p = 3``: a 20 s factorisation). ``x0`` (n, 3): a starting guess. ``pinned`` (bool (n,),
+    optional): rows held at ``x0``'s values (zero without it), the free rows solving the reduced system (as
+    :func:`normal_weighted_solve`). Returns ``(Y, converged)`` (relative residual ``tol`` of the free rows, relative
+    to ``B``'s, within ``maxiter`` iterations). The vector work of an iteration is done in place (no (n, 3)
+    temporaries beyond the products').
     """
     n = N.shape[0]
     L = ops.L
@@ -196,6 +203,10 @@ def normal_weighted_cg(
         Z -= (bm1 * np.einsum("ij,ij->i", N, Y))[:, None] * N
         return Z
 
+    held = None if pinned is None or not np.any(pinned) else np.asarray(pinned, dtype=bool)
+    if held is not None:  # the reduced system: no scaling on the held rows keeps every search direction zero there
+        inv_a = np.where(held[:, None], 0.0, inv_a)
+
     def prec(R):
         Z = (g * np.einsum("ij,ij->i", N, R))[:, None] * N
         Z += R
@@ -206,6 +217,8 @@ def normal_weighted_cg(
         return float(np.einsum("ij,ij->", a, b))
 
     B = np.ascontiguousarray(B, dtype=np.float64)
+    if held is not None:
+        B = np.where(held[:, None], 0.0, B)
     norm0 = math.sqrt(dot(B, B)) + 1e-300
     if x0 is None:
         Y = np.zeros((n, 3))
@@ -213,6 +226,8 @@ def normal_weighted_cg(
     else:
         Y = np.array(x0, dtype=np.float64)
         R = B - A(Y)
+        if held is not None:
+            R[held] = 0.0
     Z = prec(R)
     P = Z.copy()
     rz = dot(R, Z)
@@ -220,6 +235,8 @@ def normal_weighted_cg(
         if math.sqrt(dot(R, R)) <= tol * norm0:
             return Y, True
         AP = A(P)
+        if held is not None:
+            AP[held] = 0.0
         pap = dot(P, AP)
         if pap <= 0:
             break
@@ -575,7 +592,8 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order):
     The system couples the three coordinates; it is solved by conjugate gradients
     preconditioned with the cached Cholesky factor of :math:`I + \\mu L^p`
     (:func:`normal_weighted_solve`, spectrum in :math:`[1, \\beta]`), for the correction
-    :math:`Y - \\hat X`. For pinned normals
+    :math:`Y - \\hat X`; with no factor stored, from 50,000 vertices, or from 20,000 while the weight is weak
+    (``GLS_FACTOR_FREE_CG_BOUND``), nothing is factorised (:func:`normal_weighted_cg`). For pinned normals
     the map is linear; the filter is translation and rotation equivariant.
     ``meshdenoise.auto.choose_parameters`` picks ``mu`` and ``beta`` by SURE; ``denoise(mesh,
     method="sobolev_gls")`` then moves ``mu`` to the least estimated face-normal error (criterion
@@ -624,7 +642,7 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order):
     if F.shape[0] == 0 or mu == 0:
         return X
     if _iterative(ops, mu, order, pinned):
-        return _sobolev_gls_iterative(X, F, ops, mu, beta, order)
+        return _sobolev_gls_iterative(X, F, ops, mu, beta, order, pinned)
     X0 = shifted_solver(ops, mu, order, pinned).solve(X)
     if beta == 1.0:
         return X0
@@ -633,28 +651,45 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order):
 
 
 def _iterative(ops: Operators, mu: float, order: int, pinned: np.ndarray | None) -> bool:
-    """Whether :func:`sobolev_gls` factorises nothing: from ``GLS_ITERATIVE_MIN_VERTICES`` vertices, no pinned
-    vertex, and no factor of :math:`I + \\mu L^p` stored already."""
-    if ops.n < GLS_ITERATIVE_MIN_VERTICES or (pinned is not None and pinned.any()):
+    """Whether :func:`sobolev_gls` factorises nothing: no factor of :math:`I + \\mu L^p` stored already (with
+    ``pinned``'s rows held, or free: held rows' product form preconditions by it), and from
+    ``GLS_ITERATIVE_MIN_VERTICES`` vertices with none held, or from ``GLS_FACTOR_FREE_MIN_VERTICES`` while CG's bound
+    (:func:`~meshdenoise.solvers.shifted_cg_bound` at ``GLS_ITERATIVE_TOL``) is at most ``GLS_FACTOR_FREE_CG_BOUND``."""
+    held = pinned is not None and bool(np.any(pinned))
+    stored = ops.cache.get(f"shifted-p{order}-cholesky", {})
+    if (float(mu), None) in stored or (held and (float(mu), mask_key(pinned)) in stored):
         return False
-    return (float(mu), None) not in ops.cache.get(f"shifted-p{order}-cholesky", {})
+    if ops.n >= GLS_ITERATIVE_MIN_VERTICES and not held:
+        return True
+    return (ops.n >= GLS_FACTOR_FREE_MIN_VERTICES
+            and shifted_cg_bound(ops, mu, order, GLS_ITERATIVE_TOL) <= GLS_FACTOR_FREE_CG_BOUND)
 
 
-def _sobolev_gls_iterative(X: np.ndarray, F: np.ndarray, ops: Operators, mu: float, beta: float, order: int) -> np.ndarray:
-    """:func:`sobolev_gls` on a large mesh: :math:`X_0` by two Lanczos passes (:func:`~meshdenoise.solvers.lanczos_shifted`),
-    the correction by block-Jacobi CG (:func:`normal_weighted_cg`), else CG preconditioned by Lanczos solves."""
+def _sobolev_gls_iterative(X: np.ndarray, F: np.ndarray, ops: Operators, mu: float, beta: float, order: int,
+                           pinned: np.ndarray | None = None) -> np.ndarray:
+    """:func:`sobolev_gls` without a factor: :math:`X_0` by two Lanczos passes (:func:`~meshdenoise.solvers.lanczos_shifted`)
+    or, with held rows, by Jacobi CG on the free rows (from the input, as ``sobolev_axes``' held run); the correction
+    by block-Jacobi CG (:func:`normal_weighted_cg`), else by CG preconditioned by Lanczos solves (a factor with held
+    rows)."""
+    held = pinned is not None and bool(np.any(pinned))
+
     def shifted(R: np.ndarray) -> np.ndarray:
         Y = lanczos_shifted(ops, R, mu, order, tol=1e-12)
         return shifted_solver(ops, mu, order).solve(R) if Y is None else Y
 
-    X0 = shifted(X)
+    if held:
+        bound = shifted_cg_bound(ops, mu, order, FILTER_LANCZOS_TOL)
+        X0 = shifted_solver(ops, mu, order, pinned, "cg").solve(X, tol=FILTER_LANCZOS_TOL, x0=X,
+                                                               maxiter=int(4 * math.ceil(bound)) + 50)
+    else:
+        X0 = shifted(X)
     if beta == 1.0:
         return X0
     N = coherent_normals(X0, F)
     rhs = _correction_rhs(N, beta, X, X0)
-    D, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs, tol=GLS_ITERATIVE_TOL)
-    if not ok:  # a very large mu: the factor-free preconditioned iteration, its count bounded by sqrt(beta)
-        D = normal_weighted_solve(ops, N, beta, mu, order, rhs, x0=D, prec=shifted)
+    D, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs, tol=GLS_ITERATIVE_TOL, pinned=pinned)
+    if not ok:  # a very large mu: the factor-preconditioned iteration, its count bounded by sqrt(beta)
+        D = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, x0=D, prec=None if held else shifted)
     return X0 + D
 
 
