@@ -61,7 +61,27 @@ def solve_path(request, monkeypatch):
 
     if request.param == "cg":
         monkeypatch.setattr(sg, "GLS_DENSE_MAX_VERTICES", 0)
+        monkeypatch.setattr(sg, "GLS_FILTER_TOL", 1e-12)  # its own tolerance's bound: the test below
     return request.param
+
+
+def test_sobolev_gls_filter_tolerance_bounds_its_error_against_the_dense_solve(monkeypatch):
+    """At the filter's CG tolerance (GLS_FILTER_TOL) the correction D solves A D = b with A >= I, so the error is at
+    most tol ||b|| <= tol (beta - 1) ||X - X0||; and it is not exact (the tolerance is what the filter runs at)."""
+    import meshdenoise.plugins.sobolev_gls as sg
+
+    monkeypatch.setattr(sg, "GLS_DENSE_MAX_VERTICES", 0)
+    V, F = torus(12, 6)
+    Vn, _ = add_normal_noise((V, F), 0.03, seed=1)
+    n = len(V)
+    L3 = np.linalg.matrix_power(_dense_L(F, n), 3)
+    mu, beta = 0.4, 12.0
+    expected = _dense_gls(Vn.ravel(), F, L3, mu, beta).reshape(n, 3)
+    X0 = np.linalg.solve(np.eye(n) + mu * L3, Vn)
+    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=3)[0]
+    error = np.linalg.norm(got - expected)
+    assert error <= sg.GLS_FILTER_TOL * (beta - 1.0) * np.linalg.norm(Vn - X0)
+    assert error > 1e-13
 
 
 def test_sobolev_gls_matches_a_dense_generalised_least_squares_solve(solve_path):

@@ -28,6 +28,8 @@ log = logging.getLogger("meshdenoise.auto")
 __all__ = ["sobolev_gls", "normal_weighted_solve", "coherent_normals", "sobolev_gls_map"]
 
 CG_TOL = 1e-9  # relative residual of the preconditioned conjugate gradient
+GLS_FILTER_TOL = 1e-6  # ... in the filter: A >= I, so the correction's error is at most tol ||b|| <= tol (beta - 1)
+# ||X - X0||, 1.1e-5 of the isotropic pass's change at beta = 12 (bunny scanner: 25 -> 17 steps; GLS_ITERATIVE_TOL: 1e-4)
 CG_MAXITER = 300
 GLS_DENSE_MAX_VERTICES = 400  # up to this many vertices the 3n x 3n system is factorised densely: the exact traces'
 # 3n right-hand sides made ~10 CG iterations of 3n columns each (a 162-vertex sphere's choice: 11 s -> under 1 s)
@@ -653,7 +655,8 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order):
     if beta == 1.0:
         return X0
     N = coherent_normals(X0, F)
-    return X0 + normal_weighted_solve(ops, N, beta, mu, order, _correction_rhs(N, beta, X, X0), pinned)
+    return X0 + normal_weighted_solve(ops, N, beta, mu, order, _correction_rhs(N, beta, X, X0), pinned,
+                                      tol=GLS_FILTER_TOL)
 
 
 def _iterative(ops: Operators, mu: float, order: int, pinned: np.ndarray | None) -> bool:
