@@ -564,6 +564,47 @@ def lanczos_scale(W, inv, out):  # pragma: no cover - compiled
             out[i, c] = W[i, c] * inv[c]
 
 
+@njit(cache=True, nogil=True, error_model="numpy")
+def shifted_tridiagonal_solves(alpha, beta, sizes, mu, order, out):  # pragma: no cover - compiled
+    """``out[:k_j, j] = (I + mu T_j^p)^{-1} e_1``, ``T_j`` the symmetric tridiagonal of column ``j``'s first ``k_j =
+    sizes[j]`` steps (diagonal ``alpha[:k_j, j]``, off-diagonal ``beta[:k_j - 1, j]``), zero below ``k_j``.
+
+    ``1 + mu x^p = mu prod_m (x - z_m)`` over its roots ``z_m = a exp(i pi (2m + 1) / p)``, ``a = mu^(-1/p)``: one
+    Thomas recurrence per root, in turn (a product of inverses, no sum: partial fractions cancel to 1e-9 where the
+    result is small), each without pivoting (``T - z I`` has a definite imaginary part, or is SPD for the real root
+    ``-a``); the result is real up to rounding, its real part kept. ``out`` (kmax, c), written."""
+    kmax = out.shape[0]
+    c = out.shape[1]
+    a = mu ** (-1.0 / order)
+    w = np.empty(kmax, dtype=np.complex128)
+    cp = np.empty(kmax, dtype=np.complex128)
+    for j in range(c):
+        k = sizes[j]
+        for i in range(kmax):
+            out[i, j] = 0.0
+        if k == 0:
+            continue
+        for i in range(k):
+            w[i] = 0.0
+        w[0] = 1.0
+        for m in range(order):
+            angle = np.pi * (2 * m + 1) / order
+            z = complex(a * np.cos(angle), a * np.sin(angle))
+            if 2 * m + 1 == order:
+                z = complex(-a, 0.0)  # exactly real
+            d = alpha[0, j] - z
+            cp[0] = beta[0, j] / d if k > 1 else 0.0
+            w[0] = w[0] / d
+            for i in range(1, k):
+                d = (alpha[i, j] - z) - beta[i - 1, j] * cp[i - 1]
+                cp[i] = beta[i, j] / d if i < k - 1 else 0.0
+                w[i] = (w[i] - beta[i - 1, j] * w[i - 1]) / d
+            for i in range(k - 2, -1, -1):
+                w[i] = w[i] - cp[i] * w[i + 1]
+        for i in range(k):
+            out[i, j] = w[i].real / mu
+
+
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def patch_scores(N, A, indptr, indices, edge_a, edge_b, patch_ptr, patch_edge, g, H, phi):  # pragma: no cover
     """Mean normal ``g`` (m, 3) and inconsistency ``H`` (m,) of every patch (Zhang et al. 2015).

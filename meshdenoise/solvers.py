@@ -916,6 +916,46 @@ class LanczosQuadrature:
                 return None
             self.extend(min(max(check, int(growth * k)), self.max_steps - k))
 
+    def shifted_forms(self, mu: float, order: int, power: int, columns=None, k: int | None = None) -> np.ndarray:
+        """The ``k``-step rules (default: all steps run) of :math:`g(x) = (1 + \\mu x^p)^{-\\mathrm{power}}` on
+        ``columns`` (default all), ``power`` 1 or 2, without an eigenproblem: :math:`\\|b_j\\|^2 e_1^T g(T) e_1` is
+        :math:`\\|b_j\\|^2 y_1` (power 1) or :math:`\\|b_j\\|^2 \\|y\\|^2` (power 2), :math:`y = (I + \\mu T^p)^{-1} e_1`
+        (:func:`~meshdenoise.kernels.shifted_tridiagonal_solves`, ``p`` tridiagonal solves: time linear in ``k``,
+        where :meth:`nodes` solves an eigenproblem, time about ``k^2``). The same numbers as :meth:`quadrature` of that
+        ``g`` (clamped at ``x >= 0``) up to rounding, shape (len(columns),)."""
+        if power not in (1, 2):
+            raise ValueError(f"shifted_forms: power must be 1 or 2, got {power!r}")
+        cols = np.arange(self._q.shape[1]) if columns is None else np.asarray(list(columns), dtype=np.int64)
+        steps = self.steps if k is None else max(0, min(int(k), self.steps))
+        sizes = np.minimum(self.lengths[cols], steps).astype(np.int64)
+        kmax = int(sizes.max()) if sizes.size else 0
+        if not kmax:
+            return np.zeros(cols.size)
+        out = np.empty((kmax, cols.size))
+        kernels.shifted_tridiagonal_solves(np.ascontiguousarray(self._alpha[:kmax, cols]),
+                                           np.ascontiguousarray(self._beta[:kmax, cols]), sizes, float(mu), int(order),
+                                           out)
+        return self.norms2[cols] * (out[0] if power == 1 else np.einsum("ij,ij->j", out, out))
+
+    def evaluate_shifted(self, mu: float, order: int, power: int = 1, columns=None, *, rtol: float = 1e-10,
+                         check: int = 10, growth: float = 0.0) -> np.ndarray | None:
+        """:meth:`evaluate` of :math:`g(x) = (1 + \\mu x^p)^{-\\mathrm{power}}` by :meth:`shifted_forms` (the same
+        convergence test and extensions; the searches' functions: the shifted systems' traces, power 1, and their
+        residuals, power 2 times :math:`\\mu^2`)."""
+        cols = list(range(self._q.shape[1])) if columns is None else list(columns)
+        if self.steps < check:
+            self.extend(check - self.steps)
+        while True:
+            k = self.steps
+            now = self.shifted_forms(mu, order, power, cols, k)
+            before = self.shifted_forms(mu, order, power, cols, k - check)
+            done = ~self._active[cols]
+            if np.all(done | (np.abs(now - before) <= rtol * np.abs(now))):
+                return now
+            if k >= self.max_steps:
+                return None
+            self.extend(min(max(check, int(growth * k)), self.max_steps - k))
+
     def _coefficients(self, g: Callable[[np.ndarray], np.ndarray], j: int, k: int) -> np.ndarray:
         """:math:`\\|b_j\\| U g(\\Theta) U^T e_1` of column ``j``'s ``k``-step rule (length ``k``)."""
         from scipy.linalg import eigh_tridiagonal

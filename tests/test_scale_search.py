@@ -66,6 +66,32 @@ def test_lanczos_quadrature_matches_dense_quadratic_forms(order):
         np.testing.assert_allclose(tr, np.einsum("ij,ij->j", Z, H @ Z), rtol=1e-9)
 
 
+@pytest.mark.parametrize("order", [1, 2, 3, 4])
+def test_shifted_forms_by_tridiagonal_solves_equal_the_dense_forms_and_the_gauss_rules(order):
+    """evaluate_shifted (p tridiagonal solves per column and size, no eigenproblem) against the dense quadratic forms
+    b^T (I + mu L^p)^-power b, and shifted_forms against the eigenvalue route (quadrature) at every size, both classes."""
+    from meshdenoise.solvers import CompiledLanczos
+
+    _, Vn, F = _noisy(icosphere(3), 0.02)
+    ops = Operators(F, len(Vn))
+    lam, U = np.linalg.eigh(ops.L.toarray())
+    B = np.hstack([Vn, np.random.default_rng(1).choice([-1.0, 1.0], size=(ops.n, 4)), np.zeros((ops.n, 1))])
+    for cls in (LanczosQuadrature, CompiledLanczos):
+        q = cls(ops.L, B, max_steps=800)
+        for mu in (0.01, 0.5, 60.0, 1e4):
+            for power in (1, 2):
+                g = lambda t: (1.0 / (1.0 + mu * np.maximum(t, 0) ** order)) ** power  # noqa: E731
+                dense = np.einsum("ij,ij->j", B, (U * g(lam)) @ (U.T @ B))
+                got = q.evaluate_shifted(mu, order, power, growth=0.25)
+                np.testing.assert_allclose(got, dense, rtol=1e-9, atol=1e-14 * np.abs(dense).max())
+                assert got[-1] == 0.0  # a zero column
+                for k in (1, 2, 7, q.steps // 2, q.steps):
+                    np.testing.assert_allclose(q.shifted_forms(mu, order, power, k=k), q.quadrature(g, k=k),
+                                               rtol=1e-9, atol=1e-15)  # both rounded: 1e-10 at p 1, mu 1e4
+    with pytest.raises(ValueError, match="power must be 1 or 2"):
+        q.shifted_forms(1.0, 3, 3)
+
+
 def test_lanczos_quadrature_exhausted_space_and_zero_column_are_exact():
     M = sp.csr_matrix(np.diag([0.0, 1.0, 1.0, 3.0, 3.0, 3.0]))  # 3 distinct eigenvalues: exact after 3 steps
     B = np.column_stack([np.ones(6), np.zeros(6)])

@@ -175,17 +175,17 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
     def by_quadrature(mu: float) -> list | None:
         """Per-axis SURE: :math:`\\|H x_d - x_d\\|^2 = c_d^T \\mu^2 (I + \\mu L^p)^{-2} c_d`, :math:`c_d = L^p x_d`,
         and the weighted traces :math:`q^T (I + \\mu L^p)^{-1} q`, Gauss quadrature on the Lanczos runs."""
-        residual = lambda x: mu**2 / (1.0 + mu * np.maximum(x, 0.0) ** order) ** 2  # noqa: E731
-        trace = lambda x: 1.0 / (1.0 + mu * np.maximum(x, 0.0) ** order)  # noqa: E731
+        # (1 + mu x^p)^-2 and ^-1 by tridiagonal solves (LanczosQuadrature.evaluate_shifted), no eigenproblems
         if quad is None:
-            parts = [one.evaluate(residual, columns=range(3), growth=0.25),
-                     one.evaluate(trace, columns=range(3, 3 + 3 * m), growth=0.25)]
+            parts = [one.evaluate_shifted(mu, order, 2, columns=range(3), growth=0.25),
+                     one.evaluate_shifted(mu, order, 1, columns=range(3, 3 + 3 * m), growth=0.25)]
         else:  # growth: tests at geometrically spaced sizes (the elephant's strong weights: 4.5 -> 4.0 s)
-            parts = [run.evaluate(residual, growth=0.25) for run in quad[:3]] + [
-                run.evaluate(trace, growth=0.25) for run in quad[3:]]
+            parts = [run.evaluate_shifted(mu, order, 2, growth=0.25) for run in quad[:3]] + [
+                run.evaluate_shifted(mu, order, 1, growth=0.25) for run in quad[3:]]
         if any(part is None for part in parts):
             return None
         r, q = (parts[0], parts[1]) if quad is None else (np.concatenate(parts[:3]), np.concatenate(parts[3:]))
+        r = mu**2 * r
         return [float(r[d]) - ctx.rho**2 * float(c[:, d].sum()) + 2 * ctx.rho**2 * s * float(q[d * m:(d + 1) * m].sum())
                 for d in range(3)]
 

@@ -248,13 +248,11 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
         i = orders.index(order)
         # to 1e-10 as the Sobolev rules' quadrature (search.shifted_quadrature): Gauss rules need no second pass, and
         # at 1e-6 the refinement's parabola moved the elephant's mu by 1.6e-6
-        r = quad.evaluate(lambda x: mu**2 / (1.0 + mu * np.maximum(x, 0.0) ** order) ** 2, range(3 * i, 3 * i + 3),
-                          growth=0.25)
-        tr = quad.evaluate(lambda x: 1.0 / (1.0 + mu * np.maximum(x, 0.0) ** order),
-                           range(3 * len(orders), 3 * len(orders) + Bp.shape[1]), growth=0.25)
+        r = quad.evaluate_shifted(mu, order, 2, range(3 * i, 3 * i + 3), growth=0.25)
+        tr = quad.evaluate_shifted(mu, order, 1, range(3 * len(orders), 3 * len(orders) + Bp.shape[1]), growth=0.25)
         if r is None or tr is None:
             return None
-        p = Point(mu, float(r.sum()), float(tr.sum()) / K, None)
+        p = Point(mu, mu**2 * float(r.sum()), float(tr.sum()) / K, None)
         p.score = ctx.criterion.score(p, n_scored, ctx.rho)
         return p
     searches: dict[int, LogSearch] = {}
