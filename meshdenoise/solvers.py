@@ -28,7 +28,7 @@ from .operators import Operators, mask_key, spmm, trim_cache
 
 __all__ = [
     "DirichletSystem", "SPDSolver", "CHOLMOD", "CHOLMOD_MAX_ROWS", "clear_symbolic", "CGSolver", "block_cg", "cached_solver", "retain_factors", "laplacian_power", "shifted_solver",
-    "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "HeldByProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "CompiledLanczos", "LanczosDots", "column_function", "FILTER_LANCZOS_TOL",
+    "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "ShiftedInverse", "HeldByProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "CompiledLanczos", "LanczosDots", "column_function", "FILTER_LANCZOS_TOL",
 ]
 
 FACTORS_PER_FAMILY = 4  # a parameter sweep keeps only the last few factorisations of each filter
@@ -774,6 +774,25 @@ def shifted_solver(
     return cached_solver(ops, f"shifted-p{order}-{method}", mu, pinned,
                          lambda: CGSolver(shifted_matrix(ops, mu, order), pinned))
 
+class ShiftedInverse:
+    r""":math:`g(x) = 1 / (1 + \mu \max(x, 0)^p)`, the function of ``L`` the shifted systems apply, as a callable that
+    :class:`LanczosQuadrature` recognises: its coefficients in :meth:`LanczosQuadrature.apply` by ``p`` tridiagonal solves
+    (:func:`~meshdenoise.kernels.shifted_tridiagonal_solves`) instead of an eigenproblem per column and size.
+
+    >>> import numpy as np
+    >>> float(ShiftedInverse(2.0, 3)(np.array([1.0]))[0])
+    0.3333333333333333
+    """
+
+    __slots__ = ("mu", "order")
+
+    def __init__(self, mu: float, order: int):
+        self.mu, self.order = float(mu), int(order)
+
+    def __call__(self, x: np.ndarray) -> np.ndarray:
+        return 1.0 / (1.0 + self.mu * np.maximum(x, 0.0) ** self.order)
+
+
 class LanczosQuadrature:
     r"""Gauss quadrature of :math:`b_j^T g(M)\, b_j` for a symmetric ``M``, every column ``b_j`` of ``B``, any ``g``.
 
@@ -963,8 +982,18 @@ class LanczosQuadrature:
         k = max(0, min(int(k), int(self.lengths[j])))
         if k == 0:
             return np.zeros(0)
+        if isinstance(g, ShiftedInverse):
+            return self._shifted_coefficients(g, j, k)
         theta, U = eigh_tridiagonal(self._alpha[:k, j], self._beta[: k - 1, j])
         return math.sqrt(self.norms2[j]) * (U @ (g(theta) * U[0]))
+
+    def _shifted_coefficients(self, g: ShiftedInverse, j: int, k: int) -> np.ndarray:
+        """:meth:`_coefficients` of a :class:`ShiftedInverse`: :math:`\\|b_j\\| (I + \\mu T_k^p)^{-1} e_1`, ``k >= 1``."""
+        out = np.empty((k, 1))
+        kernels.shifted_tridiagonal_solves(np.ascontiguousarray(self._alpha[:k, j:j + 1]),
+                                           np.ascontiguousarray(self._beta[:k, j:j + 1]), np.array([k], dtype=np.int64),
+                                           g.mu, g.order, out)
+        return math.sqrt(self.norms2[j]) * out[:, 0]
 
     def _converged_coefficients(self, g: Callable[[np.ndarray], np.ndarray], rtol: float, check: int,
                                 columns=None, growth: float = 0.0) -> list[np.ndarray] | None:
@@ -1114,8 +1143,7 @@ def lanczos_shifted(ops: Operators, X: np.ndarray, mu: float, order: int, tol: f
         c = spmm(ops.L, np.ascontiguousarray(c))
     p = int(order)
     mu = float(mu)
-    Y = LanczosQuadrature(ops.L, c, max_steps=max_steps).apply(
-        lambda t: 1.0 / (1.0 + mu * np.maximum(t, 0.0) ** p), rtol=tol, growth=growth)
+    Y = LanczosQuadrature(ops.L, c, max_steps=max_steps).apply(ShiftedInverse(mu, p), rtol=tol, growth=growth)
     if Y is None:
         return None
     return (X2 - mu * Y).reshape(X.shape)
@@ -1270,6 +1298,8 @@ class CompiledLanczos(LanczosQuadrature):
         k = max(0, min(int(k), int(self.lengths[j])))
         if k == 0:
             return np.zeros(0)
+        if isinstance(column_function(g, j), ShiftedInverse):
+            return self._shifted_coefficients(column_function(g, j), j, k)
         if (j, k) not in self._eig:
             from scipy.linalg import eigh_tridiagonal
 

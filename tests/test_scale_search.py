@@ -92,6 +92,31 @@ def test_shifted_forms_by_tridiagonal_solves_equal_the_dense_forms_and_the_gauss
         q.shifted_forms(1.0, 3, 3)
 
 
+@pytest.mark.parametrize("order", [1, 3])
+def test_apply_of_a_shifted_inverse_takes_tridiagonal_solves_and_equals_the_eigenvalue_route(order, monkeypatch):
+    """apply(ShiftedInverse(mu, p)): its coefficients by kernels.shifted_tridiagonal_solves (no eigenproblem), the same
+    result as the same function given as a plain callable (eigh_tridiagonal), and the dense (I + mu L^p)^-1 B."""
+    import scipy.linalg
+
+    from meshdenoise.solvers import CompiledLanczos, ShiftedInverse
+
+    _, Vn, F = _noisy(icosphere(3), 0.02)
+    ops = Operators(F, len(Vn))
+    lam, U = np.linalg.eigh(ops.L.toarray())
+    B = np.hstack([ops.L @ Vn, np.random.default_rng(2).standard_normal((ops.n, 2))])
+    for mu in (0.3, 500.0):
+        g = ShiftedInverse(mu, order)
+        dense = (U * g(lam)) @ (U.T @ B)
+        plain = [LanczosQuadrature(ops.L, B).apply(lambda t: g(t), rtol=1e-12),
+                 CompiledLanczos(ops.L, B).apply_many([[lambda t: g(t)]], rtol=1e-12)[0]]
+        with monkeypatch.context() as m:
+            m.setattr(scipy.linalg, "eigh_tridiagonal", lambda *a, **k: pytest.fail("an eigenproblem was solved"))
+            fast = [LanczosQuadrature(ops.L, B).apply(g, rtol=1e-12), CompiledLanczos(ops.L, B).apply_many([[g]], rtol=1e-12)[0]]
+        for a, b in zip(fast, plain):
+            np.testing.assert_allclose(a, b, rtol=0, atol=1e-11 * np.abs(B).max())
+            np.testing.assert_allclose(a, dense, rtol=0, atol=1e-10 * np.abs(B).max())
+
+
 def test_lanczos_quadrature_exhausted_space_and_zero_column_are_exact():
     M = sp.csr_matrix(np.diag([0.0, 1.0, 1.0, 3.0, 3.0, 3.0]))  # 3 distinct eigenvalues: exact after 3 steps
     B = np.column_stack([np.ones(6), np.zeros(6)])

@@ -10,8 +10,8 @@ from ..geometry import vertex_normals
 from ..operators import Operators
 from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
 from ..operators import mask_key, spmm
-from ..solvers import (FILTER_LANCZOS_TOL, LANCZOS_SHIFTED_MAX_STEPS, CompiledLanczos, LanczosQuadrature, lanczos_shifted,
-                       shifted_cg_bound, shifted_solver)
+from ..solvers import (FILTER_LANCZOS_TOL, LANCZOS_SHIFTED_MAX_STEPS, CompiledLanczos, LanczosQuadrature, ShiftedInverse,
+                       lanczos_shifted, shifted_cg_bound, shifted_solver)
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
 from ..tuning.noise_level import fourth_difference, mean_edge_length, normal_trust
@@ -389,7 +389,7 @@ def _axes_by_lanczos(ops: Operators, C: np.ndarray, mus: list[float], order: int
     c = np.ascontiguousarray(C, dtype=np.float64)
     for _ in range(int(order)):
         c = spmm(ops.L, c)
-    gs = tuple((lambda mu: lambda x: 1.0 / (1.0 + mu * np.maximum(x, 0.0) ** order))(mu) for mu in mus)
+    gs = tuple(ShiftedInverse(mu, order) for mu in mus)
     Y = CompiledLanczos(ops.L, c, max_steps=LANCZOS_SHIFTED_MAX_STEPS).apply_many([gs], rtol=FILTER_LANCZOS_TOL,
                                                                               growth=0.25)
     return None if Y is None else C - np.asarray(mus)[None, :] * Y[0]

@@ -12,7 +12,7 @@ from ..tuning.risk import Point
 from ..tuning.search import best_shifted
 from ..tuning.spectral import shifted_spectral
 from ..operators import Operators, mask_key, spmm
-from ..solvers import LanczosQuadrature, shifted_cg_bound, shifted_solver
+from ..solvers import LanczosQuadrature, ShiftedInverse, shifted_cg_bound, shifted_solver
 from .sobolev import AUTO_CG_MAX_ITERATIONS, AUTO_CG_MIN_VERTICES
 
 SOLVERS = ("auto", "cholesky", "cg", "lanczos")
@@ -66,8 +66,7 @@ def lanczos_bilaplacian(ops: Operators, V: np.ndarray, mu: float, tol: float) ->
     which costs 2.7 products with ``L``. ``None`` if not converged in ``LANCZOS_MAX_STEPS``.
     """
     c = spmm(ops.L, spmm(ops.L, np.asarray(V, dtype=np.float64)))
-    Y = LanczosQuadrature(ops.L, c, max_steps=LANCZOS_MAX_STEPS).apply(
-        lambda t: 1.0 / (1.0 + mu * t * t), rtol=tol)
+    Y = LanczosQuadrature(ops.L, c, max_steps=LANCZOS_MAX_STEPS).apply(ShiftedInverse(mu, 2), rtol=tol)
     return None if Y is None else np.array(V, dtype=np.float64) - mu * Y
 
 

@@ -15,7 +15,8 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..operators import Operators, spmm
-from ..solvers import CompiledLanczos, LanczosQuadrature, shifted_cg_bound, shifted_factor, shifted_solver
+from ..solvers import (CompiledLanczos, LanczosQuadrature, ShiftedInverse, shifted_cg_bound, shifted_factor,
+                       shifted_solver)
 from .memo import MEMO, digest
 from .risk import N_PROBES, Criterion, Point, as_criterion, probe_block
 from .walk import past_minimum, walk
@@ -458,7 +459,7 @@ def quadrature_coordinates(V: np.ndarray, quad: LanczosQuadrature, order: int, m
     coordinates cost the second pass on three columns only: the first pass is the search's own.
     ``None`` when the run's ``max_steps`` is reached first.
     """
-    Y = quad.apply(lambda t: 1.0 / (1.0 + mu * np.maximum(t, 0.0) ** order), rtol=tol, columns=range(3))
+    Y = quad.apply(ShiftedInverse(mu, order), rtol=tol, columns=range(3))
     return None if Y is None else np.asarray(V, dtype=np.float64) - mu * Y
 
 
