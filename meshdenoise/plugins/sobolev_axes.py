@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -25,10 +26,17 @@ AXES_PINNED_CG_BOUND = 600  # ... with held vertices CG while its bound is at mo
 # factor of I + mu L^3 with a held border took 1.2 s per axis on Bunny0.2, 3.5 of the filter's 4.9 s)
 AXES_QUADRATURE_MIN_VERTICES = QUADRATURE_MIN_VERTICES  # from this size the search by Lanczos quadrature (the same
 # candidates and probes as by a factor per mu, the same scores to about 1e-12; session 19, was 50,000)
+AXES_QUADRATURE_TOL = 1e-6  # ... each rule to this relative change over its last steps (1e-10 until session 26), as the
+# normals searches' SPECTRAL_TOL: the grid's candidates compared, no parabola. Measured on the 7 rows of
+# benchmarks/filter_time.py it runs on: every per-axis score within 2.7e-5 of 1e-10's (the elephant; the others 8e-8 or
+# less), each axis's best ahead of its next by 1.7e-4 (Twelve0.5Impulsive) to 9e-3, the same choices; the elephant
+# 187 -> 120 steps, 3.2 -> 2.8 s
 AXES_ONE_RUN_MAX_VERTICES = 100_000  # below this size the rule's quadrature is one compiled Lanczos run of its 3 + 3m
 # columns (solvers.CompiledLanczos: Bunny0.2's 75 one-column numpy runs took 1.3 s), above it one run per column (memory)
 AXES_NORMAL_REGION = 8_000  # the normals criterion's search on a region of this size from twice as many vertices: each
 # candidate factorises I + mu L^3 three times (3.3 s each at 35k vertices; the whole-mesh search took 170 s on Bunny0.2)
+
+log = logging.getLogger("meshdenoise.auto")
 
 __all__ = ["sobolev_axes", "normal_frame", "choose_sobolev_axes", "sobolev_axes_map"]
 
@@ -176,12 +184,13 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
         """Per-axis SURE: :math:`\\|H x_d - x_d\\|^2 = c_d^T \\mu^2 (I + \\mu L^p)^{-2} c_d`, :math:`c_d = L^p x_d`,
         and the weighted traces :math:`q^T (I + \\mu L^p)^{-1} q`, Gauss quadrature on the Lanczos runs."""
         # (1 + mu x^p)^-2 and ^-1 by tridiagonal solves (LanczosQuadrature.evaluate_shifted), no eigenproblems
+        tol = AXES_QUADRATURE_TOL
         if quad is None:
-            parts = [one.evaluate_shifted(mu, order, 2, columns=range(3), growth=0.25),
-                     one.evaluate_shifted(mu, order, 1, columns=range(3, 3 + 3 * m), growth=0.25)]
+            parts = [one.evaluate_shifted(mu, order, 2, columns=range(3), rtol=tol, growth=0.25),
+                     one.evaluate_shifted(mu, order, 1, columns=range(3, 3 + 3 * m), rtol=tol, growth=0.25)]
         else:  # growth: tests at geometrically spaced sizes (the elephant's strong weights: 4.5 -> 4.0 s)
-            parts = [run.evaluate_shifted(mu, order, 2, growth=0.25) for run in quad[:3]] + [
-                run.evaluate_shifted(mu, order, 1, growth=0.25) for run in quad[3:]]
+            parts = [run.evaluate_shifted(mu, order, 2, rtol=tol, growth=0.25) for run in quad[:3]] + [
+                run.evaluate_shifted(mu, order, 1, rtol=tol, growth=0.25) for run in quad[3:]]
         if any(part is None for part in parts):
             return None
         r, q = (parts[0], parts[1]) if quad is None else (np.concatenate(parts[:3]), np.concatenate(parts[3:]))
@@ -211,6 +220,7 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
                     score = float(np.sum((y - Xf[:, d]) ** 2)) - ctx.rho**2 * float(c[:, d].sum()) + 2 * ctx.rho**2 * tr
                 scores.append(score)
             evaluated[t] = scores
+        log.debug("sobolev_axes: log10 mu %.4f scores %s", t, evaluated[t])
         return evaluated[t]
 
     def best_t(d: int) -> float:
