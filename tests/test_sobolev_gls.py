@@ -124,6 +124,46 @@ def test_sobolev_gls_pinned_vertices_solve_the_reduced_dense_system(solve_path):
     np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
 
 
+@pytest.mark.parametrize("held", [False, True])
+@pytest.mark.parametrize("order", [2, 3])
+def test_sobolev_gls_one_ring_pcg_path_solves_the_dense_system(monkeypatch, order, held):
+    """From GLS_FACTOR_FREE_MIN_VERTICES (0 here) with no factor stored and CG's bound past GLS_FACTOR_FREE_CG_BOUND
+    (0 here): both solves by CG preconditioned by the one-ring factor's (L + aI)^-p (ShiftedPCG), no factor of
+    I + mu L^p; against the (reduced) dense system."""
+    import meshdenoise.plugins.sobolev_gls as sg
+    from meshdenoise.operators import clear_cache
+
+    V, F = icosphere(2)
+    Vn, _ = add_normal_noise((V, F), 0.03, seed=3)
+    n = len(V)
+    Lp = np.linalg.matrix_power(_dense_L(F, n), order)
+    mu, beta = 40.0, 6.0
+    pinned = np.arange(7) if held else np.zeros(0, dtype=int)
+    free = np.setdiff1d(np.arange(n), pinned)
+    Ai = np.eye(n) + mu * Lp
+    X0 = Vn.copy()
+    X0[free] = np.linalg.solve(Ai[np.ix_(free, free)], Vn[free] - Ai[np.ix_(free, pinned)] @ Vn[pinned])
+    N = coherent_normals(X0, F)
+    W, A = _dense_system(N, beta, mu, Lp)
+    f3 = (3 * free[:, None] + np.arange(3)).ravel()
+    p3 = (3 * pinned[:, None] + np.arange(3)).ravel()
+    x = Vn.ravel()
+    y = x.copy()
+    y[f3] = np.linalg.solve(A[np.ix_(f3, f3)], (W @ x)[f3] - A[np.ix_(f3, p3)] @ x[p3])
+    monkeypatch.setattr(sg, "GLS_FACTOR_FREE_MIN_VERTICES", 0)
+    monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", 0.0)
+    monkeypatch.setattr(sg, "GLS_DENSE_MAX_VERTICES", 0)
+    monkeypatch.setattr(sg, "GLS_FILTER_TOL", 1e-12)
+    clear_cache()
+    real = sg.shifted_solver
+    monkeypatch.setattr(sg, "shifted_solver", lambda *a, **k: real(*a, **k) if a[4:] == ("pcg",)
+                        else pytest.fail("a factor was built"))
+    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=order,
+                       pinned=pinned if held else None)[0]
+    assert np.array_equal(got[pinned], Vn[pinned])
+    np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
+
+
 @pytest.mark.parametrize("order", [2, 3])
 def test_sobolev_gls_factor_free_path_with_held_rows_solves_the_reduced_dense_system(monkeypatch, order):
     """With held rows (the border option's second run) and CG's bound under GLS_FACTOR_FREE_CG_BOUND the filter

@@ -54,8 +54,9 @@ def normal_weighted_solve(
     coordinate (the cached Cholesky factor of ``sobolev_axes``): :math:`I \\preceq W \\preceq \\beta I`,
     so the preconditioned matrix has its spectrum in :math:`[1, \\beta]` and CG converges in
     :math:`O(\\sqrt\\beta)` iterations whatever the mesh. With ``pinned`` vertices their rows
-    of ``x0`` are kept and the free rows solve the reduced system. ``prec`` (optional, no pinned
-    vertices) applies :math:`(I + \\mu L^p)^{-1}` to an (n, c) array instead of the factor. ``tol``: the
+    of ``x0`` are kept and the free rows solve the reduced system. ``prec`` (optional) applies
+    :math:`(I + \\mu L^p)^{-1}`, or an SPD approximation of it (zero on pinned rows), to an (n, c) array instead of the
+    factor. ``tol``: the
     relative residual every system reaches. Up to ``GLS_DENSE_MAX_VERTICES`` vertices the system is solved
     directly instead (:func:`_dense_normal_weighted_solve`; ``tol`` and ``prec`` unused).
     """
@@ -651,12 +652,33 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order):
         return X
     if _iterative(ops, mu, order, pinned):
         return _sobolev_gls_iterative(X, F, ops, mu, beta, order, pinned)
-    X0 = shifted_solver(ops, mu, order, pinned).solve(X)
+    # no factor of I + mu L^p stored on a mesh from GLS_FACTOR_FREE_MIN_VERTICES: CG preconditioned by a one-ring
+    # factor's (L + a I)^-p for both solves (ShiftedPCG; the bunny scanner's filter 0.73 -> 0.45 s, face000's held run
+    # 1.8 s where its factor took 3.0 s)
+    by_pcg = ops.n >= GLS_FACTOR_FREE_MIN_VERTICES and not _factor_stored(ops, mu, order, pinned)
+    S = shifted_solver(ops, mu, order, pinned, "pcg" if by_pcg else "cholesky")
+    X0 = S.solve(X)
     if beta == 1.0:
         return X0
     N = coherent_normals(X0, F)
+    prec = None
+    if by_pcg:
+        free = np.arange(ops.n) if S.free is None else S.free
+
+        def prec(R):  # the one-ring preconditioner on each coordinate's free rows (zero on held rows)
+            Z = np.zeros_like(R)
+            Z[free] = S.precondition(R[free])
+            return Z
     return X0 + normal_weighted_solve(ops, N, beta, mu, order, _correction_rhs(N, beta, X, X0), pinned,
-                                      tol=GLS_FILTER_TOL)
+                                      tol=GLS_FILTER_TOL, prec=prec)
+
+
+def _factor_stored(ops: Operators, mu: float, order: int, pinned: np.ndarray | None) -> bool:
+    """Whether a factor of :math:`I + \\mu L^p` is stored on ``ops`` for ``pinned``'s held rows, or free (held rows'
+    product form preconditions by it)."""
+    stored = ops.cache.get(f"shifted-p{order}-cholesky", {})
+    held = pinned is not None and bool(np.any(pinned))
+    return (float(mu), None) in stored or (held and (float(mu), mask_key(pinned)) in stored)
 
 
 def _iterative(ops: Operators, mu: float, order: int, pinned: np.ndarray | None) -> bool:
@@ -665,8 +687,7 @@ def _iterative(ops: Operators, mu: float, order: int, pinned: np.ndarray | None)
     ``GLS_ITERATIVE_MIN_VERTICES`` vertices with none held, or from ``GLS_FACTOR_FREE_MIN_VERTICES`` while CG's bound
     (:func:`~meshdenoise.solvers.shifted_cg_bound` at ``GLS_ITERATIVE_TOL``) is at most ``GLS_FACTOR_FREE_CG_BOUND``."""
     held = pinned is not None and bool(np.any(pinned))
-    stored = ops.cache.get(f"shifted-p{order}-cholesky", {})
-    if (float(mu), None) in stored or (held and (float(mu), mask_key(pinned)) in stored):
+    if _factor_stored(ops, mu, order, pinned):
         return False
     if ops.n >= GLS_ITERATIVE_MIN_VERTICES and not held:
         return True
