@@ -190,7 +190,7 @@ def test_sobolev_gls_factor_free_path_with_held_rows_solves_the_reduced_dense_sy
     y[f3] = np.linalg.solve(A[np.ix_(f3, f3)], (W @ x)[f3] - A[np.ix_(f3, p3)] @ x[p3])
     monkeypatch.setattr(sg, "GLS_FACTOR_FREE_MIN_VERTICES", 0)
     monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", np.inf)
-    monkeypatch.setattr(sg, "GLS_ITERATIVE_TOL", 1e-12)
+    monkeypatch.setattr(sg, "GLS_FILTER_TOL", 1e-12)
     clear_cache()
     real = sg.shifted_solver
     monkeypatch.setattr(sg, "shifted_solver", lambda *a, **k: real(*a, **k) if a[4:] == ("cg",)
@@ -407,8 +407,8 @@ def test_sobolev_gls_factor_free_path_matches_the_dense_solve(monkeypatch, mu, b
     # residual tol bounds its error by tol ||b||, ||b|| <= (beta - 1) ||X - X0|| (b a projection of (beta - 1)(X - X0))
     X0 = np.linalg.solve(np.eye(n) + mu * Lp, Vn)
     got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=order)[0]
-    assert np.linalg.norm(got - expected) <= sg.GLS_ITERATIVE_TOL * (beta - 1.0) * np.linalg.norm(Vn - X0) + 1e-10
-    monkeypatch.setattr(sg, "GLS_ITERATIVE_TOL", 1e-12)
+    assert np.linalg.norm(got - expected) <= sg.GLS_FILTER_TOL * (beta - 1.0) * np.linalg.norm(Vn - X0) + 1e-10
+    monkeypatch.setattr(sg, "GLS_FILTER_TOL", 1e-12)
     got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=order)[0]
     np.testing.assert_allclose(got, expected, atol=1e-8)
     iso = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=1.0, order=order)[0]

@@ -28,8 +28,10 @@ log = logging.getLogger("meshdenoise.auto")
 __all__ = ["sobolev_gls", "normal_weighted_solve", "coherent_normals", "sobolev_gls_map"]
 
 CG_TOL = 1e-9  # relative residual of the preconditioned conjugate gradient
-GLS_FILTER_TOL = 1e-6  # ... in the filter: A >= I, so the correction's error is at most tol ||b|| <= tol (beta - 1)
-# ||X - X0||, 1.1e-5 of the isotropic pass's change at beta = 12 (bunny scanner: 25 -> 17 steps; GLS_ITERATIVE_TOL: 1e-4)
+GLS_FILTER_TOL = 1e-4  # ... in the filter, every path: A >= I, so the correction's error is at most tol ||b|| <=
+# tol (beta - 1) ||X - X0||, 1.1e-3 of the isotropic pass's change at beta = 12. Measured against 1e-10: the result
+# within 1.8e-5 of the change (bunny scanner, Block0.4, the elephant), the same SNR to 1e-4 dB; at 400k (mu 3.6,
+# beta 12) 2.5e-5 rho RMS from the converged result, about 205 block-Jacobi iterations (500 for 1e-9)
 CG_MAXITER = 300
 GLS_DENSE_MAX_VERTICES = 400  # up to this many vertices the 3n x 3n system is factorised densely: the exact traces'
 # 3n right-hand sides made ~10 CG iterations of 3n columns each (a 162-vertex sphere's choice: 11 s -> under 1 s)
@@ -146,13 +148,10 @@ def _dense_normal_weighted_solve(
 
 GLS_ITERATIVE_MIN_VERTICES = 50_000  # without pinned vertices the filter factorises nothing from this size
 GLS_FACTOR_FREE_MIN_VERTICES = 20_000  # ... nor, held rows or not, from this size while CG's bound for I + mu L^p at
-GLS_FACTOR_FREE_CG_BOUND = 700  # GLS_ITERATIVE_TOL is at most this: measured, factor-free (Lanczos or Jacobi CG, then
+GLS_FACTOR_FREE_CG_BOUND = 700  # GLS_FILTER_TOL is at most this: measured, factor-free (Lanczos or Jacobi CG, then
 # block-Jacobi CG) against a factor and CG preconditioned by it, beta 12, cold: Bunny0.2 0.21 against 0.86 s at mu 0.1,
 # the two equal near a bound of 1,000 (mu 4), the elephant near 760 (mu 3 to 10), face000 near 710 (mu 10 to 12)
 GLS_JACOBI_MAX_ITERATIONS = 3000  # block-Jacobi CG's cap before the Lanczos-preconditioned solve takes over
-GLS_ITERATIVE_TOL = 1e-4  # block-Jacobi CG's relative residual in the filter. A >= I, so the correction's error is at
-# most tol ||b|| <= tol (beta - 1) ||X - X0||: about 1e-3 rho RMS at beta = 12. Measured at 400k (mu = 3.6, beta = 12):
-# 2.5e-5 rho RMS from the converged result, the same SNR to 1e-4 dB, in about 205 iterations (500 for 1e-9)
 
 
 def _laplacian_power_diagonal(ops: Operators, order: int) -> np.ndarray:
@@ -685,14 +684,14 @@ def _iterative(ops: Operators, mu: float, order: int, pinned: np.ndarray | None)
     """Whether :func:`sobolev_gls` factorises nothing: no factor of :math:`I + \\mu L^p` stored already (with
     ``pinned``'s rows held, or free: held rows' product form preconditions by it), and from
     ``GLS_ITERATIVE_MIN_VERTICES`` vertices with none held, or from ``GLS_FACTOR_FREE_MIN_VERTICES`` while CG's bound
-    (:func:`~meshdenoise.solvers.shifted_cg_bound` at ``GLS_ITERATIVE_TOL``) is at most ``GLS_FACTOR_FREE_CG_BOUND``."""
+    (:func:`~meshdenoise.solvers.shifted_cg_bound` at ``GLS_FILTER_TOL``) is at most ``GLS_FACTOR_FREE_CG_BOUND``."""
     held = pinned is not None and bool(np.any(pinned))
     if _factor_stored(ops, mu, order, pinned):
         return False
     if ops.n >= GLS_ITERATIVE_MIN_VERTICES and not held:
         return True
     return (ops.n >= GLS_FACTOR_FREE_MIN_VERTICES
-            and shifted_cg_bound(ops, mu, order, GLS_ITERATIVE_TOL) <= GLS_FACTOR_FREE_CG_BOUND)
+            and shifted_cg_bound(ops, mu, order, GLS_FILTER_TOL) <= GLS_FACTOR_FREE_CG_BOUND)
 
 
 def _sobolev_gls_iterative(X: np.ndarray, F: np.ndarray, ops: Operators, mu: float, beta: float, order: int,
@@ -717,7 +716,7 @@ def _sobolev_gls_iterative(X: np.ndarray, F: np.ndarray, ops: Operators, mu: flo
         return X0
     N = coherent_normals(X0, F)
     rhs = _correction_rhs(N, beta, X, X0)
-    D, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs, tol=GLS_ITERATIVE_TOL, pinned=pinned)
+    D, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs, tol=GLS_FILTER_TOL, pinned=pinned)
     if not ok:  # a very large mu: the factor-preconditioned iteration, its count bounded by sqrt(beta)
         D = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, x0=D, prec=None if held else shifted)
     return X0 + D
