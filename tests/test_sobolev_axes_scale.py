@@ -123,8 +123,9 @@ def test_sobolev_axes_large_path_uses_one_run_and_equals_the_factor_filter(monke
 
 
 def test_sobolev_axes_with_held_vertices_by_cg_equals_its_factor(monkeypatch):
-    """The border option's second run (held vertices): CG while shifted_cg_bound is at most AXES_PINNED_CG_BOUND, the
-    factor's Dirichlet solve otherwise; the same result to 1e-9 of the coordinates."""
+    """The border option's second run (held vertices): CG while shifted_cg_bound is at most AXES_PINNED_CG_BOUND, CG
+    preconditioned by a one-ring factor past it (ShiftedPCG), the factor's Dirichlet solve below
+    AXES_LANCZOS_MIN_VERTICES; the same result to 1e-9 of the coordinates."""
     import meshdenoise.plugins.sobolev_axes as ax
     V, F = icosphere(3)
     Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
@@ -142,7 +143,14 @@ def test_sobolev_axes_with_held_vertices_by_cg_equals_its_factor(monkeypatch):
     assert methods == ["cg", "cg"]  # the two weighted axes
     np.testing.assert_allclose(after, before, atol=1e-9 * np.abs(Vn).max())
     np.testing.assert_array_equal(after[pinned], Vn[pinned])
-    monkeypatch.setattr(ax, "AXES_PINNED_CG_BOUND", 0)
+    monkeypatch.setattr(ax, "AXES_PINNED_CG_BOUND", 0)  # past the bound: CG preconditioned by a one-ring factor
+    methods.clear()
+    clear_cache()
+    pcg = apply_filter("sobolev_axes", (Vn, F), pinned=pinned, **params)[0]
+    assert methods == ["pcg", "pcg"]
+    np.testing.assert_allclose(pcg, before, atol=1e-9 * np.abs(Vn).max())
+    np.testing.assert_array_equal(pcg[pinned], Vn[pinned])
+    monkeypatch.setattr(ax, "AXES_LANCZOS_MIN_VERTICES", 10**9)  # below the size: the factor
     methods.clear()
     clear_cache()
     apply_filter("sobolev_axes", (Vn, F), pinned=pinned, **params)

@@ -385,6 +385,11 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps):
             # held vertices (the border option's second run): CG from the input, no factor of I + mu L^p with them
             y = shifted_solver(ops, mu, order, pinned, "cg").solve(C[:, d], tol=FILTER_LANCZOS_TOL, x0=C[:, d],
                                                                  maxiter=int(4 * math.ceil(bound)) + 50)
+        elif (mu != 0 and held and ops.n >= AXES_LANCZOS_MIN_VERTICES and order > 1
+              and (float(mu), mask_key(pinned)) not in stored):
+            # past that bound: CG preconditioned by a one-ring factor (solvers.ShiftedPCG), where a factor of
+            # I + mu L^p with the held rows took 2.8 s per axis on face000 (4,111 held border vertices)
+            y = shifted_solver(ops, mu, order, pinned, "pcg").solve(C[:, d], tol=FILTER_LANCZOS_TOL)
         if y is None:
             y = C[:, d] if mu == 0 else shifted_solver(ops, mu, order, pinned).solve(C[:, d])
         out[:, d] = y
