@@ -646,6 +646,33 @@ HELD_CG_TOL = 1e-10  # HeldByProduct's relative residual (as the filters' factor
 HELD_CG_MAXITER = 200  # HeldByProduct.solve: past this many steps the held system is factorised after all
 
 
+def _preconditioned_cg(A: sp.csr_matrix, b: np.ndarray, precondition: Callable[[np.ndarray], np.ndarray], tol: float,
+                       maxiter: int) -> tuple[np.ndarray, int] | None:
+    """``A x = b`` (SPD ``A``, ``b`` (m, c)) by CG preconditioned by ``precondition``, started from its answer, every column
+    to a relative residual ``tol``: ``(x, steps)``, or ``None`` past ``maxiter`` steps (the held solvers then factorise).
+    """
+    x = precondition(b)
+    r = b - spmm(A, x)
+    z = precondition(r)
+    p, rz = z.copy(), np.einsum("ij,ij->j", r, z)
+    norm_b = np.sqrt(np.einsum("ij,ij->j", b, b))
+    steps = 0
+    while not np.all(np.sqrt(np.einsum("ij,ij->j", r, r)) <= tol * norm_b):
+        if steps >= maxiter:
+            return None
+        q = spmm(A, p)
+        pq = np.einsum("ij,ij->j", p, q)
+        alpha = np.divide(rz, pq, out=np.zeros_like(rz), where=pq > 0)
+        x += alpha * p
+        r -= alpha * q
+        z = precondition(r)
+        rz_next = np.einsum("ij,ij->j", r, z)
+        p = z + np.divide(rz_next, rz, out=np.zeros_like(rz), where=rz > 0) * p
+        rz = rz_next
+        steps += 1
+    return x, steps
+
+
 class HeldByProduct(DirichletSystem):
     r""":math:`(I + \mu L^p) Y = X` with held (pinned) rows, ``p >= 3``, by conjugate gradients on the free rows
     preconditioned by the free system's factors restricted to them, :math:`z = (A^{-1} [r; 0])_f`.
@@ -703,28 +730,12 @@ class HeldByProduct(DirichletSystem):
             Z[free] = R
             return self.product.solve(Z)[free]
 
-        x = precondition(b)  # the free system's answer: the held rows' influence is the correction
-        r = b - self.A @ x
-        z = precondition(r)
-        p, rz = z.copy(), np.einsum("ij,ij->j", r, z)
-        norm_b = np.sqrt(np.einsum("ij,ij->j", b, b))
-        for _ in range(HELD_CG_MAXITER if maxiter is None else int(maxiter)):
-            if np.all(np.sqrt(np.einsum("ij,ij->j", r, r)) <= tol * norm_b):
-                break
-            q = self.A @ p
-            pq = np.einsum("ij,ij->j", p, q)
-            alpha = np.divide(rz, pq, out=np.zeros_like(rz), where=pq > 0)
-            x += alpha * p
-            r -= alpha * q
-            z = precondition(r)
-            rz_next = np.einsum("ij,ij->j", r, z)
-            p = z + np.divide(rz_next, rz, out=np.zeros_like(rz), where=rz > 0) * p
-            rz = rz_next
-        else:
-            if not np.all(np.sqrt(np.einsum("ij,ij->j", r, r)) <= tol * norm_b):  # far from the free system: factorise
-                self._factor = SPDSolver(self._matrix, self.pinned)
-                return self._factor.solve(X)
-        return self._expand(X2, x).reshape(np.shape(X))
+        # started from the free system's answer: the held rows' influence is the correction
+        found = _preconditioned_cg(self.A, b, precondition, tol, HELD_CG_MAXITER if maxiter is None else int(maxiter))
+        if found is None:  # far from the free system: factorise
+            self._factor = SPDSolver(self._matrix, self.pinned)
+            return self._factor.solve(X)
+        return self._expand(X2, found[0]).reshape(np.shape(X))
 
 
 SHIFTED_PCG_MAXITER = 300  # ShiftedPCG.solve: past this many steps the system is factorised after all (measured: 19 to
@@ -796,27 +807,12 @@ class ShiftedPCG(DirichletSystem):
         b = self._reduce(X2)
         if not self.size:
             return self._expand(X2, b).reshape(np.shape(X))
-        x = self.precondition(b)
-        r = b - spmm(self.A, x)
-        z = self.precondition(r)
-        p, rz = z.copy(), np.einsum("ij,ij->j", r, z)
-        norm_b = np.sqrt(np.einsum("ij,ij->j", b, b))
-        limit = SHIFTED_PCG_MAXITER if maxiter is None else int(maxiter)
-        self.iterations = 0
-        while not np.all(np.sqrt(np.einsum("ij,ij->j", r, r)) <= tol * norm_b):
-            if self.iterations >= limit:  # far from the bound: factorise
-                self._fallback = SPDSolver(self._matrix, self.pinned)
-                return self._fallback.solve(X)
-            q = spmm(self.A, p)
-            pq = np.einsum("ij,ij->j", p, q)
-            alpha = np.divide(rz, pq, out=np.zeros_like(rz), where=pq > 0)
-            x += alpha * p
-            r -= alpha * q
-            z = self.precondition(r)
-            rz_next = np.einsum("ij,ij->j", r, z)
-            p = z + np.divide(rz_next, rz, out=np.zeros_like(rz), where=rz > 0) * p
-            rz = rz_next
-            self.iterations += 1
+        found = _preconditioned_cg(self.A, b, self.precondition, tol,
+                                   SHIFTED_PCG_MAXITER if maxiter is None else int(maxiter))
+        if found is None:  # far from the bound: factorise
+            self._fallback = SPDSolver(self._matrix, self.pinned)
+            return self._fallback.solve(X)
+        x, self.iterations = found
         return self._expand(X2, x).reshape(np.shape(X))
 
 

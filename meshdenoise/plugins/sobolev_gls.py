@@ -652,7 +652,7 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order):
     if _iterative(ops, mu, order, pinned):
         return _sobolev_gls_iterative(X, F, ops, mu, beta, order, pinned)
     # no factor of I + mu L^p stored on a mesh from GLS_FACTOR_FREE_MIN_VERTICES: CG preconditioned by a one-ring
-    # factor's (L + a I)^-p for both solves (ShiftedPCG; the bunny scanner's filter 0.73 -> 0.45 s, face000's held run
+    # factor's (L + a I)^-p for both solves (ShiftedPCG; the bunny scanner's solves 0.72 -> 0.57 s, face000's held run
     # 1.8 s where its factor took 3.0 s)
     by_pcg = ops.n >= GLS_FACTOR_FREE_MIN_VERTICES and not _factor_stored(ops, mu, order, pinned)
     S = shifted_solver(ops, mu, order, pinned, "pcg" if by_pcg else "cholesky")
