@@ -601,7 +601,9 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order):
     preconditioned with the cached Cholesky factor of :math:`I + \\mu L^p`
     (:func:`normal_weighted_solve`, spectrum in :math:`[1, \\beta]`), for the correction
     :math:`Y - \\hat X`; with no factor stored, from 50,000 vertices, or from 20,000 while the weight is weak
-    (``GLS_FACTOR_FREE_CG_BOUND``), nothing is factorised (:func:`normal_weighted_cg`). For pinned normals
+    (``GLS_FACTOR_FREE_CG_BOUND``), nothing is factorised (:func:`normal_weighted_cg`), and from 20,000 past that
+    weight both solves are preconditioned by one factor of a one-ring matrix instead
+    (:class:`~meshdenoise.solvers.ShiftedPCG`). For pinned normals
     the map is linear; the filter is translation and rotation equivariant.
     ``meshdenoise.auto.choose_parameters`` picks ``mu`` and ``beta`` by SURE; ``denoise(mesh,
     method="sobolev_gls")`` then moves ``mu`` to the least estimated face-normal error (criterion
