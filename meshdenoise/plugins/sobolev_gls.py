@@ -279,8 +279,16 @@ GLS_SWEEP_REGION_FROM = 20_000  # before the normals search the beta sweep runs 
 
 
 
+def _normals_derivative(X0: np.ndarray, F: np.ndarray, S: Any, B: np.ndarray) -> np.ndarray:
+    """:math:`\\dot N_k = N'(X_0)[S b_k]` for every probe ``b_k`` of ``B`` (n, 3, k): the normals' derivative
+    :func:`_normals_divergence` reads, the same for every ``beta`` at one ``mu`` (a sweep computes it once)."""
+    n, _, k = B.shape
+    return coherent_normals_derivative(X0, F, S.solve(B.reshape(n, -1)).reshape(n, 3, k))
+
+
 def _normals_divergence(
-    X0: np.ndarray, F: np.ndarray, r: np.ndarray, N: np.ndarray, beta: float, S: Any, B: np.ndarray, AiB: np.ndarray
+    X0: np.ndarray, F: np.ndarray, r: np.ndarray, N: np.ndarray, beta: float, S: Any, B: np.ndarray, AiB: np.ndarray,
+    dN: np.ndarray | None = None,
 ) -> float:
     """The part of :math:`\\sum_k b_k^T J b_k` of ``sobolev_gls`` that comes from its normals following the input.
 
@@ -292,10 +300,11 @@ def _normals_divergence(
               \\quad \\dot N = N'(X_0)[S b], \\quad r = V - X
 
     to the pinned-normal Jacobian, so :math:`b^T A^{-1} g(b) = (A^{-1} b)^T g(b)` (``A`` symmetric; ``AiB`` holds
-    :math:`A^{-1} b_k`, solved with the rest). ``B``, ``AiB`` (n, 3, k); returns the sum over ``k``.
+    :math:`A^{-1} b_k`, solved with the rest). ``B``, ``AiB`` (n, 3, k); returns the sum over ``k``. ``dN``:
+    :func:`_normals_derivative`'s result when the caller has it.
     """
-    n, _, k = B.shape
-    dN = coherent_normals_derivative(X0, F, S.solve(B.reshape(n, -1)).reshape(n, 3, k))
+    if dN is None:
+        dN = _normals_derivative(X0, F, S, B)
     g = dN * np.sum(N * r, axis=1)[:, None, None] + N[:, :, None] * np.sum(dN * r[:, :, None], axis=1, keepdims=True)
     return -(beta - 1.0) * float(np.sum(AiB * g))
 
@@ -442,14 +451,22 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
 
     presolved: dict[tuple, np.ndarray] = {}  # a sweep's solves at one mu, by one CG run for all its betas
     isotropic: dict[float, tuple] = {}  # the last mu's solver, X0 and normals: a sweep's betas share them
+    derivative: dict[float, np.ndarray] = {}  # the last mu's normals derivative along the probes: so do they
 
     def isotropic_at(mu: float) -> tuple:
         if mu not in isotropic:
             isotropic.clear()
+            derivative.clear()
             S = shifted_solver(ctx.ops, mu, order)
             X0 = S.solve(ctx.V)
             isotropic[mu] = (S, X0, coherent_normals(X0, ctx.F))
         return isotropic[mu]
+
+    def derivative_at(mu: float) -> np.ndarray:
+        if mu not in derivative:
+            S, X0, _ = isotropic_at(mu)
+            derivative[mu] = _normals_derivative(X0, ctx.F, S, B)
+        return derivative[mu]
 
     def presolve(mu: float, betas: tuple) -> None:
         """The sweep's systems :math:`(I + \\mu L^p + (\\beta - 1) P_T) Y = [P_T (X - X_0), B]` for every ``beta``
@@ -493,7 +510,8 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
                         del warm[:-SOBOLEV_GLS_LOOSE_WARM]
                     X, AiB = X0 + out[:, :, 0], out[:, :, 1:]
                     fixed_normals = float(np.sum(AiB * _apply_weight(N, beta, B)))
-                    tr = s * (fixed_normals + _normals_divergence(X0, ctx.F, ctx.V - X, N, beta, S, B, AiB))
+                    tr = s * (fixed_normals + _normals_divergence(X0, ctx.F, ctx.V - X, N, beta, S, B, AiB,
+                                                                  derivative_at(mu)))
                 p = Point(mu, float(np.sum((X - ctx.V)[rows] ** 2)), tr, X)
                 p.score = gcv(p.residual_sq, tr, noise_dof) if use_gcv else p.residual_sq - noise_sq + 2.0 * ctx.rho**2 * tr
             evaluated[key] = (p, beta)
