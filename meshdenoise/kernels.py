@@ -555,6 +555,50 @@ def lanczos_regenerate(indptr, indices, data, Q, Qp, alpha, beta_prev, inv, Y, o
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def lanczos_next(indptr, indices, data, Q, Qp, alpha, beta_prev, inv, Qn):  # pragma: no cover - compiled
+    """:func:`lanczos_regenerate`'s recurrence alone, the next basis vectors into ``Qn`` (another buffer:
+    ``((M Q - Q alpha) - Qp beta_prev) inv``, the same arithmetic, the same bits)."""
+    n = Q.shape[0]
+    k = Q.shape[1]
+    for b in prange((n + CG_BLOCK - 1) // CG_BLOCK):
+        w = np.empty(k)
+        for i in range(b * CG_BLOCK, min(n, (b + 1) * CG_BLOCK)):
+            for c in range(k):
+                w[c] = 0.0
+            for t in range(indptr[i], indptr[i + 1]):
+                a = data[t]
+                j = indices[t]
+                for c in range(k):
+                    w[c] += a * Q[j, c]
+            for c in range(k):
+                Qn[i, c] = ((w[c] - Q[i, c] * alpha[c]) - Qp[i, c] * beta_prev[c]) * inv[c]
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def lanczos_accumulate_steps(ring, slots, Y, out):  # pragma: no cover - compiled
+    """``out[m] += sum_s ring[slots[s]] Y[s, m]`` (per column), the steps ``s`` added in order: the numbers of one
+    :func:`lanczos_regenerate` accumulation per step, with ``out`` read and written once for all of them."""
+    n = out.shape[1]
+    k = out.shape[2]
+    sets = out.shape[0]
+    steps = slots.shape[0]
+    for b in prange((n + CG_BLOCK - 1) // CG_BLOCK):
+        acc = np.empty((sets, k))
+        for i in range(b * CG_BLOCK, min(n, (b + 1) * CG_BLOCK)):
+            for m in range(sets):
+                for c in range(k):
+                    acc[m, c] = out[m, i, c]
+            for s in range(steps):  # each step's row once (contiguous), its additions in step order
+                r = slots[s]
+                for m in range(sets):
+                    for c in range(k):
+                        acc[m, c] += ring[r, i, c] * Y[s, m, c]
+            for m in range(sets):
+                for c in range(k):
+                    out[m, i, c] = acc[m, c]
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def lanczos_scale(W, inv, out):  # pragma: no cover - compiled
     """``out = W inv`` (per column): the next basis vectors."""
     n = W.shape[0]
