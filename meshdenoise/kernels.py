@@ -527,6 +527,22 @@ def lanczos_accumulate(Q, Y, out):  # pragma: no cover - compiled
                 out[m, i, c] += Q[i, c] * Y[m, c]
 
 
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def lanczos_next_row(indptr, indices, data, Q, Qp, alpha, beta_prev, inv, Qn, i, w):  # pragma: no cover - compiled
+    """Row ``i`` of the next basis vectors, ``((M Q - Q alpha) - Qp beta_prev) inv``, into ``Qn`` (``Qp`` itself
+    allowed: its row is read before written); ``w`` (k,) scratch."""
+    k = Q.shape[1]
+    for c in range(k):
+        w[c] = 0.0
+    for t in range(indptr[i], indptr[i + 1]):
+        a = data[t]
+        j = indices[t]
+        for c in range(k):
+            w[c] += a * Q[j, c]
+    for c in range(k):
+        Qn[i, c] = ((w[c] - Q[i, c] * alpha[c]) - Qp[i, c] * beta_prev[c]) * inv[c]
+
+
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def lanczos_regenerate(indptr, indices, data, Q, Qp, alpha, beta_prev, inv, Y, out):  # pragma: no cover - compiled
     """One step of a second pass, in one sweep of the rows: ``out[m] += Q Y[m]`` (per column, as
@@ -543,15 +559,7 @@ def lanczos_regenerate(indptr, indices, data, Q, Qp, alpha, beta_prev, inv, Y, o
             for m in range(sets):
                 for c in range(k):
                     out[m, i, c] += Q[i, c] * Y[m, c]
-            for c in range(k):
-                w[c] = 0.0
-            for t in range(indptr[i], indptr[i + 1]):
-                a = data[t]
-                j = indices[t]
-                for c in range(k):
-                    w[c] += a * Q[j, c]
-            for c in range(k):
-                Qp[i, c] = ((w[c] - Q[i, c] * alpha[c]) - Qp[i, c] * beta_prev[c]) * inv[c]
+            lanczos_next_row(indptr, indices, data, Q, Qp, alpha, beta_prev, inv, Qp, i, w)
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
@@ -563,15 +571,7 @@ def lanczos_next(indptr, indices, data, Q, Qp, alpha, beta_prev, inv, Qn):  # pr
     for b in prange((n + CG_BLOCK - 1) // CG_BLOCK):
         w = np.empty(k)
         for i in range(b * CG_BLOCK, min(n, (b + 1) * CG_BLOCK)):
-            for c in range(k):
-                w[c] = 0.0
-            for t in range(indptr[i], indptr[i + 1]):
-                a = data[t]
-                j = indices[t]
-                for c in range(k):
-                    w[c] += a * Q[j, c]
-            for c in range(k):
-                Qn[i, c] = ((w[c] - Q[i, c] * alpha[c]) - Qp[i, c] * beta_prev[c]) * inv[c]
+            lanczos_next_row(indptr, indices, data, Q, Qp, alpha, beta_prev, inv, Qn, i, w)
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")

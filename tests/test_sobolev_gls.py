@@ -53,6 +53,25 @@ def _dense_gls(x, F, L3, mu, beta):
     return np.linalg.solve(A, W @ x)
 
 
+def _reduced_dense_gls(Vn, F, Lp, mu, beta, pinned):
+    """The filter with ``pinned`` rows held, written densely: the isotropic pass's reduced system, its coherent
+    normals, the reduced 3n x 3n weighted solve; (3n,) in the index 3i + d."""
+    n = len(Vn)
+    pinned = np.asarray(pinned, dtype=int)
+    free = np.setdiff1d(np.arange(n), pinned)
+    Ai = np.eye(n) + mu * Lp
+    X0 = Vn.copy()
+    X0[free] = np.linalg.solve(Ai[np.ix_(free, free)], Vn[free] - Ai[np.ix_(free, pinned)] @ Vn[pinned])
+    N = coherent_normals(X0, F)
+    W, A = _dense_system(N, beta, mu, Lp)
+    f3 = (3 * free[:, None] + np.arange(3)).ravel()
+    p3 = (3 * pinned[:, None] + np.arange(3)).ravel()
+    x = Vn.ravel()
+    y = x.copy()
+    y[f3] = np.linalg.solve(A[np.ix_(f3, f3)], (W @ x)[f3] - A[np.ix_(f3, p3)] @ x[p3])
+    return y
+
+
 @pytest.fixture(params=["direct", "cg"])
 def solve_path(request, monkeypatch):
     """Both ways normal_weighted_solve solves: the small mesh's dense Cholesky and the conjugate gradients it
@@ -108,17 +127,7 @@ def test_sobolev_gls_pinned_vertices_solve_the_reduced_dense_system(solve_path):
     n = len(V)
     L2 = np.linalg.matrix_power(_dense_L(F, n), 2)
     mu, beta, pinned = 0.7, 6.0, np.arange(7)
-    free = np.setdiff1d(np.arange(n), pinned)
-    Ai = np.eye(n) + mu * L2  # isotropic pass, pinned rows kept
-    X0 = Vn.copy()
-    X0[free] = np.linalg.solve(Ai[np.ix_(free, free)], Vn[free] - Ai[np.ix_(free, pinned)] @ Vn[pinned])
-    N = coherent_normals(X0, F)
-    W, A = _dense_system(N, beta, mu, L2)
-    f3 = (3 * free[:, None] + np.arange(3)).ravel()
-    p3 = (3 * pinned[:, None] + np.arange(3)).ravel()
-    x = Vn.ravel()
-    y = x.copy()
-    y[f3] = np.linalg.solve(A[np.ix_(f3, f3)], (W @ x)[f3] - A[np.ix_(f3, p3)] @ x[p3])
+    y = _reduced_dense_gls(Vn, F, L2, mu, beta, pinned)  # isotropic pass and weighted solve, pinned rows kept
     got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=2, pinned=pinned)[0]
     assert np.array_equal(got[pinned], Vn[pinned])
     np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
@@ -139,17 +148,7 @@ def test_sobolev_gls_one_ring_pcg_path_solves_the_dense_system(monkeypatch, orde
     Lp = np.linalg.matrix_power(_dense_L(F, n), order)
     mu, beta = 40.0, 6.0
     pinned = np.arange(7) if held else np.zeros(0, dtype=int)
-    free = np.setdiff1d(np.arange(n), pinned)
-    Ai = np.eye(n) + mu * Lp
-    X0 = Vn.copy()
-    X0[free] = np.linalg.solve(Ai[np.ix_(free, free)], Vn[free] - Ai[np.ix_(free, pinned)] @ Vn[pinned])
-    N = coherent_normals(X0, F)
-    W, A = _dense_system(N, beta, mu, Lp)
-    f3 = (3 * free[:, None] + np.arange(3)).ravel()
-    p3 = (3 * pinned[:, None] + np.arange(3)).ravel()
-    x = Vn.ravel()
-    y = x.copy()
-    y[f3] = np.linalg.solve(A[np.ix_(f3, f3)], (W @ x)[f3] - A[np.ix_(f3, p3)] @ x[p3])
+    y = _reduced_dense_gls(Vn, F, Lp, mu, beta, pinned)
     monkeypatch.setattr(sg, "GLS_FACTOR_FREE_MIN_VERTICES", 0)
     monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", 0.0)
     monkeypatch.setattr(sg, "GLS_DENSE_MAX_VERTICES", 0)
@@ -177,17 +176,7 @@ def test_sobolev_gls_factor_free_path_with_held_rows_solves_the_reduced_dense_sy
     n = len(V)
     Lp = np.linalg.matrix_power(_dense_L(F, n), order)
     mu, beta, pinned = 0.3, 6.0, np.arange(7)
-    free = np.setdiff1d(np.arange(n), pinned)
-    Ai = np.eye(n) + mu * Lp
-    X0 = Vn.copy()
-    X0[free] = np.linalg.solve(Ai[np.ix_(free, free)], Vn[free] - Ai[np.ix_(free, pinned)] @ Vn[pinned])
-    N = coherent_normals(X0, F)
-    W, A = _dense_system(N, beta, mu, Lp)
-    f3 = (3 * free[:, None] + np.arange(3)).ravel()
-    p3 = (3 * pinned[:, None] + np.arange(3)).ravel()
-    x = Vn.ravel()
-    y = x.copy()
-    y[f3] = np.linalg.solve(A[np.ix_(f3, f3)], (W @ x)[f3] - A[np.ix_(f3, p3)] @ x[p3])
+    y = _reduced_dense_gls(Vn, F, Lp, mu, beta, pinned)
     monkeypatch.setattr(sg, "GLS_FACTOR_FREE_MIN_VERTICES", 0)
     monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", np.inf)
     monkeypatch.setattr(sg, "GLS_FILTER_TOL", 1e-12)
