@@ -68,9 +68,9 @@ def test_lanczos_quadrature_matches_dense_quadratic_forms(order):
 
 @pytest.mark.parametrize("order", [1, 2, 3, 4])
 def test_shifted_forms_by_tridiagonal_solves_equal_the_dense_forms_and_the_gauss_rules(order):
-    """evaluate_shifted (p tridiagonal solves per column and size, no eigenproblem) against the dense quadratic forms
+    """evaluate of a ShiftedInverse (p tridiagonal solves per column and size, no eigenproblem) against the dense forms
     b^T (I + mu L^p)^-power b, and shifted_forms against the eigenvalue route (quadrature) at every size, both classes."""
-    from meshdenoise.solvers import CompiledLanczos
+    from meshdenoise.solvers import CompiledLanczos, ShiftedInverse
 
     _, Vn, F = _noisy(icosphere(3), 0.02)
     ops = Operators(F, len(Vn))
@@ -82,7 +82,7 @@ def test_shifted_forms_by_tridiagonal_solves_equal_the_dense_forms_and_the_gauss
             for power in (1, 2):
                 g = lambda t: (1.0 / (1.0 + mu * np.maximum(t, 0) ** order)) ** power  # noqa: E731
                 dense = np.einsum("ij,ij->j", B, (U * g(lam)) @ (U.T @ B))
-                got = q.evaluate_shifted(mu, order, power, growth=0.25)
+                got = q.evaluate(ShiftedInverse(mu, order, power), growth=0.25)
                 np.testing.assert_allclose(got, dense, rtol=1e-9, atol=1e-14 * np.abs(dense).max())
                 assert got[-1] == 0.0  # a zero column
                 for k in (1, 2, 7, q.steps // 2, q.steps):

@@ -183,14 +183,14 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
     def by_quadrature(mu: float) -> list | None:
         """Per-axis SURE: :math:`\\|H x_d - x_d\\|^2 = c_d^T \\mu^2 (I + \\mu L^p)^{-2} c_d`, :math:`c_d = L^p x_d`,
         and the weighted traces :math:`q^T (I + \\mu L^p)^{-1} q`, Gauss quadrature on the Lanczos runs."""
-        # (1 + mu x^p)^-2 and ^-1 by tridiagonal solves (LanczosQuadrature.evaluate_shifted), no eigenproblems
-        tol = AXES_QUADRATURE_TOL
+        # (1 + mu x^p)^-2 and ^-1 (ShiftedInverse: by tridiagonal solves, no eigenproblems)
+        tol, residual, trace = AXES_QUADRATURE_TOL, ShiftedInverse(mu, order, 2), ShiftedInverse(mu, order)
         if quad is None:
-            parts = [one.evaluate_shifted(mu, order, 2, columns=range(3), rtol=tol, growth=0.25),
-                     one.evaluate_shifted(mu, order, 1, columns=range(3, 3 + 3 * m), rtol=tol, growth=0.25)]
+            parts = [one.evaluate(residual, columns=range(3), rtol=tol, growth=0.25),
+                     one.evaluate(trace, columns=range(3, 3 + 3 * m), rtol=tol, growth=0.25)]
         else:  # growth: tests at geometrically spaced sizes (the elephant's strong weights: 4.5 -> 4.0 s)
-            parts = [run.evaluate_shifted(mu, order, 2, rtol=tol, growth=0.25) for run in quad[:3]] + [
-                run.evaluate_shifted(mu, order, 1, rtol=tol, growth=0.25) for run in quad[3:]]
+            parts = [run.evaluate(residual, rtol=tol, growth=0.25) for run in quad[:3]] + [
+                run.evaluate(trace, rtol=tol, growth=0.25) for run in quad[3:]]
         if any(part is None for part in parts):
             return None
         r, q = (parts[0], parts[1]) if quad is None else (np.concatenate(parts[:3]), np.concatenate(parts[3:]))

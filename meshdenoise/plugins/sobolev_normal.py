@@ -10,8 +10,8 @@ from ..geometry import area_normals  # re-exported: the filter's normals
 from ..registry import AutoRule, Param, get_filter, register
 from ..geometry import vertex_normals
 from ..operators import mask_key, spmm
-from ..solvers import (FILTER_LANCZOS_TOL, LANCZOS_SHIFTED_MAX_STEPS, CompiledLanczos, LanczosRows, SPDSolver, lanczos_shifted,
-                       shifted_cg_bound, shifted_matrix, shifted_solver)
+from ..solvers import (FILTER_LANCZOS_TOL, LANCZOS_SHIFTED_MAX_STEPS, CompiledLanczos, LanczosRows, ShiftedInverse,
+                       SPDSolver, lanczos_shifted, shifted_cg_bound, shifted_matrix, shifted_solver)
 from ..tuning import spectral as spectral_module
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
@@ -248,8 +248,8 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
         i = orders.index(order)
         # to 1e-10 as the Sobolev rules' quadrature (search.shifted_quadrature): Gauss rules need no second pass, and
         # at 1e-6 the refinement's parabola moved the elephant's mu by 1.6e-6
-        r = quad.evaluate_shifted(mu, order, 2, range(3 * i, 3 * i + 3), growth=0.25)
-        tr = quad.evaluate_shifted(mu, order, 1, range(3 * len(orders), 3 * len(orders) + Bp.shape[1]), growth=0.25)
+        r = quad.evaluate(ShiftedInverse(mu, order, 2), range(3 * i, 3 * i + 3), growth=0.25)
+        tr = quad.evaluate(ShiftedInverse(mu, order), range(3 * len(orders), 3 * len(orders) + Bp.shape[1]), growth=0.25)
         if r is None or tr is None:
             return None
         p = Point(mu, mu**2 * float(r.sum()), float(tr.sum()) / K, None)

@@ -438,8 +438,8 @@ def shifted_quadrature(V: np.ndarray, ops: Operators, order: int, Z: np.ndarray,
 
     def evaluate(mu: float) -> Point | None:
         # (1 + mu x^p)^-2 and ^-1 by tridiagonal solves: no eigenproblem per column and size (the elephant: 0.4 s)
-        r = quad.evaluate_shifted(mu, order, 2, res_cols, growth=0.25)
-        t = quad.evaluate_shifted(mu, order, 1, probe_cols, growth=0.25)
+        r = quad.evaluate(ShiftedInverse(mu, order, 2), res_cols, growth=0.25)
+        t = quad.evaluate(ShiftedInverse(mu, order), probe_cols, growth=0.25)
         if r is None or t is None:
             return None
         return Point(mu, mu**2 * float(r.sum()), s * float(t.sum()), None)
