@@ -77,6 +77,35 @@ def test_lanczos_dots_against_dense_bilinear_forms(g):
     assert LanczosDots(L, B, [U1], max_steps=3).dots(lambda t: 1.0 / (1.0 + 1e4 * t**3), check=2) is None
 
 
+@pytest.mark.parametrize("order", [1, 2, 3])
+def test_lanczos_dots_of_shifted_inverses_by_tridiagonal_solves(order):
+    """dots of ShiftedInverse functions (p tridiagonal solves per column and size, no eigenproblem), one function or
+    one per axis, against the same functions as plain callables (the eigenvalue route) at every size, and against
+    the dense bilinear forms once converged."""
+    from meshdenoise.solvers import ShiftedInverse
+
+    _, F, X = _noisy(2)
+    L = get_operators(F, len(X)).L
+    rng = np.random.default_rng(3)
+    B, U1, U2 = (rng.standard_normal((len(X), 6)) for _ in range(3))
+    theta, Q = np.linalg.eigh(L.toarray())
+    for mus in [(0.7,), (0.05, 2.0, 30.0), (0.05, 0.0, 30.0)]:  # mu 0: an axis left as it is
+        fs = tuple(ShiftedInverse(mu, order) for mu in mus)
+        plain = tuple((lambda t, f=f: f(t)) for f in fs)  # the same values, not recognised: eigenvalue route
+        g, g_plain = (fs[0], plain[0]) if len(fs) == 1 else (fs, plain)
+        run = LanczosDots(L, B, [U1, U2])
+        got = run.dots(g)
+        for k in (1, 2, 5, run.steps):
+            fast, slow = run._estimate(g, k), run._estimate(g_plain, k)
+            np.testing.assert_allclose(fast[0], slow[0], rtol=1e-10, atol=1e-12 * np.abs(slow[0]).max())
+            np.testing.assert_allclose(fast[1], slow[1], rtol=1e-10)
+        want = np.zeros((2, B.shape[1]))
+        for j in range(B.shape[1]):
+            G = (Q * fs[j % len(fs)](np.maximum(theta, 0.0))) @ Q.T
+            want[:, j] = [U[:, j] @ G @ B[:, j] for U in (U1, U2)]
+        np.testing.assert_allclose(got, want, rtol=1e-8, atol=1e-9 * np.abs(want).max())
+
+
 def test_lanczos_dots_is_exact_once_the_krylov_space_is_exhausted_and_checks_shapes():
     import scipy.sparse as sp
 

@@ -24,7 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..operators import Operators, spmm
-from ..solvers import CompiledLanczos, LanczosDots
+from ..solvers import CompiledLanczos, LanczosDots, ShiftedInverse
 
 __all__ = ["Spectral", "SpectralFailed", "SpectralSearch", "shifted_spectral", "averaging_spectral",
            "heat_kernel_spectral", "normalized_laplacian", "SPECTRAL_TOL", "SPECTRAL_MAX_STEPS", "SPECTRAL_WINDOW", "SPECTRAL_MIN_VERTICES"]
@@ -99,9 +99,7 @@ def shifted_spectral(ops: Operators, mu: float, order: int = 1) -> Spectral:
     True
     """
     mu, p = float(mu), int(order)
-
-    def g(y: np.ndarray) -> np.ndarray:
-        return 1.0 / (1.0 + mu * np.maximum(y, 0.0) ** p)
+    g = ShiftedInverse(mu, p)  # the same function, recognised by LanczosDots: its terms by tridiagonal solves
 
     def h(y: np.ndarray) -> np.ndarray:
         y = np.maximum(y, 0.0)
