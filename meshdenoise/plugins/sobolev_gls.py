@@ -146,11 +146,13 @@ def _dense_normal_weighted_solve(
     return Y.reshape(n, 3, k)
 
 
-GLS_ITERATIVE_MIN_VERTICES = 50_000  # without pinned vertices the filter factorises nothing from this size
-GLS_FACTOR_FREE_MIN_VERTICES = 20_000  # ... nor, held rows or not, from this size while CG's bound for I + mu L^p at
-GLS_FACTOR_FREE_CG_BOUND = 700  # GLS_FILTER_TOL is at most this: measured, factor-free (Lanczos or Jacobi CG, then
+GLS_FACTOR_FREE_MIN_VERTICES = 20_000  # with no factor stored the filter factorises nothing from this size, held
+GLS_FACTOR_FREE_CG_BOUND = 700  # rows or not, while CG's bound for I + mu L^p at GLS_FILTER_TOL is at most this (past
+# it, CG preconditioned by a one-ring factor, ShiftedPCG): measured, factor-free (Lanczos or Jacobi CG, then
 # block-Jacobi CG) against a factor and CG preconditioned by it, beta 12, cold: Bunny0.2 0.21 against 0.86 s at mu 0.1,
-# the two equal near a bound of 1,000 (mu 4), the elephant near 760 (mu 3 to 10), face000 near 710 (mu 10 to 12)
+# the two equal near a bound of 1,000 (mu 4), the elephant near 760 (mu 3 to 10), face000 near 710 (mu 10 to 12);
+# against ShiftedPCG, free rows: face000 at mu 34 (bound 1,200) 3.1 against 2.1 s, the 400k elephant at mu 4.7 (bound
+# 820) 11-14 against 9-15 s (a wash); until session 27 every size from 50,000 vertices was factor-free
 GLS_JACOBI_MAX_ITERATIONS = 3000  # block-Jacobi CG's cap before the Lanczos-preconditioned solve takes over
 
 
@@ -618,7 +620,7 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order):
     The system couples the three coordinates; it is solved by conjugate gradients
     preconditioned with the cached Cholesky factor of :math:`I + \\mu L^p`
     (:func:`normal_weighted_solve`, spectrum in :math:`[1, \\beta]`), for the correction
-    :math:`Y - \\hat X`; with no factor stored, from 50,000 vertices, or from 20,000 while the weight is weak
+    :math:`Y - \\hat X`; with no factor stored, from 20,000 vertices while the weight is weak
     (``GLS_FACTOR_FREE_CG_BOUND``), nothing is factorised (:func:`normal_weighted_cg`), and from 20,000 past that
     weight both solves are preconditioned by one factor of a one-ring matrix instead
     (:class:`~meshdenoise.solvers.ShiftedPCG`). For pinned normals
@@ -702,14 +704,11 @@ def _factor_stored(ops: Operators, mu: float, order: int, pinned: np.ndarray | N
 
 def _iterative(ops: Operators, mu: float, order: int, pinned: np.ndarray | None) -> bool:
     """Whether :func:`sobolev_gls` factorises nothing: no factor of :math:`I + \\mu L^p` stored already (with
-    ``pinned``'s rows held, or free: held rows' product form preconditions by it), and from
-    ``GLS_ITERATIVE_MIN_VERTICES`` vertices with none held, or from ``GLS_FACTOR_FREE_MIN_VERTICES`` while CG's bound
-    (:func:`~meshdenoise.solvers.shifted_cg_bound` at ``GLS_FILTER_TOL``) is at most ``GLS_FACTOR_FREE_CG_BOUND``."""
-    held = pinned is not None and bool(np.any(pinned))
+    ``pinned``'s rows held, or free: held rows' product form preconditions by it), from
+    ``GLS_FACTOR_FREE_MIN_VERTICES`` vertices while CG's bound (:func:`~meshdenoise.solvers.shifted_cg_bound` at
+    ``GLS_FILTER_TOL``) is at most ``GLS_FACTOR_FREE_CG_BOUND``."""
     if _factor_stored(ops, mu, order, pinned):
         return False
-    if ops.n >= GLS_ITERATIVE_MIN_VERTICES and not held:
-        return True
     return (ops.n >= GLS_FACTOR_FREE_MIN_VERTICES
             and shifted_cg_bound(ops, mu, order, GLS_FILTER_TOL) <= GLS_FACTOR_FREE_CG_BOUND)
 
