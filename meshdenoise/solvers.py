@@ -647,11 +647,12 @@ HELD_CG_MAXITER = 200  # HeldByProduct.solve: past this many steps the held syst
 
 
 def _preconditioned_cg(A: sp.csr_matrix, b: np.ndarray, precondition: Callable[[np.ndarray], np.ndarray], tol: float,
-                       maxiter: int) -> tuple[np.ndarray, int] | None:
-    """``A x = b`` (SPD ``A``, ``b`` (m, c)) by CG preconditioned by ``precondition``, started from its answer, every column
-    to a relative residual ``tol``: ``(x, steps)``, or ``None`` past ``maxiter`` steps (the held solvers then factorise).
+                       maxiter: int, x0: np.ndarray | None = None) -> tuple[np.ndarray, int] | None:
+    """``A x = b`` (SPD ``A``, ``b`` (m, c)) by CG preconditioned by ``precondition``, started from ``x0`` (m, c) or else
+    from the preconditioner's answer, every column to a relative residual ``tol``: ``(x, steps)``, or ``None`` past
+    ``maxiter`` steps (the held solvers then factorise).
     """
-    x = precondition(b)
+    x = precondition(b) if x0 is None else np.array(x0, dtype=np.float64)
     r = b - spmm(A, x)
     z = precondition(r)
     p, rz = z.copy(), np.einsum("ij,ij->j", r, z)
@@ -797,9 +798,11 @@ class ShiftedPCG(DirichletSystem):
             Z = self.factor.solve(Z)
         return Z / self.mu
 
-    def solve(self, X: np.ndarray, *, tol: float = HELD_CG_TOL, maxiter: int | None = None) -> np.ndarray:
+    def solve(self, X: np.ndarray, *, tol: float = HELD_CG_TOL, maxiter: int | None = None,
+              x0: np.ndarray | None = None) -> np.ndarray:
         """``Y`` of the shape of ``X`` (n,) or (n, k): ``Y_p = X_p`` bit for bit, the free rows to a relative residual
-        ``tol`` per column, started from the preconditioner's answer; past ``maxiter`` steps (default
+        ``tol`` per column, started from ``x0``'s free rows (shaped like ``X``: a guess, such as the same system's
+        answer with other held values) or else from the preconditioner's answer; past ``maxiter`` steps (default
         :data:`SHIFTED_PCG_MAXITER`) by a factor of the held system."""
         if self._fallback is not None:
             return self._fallback.solve(X)
@@ -807,8 +810,14 @@ class ShiftedPCG(DirichletSystem):
         b = self._reduce(X2)
         if not self.size:
             return self._expand(X2, b).reshape(np.shape(X))
+        start = None
+        if x0 is not None:
+            start = self._columns(x0)
+            if start.shape != X2.shape:
+                raise ValueError(f"ShiftedPCG.solve: x0 has shape {np.shape(x0)}, X {np.shape(X)}")
+            start = start if self.free is None else start[self.free]
         found = _preconditioned_cg(self.A, b, self.precondition, tol,
-                                   SHIFTED_PCG_MAXITER if maxiter is None else int(maxiter))
+                                   SHIFTED_PCG_MAXITER if maxiter is None else int(maxiter), start)
         if found is None:  # far from the bound: factorise
             self._fallback = SPDSolver(self._matrix, self.pinned)
             return self._fallback.solve(X)

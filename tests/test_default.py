@@ -292,6 +292,35 @@ def test_boundary_motion_normal_moves_border_vertices_along_their_normals_and_so
     np.testing.assert_allclose(out[i], np.linalg.solve(A[np.ix_(i, i)], rhs), atol=1e-9)
 
 
+def test_boundary_motion_normal_starts_the_held_run_of_a_warm_start_filter_from_the_free_run():
+    """A filter registered with warm_start gets the free run's result, read-only, as its held run's ``start``; one
+    without gets no ``start``."""
+    import dataclasses
+
+    from meshdenoise.registry import boundary_along_normals, get_filter
+
+    V, F = open_cap(3)
+    Vn = md.add_normal_noise((V, F), 0.02, seed=0)[0]
+    ops = get_operators(F, V.shape[0])
+    for name, params, warm in (("sobolev_axes", dict(mu1=0.3, mu2=0.1, mu3=0.05), True), ("sobolev", dict(mu=2.0), False)):
+        spec = get_filter(name)
+        values = spec.resolve(params)
+        free = spec.core(Vn, F, ops=ops, pinned=None, **values)
+        seen = []
+
+        def core(V, F, *, ops, pinned, seen=seen, real=spec.core, **kw):
+            seen.append(kw.get("start"))
+            return real(V, F, ops=ops, pinned=pinned, **kw)
+
+        out = boundary_along_normals(dataclasses.replace(spec, core=core), Vn, F, ops, None, values, free)
+        assert spec.warm_start is warm and len(seen) == 1
+        if warm:
+            assert seen[0] is not None and np.array_equal(seen[0], free) and not seen[0].flags.writeable
+        else:
+            assert seen[0] is None
+        np.testing.assert_array_equal(out, boundary_along_normals(spec, Vn, F, ops, None, values, free))
+
+
 def test_boundary_motion_normal_keeps_the_free_run_of_a_filter_that_moves_vertices_along_their_normals():
     # two_stage with keep_tangential gives every vertex back its input's tangential part: with one outer iteration
     # the move is along the vertex normal of the fitted mesh (the same run without keep_tangential), so the free run

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from meshdenoise import add_normal_noise, apply_filter
+from meshdenoise.registry import get_filter
 from meshdenoise.operators import Operators, clear_cache, get_operators
 from meshdenoise.shapes import grid, icosphere, torus
 from meshdenoise.solvers import LanczosQuadrature, LanczosRows, lanczos_shifted
@@ -150,6 +151,15 @@ def test_sobolev_axes_with_held_vertices_by_cg_equals_its_factor(monkeypatch):
     assert methods == ["pcg", "pcg"]
     np.testing.assert_allclose(pcg, before, atol=1e-9 * np.abs(Vn).max())
     np.testing.assert_array_equal(pcg[pinned], Vn[pinned])
+    # started from a nearby result (the border option's free run), both iterations: the same result, held rows exact
+    free = apply_filter("sobolev_axes", (Vn, F), **params)[0]
+    for bound in (0, 10**9):
+        monkeypatch.setattr(ax, "AXES_PINNED_CG_BOUND", bound)
+        clear_cache()
+        ops = get_operators(F, len(Vn))
+        warm = get_filter("sobolev_axes").core(Vn, F, ops=ops, pinned=pinned, start=free, **params)
+        np.testing.assert_allclose(warm, before, atol=1e-9 * np.abs(Vn).max())
+        np.testing.assert_allclose(warm[pinned], Vn[pinned], atol=1e-15)  # the core's frame rotation back: rounding
     monkeypatch.setattr(ax, "AXES_LANCZOS_MIN_VERTICES", 10**9)  # below the size: the factor
     methods.clear()
     clear_cache()

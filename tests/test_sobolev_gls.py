@@ -13,7 +13,7 @@ from meshdenoise.tuning.noise_level import normal_spread
 from meshdenoise.geometry import vertex_normals
 from meshdenoise.operators import get_operators
 from meshdenoise.plugins.sobolev_gls import coherent_normals
-from meshdenoise.registry import apply_filter
+from meshdenoise.registry import apply_filter, get_filter
 from meshdenoise.shapes import grid, icosphere, torus
 
 
@@ -161,6 +161,14 @@ def test_sobolev_gls_one_ring_pcg_path_solves_the_dense_system(monkeypatch, orde
                        pinned=pinned if held else None)[0]
     assert np.array_equal(got[pinned], Vn[pinned])
     np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
+    # started from a nearby result (the border option's free run): both solves from it, the same answer
+    mask = np.zeros(n, dtype=bool)
+    mask[pinned] = True
+    start = got + 0.01 * np.random.default_rng(4).standard_normal(got.shape)
+    warm = get_filter("sobolev_gls").core(Vn, F, ops=get_operators(F, n), pinned=mask if held else None, mu=mu,
+                                          beta=beta, order=order, start=start)
+    assert np.array_equal(warm[pinned], Vn[pinned])
+    np.testing.assert_allclose(warm, y.reshape(n, 3), atol=1e-8)
 
 
 @pytest.mark.parametrize("order", [2, 3])
@@ -187,6 +195,13 @@ def test_sobolev_gls_factor_free_path_with_held_rows_solves_the_reduced_dense_sy
     got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=order, pinned=pinned)[0]
     assert np.array_equal(got[pinned], Vn[pinned])
     np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
+    mask = np.zeros(n, dtype=bool)
+    mask[pinned] = True
+    start = got + 0.01 * np.random.default_rng(4).standard_normal(got.shape)  # a nearby result: both CGs start there
+    warm = get_filter("sobolev_gls").core(Vn, F, ops=get_operators(F, n), pinned=mask, mu=mu, beta=beta, order=order,
+                                          start=start)
+    assert np.array_equal(warm[pinned], Vn[pinned])
+    np.testing.assert_allclose(warm, y.reshape(n, 3), atol=1e-8)
     # the gate: a stored factor, or a bound above the limit, keeps the factor path (here: the test fails on a factor)
     monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", 0.0)
     with pytest.raises(pytest.fail.Exception, match="a factor was built"):

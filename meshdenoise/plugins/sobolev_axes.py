@@ -288,6 +288,7 @@ def sobolev_axes_spectral(V: np.ndarray, F: np.ndarray, ops: Operators, params: 
                   linear_map=sobolev_axes_map, normals_region=AXES_NORMAL_REGION,
                   spectral=sobolev_axes_spectral),
     summary="Polyharmonic Sobolev (I + mu_d L^p) y_d = x_d, one mu per principal axis of the normals",
+    warm_start=True,
     params=[
         Param("mu1", float, 1.0, low=0.0, help="weight on the axis the normals point along least (0 keeps it)"),
         Param("mu2", float, 1.0, low=0.0, help="weight on the middle axis"),
@@ -297,7 +298,7 @@ def sobolev_axes_spectral(V: np.ndarray, F: np.ndarray, ops: Operators, params: 
     ],
     linear=False,
 )
-def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps):
+def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=None):
     """Polyharmonic Sobolev smoothing, with its own strength on each principal axis of the normals.
 
     With :math:`E = (e_1, e_2, e_3)` the principal axes of the normals of the mesh
@@ -365,6 +366,9 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps):
         return X
     E, _ = normal_frame(X, F, ops, frame_steps)
     C = X @ E
+    # the held runs' conjugate gradients start from a nearby result when given (the border option's free run: the
+    # residual is then only near the border, face000's three held axes 195 -> 150 steps), else from the input
+    C0 = C if start is None else np.asarray(start, dtype=np.float64) @ E
     out = np.empty_like(C)
     held = pinned is not None and pinned.any()
     factor_free = ops.n >= AXES_LANCZOS_MIN_VERTICES and not held
@@ -383,13 +387,14 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps):
         elif (mu != 0 and held and ops.n >= AXES_LANCZOS_MIN_VERTICES and (float(mu), mask_key(pinned)) not in stored
               and (bound := shifted_cg_bound(ops, mu, order, FILTER_LANCZOS_TOL)) <= AXES_PINNED_CG_BOUND):
             # held vertices (the border option's second run): CG from the input, no factor of I + mu L^p with them
-            y = shifted_solver(ops, mu, order, pinned, "cg").solve(C[:, d], tol=FILTER_LANCZOS_TOL, x0=C[:, d],
+            y = shifted_solver(ops, mu, order, pinned, "cg").solve(C[:, d], tol=FILTER_LANCZOS_TOL, x0=C0[:, d],
                                                                  maxiter=int(4 * math.ceil(bound)) + 50)
         elif (mu != 0 and held and ops.n >= AXES_LANCZOS_MIN_VERTICES and order > 1
               and (float(mu), mask_key(pinned)) not in stored):
             # past that bound: CG preconditioned by a one-ring factor (solvers.ShiftedPCG), where a factor of
             # I + mu L^p with the held rows took 2.8 s per axis on face000 (4,111 held border vertices)
-            y = shifted_solver(ops, mu, order, pinned, "pcg").solve(C[:, d], tol=FILTER_LANCZOS_TOL)
+            y = shifted_solver(ops, mu, order, pinned, "pcg").solve(C[:, d], tol=FILTER_LANCZOS_TOL,
+                                                                  x0=None if start is None else C0[:, d])
         if y is None:
             y = C[:, d] if mu == 0 else shifted_solver(ops, mu, order, pinned).solve(C[:, d])
         out[:, d] = y

@@ -597,8 +597,9 @@ def sobolev_gls_spectral(ops: Operators, params: dict) -> Spectral | None:
         Param("order", int, 3, low=1, high=4, help="power p of the Laplacian in the penalty"),
     ],
     linear=False,
+    warm_start=True,
 )
-def sobolev_gls(V, F, *, ops, pinned, mu, beta, order):
+def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, start=None):
     """Polyharmonic Sobolev smoothing whose data term trusts the tangential directions more.
 
     The paper's noise moves each vertex along its normal only, so a denoiser should
@@ -672,13 +673,15 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order):
     if F.shape[0] == 0 or mu == 0:
         return X
     if _iterative(ops, mu, order, pinned):
-        return _sobolev_gls_iterative(X, F, ops, mu, beta, order, pinned)
+        return _sobolev_gls_iterative(X, F, ops, mu, beta, order, pinned, start)
     # no factor of I + mu L^p stored on a mesh from GLS_FACTOR_FREE_MIN_VERTICES: CG preconditioned by a one-ring
     # factor's (L + a I)^-p for both solves (ShiftedPCG; the bunny scanner's solves 0.72 -> 0.57 s, face000's held run
     # 1.8 s where its factor took 3.0 s)
     by_pcg = ops.n >= GLS_FACTOR_FREE_MIN_VERTICES and not _factor_stored(ops, mu, order, pinned)
     S = shifted_solver(ops, mu, order, pinned, "pcg" if by_pcg else "cholesky")
-    X0 = S.solve(X)
+    # a start (the border option's free run) starts both conjugate-gradient solves: X0 from it, the correction from
+    # its difference (zero on held rows)
+    X0 = S.solve(X, x0=start) if by_pcg and start is not None else S.solve(X)
     if beta == 1.0:
         return X0
     N = coherent_normals(X0, F)
@@ -691,7 +694,17 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order):
             Z[free] = S.precondition(R[free])
             return Z
     return X0 + normal_weighted_solve(ops, N, beta, mu, order, _correction_rhs(N, beta, X, X0), pinned,
-                                      tol=GLS_FILTER_TOL, prec=prec)
+                                      x0=_correction_start(start, X0, pinned), tol=GLS_FILTER_TOL, prec=prec)
+
+
+def _correction_start(start: np.ndarray | None, X0: np.ndarray, pinned: np.ndarray | None) -> np.ndarray | None:
+    """The correction's starting guess ``start - X0`` (``None`` without a start), zero on held rows (their value)."""
+    if start is None:
+        return None
+    D0 = np.asarray(start, dtype=np.float64) - X0
+    if pinned is not None:
+        D0[np.asarray(pinned, dtype=bool)] = 0.0
+    return D0
 
 
 def _factor_stored(ops: Operators, mu: float, order: int, pinned: np.ndarray | None) -> bool:
@@ -714,11 +727,11 @@ def _iterative(ops: Operators, mu: float, order: int, pinned: np.ndarray | None)
 
 
 def _sobolev_gls_iterative(X: np.ndarray, F: np.ndarray, ops: Operators, mu: float, beta: float, order: int,
-                           pinned: np.ndarray | None = None) -> np.ndarray:
+                           pinned: np.ndarray | None = None, start: np.ndarray | None = None) -> np.ndarray:
     """:func:`sobolev_gls` without a factor: :math:`X_0` by two Lanczos passes (:func:`~meshdenoise.solvers.lanczos_shifted`)
     or, with held rows, by Jacobi CG on the free rows (from the input, as ``sobolev_axes``' held run); the correction
     by block-Jacobi CG (:func:`normal_weighted_cg`), else by CG preconditioned by Lanczos solves (a factor with held
-    rows)."""
+    rows). ``start``: a nearby result the held runs' solves start from (:func:`sobolev_gls`)."""
     held = pinned is not None and bool(np.any(pinned))
 
     def shifted(R: np.ndarray) -> np.ndarray:
@@ -727,7 +740,8 @@ def _sobolev_gls_iterative(X: np.ndarray, F: np.ndarray, ops: Operators, mu: flo
 
     if held:
         bound = shifted_cg_bound(ops, mu, order, FILTER_LANCZOS_TOL)
-        X0 = shifted_solver(ops, mu, order, pinned, "cg").solve(X, tol=FILTER_LANCZOS_TOL, x0=X,
+        X0 = shifted_solver(ops, mu, order, pinned, "cg").solve(X, tol=FILTER_LANCZOS_TOL,
+                                                               x0=X if start is None else start,
                                                                maxiter=int(4 * math.ceil(bound)) + 50)
     else:
         X0 = shifted(X)
@@ -735,7 +749,8 @@ def _sobolev_gls_iterative(X: np.ndarray, F: np.ndarray, ops: Operators, mu: flo
         return X0
     N = coherent_normals(X0, F)
     rhs = _correction_rhs(N, beta, X, X0)
-    D, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs, tol=GLS_FILTER_TOL, pinned=pinned)
+    D, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs, tol=GLS_FILTER_TOL, pinned=pinned,
+                               x0=_correction_start(start, X0, pinned))
     if not ok:  # a very large mu: the factor-preconditioned iteration, its count bounded by sqrt(beta)
         D = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, x0=D, prec=None if held else shifted)
     return X0 + D
