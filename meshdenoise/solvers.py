@@ -1325,6 +1325,11 @@ class CompiledLanczos(LanczosQuadrature):
     max_steps : int
     duals : sequence of ndarray, each (n, k), optional
         Their projections on each basis vector are recorded as the run goes (:class:`LanczosDots`).
+    keep_basis : int
+        Bytes of basis vectors kept as the run goes (default 0: none): while the run's basis fits,
+        :meth:`apply_many` sums the kept vectors (the same numbers to the bit) instead of regenerating them by a
+        second pass of sparse products; a run that outgrows it drops them and regenerates. Held by the object,
+        freed with it (a search asking many functions of one run: :class:`~meshdenoise.tuning.spectral.SpectralSearch`).
 
     Examples
     --------
@@ -1334,9 +1339,16 @@ class CompiledLanczos(LanczosQuadrature):
     [1.0, 0.5, 0.333333333333, 0.2]
     """
 
-    def __init__(self, M: sp.spmatrix, B: np.ndarray, *, max_steps: int = 1000, duals: Sequence[np.ndarray] = ()):
+    def __init__(self, M: sp.spmatrix, B: np.ndarray, *, max_steps: int = 1000, duals: Sequence[np.ndarray] = (),
+                 keep_basis: int = 0):
         super().__init__(M, B, max_steps=max_steps)
         n, k = self._B.shape
+        budget = int(keep_basis)
+        # the kept basis q_0, q_1, ... (allocated as it fills: pages are touched only as vectors are written)
+        self._basis_cap = min(budget // max(8 * n * k, 1), self.max_steps + 1)
+        self._basis: np.ndarray | None = np.empty((self._basis_cap, n, k)) if self._basis_cap >= 2 else None
+        self._kept = 0
+        self._keep(np.ascontiguousarray(self._q))
         self.M.sort_indices()
         self._U = np.ascontiguousarray(np.stack([np.asarray(U, dtype=np.float64) for U in duals])) if len(duals) \
             else np.zeros((0, n, k))
@@ -1360,6 +1372,16 @@ class CompiledLanczos(LanczosQuadrature):
         kernels.lanczos_update(q, q_prev, W, alpha, beta_prev, pb)
         return alpha, np.sqrt(pb.sum(axis=0)), pd.sum(axis=1)
 
+    def _keep(self, q: np.ndarray) -> None:
+        """Keep basis vector ``q`` while they fit in ``keep_basis`` bytes, else drop them all."""
+        if self._basis is None:
+            return
+        if self._kept >= self._basis_cap:
+            self._basis = None  # outgrown: apply_many regenerates
+            return
+        self._basis[self._kept] = q
+        self._kept += 1
+
     def extend(self, steps: int) -> None:
         """Run ``steps`` more steps on the columns still active (recording the duals' projections)."""
         kernels.set_threads()
@@ -1382,6 +1404,7 @@ class CompiledLanczos(LanczosQuadrature):
             kernels.lanczos_scale(W, inv, self._q_prev)  # q_prev is not needed any more: its buffer takes q_next
             self._q_prev, self._q = self._q, self._q_prev
             self._beta_prev = b
+            self._keep(self._q)
         self._alpha = np.vstack([self._alpha, alphas])
         self._beta = np.vstack([self._beta, betas])
 
@@ -1441,6 +1464,10 @@ class CompiledLanczos(LanczosQuadrature):
                 Y[: c.size, m, j] = c
         inv = np.divide(1.0, np.sqrt(norms2), out=np.zeros(k), where=norms2 > 0)
         out = np.zeros((len(gs), n, k))
+        if self._basis is not None and 0 < steps <= self._kept:  # the first pass's basis, kept: no second pass
+            basis = self._basis if columns is None else np.ascontiguousarray(self._basis[:steps][:, :, cols])
+            kernels.lanczos_accumulate_steps(basis, np.arange(steps, dtype=np.int64), np.ascontiguousarray(Y), out)
+            return list(out)
         M = self.M
         depth = int(REGENERATE_RING_BYTES // max(8 * n * k, 1)) - 2  # steps accumulated at once
         if len(gs) > 1 and depth >= 2:

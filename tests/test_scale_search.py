@@ -877,3 +877,43 @@ def test_retain_factors_keeps_more_factorisations_within_the_block_and_trims_bac
     with pytest.raises(ValueError, match="count"):
         with solvers.retain_factors(0):
             pass
+
+
+@pytest.mark.parametrize("columns", [None, [2, 0]])
+def test_apply_many_from_the_kept_basis_equals_the_regenerated_one(columns):
+    """A run that keeps its first pass's basis (CompiledLanczos(keep_basis=...)) sums it in apply_many; one that keeps
+    none regenerates it by a second pass: the same numbers to the bit, one function or several; a run outgrowing its
+    budget drops the basis and regenerates, the same numbers again."""
+    from meshdenoise.solvers import CompiledLanczos, ShiftedInverse
+
+    V, F = icosphere(3)
+    L = get_operators(F, len(V)).L
+    B = np.random.default_rng(7).standard_normal((len(V), 3))
+    gs = [ShiftedInverse(0.3, 2), lambda t: np.exp(-0.7 * t), (ShiftedInverse(2.0, 3), ShiftedInverse(0.1, 3), lambda t: np.sqrt(np.maximum(t, 0.0)))]
+    kept, regenerated = CompiledLanczos(L, B, keep_basis=2**24), CompiledLanczos(L, B)
+    small = CompiledLanczos(L, B, keep_basis=5 * 8 * B.size)  # five vectors: outgrown
+    for many in (gs[:1], gs):
+        want = regenerated.apply_many(many, rtol=1e-12, columns=columns)
+        for got in (kept.apply_many(many, rtol=1e-12, columns=columns), small.apply_many(many, rtol=1e-12, columns=columns)):
+            for a, b in zip(got, want):
+                np.testing.assert_array_equal(a, b)
+        assert kept._basis is not None and kept._kept == kept.steps + 1  # summed from the kept vectors
+    assert small._basis is None and regenerated._basis is None
+
+
+def test_a_spectral_search_keeps_its_coordinates_basis_within_its_budget(monkeypatch):
+    """SpectralSearch's coordinates run keeps its basis (SPECTRAL_BASIS_BYTES): every candidate's coordinates summed
+    from it, the same as with none kept (a second pass per call)."""
+    import meshdenoise.tuning.spectral as spectral
+    from meshdenoise.tuning.spectral import SpectralSearch, shifted_spectral
+
+    V, F = icosphere(3)
+    ops = get_operators(F, len(V))
+    got = {}
+    for budget in (spectral.SPECTRAL_BASIS_BYTES, 0):
+        monkeypatch.setattr(spectral, "SPECTRAL_BASIS_BYTES", budget)
+        search = SpectralSearch(V, lambda mu: shifted_spectral(ops, mu, 2), candidates=[0.1, 0.3, 1.0])
+        got[budget] = [search.coordinates(mu) for mu in (0.3, 1.0, 0.1)]
+        assert (search._coords._basis is not None) == (budget > 0)
+    for a, b in zip(*got.values()):
+        np.testing.assert_array_equal(a, b)

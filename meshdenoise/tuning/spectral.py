@@ -27,7 +27,8 @@ from ..operators import Operators, spmm
 from ..solvers import CompiledLanczos, LanczosDots, ShiftedInverse
 
 __all__ = ["Spectral", "SpectralFailed", "SpectralSearch", "shifted_spectral", "averaging_spectral",
-           "heat_kernel_spectral", "normalized_laplacian", "SPECTRAL_TOL", "SPECTRAL_MAX_STEPS", "SPECTRAL_WINDOW", "SPECTRAL_MIN_VERTICES"]
+           "heat_kernel_spectral", "normalized_laplacian", "SPECTRAL_TOL", "SPECTRAL_MAX_STEPS", "SPECTRAL_WINDOW", "SPECTRAL_MIN_VERTICES",
+           "SPECTRAL_BASIS_BYTES"]
 
 SPECTRAL_TOL = 1e-6  # relative change over 10 Lanczos steps (of an estimate's Cauchy-Schwarz scale) at which a search's
 # estimates are taken: its scores to about 1e-6 (tests/test_spectral.py: within 1e-5 of the filter runs'), where the
@@ -37,6 +38,9 @@ SPECTRAL_TOL = 1e-6  # relative change over 10 Lanczos steps (of an estimate's C
 SPECTRAL_MAX_STEPS = 2000  # a run longer than this gives up (SpectralFailed): the caller runs the filter instead
 SPECTRAL_MIN_VERTICES = 2_000  # searches score by these Lanczos runs from this size (with Rademacher probes; the exact
 # traces of small meshes are 3n columns, and a few solves of a small factor cost less)
+SPECTRAL_BASIS_BYTES = 192 * 2**20  # the coordinates' run keeps its basis up to this many bytes (CompiledLanczos
+# keep_basis), every candidate's coordinates then summed from it instead of a second pass of sparse products: the elephant's
+# normals searches (24,955 vertices, 3 columns, 233 and 291 steps: 140 and 175 MB); a longer run regenerates
 SPECTRAL_WINDOW = 2  # SpectralSearch.coordinates: a candidate's coordinates with this many neighbours on each side
 _TINY = 1e-300  # h at y = 0 is its limit: every h below is written without cancellation, so h(1e-300) is that limit
 
@@ -277,7 +281,8 @@ class SpectralSearch:
 
     def _coordinates_run(self, spec: Spectral) -> CompiledLanczos:
         if self._coords is None:
-            self._coords = CompiledLanczos(spec.M, spmm(spec.M, self._scaled(self.V)), max_steps=SPECTRAL_MAX_STEPS)
+            self._coords = CompiledLanczos(spec.M, spmm(spec.M, self._scaled(self.V)), max_steps=SPECTRAL_MAX_STEPS,
+                                           keep_basis=SPECTRAL_BASIS_BYTES)
         return self._coords
 
     def coordinates_many(self, values: Sequence) -> list[np.ndarray]:
