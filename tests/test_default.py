@@ -321,6 +321,36 @@ def test_boundary_motion_normal_starts_the_held_run_of_a_warm_start_filter_from_
         np.testing.assert_array_equal(out, boundary_along_normals(spec, Vn, F, ops, None, values, free))
 
 
+def test_boundary_motion_normal_reads_the_border_moves_of_a_filter_with_a_draft_from_its_draft(monkeypatch):
+    """sobolev_gls' border_draft (its isotropic pass, beta = 1) stands for its free run: the border moves along the
+    draft's normals by the draft's normal move, and the rest is the filter held at those values."""
+    import meshdenoise.plugins.sobolev_gls as sg
+    from meshdenoise.registry import get_filter
+
+    monkeypatch.setattr(sg, "GLS_FILTER_TOL", 1e-12)  # the held run starts from the draft, the reference from zero
+
+    V, F = open_cap(3)
+    Vn = md.add_normal_noise((V, F), 0.02, seed=0)[0]
+    ops = get_operators(F, V.shape[0])
+    b = ops.boundary_vertices
+    spec = get_filter("sobolev_gls")
+    values = spec.resolve({"mu": 0.5, "beta": 6.0})
+    assert spec.border_draft(values) == {**values, "beta": 1.0}
+    out = md.sobolev_gls((Vn, F), mu=0.5, beta=6.0, boundary_motion="normal")[0]
+    draft = md.sobolev_gls((Vn, F), mu=0.5, beta=1.0)[0]
+    N = vertex_normals(draft, F)[b]
+    expected_b = Vn[b] + np.einsum("ij,ij->i", draft[b] - Vn[b], N)[:, None] * N
+    np.testing.assert_allclose(out[b], expected_b, atol=1e-12)
+    held = Vn.copy()
+    held[b] = expected_b
+    np.testing.assert_allclose(out, md.sobolev_gls((held, F), mu=0.5, beta=6.0, pinned=b)[0], atol=1e-10)
+    # a closed mesh has no border: the full filter's free run, no draft
+    Vs, Fs = icosphere(2)
+    Vsn = md.add_normal_noise((Vs, Fs), 0.02, seed=0)[0]
+    np.testing.assert_array_equal(md.sobolev_gls((Vsn, Fs), mu=0.5, beta=6.0, boundary_motion="normal")[0],
+                                  md.sobolev_gls((Vsn, Fs), mu=0.5, beta=6.0)[0])
+
+
 def test_boundary_motion_normal_keeps_the_free_run_of_a_filter_that_moves_vertices_along_their_normals():
     # two_stage with keep_tangential gives every vertex back its input's tangential part: with one outer iteration
     # the move is along the vertex normal of the fitted mesh (the same run without keep_tangential), so the free run
