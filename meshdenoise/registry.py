@@ -307,8 +307,8 @@ def register(
     a run with those parameters already moves every vertex along its own vertex normal only
     (``two_stage`` with ``keep_tangential``): ``boundary_motion="normal"`` then keeps the free run
     (:func:`boundary_along_normals`). ``warm_start=True``: the core also takes ``start``, ``None`` or a read-only
-    ``(n, 3)`` result of the same filter with the same parameters on a nearby input (the border option's free run
-    before its held run), which its iterative solves may start from; its result is the same to their tolerance.
+    ``(n, 3)`` result of the same filter on a nearby input (the border option's free run before its held run, or
+    its ``border_draft``'s), which its iterative solves may start from; its result is the same to their tolerance.
     ``border_draft(values)``: the parameters of a cheaper run of the same filter that stands for its free run in
     ``boundary_motion="normal"`` (the border's normal moves read from it, the held run started from it):
     ``sobolev_gls``' isotropic pass.

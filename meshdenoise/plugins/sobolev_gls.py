@@ -683,8 +683,9 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, start=None):
     # 1.8 s where its factor took 3.0 s)
     by_pcg = ops.n >= GLS_FACTOR_FREE_MIN_VERTICES and not _factor_stored(ops, mu, order, pinned)
     S = shifted_solver(ops, mu, order, pinned, "pcg" if by_pcg else "cholesky")
-    # a start (the border option's free run) starts both conjugate-gradient solves: X0 from it, the correction from
-    # its difference (zero on held rows)
+    # a start (the border option's free run, its isotropic pass: border_draft) starts the isotropic pass's conjugate
+    # gradients; not the correction's: the difference of two isotropic passes is no guess of it (face000's held
+    # correction 1.3 s from zero, 1.5 s from that difference)
     X0 = S.solve(X, x0=start) if by_pcg and start is not None else S.solve(X)
     if beta == 1.0:
         return X0
@@ -698,17 +699,7 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, start=None):
             Z[free] = S.precondition(R[free])
             return Z
     return X0 + normal_weighted_solve(ops, N, beta, mu, order, _correction_rhs(N, beta, X, X0), pinned,
-                                      x0=_correction_start(start, X0, pinned), tol=GLS_FILTER_TOL, prec=prec)
-
-
-def _correction_start(start: np.ndarray | None, X0: np.ndarray, pinned: np.ndarray | None) -> np.ndarray | None:
-    """The correction's starting guess ``start - X0`` (``None`` without a start), zero on held rows (their value)."""
-    if start is None:
-        return None
-    D0 = np.asarray(start, dtype=np.float64) - X0
-    if pinned is not None:
-        D0[np.asarray(pinned, dtype=bool)] = 0.0
-    return D0
+                                      tol=GLS_FILTER_TOL, prec=prec)
 
 
 def _factor_stored(ops: Operators, mu: float, order: int, pinned: np.ndarray | None) -> bool:
@@ -735,7 +726,7 @@ def _sobolev_gls_iterative(X: np.ndarray, F: np.ndarray, ops: Operators, mu: flo
     """:func:`sobolev_gls` without a factor: :math:`X_0` by two Lanczos passes (:func:`~meshdenoise.solvers.lanczos_shifted`)
     or, with held rows, by Jacobi CG on the free rows (from the input, as ``sobolev_axes``' held run); the correction
     by block-Jacobi CG (:func:`normal_weighted_cg`), else by CG preconditioned by Lanczos solves (a factor with held
-    rows). ``start``: a nearby result the held runs' solves start from (:func:`sobolev_gls`)."""
+    rows). ``start``: a nearby result the held isotropic pass starts from (:func:`sobolev_gls`)."""
     held = pinned is not None and bool(np.any(pinned))
 
     def shifted(R: np.ndarray) -> np.ndarray:
@@ -753,8 +744,7 @@ def _sobolev_gls_iterative(X: np.ndarray, F: np.ndarray, ops: Operators, mu: flo
         return X0
     N = coherent_normals(X0, F)
     rhs = _correction_rhs(N, beta, X, X0)
-    D, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs, tol=GLS_FILTER_TOL, pinned=pinned,
-                               x0=_correction_start(start, X0, pinned))
+    D, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs, tol=GLS_FILTER_TOL, pinned=pinned)
     if not ok:  # a very large mu: the factor-preconditioned iteration, its count bounded by sqrt(beta)
         D = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, x0=D, prec=None if held else shifted)
     return X0 + D
