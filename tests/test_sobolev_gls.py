@@ -390,11 +390,12 @@ def test_coherent_normals_derivative_matches_central_differences_on_both_branche
 
 
 # ----------------------------------------------------------------------------- scan-sized path (issue 17)
+@pytest.mark.parametrize("gate", ["size", "bound"])
 @pytest.mark.parametrize("mu, beta, order, jacobi_cap", [(0.4, 4.0, 3, 3000), (5.0, 12.0, 2, 3000), (0.4, 4.0, 3, 3)])
-def test_sobolev_gls_factor_free_path_matches_the_dense_solve(monkeypatch, mu, beta, order, jacobi_cap):
-    """From GLS_FACTOR_FREE_MIN_VERTICES (0 here) under CG's bound (none here) nothing is factorised: Lanczos passes
-    and block-Jacobi CG (a cap of 3 iterations forces the Lanczos-preconditioned fallback); the dense 3n x 3n solve is
-    the reference."""
+def test_sobolev_gls_factor_free_path_matches_the_dense_solve(monkeypatch, mu, beta, order, jacobi_cap, gate):
+    """From GLS_ITERATIVE_MIN_VERTICES (0 here: gate "size"), or from GLS_FACTOR_FREE_MIN_VERTICES under CG's bound (0
+    and none here: gate "bound") nothing is factorised: Lanczos passes and block-Jacobi CG (a cap of 3 iterations
+    forces the Lanczos-preconditioned fallback); the dense 3n x 3n solve is the reference."""
     import meshdenoise.plugins.sobolev_gls as sg
     from meshdenoise.operators import clear_cache
 
@@ -403,8 +404,12 @@ def test_sobolev_gls_factor_free_path_matches_the_dense_solve(monkeypatch, mu, b
     n = len(V)
     Lp = np.linalg.matrix_power(_dense_L(F, n), order)
     expected = _dense_gls(Vn.ravel(), F, Lp, mu, beta).reshape(n, 3)
-    monkeypatch.setattr(sg, "GLS_FACTOR_FREE_MIN_VERTICES", 0)
-    monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", np.inf)
+    if gate == "size":
+        monkeypatch.setattr(sg, "GLS_ITERATIVE_MIN_VERTICES", 0)
+        monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", 0.0)  # the size alone decides
+    else:
+        monkeypatch.setattr(sg, "GLS_FACTOR_FREE_MIN_VERTICES", 0)
+        monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", np.inf)
     monkeypatch.setattr(sg, "GLS_JACOBI_MAX_ITERATIONS", jacobi_cap)
     clear_cache()
     built = []

@@ -146,13 +146,15 @@ def _dense_normal_weighted_solve(
     return Y.reshape(n, 3, k)
 
 
-GLS_FACTOR_FREE_MIN_VERTICES = 20_000  # with no factor stored the filter factorises nothing from this size, held
-GLS_FACTOR_FREE_CG_BOUND = 700  # rows or not, while CG's bound for I + mu L^p at GLS_FILTER_TOL is at most this (past
-# it, CG preconditioned by a one-ring factor, ShiftedPCG): measured, factor-free (Lanczos or Jacobi CG, then
+GLS_ITERATIVE_MIN_VERTICES = 200_000  # without held rows the filter factorises nothing from this size: at 400k (mu
+# 4.7, CG's bound 820) CG preconditioned by the one-ring factor took 13.2 s and 1,181 MB at its peak, block-Jacobi CG
+# 7.9 s and 635 MB (benchmarks/scale.py; until session 27 this was 50,000)
+GLS_FACTOR_FREE_MIN_VERTICES = 20_000  # ... and below it from this size, held rows or not, while CG's bound for
+GLS_FACTOR_FREE_CG_BOUND = 700  # I + mu L^p at GLS_FILTER_TOL is at most this (past it, CG preconditioned by a one-ring
+# factor, ShiftedPCG): measured, factor-free (Lanczos or Jacobi CG, then
 # block-Jacobi CG) against a factor and CG preconditioned by it, beta 12, cold: Bunny0.2 0.21 against 0.86 s at mu 0.1,
 # the two equal near a bound of 1,000 (mu 4), the elephant near 760 (mu 3 to 10), face000 near 710 (mu 10 to 12);
-# against ShiftedPCG, free rows: face000 at mu 34 (bound 1,200) 3.1 against 2.1 s, the 400k elephant at mu 4.7 (bound
-# 820) 11-14 against 9-15 s (a wash); until session 27 every size from 50,000 vertices was factor-free
+# against ShiftedPCG, free rows: face000 at mu 34 (bound 1,200) 3.1 against 2.1 s
 GLS_JACOBI_MAX_ITERATIONS = 3000  # block-Jacobi CG's cap before the Lanczos-preconditioned solve takes over
 
 
@@ -625,7 +627,7 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, start=None):
     The system couples the three coordinates; it is solved by conjugate gradients
     preconditioned with the cached Cholesky factor of :math:`I + \\mu L^p`
     (:func:`normal_weighted_solve`, spectrum in :math:`[1, \\beta]`), for the correction
-    :math:`Y - \\hat X`; with no factor stored, from 20,000 vertices while the weight is weak
+    :math:`Y - \\hat X`; with no factor stored, from 200,000 vertices, or from 20,000 while the weight is weak
     (``GLS_FACTOR_FREE_CG_BOUND``), nothing is factorised (:func:`normal_weighted_cg`), and from 20,000 past that
     weight both solves are preconditioned by one factor of a one-ring matrix instead
     (:class:`~meshdenoise.solvers.ShiftedPCG`). For pinned normals
@@ -712,11 +714,13 @@ def _factor_stored(ops: Operators, mu: float, order: int, pinned: np.ndarray | N
 
 def _iterative(ops: Operators, mu: float, order: int, pinned: np.ndarray | None) -> bool:
     """Whether :func:`sobolev_gls` factorises nothing: no factor of :math:`I + \\mu L^p` stored already (with
-    ``pinned``'s rows held, or free: held rows' product form preconditions by it), from
-    ``GLS_FACTOR_FREE_MIN_VERTICES`` vertices while CG's bound (:func:`~meshdenoise.solvers.shifted_cg_bound` at
-    ``GLS_FILTER_TOL``) is at most ``GLS_FACTOR_FREE_CG_BOUND``."""
+    ``pinned``'s rows held, or free: held rows' product form preconditions by it), and from
+    ``GLS_ITERATIVE_MIN_VERTICES`` vertices with none held, or from ``GLS_FACTOR_FREE_MIN_VERTICES`` while CG's bound
+    (:func:`~meshdenoise.solvers.shifted_cg_bound` at ``GLS_FILTER_TOL``) is at most ``GLS_FACTOR_FREE_CG_BOUND``."""
     if _factor_stored(ops, mu, order, pinned):
         return False
+    if ops.n >= GLS_ITERATIVE_MIN_VERTICES and (pinned is None or not np.any(pinned)):
+        return True
     return (ops.n >= GLS_FACTOR_FREE_MIN_VERTICES
             and shifted_cg_bound(ops, mu, order, GLS_FILTER_TOL) <= GLS_FACTOR_FREE_CG_BOUND)
 
