@@ -320,6 +320,11 @@ def register(
     """
     if name in REGISTRY:
         raise ValueError(f"a filter named {name!r} is already registered")
+    for hook, value in (("along_normals", along_normals), ("border_draft", border_draft)):
+        if value is not None and not callable(value):
+            raise TypeError(f"register({name!r}): {hook}= must be a function of the parameters or None, got {value!r}")
+    if not isinstance(warm_start, bool):
+        raise TypeError(f"register({name!r}): warm_start= must be True or False, got {warm_start!r}")
     if auto is not None:
         unknown = set(auto.tunes) - {p.name for p in params}
         if not isinstance(auto, AutoRule) or unknown:

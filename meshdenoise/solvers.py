@@ -1343,6 +1343,8 @@ class CompiledLanczos(LanczosQuadrature):
                  keep_basis: int = 0):
         super().__init__(M, B, max_steps=max_steps)
         n, k = self._B.shape
+        if isinstance(keep_basis, (bool, np.bool_)) or not isinstance(keep_basis, (int, np.integer)) or keep_basis < 0:
+            raise ValueError(f"CompiledLanczos: keep_basis must be an int >= 0 (bytes), got {keep_basis!r}")
         budget = int(keep_basis)
         # the kept basis q_0, q_1, ... (allocated as it fills: pages are touched only as vectors are written)
         self._basis_cap = min(budget // max(8 * n * k, 1), self.max_steps + 1)

@@ -52,6 +52,12 @@ def test_every_automatic_rule_is_declared_with_its_filter():
 def test_register_refuses_a_rule_tuning_an_unknown_parameter():
     with pytest.raises(ValueError, match="AutoRule"):
         register("never_registered", params=[Param("k", int, 1)], summary="x", auto=AutoRule(("q",), lambda ctx: ({}, None)))
+    for hooks, message in (({"border_draft": {"beta": 1.0}}, "border_draft= must be a function"),
+                           ({"along_normals": True}, "along_normals= must be a function"),
+                           ({"warm_start": "yes"}, "warm_start= must be True or False")):
+        with pytest.raises(TypeError, match=message):
+            register("never_registered", params=[Param("k", int, 1)], summary="x", **hooks)
+    assert "never_registered" not in meshdenoise.registry.REGISTRY
 
 
 def test_byte_lru_keeps_its_limit_and_the_newest_entry():

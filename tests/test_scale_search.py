@@ -899,6 +899,9 @@ def test_apply_many_from_the_kept_basis_equals_the_regenerated_one(columns):
                 np.testing.assert_array_equal(a, b)
         assert kept._basis is not None and kept._kept == kept.steps + 1  # summed from the kept vectors
     assert small._basis is None and regenerated._basis is None
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="keep_basis must be an int >= 0"):
+            CompiledLanczos(L, B, keep_basis=bad)
 
 
 def test_a_spectral_search_keeps_its_coordinates_basis_within_its_budget(monkeypatch):

@@ -49,6 +49,15 @@ def test_held_rows_are_kept_and_the_free_rows_solve_the_reduced_system():
     Lf = ops.L.toarray()[np.ix_(free, free)]
     M = 25.0 * np.linalg.matrix_power(Lf + 25.0 ** (-1 / 3) * np.eye(Lf.shape[0]), 3)
     np.testing.assert_allclose(Z, np.linalg.solve(M, X[free]), atol=1e-10)
+    # started from a nearby answer (x0, the border option's free run): the same solution, fewer steps; held rows kept
+    cold = S.iterations
+    near = Y + 1e-6 * np.random.default_rng(3).standard_normal(Y.shape)
+    near[held] = 123.0  # x0's held rows are not read
+    Y2 = S.solve(X, tol=1e-12, x0=near)
+    assert np.array_equal(Y2[held], X[held]) and S.iterations < cold
+    np.testing.assert_allclose(Y2, Y, atol=1e-9 * np.abs(X).max())
+    with pytest.raises(ValueError, match="x0 has shape"):
+        S.solve(X, x0=near[:, :2])
 
 
 def test_past_its_step_limit_the_held_system_is_factorised(monkeypatch):
