@@ -739,6 +739,16 @@ class HeldByProduct(DirichletSystem):
         return self._expand(X2, found[0]).reshape(np.shape(X))
 
 
+def held_row_share(order: int) -> float:
+    """:class:`ShiftedPCG`'s diagonal share ``(p - 1) / p`` of each free row's coupling to held rows (0 for ``p = 1``,
+    where :math:`(L^p)_{ff} = L_{ff}`). Measured, steps to 1e-10 with shares 0 / 0.5 / 0.65 / 0.8: face000's 4,111 held
+    border vertices, p = 3: 50 / 31 / 29 / 32 (mu 24.5), 68 / 42 / 39 / 41 (mu 103), 77 / 47 / 44 / 46 (mu 184); p = 4,
+    mu 50: 170 / 89 / 80 / 78; p = 2: 16 / 13 / 15 / 17 (mu 5), 23 / 17 / 19 / 20 (mu 50); a 150 x 150 grid's border, p = 3:
+    22 / 19 / 19 / 20 (mu 1) to 62 / 32 / 30 / 33 (mu 300); Bunny0.2's 223, p = 3: 19 / 22 / 23 / 25 at mu 0.1, 69 / 46 /
+    44 / 43 at mu 100."""
+    return (int(order) - 1) / int(order)
+
+
 SHIFTED_PCG_MAXITER = 300  # ShiftedPCG.solve: past this many steps the system is factorised after all (measured: 19 to
 # 23 steps without held rows at 1e-10, 20 with Bunny0.2's 223 held border vertices, 55 to 78 with face000's 4,111)
 
@@ -752,8 +762,10 @@ class ShiftedPCG(DirichletSystem):
     eigenvalues' ratio :math:`(1 + x^p) / (1 + x)^p`, :math:`x = \lambda / a`, lies in :math:`[2^{1 - p}, 1]`: the
     preconditioned matrix's condition number is at most :math:`2^{p - 1}` (4 for ``p = 3``) whatever ``mu`` and the
     mesh: 5 to 32 steps to a relative residual of 1e-10 measured (``p`` 2 to 4). Held rows make :math:`(L^p)_{ff}` differ from
-    :math:`L_{ff}^p` by a term of rank at most their count: measured 20 steps with Bunny0.2's 223 border vertices,
-    55 to 78 with face000's 4,111 (1.8 to 2.6 s against 2.8 to 3.0 s for a factor of the held system). Past
+    :math:`L_{ff}^p` by a term of rank at most their count, larger next to them: the one-ring matrix gets
+    :func:`held_row_share` ``(p - 1) / p`` of each free row's coupling to held rows on its diagonal, which cut face000's
+    steps (4,111 border vertices) from 50-77 to 29-44 for ``p = 3`` (55 to 78 steps took 1.8 to 2.6 s, against 2.8 to
+    3.0 s for a factor of the held system); Bunny0.2's 223: 20 steps. Past
     :data:`SHIFTED_PCG_MAXITER` steps the held system is factorised after all (kept for the next solves).
     :meth:`precondition` is the preconditioner itself, for callers solving a system close to this one
     (``sobolev_gls``' weighted correction: its condition number at most :math:`2^{p-1} \beta`).
@@ -780,8 +792,14 @@ class ShiftedPCG(DirichletSystem):
         self._matrix = shifted_matrix(ops, mu, order)
         super().__init__(self._matrix, pinned)
         self.mu, self.order = float(mu), int(order)
-        L = ops.L if self.free is None else ops.L[self.free][:, self.free]
-        self.factor = SPDSolver(sp.csr_matrix(L + self.mu ** (-1.0 / self.order) * sp.identity(L.shape[0], format="csr")))
+        shift = np.full(self.size, self.mu ** (-1.0 / self.order))
+        if self.free is None:
+            L = ops.L
+        else:  # held rows: (L^p)_ff exceeds (L_ff)^p next to them; a diagonal share of their coupling stands for it
+            rows = ops.L[self.free]
+            L = rows[:, self.free]
+            shift += held_row_share(self.order) * np.asarray(abs(rows[:, self._pinned_rows]).sum(axis=1)).ravel()
+        self.factor = SPDSolver(sp.csr_matrix(L + sp.diags(shift, format="csr")))
         self._fallback: SPDSolver | None = None
         self.iterations = 0
 

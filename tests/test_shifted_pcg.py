@@ -45,9 +45,13 @@ def test_held_rows_are_kept_and_the_free_rows_solve_the_reduced_system():
     free = ~held
     np.testing.assert_allclose((A @ Y)[free], X[free], atol=1e-9 * np.abs(X).max())
     assert 0 < S.iterations < solvers.SHIFTED_PCG_MAXITER
-    Z = S.precondition(X[free])  # the preconditioner alone: mu^-1 (L_ff + a I)^-3 on the free rows
-    Lf = ops.L.toarray()[np.ix_(free, free)]
-    M = 25.0 * np.linalg.matrix_power(Lf + 25.0 ** (-1 / 3) * np.eye(Lf.shape[0]), 3)
+    # the preconditioner alone: mu^-1 (L_ff + a I + (2/3) H)^-3 on the free rows, H the free rows' held neighbours
+    Z = S.precondition(X[free])
+    Ld = ops.L.toarray()
+    Lf = Ld[np.ix_(free, free)]
+    H = np.diag(-Ld[np.ix_(free, held)].sum(axis=1))  # W is 0/1: minus the coupling counts the held neighbours
+    assert H.max() > 0 and solvers.held_row_share(3) == pytest.approx(2.0 / 3.0) and solvers.held_row_share(1) == 0
+    M = 25.0 * np.linalg.matrix_power(Lf + 25.0 ** (-1 / 3) * np.eye(Lf.shape[0]) + 2.0 / 3.0 * H, 3)
     np.testing.assert_allclose(Z, np.linalg.solve(M, X[free]), atol=1e-10)
     # started from a nearby answer (x0, the border option's free run): the same solution, fewer steps; held rows kept
     cold = S.iterations
