@@ -429,7 +429,8 @@ def run_core(spec: FilterSpec, V: np.ndarray, ops: Any, values: dict, *, pinned:
     V_in = V.view() if scale == 1.0 else V / scale
     V_in.flags.writeable = False  # a core must return new arrays, never write into its input
     first = values
-    if boundary_motion == "normal" and spec.border_draft is not None and _moves_border(spec, ops, pinned, values):
+    if (boundary_motion == "normal" and spec.border_draft is not None
+            and _border_to_move(spec, ops, pinned, values) is not None):
         first = spec.border_draft(values)  # its result stands for the free run (its border's normal moves)
     V_out = np.asarray(spec.core(V_in, ops.F, ops=ops, pinned=pinned, **first), dtype=np.float64)
     if np.may_share_memory(V_out, V) or np.may_share_memory(V_out, V_in):
@@ -441,11 +442,14 @@ def run_core(spec: FilterSpec, V: np.ndarray, ops: Any, values: dict, *, pinned:
     return V_out
 
 
-def _moves_border(spec: FilterSpec, ops: Any, pinned: np.ndarray | None, values: dict) -> bool:
-    """Whether ``boundary_motion="normal"`` runs the filter a second time: border vertices not pinned, and a run
-    that does not already move every vertex along its normal (:func:`boundary_along_normals`)."""
+def _border_to_move(spec: FilterSpec, ops: Any, pinned: np.ndarray | None, values: dict) -> np.ndarray | None:
+    """The border vertices ``boundary_motion="normal"`` moves along their normals in a second run (bool (n,)), or
+    ``None`` when there is no second run: no border vertex left free, or a run that already moves every vertex along
+    its normal (:func:`boundary_along_normals`)."""
     b = ops.boundary_vertices if pinned is None else ops.boundary_vertices & ~pinned
-    return bool(b.any()) and not (spec.along_normals is not None and spec.along_normals(values))
+    if not b.any() or (spec.along_normals is not None and spec.along_normals(values)):
+        return None
+    return b
 
 
 def boundary_along_normals(
@@ -499,9 +503,9 @@ def boundary_along_normals(
     """
     from .geometry import vertex_normals
 
-    if not _moves_border(spec, ops, pinned, values):
+    b = _border_to_move(spec, ops, pinned, values)
+    if b is None:
         return V_free
-    b = ops.boundary_vertices if pinned is None else ops.boundary_vertices & ~pinned
     N = vertex_normals(V_free, F)[b]
     along = np.einsum("ij,ij->i", V_free[b] - V[b], N)
     V_b = V[b] + along[:, None] * N
