@@ -27,7 +27,7 @@ from .cache import FACTOR_BYTES_PER_NNZ, nbytes
 from .operators import Operators, mask_key, spmm, trim_cache
 
 __all__ = [
-    "DirichletSystem", "SPDSolver", "CHOLMOD", "CHOLMOD_MAX_ROWS", "clear_symbolic", "CGSolver", "block_cg", "cached_solver", "retain_factors", "laplacian_power", "shifted_solver",
+    "DirichletSystem", "SPDSolver", "CHOLMOD", "CHOLMOD_MAX_ROWS", "CHOLMOD_METIS_MAX_ROWS", "clear_symbolic", "CGSolver", "block_cg", "cached_solver", "retain_factors", "laplacian_power", "shifted_solver",
     "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "ShiftedInverse", "ShiftedPCG", "HeldByProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "CompiledLanczos", "LanczosDots", "column_function", "FILTER_LANCZOS_TOL",
 ]
 
@@ -152,7 +152,8 @@ def _cholmod_installed() -> bool:
 
 
 CHOLMOD = _cholmod_installed()  # scikit-sparse (the "cholmod" extra): factorisations reuse a symbolic analysis ...
-CHOLMOD_MAX_ROWS = 50_000  # ... for systems up to this many rows (larger ones by cholespy, see _cholmod_factor)
+CHOLMOD_MAX_ROWS = 200_000  # ... for systems up to this many rows (larger ones by cholespy, see _cholmod_factor)
+CHOLMOD_METIS_MAX_ROWS = 50_000  # METIS orders these; larger ones CHOLMOD's default (AMD, METIS if AMD fills much)
 SYMBOLIC_MAX = 16  # symbolic analyses kept (sparsity patterns), least recently used out; clear_symbolic() drops them
 _symbolic: OrderedDict = OrderedDict()
 _symbolic_lock = threading.Lock()
@@ -166,16 +167,20 @@ def clear_symbolic() -> None:
 
 def _cholmod_factor(A: sp.csr_matrix) -> Any:
     """A numeric CHOLMOD factor of the symmetric positive definite ``A`` (sorted CSR), its symbolic analysis
-    (METIS ordering, simplicial ``L D L^T``) computed once per sparsity pattern and reused.
+    (simplicial ``L D L^T``) computed once per sparsity pattern and reused.
 
     The automatic rules factorise ``I + mu L^p`` for many ``mu`` on one pattern: only the numeric step is
     repeated (bunny scanner, 28,088 vertices, idle: ``I + c L`` 131 -> 37 ms, the two-ring factor of
     ``I + mu L^3`` 410 -> 243 ms against cholespy, which orders every matrix again; the solves cost the same;
     a factor used once costs about the same either way: the analysis is 88 and 164 ms). Up to
-    :data:`CHOLMOD_MAX_ROWS` rows only, the same back end for a matrix whatever was factorised before: at face000's
-    85,182 vertices METIS's analysis (0.5-0.9 s) costs more than a one-off factor (0.25 s by cholespy), and
-    at 1.6M vertices cholespy's supernodal factor is the faster (docs/benchmarks.md). A simplicial ``L D L^T``
-    does not fail on an indefinite matrix: a pivot ``D <= 0`` is reported as cholespy reports it.
+    :data:`CHOLMOD_METIS_MAX_ROWS` rows METIS orders the pattern; above, METIS's analysis costs more than it saves
+    (face000's 85,182 vertices: 0.27 s for a one-ring matrix whose numeric factor takes 0.12 s) and CHOLMOD's default
+    orders it (AMD, with METIS tried when AMD's fill is large): a one-ring factor 0.42 -> 0.20 s at 85k rows,
+    0.65 -> 0.35 at 100k, 0.98 -> 0.72 at 139k against cholespy, two-ring factors about the same, solves 10 to 30 %
+    slower. Up to :data:`CHOLMOD_MAX_ROWS` rows only, the same back end for a matrix whatever was factorised before:
+    at 400k rows cholespy's factor is as fast (3.8 against 3.6 s, its solves faster) and at 1.6M the faster
+    (docs/benchmarks.md). A simplicial ``L D L^T`` does not fail on an indefinite matrix: a pivot ``D <= 0`` is
+    reported as cholespy reports it.
     """
     from sksparse.cholmod import analyze
 
@@ -189,7 +194,8 @@ def _cholmod_factor(A: sp.csr_matrix) -> Any:
         if symbolic is not None:
             _symbolic.move_to_end(key)
     if symbolic is None:
-        symbolic = analyze(C, mode="simplicial", ordering_method="metis")
+        order = "metis" if A.shape[0] <= CHOLMOD_METIS_MAX_ROWS else "default"
+        symbolic = analyze(C, mode="simplicial", ordering_method=order)
         with _symbolic_lock:
             _symbolic[key] = symbolic
             while len(_symbolic) > SYMBOLIC_MAX:

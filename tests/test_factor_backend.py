@@ -1,5 +1,5 @@
 """SPDSolver's two factorisation back ends (CHOLMOD with a reused symbolic analysis up to CHOLMOD_MAX_ROWS rows,
-cholespy), against dense solves."""
+METIS's ordering up to CHOLMOD_METIS_MAX_ROWS; cholespy), against dense solves."""
 
 from __future__ import annotations
 
@@ -59,6 +59,29 @@ def test_larger_systems_go_to_cholespy_and_a_matrix_gets_the_same_bits_whatever_
     assert np.array_equal(first, again)
     monkeypatch.setattr(solvers, "CHOLMOD_MAX_ROWS", ops.n - 1)
     assert _backend(solvers.SPDSolver(A)) == "cholespy"
+
+
+def test_patterns_past_the_metis_bound_are_ordered_by_cholmods_default_and_solve_as_a_dense_solve(monkeypatch):
+    """Between CHOLMOD_METIS_MAX_ROWS and CHOLMOD_MAX_ROWS rows CHOLMOD orders the pattern by its default (AMD, METIS
+    where AMD fills much): a cheaper analysis for the one-off factors of 50k to 200k rows."""
+    import sksparse.cholmod as cholmod
+
+    orderings = []
+    real = cholmod.analyze
+    monkeypatch.setattr(cholmod, "analyze", lambda *a, **k: orderings.append(k["ordering_method"]) or real(*a, **k))
+    V, F = icosphere(3)
+    ops = Operators(F, len(V))
+    A = _shifted(ops, 2.0, 2)
+    X = np.random.default_rng(2).standard_normal((ops.n, 3))
+    solvers.clear_symbolic()
+    monkeypatch.setattr(solvers, "CHOLMOD_METIS_MAX_ROWS", ops.n - 1)
+    solver = solvers.SPDSolver(A)
+    assert _backend(solver) == "cholmod" and orderings == ["default"]
+    np.testing.assert_allclose(solver.solve(X), np.linalg.solve(A.toarray(), X), rtol=0, atol=1e-9)
+    monkeypatch.setattr(solvers, "CHOLMOD_METIS_MAX_ROWS", ops.n)
+    solvers.clear_symbolic()
+    solvers.SPDSolver(A)
+    assert orderings == ["default", "metis"]
 
 
 def test_one_symbolic_analysis_per_sparsity_pattern_and_clear(monkeypatch):
