@@ -442,3 +442,60 @@ def test_sobolev_gls_searches_no_mu_when_the_normals_search_follows(monkeypatch)
     assert min(NORMAL_WIDE_SCALES) * start <= chosen["mu"] <= max(NORMAL_WIDE_SCALES) * start  # searched from start
     err = lambda p: md.normal_error_deg((V0, F), md.apply_filter("sobolev_gls", (X, F), **p))  # noqa: E731
     assert err(chosen) < err(sure)
+
+
+def _walk(f, size, start, passes=6):
+    """FixedPointBracket's walk on the map f of indices: the points linearised at and how it ended."""
+    from meshdenoise.tuning.normal_risk import FixedPointBracket
+
+    walk, at, seen = FixedPointBracket(size), start, []
+    for _ in range(passes):
+        seen.append(at)
+        nxt = walk.next(at, f(at))
+        if not isinstance(nxt, int):
+            return seen, nxt
+        assert walk.lo < nxt < walk.hi, (walk.lo, nxt, walk.hi)  # strictly inside what is known
+        at = nxt
+    return seen, "passes"
+
+
+def _bisection_passes(f, size, start, passes=6):
+    """The walk as it was until session 28 (bisection once bracketed): its pass count, the reference."""
+    lo, hi, at = -1, size, start
+    for k in range(1, passes + 1):
+        best = f(at)
+        if abs(best - at) <= 1:
+            return k
+        lo, hi = (at, hi) if best > at else (lo, at)
+        if lo >= 0 and hi < size:
+            if hi - lo <= 1:
+                return k
+            at = (lo + hi) // 2
+        else:
+            at = best
+    return passes
+
+
+@pytest.mark.parametrize("c", [3.4, 10.0, 15.6, 20.2])
+@pytest.mark.parametrize("slope", [0.0, -0.3, -0.6, -1.0, -2.0, -5.0])
+@pytest.mark.parametrize("start", [0, 8, 23])
+def test_fixed_point_walk_ends_at_the_crossing_inside_its_bracket(c, slope, start):
+    """Decreasing maps (the normal risk's passes: linearised at a rougher mesh the choice is larger), whose gap
+    f(i) - i falls through zero at c: the walk ends at a point within one index of its own choice, or between
+    adjacent ends whose gaps have opposite signs; where the fixed point attracts (slope 0 to -1) in no more passes than
+    the bisection it replaced."""
+    size = 24
+
+    def f(i):
+        return int(min(max(round(c + slope * (i - c)), 0), size - 1))
+
+    seen, end = _walk(f, size, start, passes=size)
+    assert end != "passes"
+    if end is None:
+        assert abs(f(seen[-1]) - seen[-1]) <= 1
+    else:
+        lo, hi = end
+        assert hi == lo + 1 and f(lo) > lo and f(hi) < hi
+    assert abs((seen[-1] if end is None else end[0]) - c) <= 2
+    if slope >= -1:
+        assert len(seen) <= _bisection_passes(f, size, start, passes=size)
