@@ -87,3 +87,58 @@ def test_shifted_solver_builds_and_keeps_it_and_rejects_bad_arguments():
         solvers.ShiftedPCG(ops, 0.0, 3)
     with pytest.raises(ValueError, match="order must be"):
         solvers.ShiftedPCG(ops, 1.0, 0)
+
+
+@pytest.mark.parametrize("held_border", [True, False])
+def test_family_solves_each_columns_own_system_with_one_factor(held_border):
+    """ShiftedPCGFamily: column j solves (I + mu_j L^p) y_j = x_j (held rows kept), one one-ring factor at the
+    geometric mean of the mu_j^(-1/p) for them all; against dense solves, and a single weight against ShiftedPCG."""
+    V, F = grid(12, 12)
+    ops = Operators(F, len(V))
+    held = ops.boundary_vertices.copy() if held_border else None
+    mus = [0.5, 25.0, 400.0]
+    X = np.random.default_rng(4).standard_normal((len(V), 3))
+    S = solvers.ShiftedPCGFamily(ops, mus, 3, held)
+    Y = S.solve(X, tol=1e-12)
+    free = np.ones(len(V), dtype=bool) if held is None else ~held
+    for j, mu in enumerate(mus):
+        A = _dense(ops, mu, 3)
+        expected = X[:, j].copy()
+        expected[free] = np.linalg.solve(A[np.ix_(free, free)], X[free, j] - A[np.ix_(free, ~free)] @ X[~free, j])
+        np.testing.assert_allclose(Y[:, j], expected, rtol=0, atol=1e-9 * np.abs(X).max())
+    assert held is None or np.array_equal(Y[held], X[held])
+    assert 0 < S.iterations < solvers.SHIFTED_PCG_MAXITER and S.nbytes > 0
+    a = np.exp(np.mean(np.log(np.array(mus) ** (-1 / 3))))  # the shared shift: the factor's diagonal minus L's
+    Lf = ops.L.toarray()[np.ix_(free, free)]
+    share = np.diag(S.factor.A.toarray()) - np.diag(Lf) - a
+    assert np.all(share >= -1e-12) and (np.any(share > 0) == held_border)
+    one = solvers.ShiftedPCGFamily(ops, [25.0], 3, held).solve(X[:, [1]], tol=1e-12)
+    np.testing.assert_allclose(one[:, 0], solvers.ShiftedPCG(ops, 25.0, 3, held).solve(X[:, 1], tol=1e-12),
+                               atol=1e-9 * np.abs(X).max())
+    # started from a nearby answer: the same solution, fewer steps
+    cold = S.iterations
+    Y2 = S.solve(X, tol=1e-12, x0=Y + 1e-7)
+    assert S.iterations < cold
+    np.testing.assert_allclose(Y2, Y, atol=1e-9 * np.abs(X).max())
+
+
+def test_family_past_its_step_limit_factorises_each_column_and_rejects_bad_arguments():
+    V, F = grid(10, 10)
+    ops = Operators(F, len(V))
+    held = ops.boundary_vertices.copy()
+    X = np.random.default_rng(5).standard_normal((len(V), 2))
+    Y = solvers.ShiftedPCGFamily(ops, [50.0, 5.0], 3, held).solve(X, maxiter=1)
+    free = ~held
+    for j, mu in enumerate([50.0, 5.0]):
+        np.testing.assert_allclose((_dense(ops, mu, 3) @ Y[:, j])[free], X[free, j], atol=1e-9 * np.abs(X).max())
+    assert np.array_equal(Y[held], X[held])
+    for bad in ([], [1.0, 0.0], [np.inf], "ab", [[1.0, 2.0]]):
+        with pytest.raises(ValueError, match="mus must be"):
+            solvers.ShiftedPCGFamily(ops, bad, 3)
+    with pytest.raises(ValueError, match="order must be"):
+        solvers.ShiftedPCGFamily(ops, [1.0], 0)
+    S = solvers.ShiftedPCGFamily(ops, [1.0, 2.0], 3)
+    with pytest.raises(ValueError, match="2 weights"):
+        S.solve(X[:, :1])
+    with pytest.raises(ValueError, match="x0 has shape"):
+        S.solve(X, x0=X[:, :1])

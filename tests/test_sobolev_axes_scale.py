@@ -125,7 +125,7 @@ def test_sobolev_axes_large_path_uses_one_run_and_equals_the_factor_filter(monke
 
 def test_sobolev_axes_with_held_vertices_by_cg_equals_its_factor(monkeypatch):
     """The border option's second run (held vertices): CG while shifted_cg_bound is at most AXES_PINNED_CG_BOUND, CG
-    preconditioned by a one-ring factor past it (ShiftedPCG), the factor's Dirichlet solve below
+    preconditioned by a one-ring factor past it (ShiftedPCGFamily, the axes together), the factor's Dirichlet solve below
     AXES_LANCZOS_MIN_VERTICES; the same result to 1e-9 of the coordinates."""
     import meshdenoise.plugins.sobolev_axes as ax
     V, F = icosphere(3)
@@ -144,11 +144,14 @@ def test_sobolev_axes_with_held_vertices_by_cg_equals_its_factor(monkeypatch):
     assert methods == ["cg", "cg"]  # the two weighted axes
     np.testing.assert_allclose(after, before, atol=1e-9 * np.abs(Vn).max())
     np.testing.assert_array_equal(after[pinned], Vn[pinned])
-    monkeypatch.setattr(ax, "AXES_PINNED_CG_BOUND", 0)  # past the bound: CG preconditioned by a one-ring factor
-    methods.clear()
+    monkeypatch.setattr(ax, "AXES_PINNED_CG_BOUND", 0)  # past the bound: one CG run for the two axes together,
+    methods.clear()  # preconditioned by one one-ring factor (ShiftedPCGFamily)
+    families = []
+    real_family = ax.ShiftedPCGFamily
+    monkeypatch.setattr(ax, "ShiftedPCGFamily", lambda *a, **k: families.append(list(a[1])) or real_family(*a, **k))
     clear_cache()
     pcg = apply_filter("sobolev_axes", (Vn, F), pinned=pinned, **params)[0]
-    assert methods == ["pcg", "pcg"]
+    assert methods == [] and families == [[0.3, 0.05]]
     np.testing.assert_allclose(pcg, before, atol=1e-9 * np.abs(Vn).max())
     np.testing.assert_array_equal(pcg[pinned], Vn[pinned])
     # started from a nearby result (the border option's free run), both iterations: the same result, held rows exact

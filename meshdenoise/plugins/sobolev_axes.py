@@ -12,7 +12,7 @@ from ..operators import Operators
 from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
 from ..operators import mask_key, spmm
 from ..solvers import (FILTER_LANCZOS_TOL, LANCZOS_SHIFTED_MAX_STEPS, CompiledLanczos, LanczosQuadrature, ShiftedInverse,
-                       lanczos_shifted, shifted_cg_bound, shifted_solver)
+                       ShiftedPCGFamily, lanczos_shifted, shifted_cg_bound, shifted_solver)
 from ..tuning.context import TuningContext
 from ..tuning.memo import MEMO, digest
 from ..tuning.noise_level import fourth_difference, mean_edge_length, normal_trust
@@ -387,23 +387,27 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=
     # one function of L per column (the elephant: 0.65 -> 0.42 s; three numpy runs of one column each until session 25)
     free = [d for d, mu in enumerate(mus) if mu != 0 and factor_free and (float(mu), None) not in stored]
     lanczos = _axes_by_lanczos(ops, C[:, free], [float(mus[d]) for d in free], order) if free else None
+    # held vertices (the border option's second run), no stored factor: CG while its bound is small, else CG
+    # preconditioned by a one-ring factor for those axes together (solvers.ShiftedPCGFamily), where a factor of
+    # I + mu L^p with the held rows took 2.8 s per axis on face000 (4,111 held border vertices)
+    bounds = {d: shifted_cg_bound(ops, mu, order, FILTER_LANCZOS_TOL) for d, mu in enumerate(mus)
+              if mu != 0 and held and ops.n >= AXES_LANCZOS_MIN_VERTICES and (float(mu), mask_key(pinned)) not in stored}
+    family = [d for d, bound in bounds.items() if bound > AXES_PINNED_CG_BOUND and order > 1]
+    together = None
+    if family:  # one factor, one run for the axes (face000's three: 3 factors and 2.5 s -> 1 and 1.5 s)
+        together = ShiftedPCGFamily(ops, [mus[d] for d in family], order, pinned).solve(
+            C[:, family], tol=FILTER_LANCZOS_TOL, x0=None if start is None else C0[:, family])
     for d, mu in enumerate(mus):
         y = None
         if lanczos is not None and d in free:
             y = lanczos[:, free.index(d)]
         elif mu != 0 and factor_free and (float(mu), None) not in stored:
             y = lanczos_shifted(ops, C[:, d], mu, order, tol=FILTER_LANCZOS_TOL, growth=0.25)
-        elif (mu != 0 and held and ops.n >= AXES_LANCZOS_MIN_VERTICES and (float(mu), mask_key(pinned)) not in stored
-              and (bound := shifted_cg_bound(ops, mu, order, FILTER_LANCZOS_TOL)) <= AXES_PINNED_CG_BOUND):
-            # held vertices (the border option's second run): CG from the input, no factor of I + mu L^p with them
+        elif together is not None and d in family:
+            y = together[:, family.index(d)]
+        elif d in bounds and bounds[d] <= AXES_PINNED_CG_BOUND:  # CG from the input, no factor
             y = shifted_solver(ops, mu, order, pinned, "cg").solve(C[:, d], tol=FILTER_LANCZOS_TOL, x0=C0[:, d],
-                                                                 maxiter=int(4 * math.ceil(bound)) + 50)
-        elif (mu != 0 and held and ops.n >= AXES_LANCZOS_MIN_VERTICES and order > 1
-              and (float(mu), mask_key(pinned)) not in stored):
-            # past that bound: CG preconditioned by a one-ring factor (solvers.ShiftedPCG), where a factor of
-            # I + mu L^p with the held rows took 2.8 s per axis on face000 (4,111 held border vertices)
-            y = shifted_solver(ops, mu, order, pinned, "pcg").solve(C[:, d], tol=FILTER_LANCZOS_TOL,
-                                                                  x0=None if start is None else C0[:, d])
+                                                                 maxiter=int(4 * math.ceil(bounds[d])) + 50)
         if y is None:
             y = C[:, d] if mu == 0 else shifted_solver(ops, mu, order, pinned).solve(C[:, d])
         out[:, d] = y
