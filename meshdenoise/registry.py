@@ -310,8 +310,9 @@ def register(
     ``(n, 3)`` result of the same filter on a nearby input (the border option's free run before its held run, or
     its ``border_draft``'s), which its iterative solves may start from; its result is the same to their tolerance.
     ``border_draft(values)``: the parameters of a cheaper run of the same filter that stands for its free run in
-    ``boundary_motion="normal"`` (the border's normal moves read from it, the held run started from it):
-    ``sobolev_gls``' isotropic pass.
+    ``boundary_motion="normal"`` (the border's normal moves read from it); the core then also takes ``draft``,
+    ``None`` or that run's read-only ``(n, 3)`` result, given to the held run, which may build on it:
+    ``sobolev_gls``' isotropic pass, whose normals its held run takes.
 
     The core is called as ``core(V, F, ops=ops, pinned=pinned, **params)`` with ``V``
     read-only ``(n, 3) float64``, ``F (m, 3) int64``, ``ops`` the cached
@@ -479,8 +480,9 @@ def boundary_along_normals(
     their input's tangential part): its free run is the result. On the range scan face000 with
     scanner noise its second run changed the border's error by 2 % (``benchmarks/results/borders.md``)
     and took as long as the first. A filter with a ``border_draft`` (``sobolev_gls``: its isotropic pass) has
-    ``V_free`` from that cheaper run instead (:func:`run_core`): face000's ``sobolev_gls`` 5.0 -> 4.4 s, its
-    normal error 8.42 -> 8.39 degrees, SNR 70.56 -> 70.60 dB, the border's mean error the same (0.508 edge lengths).
+    ``V_free`` from that cheaper run instead (:func:`run_core`), given to its held run as ``draft``: face000's
+    ``sobolev_gls`` 5.0 -> 4.4 s, its normal error 8.42 -> 8.39 degrees, SNR 70.56 -> 70.60 dB, the border's mean
+    error the same (0.508 edge lengths); its held run built on the draft (its normals): 0.5 s less.
 
     Parameters
     ----------
@@ -516,6 +518,8 @@ def boundary_along_normals(
     start = V_free.view()
     start.flags.writeable = False  # a start is read, never written
     extra = {"start": start} if spec.warm_start else {}
+    if spec.border_draft is not None:  # V_free is the draft's result: the held run may build on it
+        extra["draft"] = start
     V_out = np.array(spec.core(V_held, F, ops=ops, pinned=held, **extra, **values), dtype=np.float64)
     V_out[b] = V_b  # exact Dirichlet values, whatever the solver's tolerance
     return V_out

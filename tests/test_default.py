@@ -323,7 +323,8 @@ def test_boundary_motion_normal_starts_the_held_run_of_a_warm_start_filter_from_
 
 def test_boundary_motion_normal_reads_the_border_moves_of_a_filter_with_a_draft_from_its_draft(monkeypatch):
     """sobolev_gls' border_draft (its isotropic pass, beta = 1) stands for its free run: the border moves along the
-    draft's normals by the draft's normal move, and the rest is the filter held at those values."""
+    draft's normals by the draft's normal move, and the rest is the weighted system held at those values with the
+    draft's normals (the held run gets the draft, read-only: its normals, no held isotropic pass)."""
     import meshdenoise.plugins.sobolev_gls as sg
     from meshdenoise.registry import get_filter
 
@@ -343,7 +344,33 @@ def test_boundary_motion_normal_reads_the_border_moves_of_a_filter_with_a_draft_
     np.testing.assert_allclose(out[b], expected_b, atol=1e-12)
     held = Vn.copy()
     held[b] = expected_b
-    np.testing.assert_allclose(out, md.sobolev_gls((held, F), mu=0.5, beta=6.0, pinned=b)[0], atol=1e-10)
+    # (W + mu L^3 (x) I_3) Y = W X on the free rows, W from the draft's coherent normals, written densely
+    n = len(Vn)
+    L3 = np.linalg.matrix_power(ops.L.toarray(), 3)
+    Nd = sg.coherent_normals(draft, F)
+    W = np.zeros((3 * n, 3 * n))
+    for i in range(n):
+        W[3 * i:3 * i + 3, 3 * i:3 * i + 3] = 6.0 * np.eye(3) - 5.0 * np.outer(Nd[i], Nd[i])
+    A = W + 0.5 * np.kron(L3, np.eye(3))
+    f3, p3 = np.repeat(~b, 3), np.repeat(b, 3)
+    y = held.ravel().copy()
+    y[f3] = np.linalg.solve(A[np.ix_(f3, f3)], (W @ held.ravel())[f3] - A[np.ix_(f3, p3)] @ y[p3])
+    np.testing.assert_allclose(out, y.reshape(n, 3), atol=1e-10)
+    assert np.abs(out - md.sobolev_gls((held, F), mu=0.5, beta=6.0, pinned=b)[0]).max() > 1e-6  # not its own pass
+    import dataclasses
+
+    from meshdenoise.registry import power_of_two_scale, run_core
+
+    seen = []
+
+    def core(V, F, *, ops, pinned, real=spec.core, **kw):
+        seen.append(kw.get("draft"))
+        return real(V, F, ops=ops, pinned=pinned, **kw)
+
+    again = run_core(dataclasses.replace(spec, core=core), Vn, ops, values, boundary_motion="normal")
+    assert len(seen) == 2 and seen[0] is None and seen[1] is not None and not seen[1].flags.writeable
+    np.testing.assert_allclose(seen[1] * power_of_two_scale(Vn), draft, atol=1e-12)  # the core's (scaled) frame
+    np.testing.assert_allclose(again, out, atol=1e-12)
     # a closed mesh has no border: the full filter's free run, no draft
     Vs, Fs = icosphere(2)
     Vsn = md.add_normal_noise((Vs, Fs), 0.02, seed=0)[0]

@@ -53,16 +53,17 @@ def _dense_gls(x, F, L3, mu, beta):
     return np.linalg.solve(A, W @ x)
 
 
-def _reduced_dense_gls(Vn, F, Lp, mu, beta, pinned):
+def _reduced_dense_gls(Vn, F, Lp, mu, beta, pinned, draft=None):
     """The filter with ``pinned`` rows held, written densely: the isotropic pass's reduced system, its coherent
-    normals, the reduced 3n x 3n weighted solve; (3n,) in the index 3i + d."""
+    normals, the reduced 3n x 3n weighted solve; (3n,) in the index 3i + d. With ``draft`` (the border option's
+    free isotropic pass) the normals are the draft's."""
     n = len(Vn)
     pinned = np.asarray(pinned, dtype=int)
     free = np.setdiff1d(np.arange(n), pinned)
     Ai = np.eye(n) + mu * Lp
     X0 = Vn.copy()
     X0[free] = np.linalg.solve(Ai[np.ix_(free, free)], Vn[free] - Ai[np.ix_(free, pinned)] @ Vn[pinned])
-    N = coherent_normals(X0, F)
+    N = coherent_normals(X0 if draft is None else draft, F)
     W, A = _dense_system(N, beta, mu, Lp)
     f3 = (3 * free[:, None] + np.arange(3)).ravel()
     p3 = (3 * pinned[:, None] + np.arange(3)).ravel()
@@ -161,14 +162,15 @@ def test_sobolev_gls_one_ring_pcg_path_solves_the_dense_system(monkeypatch, orde
                        pinned=pinned if held else None)[0]
     assert np.array_equal(got[pinned], Vn[pinned])
     np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
-    # started from a nearby result (the border option's free run): both solves from it, the same answer
+    # given the border option's draft (the free isotropic pass): held rows, one correction solve from it, the normals
+    # the draft's; without held rows the draft is the isotropic pass's start, the same answer
     mask = np.zeros(n, dtype=bool)
     mask[pinned] = True
-    start = got + 0.01 * np.random.default_rng(4).standard_normal(got.shape)
+    draft = np.linalg.solve(np.eye(n) + mu * Lp, Vn)
     warm = get_filter("sobolev_gls").core(Vn, F, ops=get_operators(F, n), pinned=mask if held else None, mu=mu,
-                                          beta=beta, order=order, start=start)
+                                          beta=beta, order=order, draft=draft)
     assert np.array_equal(warm[pinned], Vn[pinned])
-    np.testing.assert_allclose(warm, y.reshape(n, 3), atol=1e-8)
+    np.testing.assert_allclose(warm, _reduced_dense_gls(Vn, F, Lp, mu, beta, pinned, draft).reshape(n, 3), atol=1e-8)
 
 
 @pytest.mark.parametrize("order", [2, 3])
@@ -197,11 +199,15 @@ def test_sobolev_gls_factor_free_path_with_held_rows_solves_the_reduced_dense_sy
     np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
     mask = np.zeros(n, dtype=bool)
     mask[pinned] = True
-    start = got + 0.01 * np.random.default_rng(4).standard_normal(got.shape)  # a nearby result: both CGs start there
+    draft = np.linalg.solve(np.eye(n) + mu * Lp, Vn)  # the border option's draft: the free isotropic pass
     warm = get_filter("sobolev_gls").core(Vn, F, ops=get_operators(F, n), pinned=mask, mu=mu, beta=beta, order=order,
-                                          start=start)
+                                          draft=draft)
     assert np.array_equal(warm[pinned], Vn[pinned])
-    np.testing.assert_allclose(warm, y.reshape(n, 3), atol=1e-8)
+    np.testing.assert_allclose(warm, _reduced_dense_gls(Vn, F, Lp, mu, beta, pinned, draft).reshape(n, 3), atol=1e-8)
+    # a draft with beta = 1: the held isotropic pass alone, started from it
+    iso = get_filter("sobolev_gls").core(Vn, F, ops=get_operators(F, n), pinned=mask, mu=mu, beta=1.0, order=order,
+                                         draft=draft)
+    np.testing.assert_allclose(iso, _reduced_dense_gls(Vn, F, Lp, mu, 1.0, pinned).reshape(n, 3), atol=1e-8)
     # the gate: a stored factor, or a bound above the limit, keeps the factor path (here: the test fails on a factor)
     monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", 0.0)
     with pytest.raises(pytest.fail.Exception, match="a factor was built"):
