@@ -740,7 +740,10 @@ def _held_from_draft(X: np.ndarray, F: np.ndarray, ops: Operators, mu: float, be
     # reduced system's whole one (the tangential residual and the held rows' pull), the tolerance relative to it
     D_held = np.zeros_like(X)
     D_held[pinned] = X[pinned] - X0[pinned]
-    rhs = _correction_rhs(N, beta, X, X0) - _apply_weight(N, beta, D_held) - mu * spmm(laplacian_power(ops, order), D_held)
+    pull = D_held
+    for _ in range(int(order)):  # L^p D_held by p products with L (no L^p formed: the factor-free paths form none)
+        pull = spmm(ops.L, pull)
+    rhs = _correction_rhs(N, beta, X, X0) - _apply_weight(N, beta, D_held) - mu * pull
     rhs[pinned] = 0.0
     if _iterative(ops, mu, order, pinned):
         E, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs, tol=GLS_FILTER_TOL, pinned=pinned)
