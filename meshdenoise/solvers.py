@@ -28,7 +28,7 @@ from .operators import Operators, mask_key, spmm, trim_cache
 
 __all__ = [
     "DirichletSystem", "SPDSolver", "CHOLMOD", "CHOLMOD_MAX_ROWS", "CHOLMOD_METIS_MAX_ROWS", "clear_symbolic", "CGSolver", "block_cg", "cached_solver", "retain_factors", "laplacian_power", "shifted_solver",
-    "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "ShiftedInverse", "ShiftedPCG", "ShiftedPCGFamily", "HeldByProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "CompiledLanczos", "LanczosDots", "column_function", "FILTER_LANCZOS_TOL",
+    "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "ShiftedInverse", "ShiftedPCG", "ShiftedPCGFamily", "one_ring_factor", "HeldByProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "CompiledLanczos", "LanczosDots", "column_function", "FILTER_LANCZOS_TOL",
 ]
 
 FACTORS_PER_FAMILY = 4  # a parameter sweep keeps only the last few factorisations of each filter
@@ -759,6 +759,34 @@ def held_row_share(order: int) -> float:
     return (int(order) - 1) / int(order)
 
 
+def one_ring_factor(ops: Operators, shift: float, order: int, pinned: np.ndarray | None = None) -> SPDSolver:
+    r"""The factor of :class:`ShiftedPCG`'s one-ring matrix on the free rows, :math:`L_{ff} + a I + s\, H`:
+    ``shift`` ``a`` (:math:`\mu^{-1/p}` for :math:`I + \mu L^p`), :math:`H` the diagonal of each free row's coupling
+    to the held rows and :math:`s` = :func:`held_row_share` ``(p)`` (held rows make :math:`(L^p)_{ff}` exceed
+    :math:`(L_{ff})^p` next to them; a diagonal share of their coupling stands for it). :math:`\mu^{-1}` times ``p``
+    solves with it approximate :math:`(I + \mu L^p)_{ff}^{-1}`.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from meshdenoise.operators import Operators
+    >>> ops = Operators(np.array([[0, 1, 2], [0, 2, 3]]), 4)
+    >>> held = np.array([True, False, False, False])
+    >>> A = one_ring_factor(ops, 0.5, 3, held).A.toarray()  # rows 1..3: L_ff + 0.5 I + (2/3) (held neighbours)
+    >>> bool(np.allclose(A, ops.L.toarray()[1:, 1:] + np.diag(0.5 + 2 / 3 * np.array([1.0, 1.0, 1.0]))))
+    True
+    """
+    diagonal = np.full(ops.n if pinned is None else int(np.count_nonzero(~pinned)), float(shift))
+    if pinned is None or not np.any(pinned):
+        L = ops.L
+    else:
+        free, held = np.flatnonzero(~pinned), np.flatnonzero(pinned)
+        rows = ops.L[free]
+        L = rows[:, free]
+        diagonal += held_row_share(order) * np.asarray(abs(rows[:, held]).sum(axis=1)).ravel()
+    return SPDSolver(sp.csr_matrix(L + sp.diags(diagonal, format="csr")))
+
+
 SHIFTED_PCG_MAXITER = 300  # ShiftedPCG.solve: past this many steps the system is factorised after all (measured: 19 to
 # 23 steps without held rows at 1e-10, 20 with Bunny0.2's 223 held border vertices, 55 to 78 with face000's 4,111)
 
@@ -803,14 +831,7 @@ class ShiftedPCG(DirichletSystem):
         self._matrix = shifted_matrix(ops, mu, order)
         super().__init__(self._matrix, pinned)
         self.mu, self.order = float(mu), int(order)
-        shift = np.full(self.size, self.mu ** (-1.0 / self.order))
-        if self.free is None:
-            L = ops.L
-        else:  # held rows: (L^p)_ff exceeds (L_ff)^p next to them; a diagonal share of their coupling stands for it
-            rows = ops.L[self.free]
-            L = rows[:, self.free]
-            shift += held_row_share(self.order) * np.asarray(abs(rows[:, self._pinned_rows]).sum(axis=1)).ravel()
-        self.factor = SPDSolver(sp.csr_matrix(L + sp.diags(shift, format="csr")))
+        self.factor = one_ring_factor(ops, self.mu ** (-1.0 / self.order), self.order, self.pinned)
         self._fallback: SPDSolver | None = None
         self.iterations = 0
 
@@ -893,14 +914,8 @@ class ShiftedPCGFamily(DirichletSystem):
             raise ValueError(f"ShiftedPCGFamily: mus must be a non-empty sequence of finite numbers > 0, got {mus!r}")
         super().__init__(laplacian_power(ops, order), pinned)  # A: (L^p)_ff, the coupling (L^p)_fp
         self.mus, self.order = weights, int(order)
-        shift = np.full(self.size, float(np.exp(np.mean(np.log(weights ** (-1.0 / self.order))))))
-        if self.free is None:
-            L = ops.L
-        else:  # as ShiftedPCG: a diagonal share of the held coupling stands for (L^p)_ff exceeding (L_ff)^p
-            rows = ops.L[self.free]
-            L = rows[:, self.free]
-            shift += held_row_share(self.order) * np.asarray(abs(rows[:, self._pinned_rows]).sum(axis=1)).ravel()
-        self.factor = SPDSolver(sp.csr_matrix(L + sp.diags(shift, format="csr")))
+        self.factor = one_ring_factor(ops, float(np.exp(np.mean(np.log(weights ** (-1.0 / self.order))))), self.order,
+                                      self.pinned)
         self._ops = ops
         self.iterations = 0
 

@@ -6,7 +6,7 @@ import logging
 import math
 import warnings
 from dataclasses import replace
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 import scipy.linalg as sla
@@ -16,7 +16,8 @@ from ..geometry import coherent_normals_derivative, vertex_normals
 from ..multishift import shifted_family_cg
 from ..operators import Operators, mask_key, spmm
 from ..registry import AutoRule, Param, get_filter, register
-from ..solvers import FILTER_LANCZOS_TOL, lanczos_shifted, laplacian_power, shifted_cg_bound, shifted_solver
+from ..solvers import (FILTER_LANCZOS_TOL, lanczos_shifted, laplacian_power, one_ring_factor, shifted_cg_bound,
+                       shifted_solver)
 from ..tuning.context import TuningContext
 from ..tuning.noise_level import mean_edge_length, normal_spread, normal_trust
 from ..tuning.risk import Point, gcv
@@ -703,17 +704,17 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, draft=None):
         return X0
     N = coherent_normals(X0, F)
     return X0 + normal_weighted_solve(ops, N, beta, mu, order, _correction_rhs(N, beta, X, X0), pinned,
-                                      tol=GLS_FILTER_TOL, prec=_one_ring_preconditioner(S) if by_pcg else None)
+                                      tol=GLS_FILTER_TOL, prec=_on_free_rows(ops.n, pinned, S.precondition) if by_pcg else None)
 
 
-def _one_ring_preconditioner(S: Any):
-    """:class:`~meshdenoise.solvers.ShiftedPCG`'s one-ring preconditioner on each coordinate's free rows (zero on
-    held rows), for :func:`normal_weighted_solve`'s ``prec``."""
-    free = np.arange(S.n) if S.free is None else S.free
+def _on_free_rows(n: int, pinned: np.ndarray | None, apply: Callable[[np.ndarray], np.ndarray]):
+    """``apply`` (an approximate inverse on the free rows' (f, c) blocks: the one-ring preconditioner) as
+    :func:`normal_weighted_solve`'s ``prec`` on (n, c) blocks, zero on held rows."""
+    free = np.arange(n) if pinned is None or not np.any(pinned) else np.flatnonzero(~np.asarray(pinned, dtype=bool))
 
     def prec(R: np.ndarray) -> np.ndarray:
         Z = np.zeros_like(R)
-        Z[free] = S.precondition(R[free])
+        Z[free] = apply(R[free])
         return Z
 
     return prec
@@ -749,11 +750,20 @@ def _held_from_draft(X: np.ndarray, F: np.ndarray, ops: Operators, mu: float, be
         E, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs, tol=GLS_FILTER_TOL, pinned=pinned)
         if not ok:
             E = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, x0=E)
-    else:
-        by_pcg = ops.n >= GLS_FACTOR_FREE_MIN_VERTICES and not _factor_stored(ops, mu, order, pinned)
-        S = shifted_solver(ops, mu, order, pinned, "pcg" if by_pcg else "cholesky")
+    elif ops.n >= GLS_FACTOR_FREE_MIN_VERTICES and not _factor_stored(ops, mu, order, pinned):
+        # the one-ring preconditioner mu^-1 (L_ff + a I + share)^-p alone: ShiftedPCG's held system (I + mu L^p)_ff
+        # and its coupling are not needed here (face000: 0.2 s of slicing a 3-ring matrix)
+        factor = one_ring_factor(ops, mu ** (-1.0 / order), order, pinned)
+
+        def one_ring(R: np.ndarray) -> np.ndarray:
+            for _ in range(int(order)):
+                R = factor.solve(R)
+            return R / mu
+
         E = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, tol=GLS_FILTER_TOL,
-                                  prec=_one_ring_preconditioner(S) if by_pcg else None)
+                                  prec=_on_free_rows(ops.n, pinned, one_ring))
+    else:
+        E = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, tol=GLS_FILTER_TOL)
     Y = X0 + D_held + E
     Y[pinned] = X[pinned]  # the held values bit for bit (X0 + (X - X0) rounds)
     return Y
