@@ -175,12 +175,12 @@ def _cholmod_factor(A: sp.csr_matrix) -> Any:
     a factor used once costs about the same either way: the analysis is 88 and 164 ms). Up to
     :data:`CHOLMOD_METIS_MAX_ROWS` rows METIS orders the pattern; above, METIS's analysis costs more than it saves
     (face000's 85,182 vertices: 0.27 s for a one-ring matrix whose numeric factor takes 0.12 s) and CHOLMOD's default
-    orders it (AMD, with METIS tried when AMD's fill is large): a one-ring factor 0.42 -> 0.20 s at 85k rows,
-    0.65 -> 0.35 at 100k, 0.98 -> 0.72 at 139k against cholespy, two-ring factors about the same, solves 10 to 30 %
-    slower. Up to :data:`CHOLMOD_MAX_ROWS` rows only, the same back end for a matrix whatever was factorised before:
-    at 400k rows cholespy's factor is as fast (3.8 against 3.6 s, its solves faster) and at 1.6M the faster
-    (docs/benchmarks.md). A simplicial ``L D L^T`` does not fail on an indefinite matrix: a pivot ``D <= 0`` is
-    reported as cholespy reports it.
+    orders it (AMD, with METIS tried when AMD's fill is large): a one-ring factor 0.41 -> 0.18 s at 85k rows,
+    0.62 -> 0.36 at 100k, 0.97 -> 0.77 at 139k against cholespy, two-ring factors 0.97 to 1.21 times cholespy's,
+    solves 5 to 28 % slower (``benchmarks/factor_backend.py``). Up to :data:`CHOLMOD_MAX_ROWS` rows only, the same
+    back end for a matrix whatever was factorised before: at 400k rows cholespy's factor is the faster (3.4 against
+    4.4 s) and at 1.6M too (docs/benchmarks.md). A simplicial ``L D L^T`` does not fail on an indefinite matrix: a
+    pivot ``D <= 0`` is reported as cholespy reports it.
     """
     from sksparse.cholmod import analyze
 
