@@ -883,10 +883,11 @@ class ShiftedPCGFamily(DirichletSystem):
     :math:`\mu_j^{-1} (L_{ff} + a I + \mathrm{share})^{-p}` with one shift for every column, ``a`` the geometric mean
     of the :math:`\mu_j^{-1/p}`, so each of its ``p`` solves per step is one triangular solve of all the columns (a
     solve of one column reads the whole factor: three columns cost little more than one), and the products share one
-    :math:`L^p P` (``p`` products with ``L``, no :math:`L^p` formed). Measured on face000's three ``sobolev_axes`` axes (4,111 held border vertices, ``mu`` 24.5,
-    103 and 184, p = 3, from the free run's result): 36 steps for the three together against 21, 29 and 35 each with its
-    own factor; 1.45 against 2.48 s, one factor instead of three. The held rows of every column are its input's, bit
-    for bit; past :data:`SHIFTED_PCG_MAXITER` steps each column's held system is factorised.
+    :math:`L^p P` (``p`` products with ``L``, no :math:`L^p` formed). Measured on face000's three ``sobolev_axes``
+    axes (4,111 held border vertices, ``mu`` 24.5, 103 and 184, p = 3, from the free run's result): 36 steps for the
+    three together against 21, 29 and 35 each with its own factor; 1.45 against 2.48 s, one factor instead of three.
+    The held rows of every column are its input's, bit for bit; past :data:`SHIFTED_PCG_MAXITER` steps each column's
+    held system is factorised.
 
     Examples
     --------
