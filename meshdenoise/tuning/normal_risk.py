@@ -424,8 +424,8 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
     candidate linearised at. Linearised at a rougher mesh the estimate asks for more smoothing,
     at a smoother one for less, so once a choice above and one below have been seen the fixed
     point is bracketed and the passes close in on it by regula falsi on the choice's distance from the
-    candidate linearised at (Illinois: an end kept twice running counts half; adjacent ends: the better
-    as the last pass sees them); a choice one candidate from the point linearised at ends the passes; at most
+    candidate linearised at (:class:`FixedPointBracket`: midpoints once a regula falsi point leaves more than
+    half of its bracket; adjacent ends: the better as the last pass sees them); a choice one candidate from the point linearised at ends the passes; at most
     ``iterations`` passes. Linearising at the position-SURE result alone overshoots
     on meshes with sharp features (the chosen weight at the search's end on Fandisk0.3 and
     Block0.4 for :math:`(I + \\mu L)^{-1}`); the fixed point is within 1 % of the normal oracle
