@@ -47,9 +47,10 @@ def shifted_family_cg(solve_K: Callable[[np.ndarray], np.ndarray], apply_P: Call
     Parameters
     ----------
     solve_K : callable
-        :math:`K^{-1} Y` for an array shaped like ``B``; ``K`` symmetric positive definite.
+        :math:`K^{-1} Y` for an array shaped like ``B`` or with fewer columns (the last axis: a column done for every
+        shift leaves the run); ``K`` symmetric positive definite.
     apply_P : callable
-        :math:`P Y` for an array shaped like ``B``; ``P`` symmetric positive semi-definite.
+        :math:`P Y` for such an array; ``P`` symmetric positive semi-definite.
     B : ndarray, shape (..., c)
         ``c`` independent right-hand sides along the last axis (each system is over the other axes).
     shifts : sequence of float, each > 0
@@ -86,6 +87,7 @@ def shifted_family_cg(solve_K: Callable[[np.ndarray], np.ndarray], apply_P: Call
     delta = sigma - s0  # (shifts,)
     ncol = B.shape[-1]
     norm_b = np.sqrt(_dots(B, B))
+    limit = tol * np.where(norm_b > 0, norm_b, 1.0)
     R = B.copy()  # the seed's residual in B's space: R = K r
     r = solve_K(R)
     p, Kp = r.copy(), R.copy()
@@ -95,39 +97,54 @@ def shifted_family_cg(solve_K: Callable[[np.ndarray], np.ndarray], apply_P: Call
     alpha_prev, beta_prev = np.ones(ncol), np.zeros(ncol)
     rr = _dots(r, R)
     done = np.zeros((len(shifts), ncol), dtype=bool)
+    cols = np.arange(ncol)  # the columns still running: a column done for every shift leaves the solves (each
+    # column's recurrences are its own; the elephant's sweep: its probes done 3 steps before the correction)
+    converged = False
     for _ in range(int(maxiter)):
         res = np.sqrt(np.maximum(_dots(R, R), 0.0))
         # B - (K + s_j P) x_j = K (c - (M + sigma_j) y_j) = zeta_j R: each system's residual from the seed's
-        done |= np.abs(zeta) * res[None, :] <= tol * np.where(norm_b > 0, norm_b, 1.0)[None, :]
+        done |= np.abs(zeta) * res[None, :] <= limit[cols][None, :]
         if done.all():
+            converged = True
             break
+        running = ~done.all(axis=0)
+        if not running.all():
+            cols = cols[running]
+            R, r, p, Kp = R[..., running], r[..., running], p[..., running], Kp[..., running]
+            Pj = [P[..., running] for P in Pj]
+            zeta, zeta_prev, done = zeta[:, running], zeta_prev[:, running], done[:, running]
+            alpha_prev, beta_prev, rr = alpha_prev[running], beta_prev[running], rr[running]
+        whole = cols.size == ncol
         PP = apply_P(p)
         pw = _dots(p, PP) + s0 * _dots(p, Kp)  # <p, (M + s0) p>_K
-        alpha = np.divide(rr, pw, out=np.zeros(ncol), where=pw > 0)
+        alpha = np.divide(rr, pw, out=np.zeros(cols.size), where=pw > 0)
         denom = alpha[None, :] * beta_prev[None, :] * (zeta_prev - zeta) \
             + zeta_prev * alpha_prev[None, :] * (1.0 + delta[:, None] * alpha[None, :])
         zeta_next = np.divide(zeta * zeta_prev * alpha_prev[None, :], denom, out=np.zeros_like(zeta), where=denom != 0)
         ratio = np.divide(zeta_next, zeta, out=np.zeros_like(zeta), where=zeta != 0)
         for j in range(len(shifts)):
             a_j = np.where(done[j], 0.0, alpha * ratio[j])  # a converged system keeps its iterate
-            X[j] += a_j * Pj[j]
+            if whole:
+                X[j] += a_j * Pj[j]
+            else:
+                X[j][..., cols] += a_j * Pj[j]
         w = solve_K(PP) + s0 * p  # (M + s0) p
         r -= alpha * w
         R -= alpha * (PP + s0 * Kp)
         rr_next = _dots(r, R)
-        beta = np.divide(rr_next, rr, out=np.zeros(ncol), where=rr > 0)
+        beta = np.divide(rr_next, rr, out=np.zeros(cols.size), where=rr > 0)
         for j in range(len(shifts)):
             Pj[j] = zeta_next[j] * r + beta * ratio[j] ** 2 * Pj[j]
         p = r + beta * p
         Kp = R + beta * Kp
         zeta_prev, zeta = zeta, zeta_next
         alpha_prev, beta_prev, rr = alpha, beta, rr_next
-    else:
+    if not converged:
         res = np.sqrt(np.maximum(_dots(R, R), 0.0))
-        done |= np.abs(zeta) * res[None, :] <= tol * np.where(norm_b > 0, norm_b, 1.0)[None, :]
+        done |= np.abs(zeta) * res[None, :] <= limit[cols][None, :]
         if not done.all():
             warnings.warn(
-                f"shifted_family_cg: {int((~done).sum())} of {done.size} systems did not reach a relative residual "
-                f"of {tol:g} in {maxiter} iterations; a larger maxiter or a closer preconditioner converges",
+                f"shifted_family_cg: {int((~done).sum())} of {len(shifts) * ncol} systems did not reach a relative "
+                f"residual of {tol:g} in {maxiter} iterations; a larger maxiter or a closer preconditioner converges",
                 UserWarning, stacklevel=2)
     return [x * sj for x, sj in zip(X, sigma)]  # x_j = y_j / s_j

@@ -57,6 +57,26 @@ def test_blocks_of_vertex_triples_with_the_tangent_projector_as_sobolev_gls_uses
         np.testing.assert_allclose(x, want, atol=1e-9 * np.abs(want).max())
 
 
+def test_a_column_done_leaves_the_solves_and_keeps_its_solution():
+    """A column in an invariant subspace of K^-1 P (an eigenvector) is done after one step: the later solves see the
+    other columns only, and every column is still the dense solve."""
+    K, P, B = _system(seed=4)
+    w, U = np.linalg.eigh(np.linalg.solve(np.linalg.cholesky(K), np.linalg.solve(np.linalg.cholesky(K), P).T))
+    B[:, 0] = K @ np.linalg.solve(np.linalg.cholesky(K).T, U[:, -1])  # K^-1 B_0 an eigenvector of K^-1 P
+    widths = []
+
+    def solve(Y):
+        widths.append(Y.shape[-1])
+        return np.linalg.solve(K, Y)
+
+    shifts = [1.0, 10.0]
+    X = shifted_family_cg(solve, lambda Y: P @ Y, B, shifts, tol=1e-10)
+    assert widths[0] == 3 and widths[-1] == 2 and len(widths) > 3
+    for s, x in zip(shifts, X):
+        want = np.linalg.solve(K + s * P, B)
+        np.testing.assert_allclose(x, want, atol=1e-8 * np.abs(want).max())
+
+
 def test_bad_shifts_and_non_convergence():
     K, P, B = _system(seed=3)
     solve = lambda Y: np.linalg.solve(K, Y)  # noqa: E731

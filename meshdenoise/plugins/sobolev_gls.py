@@ -21,7 +21,7 @@ from ..solvers import (FILTER_LANCZOS_TOL, lanczos_shifted, laplacian_power, one
 from ..tuning.context import TuningContext
 from ..tuning.noise_level import mean_edge_length, normal_spread, normal_trust
 from ..tuning.risk import Point, gcv
-from ..tuning.search import best_shifted, region_rule, search_log, shifted_reach, solve_shifted
+from ..tuning.search import best_shifted, probe_count, region_rule, search_log, shifted_reach, solve_shifted
 from ..tuning.spectral import Spectral, shifted_spectral
 
 log = logging.getLogger("meshdenoise.auto")
@@ -264,7 +264,11 @@ def normal_weighted_cg(
 
 # ----------------------------------------------------------------------------- automatic rule
 SOBOLEV_GLS_BETAS = (1.0, 2.0, 3.0, 5.0, 8.0, 12.0)  # candidate tangential weights
-SOBOLEV_GLS_PROBES = 8  # Hutchinson probes of the divergence (the same for every candidate)
+SOBOLEV_GLS_PROBES = 8  # Hutchinson probes of the divergence (the same for every candidate) up to ...
+SOBOLEV_GLS_PROBE_REFERENCE = 10_000  # ... this many scored vertices, then fewer (search.probe_count: m x scored >=
+# 80,000, the trace's relative error no larger than 8 probes' on 10k; at least 4). Each probe is three columns of
+# every solve: the elephant's whole-mesh sweep 8 -> 4 probes, 4.6 -> 3.4 s, beta 5 -> 3 (18.53 -> 18.35 degrees,
+# the oracle 18.06; 8 probes chose 5, 3, 5 for seeds 0, 1, 2, where 4 chose 3 for all three)
 SOBOLEV_GLS_EXACT_MAX = 400  # exact traces up to this many vertices: 3n right-hand sides through CG per candidate
 SOBOLEV_GLS_REGION = 10_000  # from search.REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices
 SOBOLEV_GLS_PATCHES = 8  # ... made of this many balls of vertices
@@ -383,7 +387,8 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
               \\mathrm{tr}(\\hat\\Sigma J) \\approx \\frac1m \\sum_k b_k^T J b_k, \\quad b_{k,i} = \\hat\\Sigma_i^{1/2} z_{k,i},
 
     (:math:`\\|HX - X\\|` standing for :math:`\\|f(X) - X\\|`), Hutchinson's estimator with Rademacher
-    :math:`z_{k,i} \\in \\{\\pm 1\\}^3` (``SOBOLEV_GLS_PROBES`` of them; exact, one probe per coordinate,
+    :math:`z_{k,i} \\in \\{\\pm 1\\}^3` (``SOBOLEV_GLS_PROBES`` of them up to ``SOBOLEV_GLS_PROBE_REFERENCE``
+    scored vertices, fewer above, :func:`~meshdenoise.tuning.search.probe_count`; exact, one probe per coordinate,
     up to ``SOBOLEV_GLS_EXACT_MAX`` vertices: 3n right-hand sides per candidate). :math:`A^{-1} b_k`
     is solved with the coordinates in one block conjugate-gradient run and serves both parts:
     :math:`b^T A^{-1} W b = (A^{-1} b)^T W b`. Below half an edge length of noise
@@ -429,8 +434,10 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
             z = np.eye(3 * n).reshape(n, 3, 3 * n)
             s = 1.0
         else:
-            z = np.random.default_rng(0).choice([-1.0, 1.0], size=(n, 3, SOBOLEV_GLS_PROBES))
-            s = 1.0 / SOBOLEV_GLS_PROBES
+            m = probe_count(n if scored is None else int(np.count_nonzero(scored)), SOBOLEV_GLS_PROBES,
+                            SOBOLEV_GLS_PROBE_REFERENCE)
+            z = np.random.default_rng(0).choice([-1.0, 1.0], size=(n, 3, m))
+            s = 1.0 / m
         z = ctx.colour(z.reshape(n, -1), s / 3.0).reshape(z.shape)  # correlated noise: each coordinate Sigma^{1/2} xi
         zn = np.sum(Nn[:, :, None] * z, axis=1, keepdims=True) * Nn[:, :, None]
         B = math.sqrt(1.0 - tau) * zn + math.sqrt(tau / 2.0) * (z - zn)  # probes b = Sigma^{1/2} z / rho
@@ -483,8 +490,7 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
             return
         S, X0, N = isotropic_at(mu)
         rhs = np.concatenate([_correction_rhs(N, 2.0, ctx.V, X0)[:, :, None], B], axis=2)  # beta 2: P_T (X - X0)
-        k = rhs.shape[2]
-        outs = shifted_family_cg(lambda Y: S.solve(Y.reshape(n, 3 * k)).reshape(n, 3, k),
+        outs = shifted_family_cg(lambda Y: S.solve(Y.reshape(n, -1)).reshape(Y.shape),
                                  lambda Y: Y - N[:, :, None] * np.sum(N[:, :, None] * Y, axis=1, keepdims=True),
                                  rhs, [b - 1.0 for b in todo], tol=tol, maxiter=CG_MAXITER)
         for b, out in zip(todo, outs):

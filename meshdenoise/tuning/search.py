@@ -56,10 +56,11 @@ QUADRATURE_MIN_VERTICES = 1_000  # best_shifted(search="auto"): Lanczos quadratu
 SHIFTED_SEARCHES = ("auto", "quadrature", "factor")
 
 
-def probe_count(n: int) -> int:
-    """Hutchinson probes for a smoother of ``n`` vertices: ``N_PROBES`` up to 50,000 vertices, then fewer.
+def probe_count(n: int, most: int = N_PROBES, reference: int = PROBE_REFERENCE_VERTICES) -> int:
+    """Hutchinson probes for a smoother of ``n`` vertices: ``most`` (``N_PROBES``) up to ``reference`` (50,000)
+    vertices, then fewer.
 
-    ``m = max(MIN_PROBES, ceil(N_PROBES * 50,000 / n))``, at most ``N_PROBES``: 24 up to 50k
+    ``m = max(MIN_PROBES, ceil(most * reference / n))``, at most ``most``: 24 up to 50k
     vertices, 12 at 100k, 4 from 300k. Why fewer probes are enough on a large mesh: with
     Rademacher probes the trace estimate has standard deviation
     :math:`\\sqrt{2(\\|H\\|_F^2 - \\sum_i H_{ii}^2)/m} \\le \\sqrt{2\\,\\mathrm{tr} H / m}` (``H``
@@ -67,14 +68,24 @@ def probe_count(n: int) -> int:
     and SURE carries it times :math:`2\\rho^2`: relative to the noise energy
     :math:`n\\rho^2` (the scale of SURE) at most :math:`2\\sqrt{2/(m n)}`, which falls with
     ``n``. Keeping ``m n >= 24 x 50,000`` keeps that bound at or below its value for 24 probes
-    on a 50k-vertex mesh, 0.26 %; measured at 400k vertices with 4 probes, docs/scale.md.
+    on a 50k-vertex mesh, 0.26 %; measured at 400k vertices with 4 probes, docs/scale.md. A rule whose
+    probes cost more (each a many-column solve) passes its own ``most`` and ``reference``, and ``n`` the vertices
+    it scores (the bound is over the scored rows' risk).
 
     Examples
     --------
     >>> probe_count(25_000), probe_count(100_000), probe_count(400_000), probe_count(1_600_000)
     (24, 12, 4, 4)
+    >>> probe_count(8_000, most=8, reference=10_000), probe_count(24_955, most=8, reference=10_000)
+    (8, 4)
     """
-    return int(min(N_PROBES, max(MIN_PROBES, math.ceil(N_PROBES * PROBE_REFERENCE_VERTICES / max(n, 1)))))
+    if isinstance(n, (bool, np.bool_)) or not isinstance(n, (int, np.integer)) or n < 0:
+        raise ValueError(f"probe_count: n must be an int >= 0, got {n!r}")
+    if not (isinstance(most, (int, np.integer)) and most >= MIN_PROBES) or not (
+            isinstance(reference, (int, np.integer)) and reference >= 1):
+        raise ValueError(f"probe_count: most must be an int >= {MIN_PROBES} and reference an int >= 1, "
+                         f"got {most!r}, {reference!r}")
+    return int(min(most, max(MIN_PROBES, math.ceil(most * reference / max(n, 1)))))
 
 
 def averaging_step(A: sp.csr_matrix, lam: float) -> Callable[[np.ndarray], np.ndarray]:
