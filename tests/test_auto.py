@@ -371,15 +371,18 @@ def test_sobolev_axes_matches_dense_solves_in_the_normal_frame():
 
 
 def test_sobolev_axes_per_axis_sure_matches_the_dense_weighted_risk():
-    """The per-axis SURE's weighted trace sum_i H_ii c_i: Hutchinson probes z * sqrt(c) vs the dense diagonal."""
+    """The per-axis SURE's weighted trace sum_i H_ii c_i: Hutchinson's z^T diag(c) H z (the rule's, one solve H z for
+    the three axes) and (z * sqrt c)^T H (z * sqrt c) (before session 29) against the dense diagonal."""
     V, F = icosphere(2)
     n = len(V)
     _, L = _dense_P(F, n)
     H = np.linalg.inv(np.eye(n) + 0.2 * np.linalg.matrix_power(L, 3))
     c = (vertex_normals(V, F)[:, 0]) ** 2
     Z, s = probe_block(n, exact=False, n_probes=3000, seed=5)
+    want = np.sum(np.diag(H) * c)
+    assert s * np.sum((Z * c[:, None]) * (H @ Z)) == pytest.approx(want, rel=0.03)
     Q = Z * np.sqrt(c)[:, None]
-    assert s * np.sum(Q * (H @ Q)) == pytest.approx(np.sum(np.diag(H) * c), rel=0.03)
+    assert s * np.sum(Q * (H @ Q)) == pytest.approx(want, rel=0.03)
 
 
 def test_sobolev_axes_share_correction_reads_the_true_axis_noise_energy():

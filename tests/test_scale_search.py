@@ -567,6 +567,22 @@ def test_sobolev_axes_quadrature_search_chooses_the_factor_search_weights(monkey
     assert new_risk == pytest.approx(old_risk, rel=1e-8)
 
 
+def test_sobolev_axes_quadrature_by_one_run_per_column_chooses_as_one_run(monkeypatch):
+    """Past AXES_ONE_RUN_MAX_VERTICES the quadrature is one run per column (the probes' LanczosDots with their three
+    weighted duals): the same weights and risk as the one compiled run of every column."""
+    import meshdenoise.plugins.sobolev_axes as ax
+
+    V, F = torus(40, 20)
+    Vn, _ = add_normal_noise((V, F), 0.03, seed=0)
+    monkeypatch.setattr(ax, "AXES_QUADRATURE_MIN_VERTICES", 100)
+    monkeypatch.setattr(ax, "solve_shifted", lambda *a, **k: pytest.fail("a factor was used"))
+    one, one_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True)
+    monkeypatch.setattr(ax, "AXES_ONE_RUN_MAX_VERTICES", 100)
+    each, each_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True)
+    assert each == pytest.approx(one, rel=1e-9)
+    assert each_risk == pytest.approx(one_risk, rel=1e-5)
+
+
 def test_sobolev_axes_factor_free_filter_equals_the_factor_filter(monkeypatch):
     import meshdenoise.plugins.sobolev_axes as ax
 

@@ -11,8 +11,8 @@ from ..geometry import vertex_normals
 from ..operators import Operators
 from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
 from ..operators import mask_key, spmm
-from ..solvers import (FILTER_LANCZOS_TOL, LANCZOS_SHIFTED_MAX_STEPS, CompiledLanczos, LanczosQuadrature, ShiftedInverse,
-                       ShiftedPCGFamily, lanczos_shifted, shifted_cg_bound, shifted_solver)
+from ..solvers import (FILTER_LANCZOS_TOL, LANCZOS_SHIFTED_MAX_STEPS, CompiledLanczos, LanczosDots, LanczosQuadrature,
+                       ShiftedInverse, ShiftedPCGFamily, lanczos_shifted, shifted_cg_bound, shifted_solver)
 from ..tuning.context import TuningContext
 from ..tuning.memo import MEMO, digest
 from ..tuning.noise_level import fourth_difference, mean_edge_length, normal_trust
@@ -31,7 +31,7 @@ AXES_QUADRATURE_TOL = 1e-6  # ... each rule to this relative change over its las
 # benchmarks/filter_time.py it runs on: every per-axis score within 2.7e-5 of 1e-10's (the elephant; the others 8e-8 or
 # less), each axis's best ahead of its next by 1.7e-4 (Twelve0.5Impulsive) to 9e-3, the same choices; the elephant
 # 187 -> 120 steps, 3.2 -> 2.8 s
-AXES_ONE_RUN_MAX_VERTICES = 100_000  # below this size the rule's quadrature is one compiled Lanczos run of its 3 + 3m
+AXES_ONE_RUN_MAX_VERTICES = 100_000  # below this size the rule's quadrature is one compiled Lanczos run of its 3 + m
 # columns (solvers.CompiledLanczos: Bunny0.2's 75 one-column numpy runs took 1.3 s), above it one run per column (memory)
 AXES_NORMAL_REGION = 8_000  # the normals criterion's search on a region of this size from twice as many vertices: each
 # candidate factorises I + mu L^3 three times (3.3 s each at 35k vertices; the whole-mesh search took 170 s on Bunny0.2)
@@ -120,11 +120,12 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
     .. math:: \\mathrm{SURE}_d(\\mu) = \\|H_\\mu x_d - x_d\\|^2 - \\rho^2 \\sum_i c_{id}
               + 2\\rho^2 \\sum_i (H_\\mu)_{ii}\\, c_{id}, \\qquad H_\\mu = (I + \\mu L^p)^{-1},
 
-    whose weighted trace is Hutchinson's with probes :math:`z \\odot \\sqrt{c_d}`
-    (:math:`\\mathbb E\\, (z \\odot a)^T H (z \\odot a) = \\sum_i H_{ii} a_i^2`), exact
-    (identity probes) on small meshes. One factorisation per ``mu`` serves the three
-    axes: a half-decade grid around the ``sobolev`` guess, extended until every axis's
-    minimum is inside, then refined to an eighth of a decade around each minimum.
+    whose weighted trace is Hutchinson's :math:`\\mathbb E\\, (c_d \\odot z)^T H z = \\sum_i H_{ii} c_{id}`:
+    one solve :math:`H z` per probe serves the three axes, each dotting it with its own weighted probe
+    (until session 29 :math:`(z \\odot \\sqrt{c_d})^T H (z \\odot \\sqrt{c_d})`, the same sum in expectation by
+    three times the solves: face000's rule 1.6 -> 1.2 s), exact (identity probes) on small meshes. One
+    factorisation per ``mu`` serves the three axes: a half-decade grid around the ``sobolev`` guess, extended until
+    every axis's minimum is inside, then refined to an eighth of a decade around each minimum.
 
     Above half an edge length of noise the shares' axis totals are rescaled to the
     residual energy on each axis (:func:`_axis_share_correction`): the smoothed normals
@@ -134,7 +135,8 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
     From ``AXES_QUADRATURE_MIN_VERTICES`` vertices (not the oracle, not exact traces) the candidates are the same and
     their scores come from one Lanczos run on ``L`` (Gauss quadrature of both terms, which are
     quadratic forms of functions of ``L``, as :func:`~meshdenoise.tuning.search.shifted_quadrature`;
-    the probes :func:`~meshdenoise.tuning.search.probe_count`), no factorisation per ``mu``; a
+    the probes :func:`~meshdenoise.tuning.search.probe_count`; the weighted probes as the duals of
+    :class:`~meshdenoise.solvers.LanczosDots`), no factorisation per ``mu``; a
     candidate whose rule has not converged in 600 steps falls back to its factor.
     """
     spec = get_filter("sobolev_axes")
@@ -163,8 +165,10 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
     # a factor per mu costs 1 to 5 s at 35k vertices for L^3 (Bunny0.2: 10 of them); exact traces (identity probes,
     # a Lanczos run per column) keep it
     use_quadrature = n >= AXES_QUADRATURE_MIN_VERTICES and Yf is None and m <= N_PROBES
-    def probes(d: int) -> np.ndarray:  # axis d's probes z * sqrt(c_d), (n, m): made when needed, not held
-        return np.ascontiguousarray(Z * np.sqrt(c[:, [d]]))
+    # axis d's weighted trace sum_i c_id H_ii as E z^T diag(c_d) H z: the three axes from one set of m solves (H z),
+    # each dotted with its own weighted probes c_d * z (E (z * sqrt c_d)^T H (z * sqrt c_d), the same sum, took 3m)
+    def weighted(d: int) -> np.ndarray:  # (n, m): made when needed, not held
+        return np.ascontiguousarray(Z * c[:, [d]])
 
     held = [f"mu{d + 1}" in ctx.given for d in range(3)]
     evaluated: dict[float, list[float]] = {}  # log10 mu -> per-axis score
@@ -175,16 +179,19 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
         for _ in range(order):
             hp = spmm(ctx.ops.L, np.ascontiguousarray(hp))
         # one run per column, each extended as far as its own column needs: a step's work arrays are (n, 1), not
-        # (n, 3 + 3m) (at 1.6M vertices 2 x 14 columns = 360 MB less), and numpy's passes over one contiguous column
+        # (n, 3 + m) (at 1.6M vertices 12.8 MB a column), and numpy's passes over one contiguous column
         # cost less per number than over (n, k) blocks (30 steps at 400k: 2.0 CPU s for 15 one-column runs, 2.4 for
         # one 15-column run, 3.0 for three 5-column runs)
         if n < AXES_ONE_RUN_MAX_VERTICES:  # one compiled run of all the columns: per-step work, not per column
-            one = CompiledLanczos(ctx.ops.L, np.hstack([hp] + [probes(d) for d in range(3)]), max_steps=600)
+            # the weighted probes are the duals of the probe columns (zero on the coordinates')
+            one = LanczosDots(ctx.ops.L, np.hstack([hp, Z]), [np.hstack([np.zeros((n, 3)), weighted(d)]) for d in range(3)],
+                              max_steps=600)
             quad = None
         else:
             quad = [LanczosQuadrature(ctx.ops.L, np.ascontiguousarray(hp[:, [j]]), max_steps=600) for j in range(3)] + [
-                LanczosQuadrature(ctx.ops.L, np.ascontiguousarray(probe[:, [k]]), max_steps=600)
-                for probe in (probes(d) for d in range(3)) for k in range(m)]
+                LanczosDots(ctx.ops.L, np.ascontiguousarray(Z[:, [k]]),
+                            [np.ascontiguousarray(weighted(d)[:, [k]]) for d in range(3)], max_steps=600)
+                for k in range(m)]
 
     def by_quadrature(mu: float) -> list | None:
         """Per-axis SURE: :math:`\\|H x_d - x_d\\|^2 = c_d^T \\mu^2 (I + \\mu L^p)^{-2} c_d`, :math:`c_d = L^p x_d`,
@@ -193,16 +200,17 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
         tol, residual, trace = AXES_QUADRATURE_TOL, ShiftedInverse(mu, order, 2), ShiftedInverse(mu, order)
         if quad is None:
             parts = [one.evaluate(residual, columns=range(3), rtol=tol, growth=0.25),
-                     one.evaluate(trace, columns=range(3, 3 + 3 * m), rtol=tol, growth=0.25)]
+                     one.dots(trace, rtol=tol, growth=0.25)]
         else:  # growth: tests at geometrically spaced sizes (the elephant's strong weights: 4.5 -> 4.0 s)
             parts = [run.evaluate(residual, rtol=tol, growth=0.25) for run in quad[:3]] + [
-                run.evaluate(trace, rtol=tol, growth=0.25) for run in quad[3:]]
+                run.dots(trace, rtol=tol, growth=0.25) for run in quad[3:]]
         if any(part is None for part in parts):
             return None
-        r, q = (parts[0], parts[1]) if quad is None else (np.concatenate(parts[:3]), np.concatenate(parts[3:]))
+        # q[d]: the sum over probes of (c_d z)^T H z
+        r, q = (parts[0], parts[1][:, 3:].sum(axis=1)) if quad is None else (
+            np.concatenate(parts[:3]), np.sum([part[:, 0] for part in parts[3:]], axis=0))
         r = mu**2 * r
-        return [float(r[d]) - ctx.rho**2 * float(c[:, d].sum()) + 2 * ctx.rho**2 * s * float(q[d * m:(d + 1) * m].sum())
-                for d in range(3)]
+        return [float(r[d]) - ctx.rho**2 * float(c[:, d].sum()) + 2 * ctx.rho**2 * s * float(q[d]) for d in range(3)]
 
     def at(t: float) -> list:
         t = round(t, 9)
@@ -212,17 +220,16 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
                 evaluated[t] = scores
         if t not in evaluated:
             mu = 10.0**t
-            Q = np.hstack([probes(d) for d in range(3)])
             if not keys:
-                keys.append(digest(ctx.ops.F, order, np.hstack([Xf, Q])))
-            out = solve_shifted(ctx.ops, order, mu, np.hstack([Xf, Q]), keys[0])
+                keys.append(digest(ctx.ops.F, order, np.hstack([Xf, Z])))
+            out = solve_shifted(ctx.ops, order, mu, np.hstack([Xf, Z]), keys[0])
             scores = []
             for d in range(3):
                 y = out[:, d]
                 if Yf is not None:
                     score = float(np.sum((y - Yf[:, d]) ** 2))
                 else:
-                    tr = s * float(np.sum(Q[:, d * m:(d + 1) * m] * out[:, 3 + d * m:3 + (d + 1) * m]))
+                    tr = s * float(np.sum(weighted(d) * out[:, 3:]))
                     score = float(np.sum((y - Xf[:, d]) ** 2)) - ctx.rho**2 * float(c[:, d].sum()) + 2 * ctx.rho**2 * tr
                 scores.append(score)
             evaluated[t] = scores
