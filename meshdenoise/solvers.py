@@ -28,7 +28,7 @@ from .operators import Operators, mask_key, spmm, trim_cache
 
 __all__ = [
     "DirichletSystem", "SPDSolver", "CHOLMOD", "CHOLMOD_MAX_ROWS", "CHOLMOD_METIS_MAX_ROWS", "clear_symbolic", "CGSolver", "block_cg", "cached_solver", "retain_factors", "laplacian_power", "shifted_solver",
-    "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "ShiftedInverse", "ShiftedPCG", "ShiftedPCGFamily", "one_ring_factor", "HeldByProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "CompiledLanczos", "LanczosDots", "column_function", "FILTER_LANCZOS_TOL",
+    "shifted_factor", "shifted_factor_matrices", "ShiftedProduct", "ShiftedInverse", "ShiftedPCG", "ShiftedPCGFamily", "one_ring_factor", "one_ring_solve", "HeldByProduct", "SHIFTED_METHODS", "LanczosQuadrature", "lanczos_shifted", "LanczosRows", "CompiledLanczos", "LanczosDots", "column_function", "FILTER_LANCZOS_TOL",
 ]
 
 FACTORS_PER_FAMILY = 4  # a parameter sweep keeps only the last few factorisations of each filter
@@ -787,6 +787,17 @@ def one_ring_factor(ops: Operators, shift: float, order: int, pinned: np.ndarray
     return SPDSolver(sp.csr_matrix(L + sp.diags(diagonal, format="csr")))
 
 
+def one_ring_solve(factor: SPDSolver, R: np.ndarray, order: int, mu: float | np.ndarray) -> np.ndarray:
+    r""":math:`\mu^{-1} (L_{ff} + a I + s H)^{-p} R`: ``order`` solves of ``R`` (free rows, c) with ``factor`` (a
+    :func:`one_ring_factor`), divided by ``mu`` (a number, or one per column, shape (c,)): the one-ring approximation
+    of :math:`(I + \mu L^p)_{ff}^{-1}` that :class:`ShiftedPCG`, :class:`ShiftedPCGFamily` and ``sobolev_gls``' held
+    correction precondition by."""
+    Z = R
+    for _ in range(int(order)):
+        Z = factor.solve(Z)
+    return Z / (np.asarray(mu, dtype=np.float64)[None, :] if np.ndim(mu) else float(mu))
+
+
 SHIFTED_PCG_MAXITER = 300  # ShiftedPCG.solve: past this many steps the system is factorised after all (measured: 19 to
 # 23 steps without held rows at 1e-10, 20 with Bunny0.2's 223 held border vertices, 55 to 78 with face000's 4,111)
 
@@ -843,10 +854,7 @@ class ShiftedPCG(DirichletSystem):
 
     def precondition(self, R: np.ndarray) -> np.ndarray:
         r""":math:`\mu^{-1} (L_{ff} + a I)^{-p} R` for ``R`` (free rows, c): ``p`` solves with the one-ring factor."""
-        Z = R
-        for _ in range(self.order):
-            Z = self.factor.solve(Z)
-        return Z / self.mu
+        return one_ring_solve(self.factor, R, self.order, self.mu)
 
     def solve(self, X: np.ndarray, *, tol: float = HELD_CG_TOL, maxiter: int | None = None,
               x0: np.ndarray | None = None) -> np.ndarray:
@@ -943,10 +951,7 @@ class ShiftedPCGFamily(DirichletSystem):
 
     def precondition(self, R: np.ndarray) -> np.ndarray:
         r""":math:`\mu_j^{-1} (L_{ff} + a I)^{-p} r_j` for each column of ``R`` (free rows, k)."""
-        Z = R
-        for _ in range(self.order):
-            Z = self.factor.solve(Z)
-        return Z / self.mus[None, :]
+        return one_ring_solve(self.factor, R, self.order, self.mus)
 
     def solve(self, X: np.ndarray, *, tol: float = HELD_CG_TOL, maxiter: int | None = None,
               x0: np.ndarray | None = None) -> np.ndarray:

@@ -53,6 +53,11 @@ def test_held_rows_are_kept_and_the_free_rows_solve_the_reduced_system():
     assert H.max() > 0 and solvers.held_row_share(3) == pytest.approx(2.0 / 3.0) and solvers.held_row_share(1) == 0
     M = 25.0 * np.linalg.matrix_power(Lf + 25.0 ** (-1 / 3) * np.eye(Lf.shape[0]) + 2.0 / 3.0 * H, 3)
     np.testing.assert_allclose(Z, np.linalg.solve(M, X[free]), atol=1e-10)
+    # one_ring_solve, the same preconditioner with a weight per column: each column's own mu_j^-1 (...)^-3 at one shift
+    mus = np.array([25.0, 5.0, 125.0])
+    W = solvers.one_ring_solve(S.factor, X[free], 3, mus)
+    Ms = [m * np.linalg.matrix_power(Lf + 25.0 ** (-1 / 3) * np.eye(Lf.shape[0]) + 2.0 / 3.0 * H, 3) for m in mus]
+    np.testing.assert_allclose(W, np.column_stack([np.linalg.solve(Ms[j], X[free][:, j]) for j in range(3)]), atol=1e-10)
     # started from a nearby answer (x0, the border option's free run): the same solution, fewer steps; held rows kept
     cold = S.iterations
     near = Y + 1e-6 * np.random.default_rng(3).standard_normal(Y.shape)

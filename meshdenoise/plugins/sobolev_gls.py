@@ -16,8 +16,8 @@ from ..geometry import coherent_normals_derivative, vertex_normals
 from ..multishift import shifted_family_cg
 from ..operators import Operators, mask_key, spmm
 from ..registry import AutoRule, Param, get_filter, register
-from ..solvers import (FILTER_LANCZOS_TOL, lanczos_shifted, laplacian_power, one_ring_factor, shifted_cg_bound,
-                       shifted_solver)
+from ..solvers import (FILTER_LANCZOS_TOL, lanczos_shifted, laplacian_power, one_ring_factor, one_ring_solve,
+                       shifted_cg_bound, shifted_solver)
 from ..tuning.context import TuningContext
 from ..tuning.noise_level import mean_edge_length, normal_spread, normal_trust
 from ..tuning.risk import Point, gcv
@@ -698,7 +698,7 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, draft=None):
     # no factor of I + mu L^p stored on a mesh from GLS_FACTOR_FREE_MIN_VERTICES: CG preconditioned by a one-ring
     # factor's (L + a I)^-p for both solves (ShiftedPCG; the bunny scanner's solves 0.72 -> 0.57 s, face000's held run
     # 1.8 s where its factor took 3.0 s)
-    by_pcg = ops.n >= GLS_FACTOR_FREE_MIN_VERTICES and not _factor_stored(ops, mu, order, pinned)
+    by_pcg = _by_one_ring(ops, mu, order, pinned)
     if by_pcg and beta == 1.0 and not held:
         # the isotropic pass alone with no held rows (the border option's draft, border_draft): two Lanczos passes,
         # no factor (face000 at mu 34: 0.7 s against 0.3 s for the one-ring factor and 0.75 s of its CG)
@@ -757,23 +757,23 @@ def _held_from_draft(X: np.ndarray, F: np.ndarray, ops: Operators, mu: float, be
         E, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs, tol=GLS_FILTER_TOL, pinned=pinned)
         if not ok:
             E = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, x0=E)
-    elif ops.n >= GLS_FACTOR_FREE_MIN_VERTICES and not _factor_stored(ops, mu, order, pinned):
+    elif _by_one_ring(ops, mu, order, pinned):
         # the one-ring preconditioner mu^-1 (L_ff + a I + share)^-p alone: ShiftedPCG's held system (I + mu L^p)_ff
         # and its coupling are not needed here (face000: 0.2 s of slicing a 3-ring matrix)
         factor = one_ring_factor(ops, mu ** (-1.0 / order), order, pinned)
-
-        def one_ring(R: np.ndarray) -> np.ndarray:
-            for _ in range(int(order)):
-                R = factor.solve(R)
-            return R / mu
-
         E = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, tol=GLS_FILTER_TOL,
-                                  prec=_on_free_rows(ops.n, pinned, one_ring))
+                                  prec=_on_free_rows(ops.n, pinned, lambda R: one_ring_solve(factor, R, order, mu)))
     else:
         E = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, tol=GLS_FILTER_TOL)
     Y = X0 + D_held + E
     Y[pinned] = X[pinned]  # the held values bit for bit (X0 + (X - X0) rounds)
     return Y
+
+
+def _by_one_ring(ops: Operators, mu: float, order: int, pinned: np.ndarray | None) -> bool:
+    """Whether a mesh the factor-free paths leave (:func:`_iterative` false) solves by CG preconditioned by a one-ring
+    factor: from ``GLS_FACTOR_FREE_MIN_VERTICES`` vertices with no factor of :math:`I + \\mu L^p` stored."""
+    return ops.n >= GLS_FACTOR_FREE_MIN_VERTICES and not _factor_stored(ops, mu, order, pinned)
 
 
 def _factor_stored(ops: Operators, mu: float, order: int, pinned: np.ndarray | None) -> bool:
