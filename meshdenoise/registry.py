@@ -257,6 +257,7 @@ class FilterSpec:
     along_normals: Callable[[dict], bool] | None = None
     warm_start: bool = False
     border_draft: Callable[[dict], dict] | None = None
+    rough_free_run: bool = False
 
     def param(self, name: str) -> Param:
         for p in self.params:
@@ -294,6 +295,7 @@ def register(
     along_normals: Callable[[dict], bool] | None = None,
     warm_start: bool = False,
     border_draft: Callable[[dict], dict] | None = None,
+    rough_free_run: bool = False,
 ) -> Callable[[Callable], Callable]:
     """Register an array-core filter and return its public, mesh-type-agnostic function.
 
@@ -312,7 +314,10 @@ def register(
     ``border_draft(values)``: the parameters of a cheaper run of the same filter that stands for its free run in
     ``boundary_motion="normal"`` (the border's normal moves read from it); the core then also takes ``draft``,
     ``None`` or that run's read-only ``(n, 3)`` result, given to the held run, which may build on it:
-    ``sobolev_gls``' isotropic pass, whose normals its held run takes.
+    ``sobolev_gls``' isotropic pass, whose normals its held run takes. ``rough_free_run=True``: the core also takes
+    ``rough``, ``True`` on that free run (or its ``border_draft``'s), whose result is read only for the border's
+    normal moves and as the held run's start or draft: its Lanczos solves may stop at
+    :data:`~meshdenoise.solvers.DRAFT_LANCZOS_TOL` instead of the filter's own tolerance.
 
     The core is called as ``core(V, F, ops=ops, pinned=pinned, **params)`` with ``V``
     read-only ``(n, 3) float64``, ``F (m, 3) int64``, ``ops`` the cached
@@ -324,8 +329,9 @@ def register(
     for hook, value in (("along_normals", along_normals), ("border_draft", border_draft)):
         if value is not None and not callable(value):
             raise TypeError(f"register({name!r}): {hook}= must be a function of the parameters or None, got {value!r}")
-    if not isinstance(warm_start, bool):
-        raise TypeError(f"register({name!r}): warm_start= must be True or False, got {warm_start!r}")
+    for flag, value in (("warm_start", warm_start), ("rough_free_run", rough_free_run)):
+        if not isinstance(value, bool):
+            raise TypeError(f"register({name!r}): {flag}= must be True or False, got {value!r}")
     if auto is not None:
         unknown = set(auto.tunes) - {p.name for p in params}
         if not isinstance(auto, AutoRule) or unknown:
@@ -333,7 +339,8 @@ def register(
 
     def decorate(core: Callable) -> Callable:
         spec = FilterSpec(name, summary, tuple(params), core, linear, translation_equivariant, auto, scale_free,
-                          along_normals=along_normals, warm_start=warm_start, border_draft=border_draft)
+                          along_normals=along_normals, warm_start=warm_start, border_draft=border_draft,
+                          rough_free_run=rough_free_run)
 
         @functools.wraps(core)
         def public(mesh, **kwargs):
@@ -429,11 +436,13 @@ def run_core(spec: FilterSpec, V: np.ndarray, ops: Any, values: dict, *, pinned:
     scale = power_of_two_scale(V) if spec.scale_free else 1.0
     V_in = V.view() if scale == 1.0 else V / scale
     V_in.flags.writeable = False  # a core must return new arrays, never write into its input
-    first = values
-    if (boundary_motion == "normal" and spec.border_draft is not None
-            and _border_to_move(spec, ops, pinned, values) is not None):
-        first = spec.border_draft(values)  # its result stands for the free run (its border's normal moves)
-    V_out = np.asarray(spec.core(V_in, ops.F, ops=ops, pinned=pinned, **first), dtype=np.float64)
+    first, rough = values, {}
+    if boundary_motion == "normal" and _border_to_move(spec, ops, pinned, values) is not None:
+        if spec.border_draft is not None:
+            first = spec.border_draft(values)  # its result stands for the free run (its border's normal moves)
+        if spec.rough_free_run:  # read for the border's moves and as the held run's start: a draft's tolerance
+            rough = {"rough": True}
+    V_out = np.asarray(spec.core(V_in, ops.F, ops=ops, pinned=pinned, **rough, **first), dtype=np.float64)
     if np.may_share_memory(V_out, V) or np.may_share_memory(V_out, V_in):
         V_out = V_out.copy()
     if boundary_motion == "normal":

@@ -54,7 +54,8 @@ def test_register_refuses_a_rule_tuning_an_unknown_parameter():
         register("never_registered", params=[Param("k", int, 1)], summary="x", auto=AutoRule(("q",), lambda ctx: ({}, None)))
     for hooks, message in (({"border_draft": {"beta": 1.0}}, "border_draft= must be a function"),
                            ({"along_normals": True}, "along_normals= must be a function"),
-                           ({"warm_start": "yes"}, "warm_start= must be True or False")):
+                           ({"warm_start": "yes"}, "warm_start= must be True or False"),
+                           ({"rough_free_run": 1}, "rough_free_run= must be True or False")):
         with pytest.raises(TypeError, match=message):
             register("never_registered", params=[Param("k", int, 1)], summary="x", **hooks)
     assert "never_registered" not in meshdenoise.registry.REGISTRY

@@ -321,6 +321,56 @@ def test_boundary_motion_normal_starts_the_held_run_of_a_warm_start_filter_from_
         np.testing.assert_array_equal(out, boundary_along_normals(spec, Vn, F, ops, None, values, free))
 
 
+@pytest.mark.parametrize("name", ["sobolev_axes", "sobolev_gls"])
+def test_the_border_options_free_run_is_rough_and_the_result_is_the_same_to_the_held_runs_tolerance(monkeypatch, name):
+    """A filter registered with rough_free_run gets rough=True on the border option's free run only (its result is
+    read for the border's moves and as the held run's start or draft): its Lanczos solves then stop at
+    DRAFT_LANCZOS_TOL, and the border option's result is the one of a free run to FILTER_LANCZOS_TOL, to within 1e-5
+    of the mean move."""
+    import dataclasses
+
+    import meshdenoise.plugins.sobolev_axes as sa
+    import meshdenoise.plugins.sobolev_gls as sg
+    from meshdenoise import solvers
+    from meshdenoise.registry import get_filter, run_core
+
+    # the factor-free paths (the Lanczos free runs) on a small mesh
+    monkeypatch.setattr(sa, "AXES_LANCZOS_MIN_VERTICES", 100)
+    monkeypatch.setattr(sg, "GLS_FACTOR_FREE_MIN_VERTICES", 100)
+    monkeypatch.setattr(sg, "GLS_DENSE_MAX_VERTICES", 10)
+    V, F = open_cap(4)
+    Vn = md.add_normal_noise((V, F), 0.02, seed=1)[0]
+    ops = get_operators(F, V.shape[0])
+    spec = get_filter(name)
+    assert spec.rough_free_run
+    values = spec.resolve({"mu1": 2.0, "mu2": 3.0, "mu3": 40.0, "frame_steps": 2} if name == "sobolev_axes"
+                          else {"mu": 20.0, "beta": 6.0})
+    seen, tols = [], []
+
+    def core(V, F, *, ops, pinned, real=spec.core, **kw):
+        seen.append(kw.get("rough"))
+        return real(V, F, ops=ops, pinned=pinned, **kw)
+
+    module = sa if name == "sobolev_axes" else sg
+    for fn in ("lanczos_shifted", "_axes_by_lanczos") if name == "sobolev_axes" else ("lanczos_shifted",):
+        real_fn = getattr(module, fn)
+
+        def recording(*a, real_fn=real_fn, fn=fn, **k):
+            tols.append(k.get("tol", a[4] if fn == "_axes_by_lanczos" and len(a) > 4 else solvers.FILTER_LANCZOS_TOL))
+            return real_fn(*a, **k)
+
+        monkeypatch.setattr(module, fn, recording)
+    rough = dataclasses.replace(spec, core=core)
+    out = run_core(rough, Vn, ops, values, boundary_motion="normal")
+    assert seen == [True, None] and tols and tols[0] == solvers.DRAFT_LANCZOS_TOL
+    seen.clear()
+    run_core(rough, Vn, ops, values)
+    assert seen == [None]  # no border option: the filter's own run
+    exact = run_core(dataclasses.replace(spec, rough_free_run=False), Vn, ops, values, boundary_motion="normal")
+    move = np.abs(exact - Vn).mean()
+    assert 0 < np.abs(out - exact).max() <= 1e-5 * move
+
+
 def test_boundary_motion_normal_reads_the_border_moves_of_a_filter_with_a_draft_from_its_draft(monkeypatch):
     """sobolev_gls' border_draft (its isotropic pass, beta = 1) stands for its free run: the border moves along the
     draft's normals by the draft's normal move, and the rest is the weighted system held at those values with the

@@ -11,8 +11,9 @@ from ..geometry import vertex_normals
 from ..operators import Operators
 from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
 from ..operators import mask_key, spmm
-from ..solvers import (FILTER_LANCZOS_TOL, LANCZOS_SHIFTED_MAX_STEPS, CompiledLanczos, LanczosDots, LanczosQuadrature,
-                       ShiftedInverse, ShiftedPCGFamily, lanczos_shifted, shifted_cg_bound, shifted_solver)
+from ..solvers import (DRAFT_LANCZOS_TOL, FILTER_LANCZOS_TOL, LANCZOS_SHIFTED_MAX_STEPS, CompiledLanczos, LanczosDots,
+                       LanczosQuadrature, ShiftedInverse, ShiftedPCGFamily, lanczos_shifted, shifted_cg_bound,
+                       shifted_solver)
 from ..tuning.context import TuningContext
 from ..tuning.memo import MEMO, digest
 from ..tuning.noise_level import fourth_difference, mean_edge_length, normal_trust
@@ -313,8 +314,9 @@ def sobolev_axes_spectral(V: np.ndarray, F: np.ndarray, ops: Operators, params: 
         Param("frame_steps", int, 10, low=0, high=MAX_ITERATIONS, help="averaging steps before the normals that define the axes"),
     ],
     linear=False,
+    rough_free_run=True,  # the border option's free run: its Lanczos solves to DRAFT_LANCZOS_TOL (face000 0.57 -> 0.33 s)
 )
-def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=None):
+def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=None, rough=False):
     """Polyharmonic Sobolev smoothing, with its own strength on each principal axis of the normals.
 
     With :math:`E = (e_1, e_2, e_3)` the principal axes of the normals of the mesh
@@ -393,7 +395,8 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=
     # a 100k factor of I + mu L^3: 20 s. The axes without a stored factor by one compiled Lanczos run on their columns,
     # one function of L per column (the elephant: 0.65 -> 0.42 s; three numpy runs of one column each until session 25)
     free = [d for d, mu in enumerate(mus) if mu != 0 and factor_free and (float(mu), None) not in stored]
-    lanczos = _axes_by_lanczos(ops, C[:, free], [float(mus[d]) for d in free], order) if free else None
+    tol = DRAFT_LANCZOS_TOL if rough else FILTER_LANCZOS_TOL  # rough: the border option's free run, a draft
+    lanczos = _axes_by_lanczos(ops, C[:, free], [float(mus[d]) for d in free], order, tol) if free else None
     # held vertices (the border option's second run), no stored factor: CG while its bound is small, else CG
     # preconditioned by a one-ring factor for those axes together (solvers.ShiftedPCGFamily), where a factor of
     # I + mu L^p with the held rows took 2.8 s per axis on face000 (4,111 held border vertices)
@@ -409,7 +412,7 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=
         if lanczos is not None and d in free:
             y = lanczos[:, free.index(d)]
         elif mu != 0 and factor_free and (float(mu), None) not in stored:
-            y = lanczos_shifted(ops, C[:, d], mu, order, tol=FILTER_LANCZOS_TOL, growth=0.25)
+            y = lanczos_shifted(ops, C[:, d], mu, order, tol=tol, growth=0.25)
         elif together is not None and d in family:
             y = together[:, family.index(d)]
         elif d in bounds and bounds[d] <= AXES_PINNED_CG_BOUND:  # CG from the input, no factor
@@ -421,15 +424,16 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=
     return out @ E.T
 
 
-def _axes_by_lanczos(ops: Operators, C: np.ndarray, mus: list[float], order: int) -> np.ndarray | None:
+def _axes_by_lanczos(ops: Operators, C: np.ndarray, mus: list[float], order: int,
+                     tol: float = FILTER_LANCZOS_TOL) -> np.ndarray | None:
     """:math:`(I + \\mu_j L^p)^{-1} c_j` for each column ``c_j`` of ``C`` (n, k) by one compiled Lanczos run on ``L``
     started at :math:`L^p C` (:meth:`~meshdenoise.solvers.CompiledLanczos.apply_many`, column ``j`` taking its own
-    function, to :data:`~meshdenoise.solvers.FILTER_LANCZOS_TOL`), as :func:`~meshdenoise.solvers.lanczos_shifted`
-    gives each; ``None`` past :data:`~meshdenoise.solvers.LANCZOS_SHIFTED_MAX_STEPS` steps."""
+    function, to ``tol``, :data:`~meshdenoise.solvers.FILTER_LANCZOS_TOL` by default), as
+    :func:`~meshdenoise.solvers.lanczos_shifted` gives each; ``None`` past
+    :data:`~meshdenoise.solvers.LANCZOS_SHIFTED_MAX_STEPS` steps."""
     c = np.ascontiguousarray(C, dtype=np.float64)
     for _ in range(int(order)):
         c = spmm(ops.L, c)
     gs = tuple(ShiftedInverse(mu, order) for mu in mus)
-    Y = CompiledLanczos(ops.L, c, max_steps=LANCZOS_SHIFTED_MAX_STEPS).apply_many([gs], rtol=FILTER_LANCZOS_TOL,
-                                                                              growth=0.25)
+    Y = CompiledLanczos(ops.L, c, max_steps=LANCZOS_SHIFTED_MAX_STEPS).apply_many([gs], rtol=tol, growth=0.25)
     return None if Y is None else C - np.asarray(mus)[None, :] * Y[0]

@@ -16,8 +16,8 @@ from ..geometry import coherent_normals_derivative, vertex_normals
 from ..multishift import shifted_family_cg
 from ..operators import Operators, mask_key, spmm
 from ..registry import AutoRule, Param, get_filter, register
-from ..solvers import (FILTER_LANCZOS_TOL, lanczos_shifted, laplacian_power, one_ring_factor, one_ring_solve,
-                       shifted_cg_bound, shifted_solver)
+from ..solvers import (DRAFT_LANCZOS_TOL, FILTER_LANCZOS_TOL, lanczos_shifted, laplacian_power, one_ring_factor,
+                       one_ring_solve, shifted_cg_bound, shifted_solver)
 from ..tuning.context import TuningContext
 from ..tuning.noise_level import mean_edge_length, normal_spread, normal_trust
 from ..tuning.risk import Point, gcv
@@ -611,8 +611,9 @@ def sobolev_gls_spectral(ops: Operators, params: dict) -> Spectral | None:
     # tangential); face000 with scanner noise: 5.0 -> 4.4 s, 8.42 -> 8.39 degrees, the border's error the same. The
     # held run then takes its normals from it (draft): one correction solve, no held isotropic pass
     border_draft=lambda values: {**values, "beta": 1.0},
+    rough_free_run=True,  # ... by Lanczos to DRAFT_LANCZOS_TOL (face000: 0.68 -> 0.47 s)
 )
-def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, draft=None):
+def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, draft=None, rough=False):
     """Polyharmonic Sobolev smoothing whose data term trusts the tangential directions more.
 
     The paper's noise moves each vertex along its normal only, so a denoiser should
@@ -693,8 +694,10 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, draft=None):
     start = None if draft is None else np.asarray(draft, dtype=np.float64)
     if start is not None and held and beta != 1.0:
         return _held_from_draft(X, F, ops, mu, beta, order, pinned, start)
+    # rough: the border option's free run (its draft), read for the border's moves and the held run's normals
+    draft_tol = DRAFT_LANCZOS_TOL if rough else None
     if _iterative(ops, mu, order, pinned):
-        return _sobolev_gls_iterative(X, F, ops, mu, beta, order, pinned, start)
+        return _sobolev_gls_iterative(X, F, ops, mu, beta, order, pinned, start, draft_tol)
     # no factor of I + mu L^p stored on a mesh from GLS_FACTOR_FREE_MIN_VERTICES: CG preconditioned by a one-ring
     # factor's (L + a I)^-p for both solves (ShiftedPCG; the bunny scanner's solves 0.72 -> 0.57 s, face000's held run
     # 1.8 s where its factor took 3.0 s)
@@ -702,7 +705,7 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, draft=None):
     if by_pcg and beta == 1.0 and not held:
         # the isotropic pass alone with no held rows (the border option's draft, border_draft): two Lanczos passes,
         # no factor (face000 at mu 34: 0.7 s against 0.3 s for the one-ring factor and 0.75 s of its CG)
-        Y = lanczos_shifted(ops, X, mu, order, tol=FILTER_LANCZOS_TOL, growth=0.25)
+        Y = lanczos_shifted(ops, X, mu, order, tol=draft_tol or FILTER_LANCZOS_TOL, growth=0.25)
         if Y is not None:
             return Y
     S = shifted_solver(ops, mu, order, pinned, "pcg" if by_pcg else "cholesky")
@@ -798,15 +801,18 @@ def _iterative(ops: Operators, mu: float, order: int, pinned: np.ndarray | None)
 
 
 def _sobolev_gls_iterative(X: np.ndarray, F: np.ndarray, ops: Operators, mu: float, beta: float, order: int,
-                           pinned: np.ndarray | None = None, start: np.ndarray | None = None) -> np.ndarray:
+                           pinned: np.ndarray | None = None, start: np.ndarray | None = None,
+                           draft_tol: float | None = None) -> np.ndarray:
     """:func:`sobolev_gls` without a factor: :math:`X_0` by two Lanczos passes (:func:`~meshdenoise.solvers.lanczos_shifted`)
     or, with held rows, by Jacobi CG on the free rows (from the input, as ``sobolev_axes``' held run); the correction
     by block-Jacobi CG (:func:`normal_weighted_cg`), else by CG preconditioned by Lanczos solves (a factor with held
-    rows). ``start``: a nearby result the held isotropic pass starts from (:func:`sobolev_gls`'s draft)."""
+    rows). ``start``: a nearby result the held isotropic pass starts from (:func:`sobolev_gls`'s draft). ``draft_tol``: the
+    free isotropic pass's Lanczos tolerance for the border option's draft (:data:`~meshdenoise.solvers.DRAFT_LANCZOS_TOL`;
+    ``None``: 1e-12)."""
     held = pinned is not None and bool(np.any(pinned))
 
-    def shifted(R: np.ndarray) -> np.ndarray:
-        Y = lanczos_shifted(ops, R, mu, order, tol=1e-12)
+    def shifted(R: np.ndarray, tol: float = 1e-12) -> np.ndarray:
+        Y = lanczos_shifted(ops, R, mu, order, tol=tol)
         return shifted_solver(ops, mu, order).solve(R) if Y is None else Y
 
     if held:
@@ -815,7 +821,7 @@ def _sobolev_gls_iterative(X: np.ndarray, F: np.ndarray, ops: Operators, mu: flo
                                                                x0=X if start is None else start,
                                                                maxiter=int(4 * math.ceil(bound)) + 50)
     else:
-        X0 = shifted(X)
+        X0 = shifted(X) if draft_tol is None else shifted(X, draft_tol)
     if beta == 1.0:
         return X0
     N = coherent_normals(X0, F)
