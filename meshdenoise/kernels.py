@@ -317,6 +317,34 @@ def normal_turns_many(D, F, e1, e2, n, inv, out):  # pragma: no cover - compiled
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def normal_turns_adjoint_many(W, F, e1, e2, n, inv, out):  # pragma: no cover - compiled
+    """The adjoint of :func:`normal_turns_many`: ``W`` (m, P, 3) turns into ``out`` (n, P, 3), zeroed by the caller.
+    Per face :math:`\\hat w = (w - n (n \\cdot w)) / \\|c\\|`, :math:`g_1 = e_2 \\times \\hat w`,
+    :math:`g_2 = \\hat w \\times e_1`, added to corners 1 and 2 and subtracted from corner 0. Threads over the
+    displacements (each writes its own slice of ``out``: no two threads add to one number), faces in order."""
+    m, P = F.shape[0], W.shape[1]
+    for k in prange(P):
+        for f in range(m):
+            s = inv[f]
+            t = n[f, 0] * W[f, k, 0] + n[f, 1] * W[f, k, 1] + n[f, 2] * W[f, k, 2]
+            w0, w1, w2 = (W[f, k, 0] - n[f, 0] * t) * s, (W[f, k, 1] - n[f, 1] * t) * s, (W[f, k, 2] - n[f, 2] * t) * s
+            p0, p1, p2 = e1[f, 0], e1[f, 1], e1[f, 2]
+            q0, q1, q2 = e2[f, 0], e2[f, 1], e2[f, 2]
+            g0, g1, g2 = q1 * w2 - q2 * w1, q2 * w0 - q0 * w2, q0 * w1 - q1 * w0  # e2 x w
+            h0, h1, h2 = w1 * p2 - w2 * p1, w2 * p0 - w0 * p2, w0 * p1 - w1 * p0  # w x e1
+            a, b, c = F[f, 0], F[f, 1], F[f, 2]
+            out[a, k, 0] -= g0 + h0
+            out[a, k, 1] -= g1 + h1
+            out[a, k, 2] -= g2 + h2
+            out[b, k, 0] += g0
+            out[b, k, 1] += g1
+            out[b, k, 2] += g2
+            out[c, k, 0] += h0
+            out[c, k, 1] += h1
+            out[c, k, 2] += h2
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def centroid_spacing_sums(C, indptr, indices, out):  # pragma: no cover - compiled
     """Per face ``i``: the sum of ``|c_i - c_j|`` over its neighbours ``j != i`` into ``out`` (m,); returns their count."""
     m = C.shape[0]

@@ -957,6 +957,16 @@ def test_normal_jacobian_adjoint_is_its_transpose():
     assert np.sum(J(D) * W) == pytest.approx(np.sum(D * J.adjoint(W, len(V))), rel=1e-12)
     dense = np.stack([J(e.reshape(V.shape)).ravel() for e in np.eye(V.size)], axis=1)  # J column by column
     np.testing.assert_allclose(J.adjoint(W, len(V)).ravel(), dense.T @ W.ravel(), atol=1e-10)
+    # several fields at once (the compiled pass): each field's dense transpose, a sliver left out (its inverse 0)
+    Js = default.NormalJacobian(V + 0.01 * rng.standard_normal(V.shape), F, min_height=0.9)
+    assert not Js.counted.all()
+    dense = np.stack([Js(e.reshape(V.shape)).ravel() for e in np.eye(V.size)], axis=1)
+    Ws = rng.standard_normal((len(F), 5, 3))
+    many = Js.adjoint_many(Ws, len(V))
+    assert many.shape == (len(V), 5, 3)
+    for p in range(5):
+        np.testing.assert_allclose(many[:, p].ravel(), dense.T @ Ws[:, p].ravel(), atol=1e-10)
+        np.testing.assert_allclose(many[:, p], Js.adjoint(Ws[:, p], len(V)), rtol=1e-12, atol=1e-12)
 
 
 def test_the_loss_slack_is_taken_off_the_reference():

@@ -143,6 +143,14 @@ class NormalJacobian:
                 out[:, axis] += np.bincount(self.F[:, corner], weights=g[:, axis], minlength=n)
         return out
 
+    def adjoint_many(self, W: np.ndarray, n: int) -> np.ndarray:
+        """:meth:`adjoint` of ``P`` turn fields at once: ``W`` (m, P, 3) into shape (n, P, 3), one compiled pass over
+        the faces per field (the normals search's duals: 15 to 31 fields a pass, 9 ``bincount`` each before)."""
+        W = np.ascontiguousarray(W, dtype=np.float64)
+        out = np.zeros((n, W.shape[1], 3))
+        kernels.normal_turns_adjoint_many(W, self.F, self.e1, self.e2, self.n, self.inv, out)
+        return out
+
 
 def normal_risk(J: NormalJacobian, X: np.ndarray, Y: np.ndarray, JB: Sequence[np.ndarray], HB: Sequence[np.ndarray],
                 rho: float, faces: np.ndarray | None = None) -> float:
@@ -631,7 +639,7 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
             own = None
             if spectral_search is not None:  # u_p = J^T (J b_p on the counted faces): (J b_p).(J H b_p) = u_p . H b_p
                 masked = np.where(counted[:, None, None], JB, 0.0)
-                duals = [np.hstack([J.adjoint(masked[:, p], n) for p in range(P)]),
+                duals = [J.adjoint_many(masked, n).reshape(n, 3 * P),
                          B if rows is None else np.where(rows[:, None], B, 0.0)]
                 own = np.einsum("fpc,fpc->p", JB[counted], JB[counted])
             risks: dict[int, float] = {}
