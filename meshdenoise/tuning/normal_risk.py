@@ -641,7 +641,7 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
                 masked = np.where(counted[:, None, None], JB, 0.0)
                 duals = [J.adjoint_many(masked, n).reshape(n, 3 * P),
                          B if rows is None else np.where(rows[:, None], B, 0.0)]
-                own = np.einsum("fpc,fpc->p", JB[counted], JB[counted])
+                own = np.einsum("fpc,fpc->p", masked, masked)  # the counted faces' (zero elsewhere): no copies
             risks: dict[int, float] = {}
             sures: dict[int, float] = {}
 
