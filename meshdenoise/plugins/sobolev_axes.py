@@ -185,8 +185,8 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
         # one 15-column run, 3.0 for three 5-column runs)
         if n < AXES_ONE_RUN_MAX_VERTICES:  # one compiled run of all the columns: per-step work, not per column
             # the weighted probes are the duals of the probe columns (zero on the coordinates')
-            one = LanczosDots(ctx.ops.L, np.hstack([hp, Z]), [np.hstack([np.zeros((n, 3)), weighted(d)]) for d in range(3)],
-                              max_steps=600)
+            one = LanczosDots(ctx.ops.L, np.hstack([hp, Z]),
+                              [np.hstack([np.zeros((n, 3)), weighted(d)]) for d in range(3)], max_steps=600)
             quad = None
         else:
             quad = [LanczosQuadrature(ctx.ops.L, np.ascontiguousarray(hp[:, [j]]), max_steps=600) for j in range(3)] + [
@@ -314,7 +314,7 @@ def sobolev_axes_spectral(V: np.ndarray, F: np.ndarray, ops: Operators, params: 
         Param("frame_steps", int, 10, low=0, high=MAX_ITERATIONS, help="averaging steps before the normals that define the axes"),
     ],
     linear=False,
-    rough_free_run=True,  # the border option's free run: its Lanczos solves to DRAFT_LANCZOS_TOL (face000 0.57 -> 0.33 s)
+    rough_free_run=True,  # the border option's free run: Lanczos to DRAFT_LANCZOS_TOL (face000 0.57 -> 0.33 s)
 )
 def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=None, rough=False):
     """Polyharmonic Sobolev smoothing, with its own strength on each principal axis of the normals.
