@@ -511,6 +511,41 @@ def test_cli_denoise_with_no_method_prints_the_choice_and_writes_the_default_res
     np.testing.assert_allclose(load_mesh(dst).V, expected, atol=1e-9)
 
 
+def test_cli_denoise_says_when_a_new_installation_compiles_its_kernels(noisy_cap_file, tmp_path, monkeypatch):
+    import meshdenoise.kernels as kernels
+
+    src = noisy_cap_file[0]
+    note = "first run of this installation: compiling the numerical kernels once"
+    for cached in (False, True):
+        monkeypatch.setattr(kernels, "compiled_here", lambda cached=cached: cached)
+        result = CliRunner().invoke(cli, ["denoise", str(src), str(tmp_path / f"{cached}.ply"), "--method", "sobolev",
+                                          "--auto"])
+        assert result.exit_code == 0, result.output
+        assert (note in result.output) is not cached
+
+
+def test_compiled_here_reads_the_kernels_cache_index(tmp_path):
+    from types import SimpleNamespace as NS
+
+    import meshdenoise.kernels as kernels
+
+    def dispatcher(path):
+        return NS(_cache=NS(_cache_file=NS(_index_path=str(path))))
+
+    missing, present = tmp_path / "a.nbi", tmp_path / "b.nbi"
+    present.write_bytes(b"")
+    assert not kernels.compiled_here([dispatcher(missing)])
+    assert kernels.compiled_here([dispatcher(missing), dispatcher(present)])
+    assert kernels.compiled_here([object()])  # no cache's place to read: no note rather than a wrong one
+    compiled = [f for f in vars(kernels).values() if hasattr(f, "py_func") and getattr(f, "_cache", None) is not None]
+    assert len(compiled) >= 30 and all(str(f._cache._cache_file._index_path).endswith(".nbi") for f in compiled)
+    L = get_operators(icosphere(1)[1], 42).L
+    Y = np.zeros((42, 2))
+    kernels.csr_matmat(L.indptr, L.indices, L.data, np.ones((42, 2)), Y, False)  # compiled or loaded: cached now
+    np.testing.assert_allclose(Y, L @ np.ones((42, 2)), atol=1e-12)
+    assert kernels.compiled_here()
+
+
 def test_cli_dry_run_writes_nothing(noisy_cap_file, tmp_path):
     src, Vn, F = noisy_cap_file
     before = sorted(tmp_path.iterdir())

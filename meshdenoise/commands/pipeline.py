@@ -283,7 +283,12 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
         else:
             console.print(text)
 
+    from ..kernels import compiled_here
     from ..progress import LogProgress, RichProgress, listening
+
+    if not compiled_here():  # a new clone's first run: the kernels compile on first use (docs/install.md)
+        err_console.print(f"{src.name}: first run of this installation: compiling the numerical kernels once "
+                          "(about 15 s; later runs load them)")
 
     # stages: (noise, features,) parameters, filter; a bar on a terminal after 2 s, else a line per stage over 2 s
     total = 4 if method is None else 2 if auto else 1
