@@ -222,6 +222,11 @@ def test_best_shifted_strong_weight_coordinates_by_its_lanczos_run_not_cg(monkey
 # --------------------------------------------------------------------------- probes
 def test_probe_count_by_size():
     assert [probe_count(n) for n in (10, 50_000, 60_000, 100_000, 300_000, 5_000_000)] == [24, 24, 20, 12, 4, 4]
+    # a rule's own count (sobolev_gls: 8 up to 10,000 scored vertices, m x scored >= 80,000 above, at least 4)
+    assert [probe_count(n, 8, 10_000) for n in (3_371, 10_000, 10_001, 16_000, 24_955, 90_000)] == [8, 8, 8, 5, 4, 4]
+    for bad in ({"n": -1}, {"n": 2.5}, {"n": True}, {"n": 10, "most": 3}, {"n": 10, "reference": 0}):
+        with pytest.raises(ValueError, match="probe_count"):
+            probe_count(**bad)
 
 
 # --------------------------------------------------------------------------- memoised curves
