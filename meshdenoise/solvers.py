@@ -1036,27 +1036,52 @@ def shifted_solver(
                          lambda: CGSolver(shifted_matrix(ops, mu, order), pinned))
 
 class ShiftedInverse:
-    r""":math:`g(x) = (1 + \mu \max(x, 0)^p)^{-\mathrm{power}}` (``power`` 1 or 2), the functions of ``L`` the shifted
-    systems and their residuals apply, as a callable that :class:`LanczosQuadrature` recognises: its Gauss rules
-    (:meth:`LanczosQuadrature.quadrature`, hence :meth:`~LanczosQuadrature.evaluate`) by
-    :meth:`~LanczosQuadrature.shifted_forms`, and at ``power`` 1 its coefficients in :meth:`LanczosQuadrature.apply`, by
-    ``p`` tridiagonal solves (:func:`~meshdenoise.kernels.shifted_tridiagonal_solves`) instead of an eigenproblem per
-    column and size.
+    r""":math:`g(x) = x_+^{\mathrm{lift}}\, (1 + \mu x_+^p)^{-\mathrm{power}}` (``power`` 1 or 2, ``lift`` >= 0,
+    :math:`x_+ = \max(x, 0)`), the functions of ``L`` the shifted systems and their residuals apply, as a callable that
+    :class:`LanczosQuadrature` recognises: its Gauss rules (:meth:`LanczosQuadrature.quadrature`, hence
+    :meth:`~LanczosQuadrature.evaluate`) by :meth:`~LanczosQuadrature.shifted_forms`, and at ``power`` 1 its
+    coefficients in :meth:`LanczosQuadrature.apply`, by ``p`` tridiagonal solves
+    (:func:`~meshdenoise.kernels.shifted_tridiagonal_solves`) and ``lift`` tridiagonal products instead of an
+    eigenproblem per column and size. ``lift``: a run on columns :math:`c = L^q X` serves the order ``p > q`` as well,
+    :math:`(L^{p-q} c)^T g(L)\, L^{p-q} c = c^T L^{2(p-q)} g(L)\, c`
+    (:func:`~meshdenoise.tuning.search.shifted_quadrature`: one run for the weights of orders 2 and 3).
 
     >>> import numpy as np
     >>> float(ShiftedInverse(2.0, 3)(np.array([1.0]))[0]), float(ShiftedInverse(2.0, 3, 2)(np.array([1.0]))[0])
     (0.3333333333333333, 0.1111111111111111)
+    >>> float(ShiftedInverse(2.0, 3, 2, lift=2)(np.array([2.0]))[0])  # 2^2 / (1 + 2 * 8)^2
+    0.01384083044982699
     """
 
-    __slots__ = ("mu", "order", "power")
+    __slots__ = ("mu", "order", "power", "lift")
 
-    def __init__(self, mu: float, order: int, power: int = 1):
+    def __init__(self, mu: float, order: int, power: int = 1, lift: int = 0):
         if power not in (1, 2):
             raise ValueError(f"ShiftedInverse: power must be 1 or 2, got {power!r}")
-        self.mu, self.order, self.power = float(mu), int(order), int(power)
+        if isinstance(lift, (bool, np.bool_)) or not isinstance(lift, (int, np.integer)) or lift < 0:
+            raise ValueError(f"ShiftedInverse: lift must be an int >= 0, got {lift!r}")
+        self.mu, self.order, self.power, self.lift = float(mu), int(order), int(power), int(lift)
 
     def __call__(self, x: np.ndarray) -> np.ndarray:
-        return (1.0 / (1.0 + self.mu * np.maximum(x, 0.0) ** self.order)) ** self.power
+        x = np.maximum(x, 0.0)
+        g = (1.0 / (1.0 + self.mu * x ** self.order)) ** self.power
+        return g * x ** self.lift if self.lift else g
+
+
+def _tridiagonal_times(alpha: np.ndarray, beta: np.ndarray, sizes: np.ndarray, Y: np.ndarray, times: int) -> np.ndarray:
+    """``T_j^times Y[:, j]`` for every column ``j``, ``T_j`` the symmetric tridiagonal of its first ``sizes[j]`` steps
+    (diagonal ``alpha[:, j]``, off-diagonal ``beta[:, j]``), zero below ``sizes[j]`` (as ``Y`` is); (kmax, c)."""
+    if not times:
+        return Y
+    kmax = Y.shape[0]
+    inside = np.arange(kmax)[:, None] < sizes[None, :]
+    a, b = np.where(inside, alpha[:kmax], 0.0), np.where(inside[1:], beta[:kmax - 1], 0.0)
+    for _ in range(int(times)):
+        Z = a * Y
+        Z[1:] += b * Y[:-1]
+        Z[:-1] += b * Y[1:]
+        Y = Z
+    return Y
 
 
 class LanczosQuadrature:
@@ -1171,7 +1196,7 @@ class LanczosQuadrature:
     def quadrature(self, g: Callable[[np.ndarray], np.ndarray], columns=None, k: int | None = None) -> np.ndarray:
         """The ``k``-step rule (default: all steps run) of ``g`` on ``columns`` (default all), shape (len(columns),)."""
         if isinstance(g, ShiftedInverse):  # no eigenproblem: tridiagonal solves
-            return self.shifted_forms(g.mu, g.order, g.power, columns, k)
+            return self.shifted_forms(g.mu, g.order, g.power, columns, k, g.lift)
         cols = range(self._q.shape[1]) if columns is None else columns
         out = []
         for j in cols:
@@ -1203,15 +1228,20 @@ class LanczosQuadrature:
                 return None
             self.extend(min(max(check, int(growth * k)), self.max_steps - k))
 
-    def shifted_forms(self, mu: float, order: int, power: int, columns=None, k: int | None = None) -> np.ndarray:
-        """The ``k``-step rules (default: all steps run) of :math:`g(x) = (1 + \\mu x^p)^{-\\mathrm{power}}` on
-        ``columns`` (default all), ``power`` 1 or 2, without an eigenproblem: :math:`\\|b_j\\|^2 e_1^T g(T) e_1` is
-        :math:`\\|b_j\\|^2 y_1` (power 1) or :math:`\\|b_j\\|^2 \\|y\\|^2` (power 2), :math:`y = (I + \\mu T^p)^{-1} e_1`
+    def shifted_forms(self, mu: float, order: int, power: int, columns=None, k: int | None = None,
+                      lift: int = 0) -> np.ndarray:
+        """The ``k``-step rules (default: all steps run) of :math:`g(x) = x^l (1 + \\mu x^p)^{-\\mathrm{power}}` on
+        ``columns`` (default all), ``power`` 1 or 2, ``l = lift`` >= 0 (:class:`ShiftedInverse`), without an
+        eigenproblem: with :math:`y = (I + \\mu T^p)^{-1} e_1`
         (:func:`~meshdenoise.kernels.shifted_tridiagonal_solves`, ``p`` tridiagonal solves: time linear in ``k``,
-        where :meth:`nodes` solves an eigenproblem, time about ``k^2``): :meth:`quadrature` of a :class:`ShiftedInverse`.
+        where :meth:`nodes` solves an eigenproblem, time about ``k^2``) and :math:`u = T^{\\lfloor l/2 \\rfloor} y`,
+        :math:`\\|b_j\\|^2 e_1^T g(T) e_1` is :math:`\\|b_j\\|^2 (T^l y)_1` (power 1) or :math:`\\|b_j\\|^2 u^T T^{l \\bmod 2} u`
+        (power 2): :meth:`quadrature` of a :class:`ShiftedInverse`.
         The same numbers as the eigenvalue route for that ``g`` up to rounding, shape (len(columns),)."""
         if power not in (1, 2):
             raise ValueError(f"shifted_forms: power must be 1 or 2, got {power!r}")
+        if isinstance(lift, (bool, np.bool_)) or not isinstance(lift, (int, np.integer)) or lift < 0:
+            raise ValueError(f"shifted_forms: lift must be an int >= 0, got {lift!r}")
         cols = np.arange(self._q.shape[1]) if columns is None else np.asarray(list(columns), dtype=np.int64)
         steps = self.steps if k is None else max(0, min(int(k), self.steps))
         sizes = np.minimum(self.lengths[cols], steps).astype(np.int64)
@@ -1219,10 +1249,12 @@ class LanczosQuadrature:
         if not kmax:
             return np.zeros(cols.size)
         out = np.empty((kmax, cols.size))
-        kernels.shifted_tridiagonal_solves(np.ascontiguousarray(self._alpha[:kmax, cols]),
-                                           np.ascontiguousarray(self._beta[:kmax, cols]), sizes, float(mu), int(order),
-                                           out)
-        return self.norms2[cols] * (out[0] if power == 1 else np.einsum("ij,ij->j", out, out))
+        alpha, beta = np.ascontiguousarray(self._alpha[:kmax, cols]), np.ascontiguousarray(self._beta[:kmax, cols])
+        kernels.shifted_tridiagonal_solves(alpha, beta, sizes, float(mu), int(order), out)
+        if power == 1:
+            return self.norms2[cols] * _tridiagonal_times(alpha, beta, sizes, out, lift)[0]
+        u = _tridiagonal_times(alpha, beta, sizes, out, lift // 2)
+        return self.norms2[cols] * np.einsum("ij,ij->j", u, _tridiagonal_times(alpha, beta, sizes, u, lift % 2))
 
     def _coefficients(self, g: Callable[[np.ndarray], np.ndarray], j: int, k: int) -> np.ndarray:
         """:math:`\\|b_j\\| U g(\\Theta) U^T e_1` of column ``j``'s ``k``-step rule (length ``k``)."""
@@ -1237,12 +1269,13 @@ class LanczosQuadrature:
         return math.sqrt(self.norms2[j]) * (U @ (g(theta) * U[0]))
 
     def _shifted_coefficients(self, g: ShiftedInverse, j: int, k: int) -> np.ndarray:
-        """:meth:`_coefficients` of a :class:`ShiftedInverse`: :math:`\\|b_j\\| (I + \\mu T_k^p)^{-1} e_1`, ``k >= 1``."""
+        """:meth:`_coefficients` of a :class:`ShiftedInverse` (power 1): :math:`\\|b_j\\| T_k^l (I + \\mu T_k^p)^{-1} e_1`,
+        ``k >= 1``, ``l = g.lift``."""
         out = np.empty((k, 1))
-        kernels.shifted_tridiagonal_solves(np.ascontiguousarray(self._alpha[:k, j:j + 1]),
-                                           np.ascontiguousarray(self._beta[:k, j:j + 1]), np.array([k], dtype=np.int64),
-                                           g.mu, g.order, out)
-        return math.sqrt(self.norms2[j]) * out[:, 0]
+        alpha, beta = np.ascontiguousarray(self._alpha[:k, j:j + 1]), np.ascontiguousarray(self._beta[:k, j:j + 1])
+        sizes = np.array([k], dtype=np.int64)
+        kernels.shifted_tridiagonal_solves(alpha, beta, sizes, g.mu, g.order, out)
+        return math.sqrt(self.norms2[j]) * _tridiagonal_times(alpha, beta, sizes, out, g.lift)[:, 0]
 
     def _converged_coefficients(self, g: Callable[[np.ndarray], np.ndarray], rtol: float, check: int,
                                 columns=None, growth: float = 0.0) -> list[np.ndarray] | None:
@@ -1741,7 +1774,7 @@ class LanczosDots(CompiledLanczos):
     def _estimate(self, g: Callable[[np.ndarray], np.ndarray], k: int) -> tuple[np.ndarray, np.ndarray]:
         """The ``k``-step estimates (duals, columns) and the norms of the approximations of :math:`g(M) b_j`."""
         fs = [column_function(g, j) for j in range(self._q.shape[1])]
-        if fs and all(isinstance(f, ShiftedInverse) and f.power == 1 for f in fs):
+        if fs and all(isinstance(f, ShiftedInverse) and f.power == 1 and not f.lift for f in fs):
             return self._shifted_estimate(fs, k)
         theta, w, proj = self._rules_at(max(int(k), 0))
         if callable(g):

@@ -126,6 +126,79 @@ def test_lanczos_quadrature_exhausted_space_and_zero_column_are_exact():
     np.testing.assert_allclose(out, [1 + 2 * np.exp(-1) + 3 * np.exp(-3), 0.0], rtol=1e-12)
 
 
+@pytest.mark.parametrize("lift", [1, 2, 3])
+def test_shifted_inverse_with_a_lift_against_dense_forms_and_coefficients(lift):
+    """ShiftedInverse(mu, p, power, lift) = x^lift (1 + mu x^p)^-power: its Gauss rules (shifted_forms, tridiagonal
+    solves and products) and apply's coefficients against the dense b^T g(L) b and g(L) B, and against the same
+    function as a plain callable (the eigenvalue route); LanczosDots' estimates with a lift too."""
+    from meshdenoise.solvers import CompiledLanczos, LanczosDots, ShiftedInverse
+
+    _, Vn, F = _noisy(icosphere(3), 0.02)
+    ops = Operators(F, len(Vn))
+    lam, U = np.linalg.eigh(ops.L.toarray())
+    B = np.hstack([ops.L @ (ops.L @ Vn), np.random.default_rng(4).choice([-1.0, 1.0], size=(ops.n, 3))])
+    for order, mu in ((3, 0.05), (3, 40.0), (2, 3.0)):
+        for power in (1, 2):
+            f = ShiftedInverse(mu, order, power, lift)
+            g = np.maximum(lam, 0) ** lift / (1.0 + mu * np.maximum(lam, 0) ** order) ** power
+            np.testing.assert_allclose(f(lam), g, rtol=1e-13, atol=1e-300)
+            dense = np.einsum("ij,ij->j", B, (U * g) @ (U.T @ B))
+            q = CompiledLanczos(ops.L, B, max_steps=800)
+            got = q.evaluate(f, growth=0.25)
+            np.testing.assert_allclose(got, dense, rtol=1e-9, atol=1e-12 * np.abs(dense).max())
+            for k in (1, 2, 5, q.steps):
+                np.testing.assert_allclose(q.shifted_forms(mu, order, power, k=k, lift=lift),
+                                           q.quadrature(lambda t: f(t), k=k), rtol=1e-9, atol=1e-13 * np.abs(dense).max())
+        f = ShiftedInverse(mu, order, lift=lift)
+        g = np.maximum(lam, 0) ** lift / (1.0 + mu * np.maximum(lam, 0) ** order)
+        Y = CompiledLanczos(ops.L, B, max_steps=800).apply(f, rtol=1e-12)
+        np.testing.assert_allclose(Y, (U * g) @ (U.T @ B), rtol=0, atol=1e-9 * np.abs((U * g) @ (U.T @ B)).max())
+        Duals = np.random.default_rng(5).standard_normal((1,) + B.shape)
+        dots = LanczosDots(ops.L, B, Duals, max_steps=800).dots(f, rtol=1e-12)
+        np.testing.assert_allclose(dots[0], np.einsum("ij,ij->j", Duals[0], (U * g) @ (U.T @ B)), rtol=1e-8,
+                                   atol=1e-10 * np.abs(dots).max())
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="lift must be an int >= 0"):
+            ShiftedInverse(1.0, 3, lift=bad)
+        with pytest.raises(ValueError, match="lift must be an int >= 0"):
+            CompiledLanczos(ops.L, B).shifted_forms(1.0, 3, 1, lift=bad)
+
+
+def test_one_quadrature_run_serves_the_orders_2_and_3_against_factor_points_and_dense_coordinates():
+    """shifted_quadrature of order 3 runs on the columns L^2 V (QUADRATURE_BASE_ORDER), lifted: its points equal
+    the factor's (solve_point), an order-2 search on the same coordinates and probes goes on with the same run
+    (the tuning memo: no new run, its steps kept), and quadrature_coordinates with the run's base equals the dense
+    solve of either order."""
+    from meshdenoise.tuning.search import QUADRATURE_BASE_ORDER, quadrature_coordinates
+
+    assert QUADRATURE_BASE_ORDER == 2
+    _, Vn, F = _noisy(torus(40, 20), 0.01)
+    ops = Operators(F, len(Vn))
+    Z, s = probe_block(ops.n, False, n_probes=6)
+    MEMO.clear()
+    third = shifted_quadrature(Vn, ops, 3, Z, s)
+    assert third.base == 2
+    for mu in (0.01, 0.4, 30.0):
+        p, ref = third(mu), solve_point(Vn, ops, 3, mu, Z, s)
+        np.testing.assert_allclose([p.residual_sq, p.trace], [ref.residual_sq, ref.trace], rtol=1e-9)
+    steps = third.quadrature.steps
+    second = shifted_quadrature(Vn, ops, 2, Z, s)
+    assert second.quadrature is third.quadrature and second.quadrature.steps == steps  # the same run, not a new one
+    for mu in (0.01, 0.4, 30.0):
+        p, ref = second(mu), solve_point(Vn, ops, 2, mu, Z, s)
+        np.testing.assert_allclose([p.residual_sq, p.trace], [ref.residual_sq, ref.trace], rtol=1e-9)
+    first = shifted_quadrature(Vn, ops, 1, Z, s)
+    assert first.base == 1 and first.quadrature is not third.quadrature  # order 1: columns L V, a run of its own
+    L = ops.L.toarray()
+    for order, mu in ((3, 2.0), (2, 2.0)):
+        X = quadrature_coordinates(Vn, third.quadrature, order, mu, base=third.base)
+        dense = np.linalg.solve(np.eye(ops.n) + mu * np.linalg.matrix_power(L, order), Vn)
+        np.testing.assert_allclose(X, dense, rtol=0, atol=1e-8 * np.abs(Vn).max())
+    with pytest.raises(ValueError, match="base must be between 0 and order 2"):
+        quadrature_coordinates(Vn, third.quadrature, 2, 1.0, base=3)
+    MEMO.clear()
+
+
 def test_lanczos_quadrature_gives_up_after_max_steps():
     _, Vn, F = _noisy(icosphere(3), 0.02)
     ops = Operators(F, len(Vn))

@@ -8,6 +8,7 @@ choice (SURE, GCV) and the oracle (the true error against a clean mesh).
 from __future__ import annotations
 
 import math
+import threading
 import warnings
 from typing import Callable, Iterator
 
@@ -17,7 +18,7 @@ import scipy.sparse as sp
 from ..operators import Operators, spmm
 from ..solvers import (CompiledLanczos, LanczosQuadrature, ShiftedInverse, shifted_cg_bound, shifted_factor,
                        shifted_solver)
-from .memo import MEMO, digest
+from .memo import MEMO, MEMO_BYTES, digest
 from .risk import N_PROBES, Criterion, Point, as_criterion, probe_block
 from .walk import past_minimum, walk
 
@@ -54,6 +55,9 @@ COORDINATES_CG_BOUND = 600  # best_shifted: the best point's coordinates by CG w
 QUADRATURE_MIN_VERTICES = 1_000  # best_shifted(search="auto"): Lanczos quadrature from this size (above the exact-trace
 # meshes), one factor per mu below; the two choose the same mu (scores equal to 1e-12 relative, docs/scale.md)
 SHIFTED_SEARCHES = ("auto", "quadrature", "factor")
+QUADRATURE_BASE_ORDER = 2  # shifted_quadrature's run on the columns L^min(p, this) X: the searches of orders 2 and 3 on the
+# same coordinates and probes share it (sobolev_gls' pilot and sweep weights on the elephant: 187 steps each, 0.26 s)
+SHARED_RUN_MAX_BYTES = MEMO_BYTES // 4  # ... kept in the tuning memo up to this size (its columns and two basis vectors)
 
 
 def probe_count(n: int, most: int = N_PROBES, reference: int = PROBE_REFERENCE_VERTICES) -> int:
@@ -420,6 +424,20 @@ def solve_point(V: np.ndarray, ops: Operators, order: int, mu: float, Z: np.ndar
     return Point(mu, float(np.sum((X - V) ** 2)), s * float(np.sum(Z * out[:, 3:])), X)
 
 
+class _SharedRun:
+    """A :func:`shifted_quadrature` run held in the tuning memo, with the lock its extensions take (a run grows as
+    searches ask it for more steps: two threads on the same mesh must not extend it at once)."""
+
+    def __init__(self, quad: CompiledLanczos):
+        self.quad, self.lock = quad, threading.Lock()
+
+    @property
+    def nbytes(self) -> int:
+        """The run's arrays: its columns, its two basis vectors and the recurrence so far (the matrix is ``ops``')."""
+        q = self.quad
+        return int(q._B.nbytes + q._q.nbytes + q._q_prev.nbytes + q._alpha.nbytes + q._beta.nbytes)
+
+
 def shifted_quadrature(V: np.ndarray, ops: Operators, order: int, Z: np.ndarray, s: float,
                        max_steps: int = 600) -> Callable[[float], Point | None]:
     """Residual and trace of :math:`H_\\mu = (I + \\mu L^p)^{-1}` for every ``mu`` from one Lanczos run on ``L``.
@@ -427,50 +445,75 @@ def shifted_quadrature(V: np.ndarray, ops: Operators, order: int, Z: np.ndarray,
     ``H_mu`` is a function of ``L``, so both terms of SURE are quadratic forms of ``L``
     (:class:`~meshdenoise.solvers.LanczosQuadrature`, nodes :math:`\\theta` of ``L``):
 
-    .. math:: \\|H_\\mu X - X\\|_F^2 = \\sum_{c} c^T \\frac{\\mu^2}{(1 + \\mu L^p)^2}\\, c, \\quad c = L^p X
+    .. math:: \\|H_\\mu X - X\\|_F^2 = \\sum_{c} c^T \\frac{\\mu^2 L^{2(p-q)}}{(1 + \\mu L^p)^2}\\, c, \\quad c = L^q X
               \\text{ (columns)}, \\qquad
               \\mathrm{tr} H_\\mu \\approx s \\sum_k z_k^T \\frac{1}{1 + \\mu L^p}\\, z_k
 
     (:math:`H_\\mu X - X = -\\mu H_\\mu L^p X`; the high-pass ``c`` keeps the large, smooth part
-    of ``X`` out of the rule, which then needs no cancellation). Lanczos on ``L`` rather than
+    of ``X`` out of the rule, which then needs no cancellation), :math:`q = \\min(p,` ``QUADRATURE_BASE_ORDER``:math:`)`.
+    Lanczos on ``L`` rather than
     :math:`L^p`: the poles of :math:`1/(1 + \\mu\\lambda^p)` lie at distance
     :math:`\\mu^{-1/p}` from the spectrum, so the rule converges in about
     :math:`\\mu^{1/(2p)}` steps times a log, 30 to 150 steps for the weights SURE picks.
+    The run depends on ``p`` only through ``q``: it is kept in the tuning memo (up to
+    ``SHARED_RUN_MAX_BYTES``) under the digest of the faces, ``q``, ``V``, ``Z`` and ``max_steps``, so that a search
+    of another order on the same coordinates and probes goes on with it (``sobolev_gls``: its sweep's weight at order
+    3, then its pilot's at order 2; the elephant 0.26 s less). A run extended for one search gives another the rule of
+    more steps: the same values to the convergence test's 1e-10.
 
     Returns ``evaluate(mu)``: a :class:`Point` with ``X = None`` (the coordinates are not
-    formed), or ``None`` when the rule has not converged in ``max_steps`` steps.
+    formed), or ``None`` when the rule has not converged in ``max_steps`` steps; ``evaluate.quadrature`` is the run,
+    ``evaluate.base`` its ``q`` and ``evaluate.lock`` the lock to hold while using the run
+    (:func:`quadrature_coordinates`).
     """
-    L = ops.L
-    c = np.array(V, dtype=np.float64)
-    for _ in range(order):
-        c = spmm(L, c)
-    quad = CompiledLanczos(L, np.hstack([c, Z]), max_steps=max_steps)  # compiled steps: the same rule to ~1e-13
+    base = min(int(order), QUADRATURE_BASE_ORDER)
+    lift = int(order) - base
+
+    def run() -> _SharedRun:
+        c = np.array(V, dtype=np.float64)
+        for _ in range(base):
+            c = spmm(ops.L, c)
+        # compiled steps: the same rule to ~1e-13
+        return _SharedRun(CompiledLanczos(ops.L, np.hstack([c, Z]), max_steps=max_steps))
+
+    if 8 * 3 * V.shape[0] * (3 + Z.shape[1]) <= SHARED_RUN_MAX_BYTES:
+        shared = MEMO.get(("lanczos", digest(ops.F, base, V, Z, int(max_steps))), run)
+    else:
+        shared = run()  # a scan's run: not worth evicting the memo's other entries
+    quad = shared.quad
     res_cols, probe_cols = range(3), range(3, 3 + Z.shape[1])
 
     def evaluate(mu: float) -> Point | None:
         # (1 + mu x^p)^-2 and ^-1 by tridiagonal solves: no eigenproblem per column and size (the elephant: 0.4 s)
-        r = quad.evaluate(ShiftedInverse(mu, order, 2), res_cols, growth=0.25)
-        t = quad.evaluate(ShiftedInverse(mu, order), probe_cols, growth=0.25)
+        with shared.lock:
+            r = quad.evaluate(ShiftedInverse(mu, order, 2, 2 * lift), res_cols, growth=0.25)
+            t = quad.evaluate(ShiftedInverse(mu, order), probe_cols, growth=0.25)
         if r is None or t is None:
             return None
         return Point(mu, mu**2 * float(r.sum()), s * float(t.sum()), None)
 
-    evaluate.quadrature = quad  # the run (columns L^p X, then the probes): best_shifted's coordinates by its second pass
+    evaluate.quadrature = quad  # the run (columns L^q X, then the probes): best_shifted's coordinates by its second pass
+    evaluate.base = base
+    evaluate.lock = shared.lock
     return evaluate
 
 
 def quadrature_coordinates(V: np.ndarray, quad: LanczosQuadrature, order: int, mu: float,
-                           tol: float = 1e-10) -> np.ndarray | None:
-    """:math:`(I + \\mu L^p)^{-1} V` from a :func:`shifted_quadrature` run: its first three columns ``c = L^p V``.
+                           tol: float = 1e-10, base: int | None = None) -> np.ndarray | None:
+    """:math:`(I + \\mu L^p)^{-1} V` from a :func:`shifted_quadrature` run: its first three columns ``c = L^q V``
+    (``q = base``, default ``order``: the run's ``evaluate.base``).
 
-    .. math:: (I + \\mu L^p)^{-1} V = V - \\mu f(L)\\, c, \\qquad f(t) = \\frac{1}{1 + \\mu t^p}
+    .. math:: (I + \\mu L^p)^{-1} V = V - \\mu f(L)\\, c, \\qquad f(t) = \\frac{t^{p - q}}{1 + \\mu t^p}
 
     by the Lanczos approximation of :meth:`~meshdenoise.solvers.LanczosQuadrature.apply` on those
     columns (its coefficients converged to ``tol``; the run extended if they need it), so the
     coordinates cost the second pass on three columns only: the first pass is the search's own.
     ``None`` when the run's ``max_steps`` is reached first.
     """
-    Y = quad.apply(ShiftedInverse(mu, order), rtol=tol, columns=range(3))
+    base = int(order) if base is None else int(base)
+    if not 0 <= base <= int(order):
+        raise ValueError(f"quadrature_coordinates: base must be between 0 and order {order}, got {base!r}")
+    Y = quad.apply(ShiftedInverse(mu, order, lift=int(order) - base), rtol=tol, columns=range(3))
     return None if Y is None else np.asarray(V, dtype=np.float64) - mu * Y
 
 
@@ -541,7 +584,8 @@ def best_shifted(
     best = search_log(evaluate, center, golden_steps)
     strong = best.X is None and coordinates and shifted_cg_bound(ops, best.value, order, 1e-10) > COORDINATES_CG_BOUND
     if best.X is None and coordinates and (coordinates_by == "lanczos" or strong):
-        best.X = quadrature_coordinates(V, at.quadrature, order, best.value)
+        with at.lock:
+            best.X = quadrature_coordinates(V, at.quadrature, order, best.value, base=at.base)
     if best.X is None and coordinates:
         best.X = shifted_coordinates(V, ops, order, best.value)
     return best
