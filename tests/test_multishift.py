@@ -90,7 +90,8 @@ def test_bad_shifts_and_non_convergence():
 
 def test_sobolev_gls_sweep_by_one_run_chooses_as_by_one_cg_per_beta(monkeypatch):
     """The rule's beta sweep by shifted_family_cg against a CG per beta (GLS_FAMILY_MIN_BETAS out of reach): the same
-    choice, the sweep's scores to 1e-5, in fewer preconditioner solves."""
+    choice, the sweep's scores to 1e-5 (1e-3 loose: both CG runs stop at SOBOLEV_GLS_SWEEP_TOL, 1e-2), in fewer
+    preconditioner solves."""
     import meshdenoise.plugins.sobolev_gls as sg
     from meshdenoise import add_normal_noise
     from meshdenoise.operators import get_operators
@@ -120,5 +121,5 @@ def test_sobolev_gls_sweep_by_one_run_chooses_as_by_one_cg_per_beta(monkeypatch)
         monkeypatch.setattr(sg, "GLS_FAMILY_MIN_BETAS", 10**9)
         (slow, p_slow), n_slow = run(loose)
         monkeypatch.setattr(sg, "GLS_FAMILY_MIN_BETAS", 2)
-        assert fast == slow and p_fast.score == pytest.approx(p_slow.score, rel=1e-5)
+        assert fast == slow and p_fast.score == pytest.approx(p_slow.score, rel=1e-3 if loose else 1e-5)
         assert n_fast < 0.6 * n_slow

@@ -529,3 +529,61 @@ def test_before_the_normals_search_the_beta_sweep_runs_on_a_region_with_mu_held(
     assert all(loose for *_, loose in runs)
     assert all(given == {"mu": pytest.approx(start, rel=1e-12)} for _, given, _, _ in runs)
     assert chosen["beta"] in SOBOLEV_GLS_BETAS and chosen["mu"] != start  # the normals search moved mu on
+
+
+def test_a_loose_sweep_over_beta_alone_stops_at_the_sweep_tolerance_and_chooses_the_tight_sweeps_beta(monkeypatch):
+    """With mu held (the sweep before the normals search) a loose sweep's CG stops at SOBOLEV_GLS_SWEEP_TOL, a loose
+    mu search at SOBOLEV_GLS_LOOSE_TOL; the loose sweep chooses the beta of the sweep to 1e-9 (CG_TOL), every
+    candidate's score within 1e-3 of it (relative)."""
+    import logging
+
+    import meshdenoise.plugins.sobolev_gls as sg
+    from meshdenoise.shapes import torus
+    from meshdenoise.tuning.risk import Criterion
+
+    assert sg.SOBOLEV_GLS_SWEEP_TOL == 1e-2 and sg.SOBOLEV_GLS_LOOSE_TOL == 1e-3
+    V, F = torus(40, 20)  # 800 vertices: the CG path
+    Vn, _ = add_normal_noise((V, F), 0.04, seed=3)
+    ops = get_operators(F, len(V))
+    tols = []
+    real = sg.shifted_family_cg
+    monkeypatch.setattr(sg, "shifted_family_cg", lambda *a, **k: tols.append(k["tol"]) or real(*a, **k))
+    scores = {}
+
+    def run(loose, given):
+        ctx = TuningContext(Vn, F, ops, 0.04, Criterion("sure"), False, given)
+        chosen, _ = sg.choose_sobolev_gls_whole(ctx, None, loose=loose)
+        return chosen
+
+    class Scores(logging.Handler):
+        def emit(self, record):
+            msg = record.getMessage()
+            if msg.startswith("sobolev_gls: mu"):
+                parts = msg.split()
+                scores.setdefault(self.key, {})[float(parts[4])] = float(parts[6])
+
+    handler = Scores()
+    log = logging.getLogger("meshdenoise.auto")
+    old_level = log.level
+    log.addHandler(handler)
+    log.setLevel(logging.DEBUG)
+    try:
+        handler.key = "tight"
+        tight = run(False, {"mu": 0.05})
+        handler.key = "loose"
+        loose = run(True, {"mu": 0.05})
+    finally:
+        log.removeHandler(handler)
+        log.setLevel(old_level)
+    assert tols == [sg.CG_TOL, sg.SOBOLEV_GLS_SWEEP_TOL]
+    assert loose["beta"] == tight["beta"]
+    for beta, score in scores["tight"].items():
+        assert scores["loose"][beta] == pytest.approx(score, rel=1e-3)
+    tols.clear()
+    run(True, {"beta": 3.0})  # mu searched, beta held: no sweep, each candidate's CG at the loose tolerance
+    assert tols == []
+    solves = []
+    real_solve = sg.normal_weighted_solve
+    monkeypatch.setattr(sg, "normal_weighted_solve", lambda *a, **k: solves.append(k.get("tol")) or real_solve(*a, **k))
+    run(True, {"beta": 3.0})
+    assert solves and set(solves) == {sg.SOBOLEV_GLS_LOOSE_TOL}

@@ -279,6 +279,10 @@ SOBOLEV_GLS_LOOSE_TOL = 1e-3  # on a region, or before the normals search: CG's 
 # benchmarks/filter_time.py against 1e-6: every sweep score within 9.6e-5 (relative; 1e-4: 8.8e-6), the best beta ahead of
 # the next by 2.0e-3 or more (the elephant: 21 times the error), the same choices; the elephant's sweep 27 -> 19 (1e-4)
 # -> 14 (1e-3) preconditioner solves
+SOBOLEV_GLS_SWEEP_TOL = 1e-2  # ... and for a sweep over beta alone (mu held: before the normals search), whose candidates
+# are 26 % or more apart: measured on the 8 rows of benchmarks/filter_time.py against 1e-6, every score's gap to the best
+# moved by at most 4.2 % of itself (the bunny scanner; the elephant 4.0 %), the same betas; the elephant's sweep
+# 0.88 -> 0.59 s (15 -> 9 steps), the bunny scanner's 0.52 -> 0.29 s (session 30)
 GLS_FAMILY_MIN_BETAS = 2  # a sweep over at least this many betas at one mu solves them by one CG run (shifted_family_cg:
 # Block0.4's sweep 71 -> 21 preconditioner solves, its choice 3.0-3.4 -> 2.4 s; bunny scanner 6.5 -> 5.4 s, the same betas)
 SOBOLEV_GLS_LOOSE_WARM = 4  # ... of the last this many candidates
@@ -328,7 +332,7 @@ def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
     ``beta = 1`` (``AutoRule.normals_held``), so ``mu`` is not searched here: it is held at the isotropic
     filter's SURE weight (:func:`~meshdenoise.tuning.search.best_shifted`, :math:`(I + \\mu L^p)^{-1}`, the
     normals search's start) and only ``beta`` is chosen, by the SURE sweep at that ``mu`` (CG to
-    ``SOBOLEV_GLS_LOOSE_TOL``, warm-started; on the sampled region from ``GLS_SWEEP_REGION_FROM`` vertices).
+    ``SOBOLEV_GLS_SWEEP_TOL``; on the sampled region from ``GLS_SWEEP_REGION_FROM`` vertices).
     Fandisk0.3: 44 s -> 10 s, the same beta and 9.52 degrees against 9.56 (docs/automatic-parameters.md, session 19).
     """
     order = int(get_filter("sobolev_gls").resolve(ctx.given, where="choose_parameters(method='sobolev_gls')")["order"])
@@ -410,7 +414,8 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
     them, probes zero elsewhere: the trace of the scored block of :math:`\\hat\\Sigma J`), for a
     region cut out of a larger mesh (:func:`~meshdenoise.tuning.search.region_rule`). With ``loose``
     (set there, and for the sweep before the normals search) each candidate's CG stops at a relative residual of
-    ``SOBOLEV_GLS_LOOSE_TOL`` and starts from the nearest of the last candidates' solutions. ``previous`` (the
+    ``SOBOLEV_GLS_LOOSE_TOL`` (``SOBOLEV_GLS_SWEEP_TOL`` with ``mu`` given: a sweep over ``beta`` alone) and starts
+    from the nearest of the last candidates' solutions. ``previous`` (the
     choice on a smaller region, whose border pulled ``mu`` down): ``beta`` is held at its value and ``mu``
     refined around its ``mu`` (:func:`~meshdenoise.tuning.search.search_log` on three points 0.2 decades apart,
     4 golden steps).
@@ -456,7 +461,7 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
         log.info("sobolev_gls: tangential share of the noise tau = %.4g", tau)
     rows = slice(None) if scored is None else np.asarray(scored, dtype=bool)
     evaluated: dict[tuple, Point] = {}
-    tol = SOBOLEV_GLS_LOOSE_TOL if loose else CG_TOL
+    tol = (SOBOLEV_GLS_SWEEP_TOL if "mu" in ctx.given else SOBOLEV_GLS_LOOSE_TOL) if loose else CG_TOL
     warm: list[tuple[float, float, np.ndarray]] = []  # (log10 mu, log10 beta, solution) of the last candidates
 
     def start(mu: float, beta: float) -> np.ndarray | None:
