@@ -199,6 +199,25 @@ def test_one_quadrature_run_serves_the_orders_2_and_3_against_factor_points_and_
     MEMO.clear()
 
 
+def test_a_quadrature_run_above_the_shared_bound_is_not_kept(monkeypatch):
+    """Above SHARED_RUN_MAX_BYTES (the run's columns and two basis vectors) the run is the search's own: a second
+    search of another order starts its own, and the memo holds nothing of it."""
+    import meshdenoise.tuning.search as search
+
+    _, Vn, F = _noisy(torus(40, 20), 0.01)
+    ops = Operators(F, len(Vn))
+    Z, s = probe_block(ops.n, False, n_probes=6)
+    MEMO.clear()
+    size = 8 * 3 * ops.n * (3 + Z.shape[1])
+    monkeypatch.setattr(search, "SHARED_RUN_MAX_BYTES", size - 1)
+    third = shifted_quadrature(Vn, ops, 3, Z, s)
+    assert shifted_quadrature(Vn, ops, 2, Z, s).quadrature is not third.quadrature and len(MEMO) == 0
+    monkeypatch.setattr(search, "SHARED_RUN_MAX_BYTES", size)
+    third = shifted_quadrature(Vn, ops, 3, Z, s)
+    assert shifted_quadrature(Vn, ops, 2, Z, s).quadrature is third.quadrature and len(MEMO) == 1
+    MEMO.clear()
+
+
 def test_lanczos_quadrature_gives_up_after_max_steps():
     _, Vn, F = _noisy(icosphere(3), 0.02)
     ops = Operators(F, len(Vn))

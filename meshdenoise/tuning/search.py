@@ -57,7 +57,9 @@ QUADRATURE_MIN_VERTICES = 1_000  # best_shifted(search="auto"): Lanczos quadratu
 SHIFTED_SEARCHES = ("auto", "quadrature", "factor")
 QUADRATURE_BASE_ORDER = 2  # shifted_quadrature's run on the columns L^min(p, this) X: the searches of orders 2 and 3 on the
 # same coordinates and probes share it (sobolev_gls' pilot and sweep weights on the elephant: 187 steps each, 0.26 s)
-SHARED_RUN_MAX_BYTES = MEMO_BYTES // 4  # ... kept in the tuning memo up to this size (its columns and two basis vectors)
+SHARED_RUN_MAX_BYTES = MEMO_BYTES // 8  # ... kept in the tuning memo up to this size (its columns and two basis vectors:
+# 16 MB on the elephant, 27 columns); above, a scan's whole-mesh run would sit in the memo for nothing (face000's
+# sobolev_gls searches its pilot on a region: with a bound of 64 MB its peak memory 564 -> 604 MB)
 
 
 def probe_count(n: int, most: int = N_PROBES, reference: int = PROBE_REFERENCE_VERTICES) -> int:
