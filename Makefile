@@ -4,7 +4,9 @@
 #   make test   run the test suite
 # Both install the missing Debian packages, create .venv and install the package with its
 # dev and bench extras (bench: the peers of benchmarks/peers.py, binary wheels) at the pinned
-# versions of constraints.txt. A second run skips what is done.
+# versions of constraints.txt, then compile the numerical kernels once (python -m meshdenoise.warmup: the main job
+# run on its scan, about 20 s), so that the first command takes the time every later one takes. A second run skips
+# what is done.
 
 PY ?= python3
 VENV := .venv
@@ -23,6 +25,7 @@ $(STAMP): pyproject.toml constraints.txt
 	@test -x $(BIN)/python || $(PY) -m venv $(VENV)
 	$(BIN)/python -m pip install -q --disable-pip-version-check --upgrade "pip>=23"
 	$(BIN)/python -m pip install -q --disable-pip-version-check -c constraints.txt -e '.[dev,bench]'
+	$(BIN)/python -m meshdenoise.warmup
 	@touch $(STAMP)
 
 venv: system-deps $(STAMP)
