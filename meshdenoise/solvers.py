@@ -1152,6 +1152,11 @@ class LanczosQuadrature:
         """Steps run so far (sparse products with all columns)."""
         return self._alpha.shape[0]
 
+    @property
+    def active(self) -> np.ndarray:
+        """Per column, whether its recurrence still runs (its Krylov space not exhausted: its rule not yet exact)."""
+        return self._active.copy()
+
     def extend(self, steps: int) -> None:
         """Run ``steps`` more Lanczos steps on the columns still active."""
         k = self._q.shape[1]
@@ -1248,9 +1253,12 @@ class LanczosQuadrature:
         kmax = int(sizes.max()) if sizes.size else 0
         if not kmax:
             return np.zeros(cols.size)
-        out = np.empty((kmax, cols.size))
+        out = np.zeros((kmax, cols.size))
         alpha, beta = np.ascontiguousarray(self._alpha[:kmax, cols]), np.ascontiguousarray(self._beta[:kmax, cols])
-        kernels.shifted_tridiagonal_solves(alpha, beta, sizes, float(mu), int(order), out)
+        if mu == 0.0:  # g = x^lift: y = e_1 (the recurrences' roots would be at infinity)
+            out[0, sizes > 0] = 1.0
+        else:
+            kernels.shifted_tridiagonal_solves(alpha, beta, sizes, float(mu), int(order), out)
         if power == 1:
             return self.norms2[cols] * _tridiagonal_times(alpha, beta, sizes, out, lift)[0]
         u = _tridiagonal_times(alpha, beta, sizes, out, lift // 2)
@@ -1271,10 +1279,13 @@ class LanczosQuadrature:
     def _shifted_coefficients(self, g: ShiftedInverse, j: int, k: int) -> np.ndarray:
         """:meth:`_coefficients` of a :class:`ShiftedInverse` (power 1): :math:`\\|b_j\\| T_k^l (I + \\mu T_k^p)^{-1} e_1`,
         ``k >= 1``, ``l = g.lift``."""
-        out = np.empty((k, 1))
+        out = np.zeros((k, 1))
         alpha, beta = np.ascontiguousarray(self._alpha[:k, j:j + 1]), np.ascontiguousarray(self._beta[:k, j:j + 1])
         sizes = np.array([k], dtype=np.int64)
-        kernels.shifted_tridiagonal_solves(alpha, beta, sizes, g.mu, g.order, out)
+        if g.mu == 0.0:  # g = x^lift: (I + 0)^-1 e_1 = e_1
+            out[0, 0] = 1.0
+        else:
+            kernels.shifted_tridiagonal_solves(alpha, beta, sizes, g.mu, g.order, out)
         return math.sqrt(self.norms2[j]) * _tridiagonal_times(alpha, beta, sizes, out, g.lift)[:, 0]
 
     def _converged_coefficients(self, g: Callable[[np.ndarray], np.ndarray], rtol: float, check: int,

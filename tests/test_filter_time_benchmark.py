@@ -43,3 +43,27 @@ def test_main_runs_every_cell_once_with_default_as_none_and_writes_both_files(tm
     assert [c["filter"] for c in cells] == ["default", "sobolev", "taubin"] and cells[2]["error"] == "exit 1"
     assert "| default | 0.50 |" in out.read_text()
     assert {p.name for p in tmp_path.iterdir()} == {"t.md", "t.json"}  # no temporary file left
+
+
+def test_ab_summary_counts_cells_within_the_limit_by_fastest_and_median_call():
+    """benchmarks/filter_time_ab.py's table: min / median per code, bold over the limit, the same-parameters column."""
+    import argparse
+
+    import pytest
+
+    import filter_time_ab as ab
+
+    def rec(code, row, name, n, t, params):
+        return {"code": code, "row": row, "filter": name, "vertices": n, "time_s": t, "params": params}
+
+    records = [rec("aaa", "R", "gls", 25_000, t, {"b": 3}) for t in (3.4, 2.9, 3.6)]
+    records += [rec("bbb", "R", "gls", 25_000, t, {"b": 3}) for t in (3.1, 3.2, 3.3)]
+    records += [rec(code, "S", "axes", 100_000, 5.0, {"m": code}) for code in ("aaa", "bbb")]
+    text = ab.summary(records, ("aaa", "bbb"), [("R", "gls"), ("S", "axes")], "cmd")
+    assert "| R: `gls` | 2.90 / **3.40** (3) | **3.10** / **3.20** (3) | yes |" in text
+    assert "| S: `axes` | 5.00 / 5.00 (1) | 5.00 / 5.00 (1) | no |" in text  # 6 s for 100,000 vertices
+    assert "aaa: 2 of 2 cells within their limit by the fastest call, 1 by the median." in text
+    assert "bbb: 1 of 2 cells within their limit by the fastest call, 1 by the median." in text
+    assert ab.parse_cell("elephant rho=0.2:sobolev_gls") == ("elephant rho=0.2", "sobolev_gls")
+    with pytest.raises(argparse.ArgumentTypeError, match="ROW:FILTER"):
+        ab.parse_cell("no filter")

@@ -2,6 +2,7 @@
 normals search that scores its candidates from them (refine_for_normals(spectral=...))."""
 
 import numpy as np
+import scipy.sparse as sp
 import pytest
 
 import meshdenoise as md
@@ -164,6 +165,71 @@ def test_spectral_search_with_a_frame_against_dense(tol, accuracy):
         got = terms(v)[0].reshape(2, 3).sum(axis=1)  # per probe triple: the frame mixes its three columns
         want = np.einsum("ipc,ipc->p", U.reshape(-1, 2, 3), HB.reshape(-1, 2, 3))
         np.testing.assert_allclose(got, want, atol=accuracy * np.abs(want).max())
+
+
+@pytest.mark.parametrize("family, values, direct", [
+    (lambda ops: lambda v: shifted_spectral(ops, v, 1), [0.05, 2.0, 80.0], True),
+    (lambda ops: lambda v: shifted_spectral(ops, v, 3), [0.01, 1.0, 30.0], True),
+    (lambda ops: lambda v: averaging_spectral(ops, (0.5, -0.53), int(v)), [1, 12, 250], False),  # a scale: formed
+    (lambda ops: lambda v: heat_kernel_spectral(ops, v, 1, 4), [0.2, 2.0, 20.0], True),
+])
+def test_start_duals_against_dense_and_read_from_the_probes_own_run(family, values, direct, monkeypatch):
+    """StartDual(k, A): u = A^k B. Without a scale and with A the search's M (or k = 0) its terms are Gauss rules of
+    the probes' own run (no dual recorded), else A^k B is formed and recorded: u^T H b as the dense map gives it,
+    either way; another matrix than M is formed."""
+    from meshdenoise.tuning.spectral import StartDual
+
+    _, F, X = _open_noisy()
+    ops = get_operators(F, len(X))
+    fam = family(ops)
+    recorded = []
+    real = spectral_module.LanczosDots
+    monkeypatch.setattr(spectral_module, "LanczosDots",
+                        lambda M, B, duals, **k: recorded.append(len(duals)) or real(M, B, duals, **k))
+    search = SpectralSearch(X, fam, tol=1e-10)
+    rng = np.random.default_rng(7)
+    B, U = rng.choice([-1.0, 1.0], size=(len(X), 6)), rng.standard_normal((len(X), 6))
+    search.coordinates(values[0])
+    M = fam(values[0]).M
+    L_copy = sp.csr_matrix(M.copy())
+    other = sp.csr_matrix(2.0 * M)
+    terms = search.probes(B, [U, StartDual(), StartDual(1), StartDual(1, L_copy), StartDual(2, other)])
+    assert recorded == [2 if direct else 5]  # U and the other matrix's dual; all five with a scale
+    Md = M.toarray()
+    for v in values:
+        HB = fam(v).dense() @ B
+        got = terms(v)
+        for row, A in ((0, None), (1, np.eye(len(X))), (2, Md), (3, Md), (4, (2.0 * Md) @ (2.0 * Md))):
+            u = U if A is None else A @ B
+            want = np.einsum("ij,ij->j", u, HB)
+            np.testing.assert_allclose(got[row], want, rtol=1e-8, atol=1e-9 * np.abs(want).max())
+    with pytest.raises(ValueError, match="power must be an int >= 0"):
+        StartDual(-1)
+
+
+def test_start_dual_with_a_frame_against_dense():
+    """A frame's per-axis functions (sobolev_axes): StartDual() and StartDual(1) per column as the dense maps give them."""
+    from meshdenoise.tuning.spectral import StartDual
+
+    _, F, X = _open_noisy()
+    ops = get_operators(F, len(X))
+    E = np.linalg.qr(np.random.default_rng(5).standard_normal((3, 3)))[0]
+
+    def fam(v):
+        axes = [shifted_spectral(ops, v * w, 2) for w in (0.1, 0.0, 1.0)]
+        return spectral_module.Spectral(ops.L, tuple(a.g for a in axes), tuple(a.h for a in axes), frame=E)
+
+    search = SpectralSearch(X, fam, tol=1e-10)
+    B = np.random.default_rng(6).choice([-1.0, 1.0], size=(len(X), 6))
+    search.coordinates(1.0)
+    terms = search.probes(B, [StartDual(), StartDual(1)])
+    L = ops.L.toarray()
+    for v in (0.3, 1.0, 5.0):
+        HB = fam(v).apply_dense(B)
+        for row, u in ((0, B), (1, L @ B)):
+            got = terms(v)[row].reshape(2, 3).sum(axis=1)
+            want = np.einsum("ipc,ipc->p", u.reshape(-1, 2, 3), HB.reshape(-1, 2, 3))
+            np.testing.assert_allclose(got, want, rtol=1e-8, atol=1e-9 * np.abs(want).max())
 
 
 def test_spectral_search_refuses_candidates_on_another_matrix():

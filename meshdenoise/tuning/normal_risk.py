@@ -22,7 +22,7 @@ from .. import kernels
 from ..geometry import cross_rows, vertex_normals
 from .risk import EXACT_TRACE_MAX
 from . import spectral as _spectral_module
-from .spectral import Spectral, SpectralFailed, SpectralSearch
+from .spectral import Spectral, SpectralFailed, SpectralSearch, StartDual
 
 __all__ = ["NormalJacobian", "NormalChoice", "normal_risk", "dirichlet_sure", "refine_for_normals", "normal_probe_count",
            "NORMAL_PROBES", "NORMAL_ITERATIONS", "NORMAL_SCALES", "NORMAL_WIDE_SCALES", "NORMAL_WIDE_BELOW", "NORMAL_FIRST",
@@ -406,7 +406,10 @@ def _dirichlet_choice(V: np.ndarray, F: np.ndarray, values: list[float], start: 
         if guarded(i, sures[i]):
             scores[i] = math.inf
 
-    search(i0, results(B, [keep(LB), keep(B)]), score, scores)
+    # on the whole mesh both duals are the probes times a power of L: Gauss rules of the probes' own run, where the
+    # map is a function of L (SpectralSearch, StartDual), else recorded
+    duals = [StartDual(1, L), StartDual()] if rows is None else [keep(LB), keep(B)]
+    search(i0, results(B, duals), score, scores)
     best = min(scores, key=scores.get)
     order = sorted(scores)
     return NormalChoice(values[best], float(scores[best]), path + (values[best],), tuple(values[i] for i in order),
@@ -612,7 +615,7 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
     def passes(spectral_search: SpectralSearch | None) -> NormalChoice:
         at_value = (lambda value: apply(value, V)) if spectral_search is None else spectral_search.coordinates
 
-        def results(B: np.ndarray, duals: list[np.ndarray]) -> Callable[[int], _Result]:
+        def results(B: np.ndarray, duals: list[np.ndarray | StartDual]) -> Callable[[int], _Result]:
             if spectral_search is None:
                 return run_results(B, duals)
             terms = spectral_search.probes(B, duals)
@@ -640,7 +643,7 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
             if spectral_search is not None:  # u_p = J^T (J b_p on the counted faces): (J b_p).(J H b_p) = u_p . H b_p
                 masked = np.where(counted[:, None, None], JB, 0.0)
                 duals = [J.adjoint_many(masked, n).reshape(n, 3 * P),
-                         B if rows is None else np.where(rows[:, None], B, 0.0)]
+                         StartDual() if rows is None else np.where(rows[:, None], B, 0.0)]
                 own = np.einsum("fpc,fpc->p", masked, masked)  # the counted faces' (zero elsewhere): no copies
             risks: dict[int, float] = {}
             sures: dict[int, float] = {}
