@@ -199,6 +199,27 @@ def test_one_quadrature_run_serves_the_orders_2_and_3_against_factor_points_and_
     MEMO.clear()
 
 
+def test_shifted_quadrature_at_its_default_tolerance_stops_sooner_within_it_of_the_factor_points():
+    """QUADRATURE_TOL (1e-6 relative change over 10 steps): fewer Lanczos steps than the rules to 1e-10, each point's
+    residual and trace within 1e-5 of the factor's (solve_point), and those to 1e-10 within 1e-9."""
+    from meshdenoise.tuning.search import QUADRATURE_TOL
+
+    assert QUADRATURE_TOL == 1e-6
+    _, Vn, F = _noisy(torus(60, 30), 0.01)  # 1,800 vertices: the rules converge long before the space is exhausted
+    ops = Operators(F, len(Vn))
+    Z, s = probe_block(ops.n, False, n_probes=6)
+    steps = {}
+    for tol, accuracy in ((QUADRATURE_TOL, 1e-5), (1e-10, 1e-9)):
+        MEMO.clear()
+        at = shifted_quadrature(Vn, ops, 2, Z, s, tol=tol)
+        for mu in (0.05, 3.0):
+            p, ref = at(mu), solve_point(Vn, ops, 2, mu, Z, s)
+            np.testing.assert_allclose([p.residual_sq, p.trace], [ref.residual_sq, ref.trace], rtol=accuracy)
+        steps[tol] = at.quadrature.steps
+    assert steps[QUADRATURE_TOL] < steps[1e-10]  # 40 against 50 here
+    MEMO.clear()
+
+
 def test_a_quadrature_run_above_the_shared_bound_is_not_kept(monkeypatch):
     """Above SHARED_RUN_MAX_BYTES (the run's columns and two basis vectors) the run is the search's own: a second
     search of another order starts its own, and the memo holds nothing of it."""

@@ -42,6 +42,7 @@ __all__ = [
     "quadrature_coordinates",
     "SHIFTED_SEARCHES",
     "QUADRATURE_MIN_VERTICES",
+    "QUADRATURE_TOL",
     "region_rule",
     "region_shape",
     "shifted_reach",
@@ -57,6 +58,9 @@ QUADRATURE_MIN_VERTICES = 1_000  # best_shifted(search="auto"): Lanczos quadratu
 SHIFTED_SEARCHES = ("auto", "quadrature", "factor")
 QUADRATURE_BASE_ORDER = 2  # shifted_quadrature's run on the columns L^min(p, this) X: the searches of orders 2 and 3 on the
 # same coordinates and probes share it (sobolev_gls' pilot and sweep weights on the elephant: 187 steps each, 0.26 s)
+QUADRATURE_TOL = 1e-6  # shifted_quadrature: each Gauss rule to this relative change over 10 steps (was 1e-10): the
+# elephant's order-3 SURE search 187 -> 150 Lanczos steps, the same choices on the 8 rows' 56 cells that search
+# (default, the Sobolev filters, two_stage; session 30), the same weights to 1e-9 there
 SHARED_RUN_MAX_BYTES = MEMO_BYTES // 8  # ... kept in the tuning memo up to this size (its columns and two basis vectors:
 # 16 MB on the elephant, 27 columns); above, a scan's whole-mesh run would sit in the memo for nothing (face000's
 # sobolev_gls searches its pilot on a region: with a bound of 64 MB its peak memory 564 -> 604 MB)
@@ -441,7 +445,7 @@ class _SharedRun:
 
 
 def shifted_quadrature(V: np.ndarray, ops: Operators, order: int, Z: np.ndarray, s: float,
-                       max_steps: int = 600) -> Callable[[float], Point | None]:
+                       max_steps: int = 600, tol: float = QUADRATURE_TOL) -> Callable[[float], Point | None]:
     """Residual and trace of :math:`H_\\mu = (I + \\mu L^p)^{-1}` for every ``mu`` from one Lanczos run on ``L``.
 
     ``H_mu`` is a function of ``L``, so both terms of SURE are quadratic forms of ``L``
@@ -461,7 +465,10 @@ def shifted_quadrature(V: np.ndarray, ops: Operators, order: int, Z: np.ndarray,
     ``SHARED_RUN_MAX_BYTES``) under the digest of the faces, ``q``, ``V``, ``Z`` and ``max_steps``, so that a search
     of another order on the same coordinates and probes goes on with it (``sobolev_gls``: its sweep's weight at order
     3, then its pilot's at order 2; the elephant 0.26 s less). A run extended for one search gives another the rule of
-    more steps: the same values to the convergence test's 1e-10.
+    more steps: the same values to the convergence test's ``tol``.
+
+    Each rule is extended until it changes by at most ``tol`` (relative) over 10 steps
+    (:meth:`~meshdenoise.solvers.LanczosQuadrature.evaluate`; default ``QUADRATURE_TOL``).
 
     Returns ``evaluate(mu)``: a :class:`Point` with ``X = None`` (the coordinates are not
     formed), or ``None`` when the rule has not converged in ``max_steps`` steps; ``evaluate.quadrature`` is the run,
@@ -488,8 +495,8 @@ def shifted_quadrature(V: np.ndarray, ops: Operators, order: int, Z: np.ndarray,
     def evaluate(mu: float) -> Point | None:
         # (1 + mu x^p)^-2 and ^-1 by tridiagonal solves: no eigenproblem per column and size (the elephant: 0.4 s)
         with shared.lock:
-            r = quad.evaluate(ShiftedInverse(mu, order, 2, 2 * lift), res_cols, growth=0.25)
-            t = quad.evaluate(ShiftedInverse(mu, order), probe_cols, growth=0.25)
+            r = quad.evaluate(ShiftedInverse(mu, order, 2, 2 * lift), res_cols, rtol=tol, growth=0.25)
+            t = quad.evaluate(ShiftedInverse(mu, order), probe_cols, rtol=tol, growth=0.25)
         if r is None or t is None:
             return None
         return Point(mu, mu**2 * float(r.sum()), s * float(t.sum()), None)
@@ -550,8 +557,9 @@ def best_shifted(
       quadratic form of ``L``).
     - ``"auto"``: quadrature from :data:`QUADRATURE_MIN_VERTICES` vertices, factor below.
 
-    The two agree to the rounding of the rule (about 1e-12 relative on every term,
-    tests/test_scale_search.py), so they choose the same mu. With ``coordinates=False`` a
+    The two agree to the rules' tolerance (``QUADRATURE_TOL``, 1e-6 relative change; about 1e-12 relative on every
+    term run to 1e-10, tests/test_scale_search.py), and chose the same mu on every benchmark row. With
+    ``coordinates=False`` a
     quadrature search returns the best point with ``X = None`` (a rule that needs only the
     weight saves the solve; the filter solves it anyway). ``coordinates_by="lanczos"``: a quadrature
     search's best coordinates by the second pass of the search's own Lanczos run on its three
