@@ -143,16 +143,23 @@ def test_spectral_search_coordinates_and_probe_terms_against_dense(family, value
         np.testing.assert_allclose(terms(v)[0], want, atol=accuracy * np.abs(want).max())
 
 
-@pytest.mark.parametrize("tol, accuracy", [(1e-10, 1e-9), (None, 1e-5)])
-def test_spectral_search_with_a_frame_against_dense(tol, accuracy):
-    """Per-axis functions in a frame (sobolev_axes): the coordinates and u . H b as the dense per-axis maps give them."""
-    _, F, X = _open_noisy()
-    ops = get_operators(F, len(X))
+def _frame_family(ops):
+    """Per-axis Sobolev weights 0.1 v, 0 and v in a random frame (as sobolev_axes builds them; one axis left as it is)."""
     E = np.linalg.qr(np.random.default_rng(5).standard_normal((3, 3)))[0]
 
     def fam(v):
         axes = [shifted_spectral(ops, v * w, 2) for w in (0.1, 0.0, 1.0)]
         return spectral_module.Spectral(ops.L, tuple(a.g for a in axes), tuple(a.h for a in axes), frame=E)
+
+    return fam
+
+
+@pytest.mark.parametrize("tol, accuracy", [(1e-10, 1e-9), (None, 1e-5)])
+def test_spectral_search_with_a_frame_against_dense(tol, accuracy):
+    """Per-axis functions in a frame (sobolev_axes): the coordinates and u . H b as the dense per-axis maps give them."""
+    _, F, X = _open_noisy()
+    ops = get_operators(F, len(X))
+    fam = _frame_family(ops)
 
     search = SpectralSearch(X, fam, tol=tol)
     rng = np.random.default_rng(6)
@@ -213,11 +220,7 @@ def test_start_dual_with_a_frame_against_dense():
 
     _, F, X = _open_noisy()
     ops = get_operators(F, len(X))
-    E = np.linalg.qr(np.random.default_rng(5).standard_normal((3, 3)))[0]
-
-    def fam(v):
-        axes = [shifted_spectral(ops, v * w, 2) for w in (0.1, 0.0, 1.0)]
-        return spectral_module.Spectral(ops.L, tuple(a.g for a in axes), tuple(a.h for a in axes), frame=E)
+    fam = _frame_family(ops)
 
     search = SpectralSearch(X, fam, tol=1e-10)
     B = np.random.default_rng(6).choice([-1.0, 1.0], size=(len(X), 6))
