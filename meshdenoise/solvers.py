@@ -1153,6 +1153,13 @@ class LanczosQuadrature:
         return self._alpha.shape[0]
 
     @property
+    def nbytes(self) -> int:
+        """Bytes of the run's own arrays: its columns, its two last basis vectors and the recurrence so far (a kept
+        basis too, :class:`CompiledLanczos`; the matrix is the caller's)."""
+        arrays = (self._B, self._q, self._q_prev, self._alpha, self._beta, getattr(self, "_basis", None))
+        return int(sum(a.nbytes for a in arrays if a is not None))
+
+    @property
     def active(self) -> np.ndarray:
         """Per column, whether its recurrence still runs (its Krylov space not exhausted: its rule not yet exact)."""
         return self._active.copy()

@@ -236,6 +236,9 @@ def test_a_quadrature_run_above_the_shared_bound_is_not_kept(monkeypatch):
     monkeypatch.setattr(search, "SHARED_RUN_MAX_BYTES", size)
     third = shifted_quadrature(Vn, ops, 3, Z, s)
     assert shifted_quadrature(Vn, ops, 2, Z, s).quadrature is third.quadrature and len(MEMO) == 1
+    third(1.0)  # the run grows: the memo counts its arrays as they are now (columns, two basis vectors, recurrence)
+    run = third.quadrature
+    assert MEMO.total_bytes() == run.nbytes == size + 8 * 2 * run.steps * (3 + Z.shape[1])
     MEMO.clear()
 
 

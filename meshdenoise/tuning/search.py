@@ -56,12 +56,12 @@ COORDINATES_CG_BOUND = 600  # best_shifted: the best point's coordinates by CG w
 QUADRATURE_MIN_VERTICES = 1_000  # best_shifted(search="auto"): Lanczos quadrature from this size (above the exact-trace
 # meshes), one factor per mu below; the two choose the same mu (scores equal to 1e-12 relative, docs/scale.md)
 SHIFTED_SEARCHES = ("auto", "quadrature", "factor")
-QUADRATURE_BASE_ORDER = 2  # shifted_quadrature's run on the columns L^min(p, this) X: the searches of orders 2 and 3 on the
-# same coordinates and probes share it (sobolev_gls' pilot and sweep weights on the elephant: 187 steps each, 0.26 s)
-QUADRATURE_TOL = 1e-6  # shifted_quadrature: each Gauss rule to this relative change over 10 steps (was 1e-10): the
-# elephant's order-3 SURE search 187 -> 150 Lanczos steps, the same choices on the 8 rows' 56 cells that search
-# (default, the Sobolev filters, two_stage; session 30), the same weights to 1e-9 there
-SHARED_RUN_MAX_BYTES = MEMO_BYTES // 8  # ... kept in the tuning memo up to this size (its columns and two basis vectors:
+QUADRATURE_BASE_ORDER = 2  # shifted_quadrature's run on the columns L^min(p, this) X: the searches of orders 2 and 3
+# on the same coordinates and probes share it (sobolev_gls' pilot and sweep weights on the elephant: 187 steps, 0.26 s)
+QUADRATURE_TOL = 1e-6  # shifted_quadrature: each Gauss rule to this relative change over 10 steps (was 1e-10):
+# sobolev_gls' run on the elephant (its order-3 and order-2 searches) 187 -> 120 Lanczos steps; the same choices on the
+# 56 cells whose rules search these weights (default, the Sobolev filters, two_stage; session 30), weights to 1e-9
+SHARED_RUN_MAX_BYTES = MEMO_BYTES // 8  # ... kept in the tuning memo up to this size (its columns, two basis vectors:
 # 16 MB on the elephant, 27 columns); above, a scan's whole-mesh run would sit in the memo for nothing (face000's
 # sobolev_gls searches its pilot on a region: with a bound of 64 MB its peak memory 564 -> 604 MB)
 
@@ -439,9 +439,8 @@ class _SharedRun:
 
     @property
     def nbytes(self) -> int:
-        """The run's arrays: its columns, its two basis vectors and the recurrence so far (the matrix is ``ops``')."""
-        q = self.quad
-        return int(q._B.nbytes + q._q.nbytes + q._q_prev.nbytes + q._alpha.nbytes + q._beta.nbytes)
+        """The run's own arrays (:attr:`~meshdenoise.solvers.LanczosQuadrature.nbytes`; the matrix is ``ops``')."""
+        return self.quad.nbytes
 
 
 def shifted_quadrature(V: np.ndarray, ops: Operators, order: int, Z: np.ndarray, s: float,
