@@ -1159,11 +1159,6 @@ class LanczosQuadrature:
         arrays = (self._B, self._q, self._q_prev, self._alpha, self._beta, getattr(self, "_basis", None))
         return int(sum(a.nbytes for a in arrays if a is not None))
 
-    @property
-    def active(self) -> np.ndarray:
-        """Per column, whether its recurrence still runs (its Krylov space not exhausted: its rule not yet exact)."""
-        return self._active.copy()
-
     def extend(self, steps: int) -> None:
         """Run ``steps`` more Lanczos steps on the columns still active."""
         k = self._q.shape[1]
@@ -1217,14 +1212,17 @@ class LanczosQuadrature:
         return np.array(out)
 
     def evaluate(self, g: Callable[[np.ndarray], np.ndarray], columns=None, *, rtol: float = 1e-10,
-                 check: int = 10, growth: float = 0.0) -> np.ndarray | None:
+                 check: int = 10, growth: float = 0.0,
+                 scale: Callable[[int], np.ndarray] | None = None) -> np.ndarray | None:
         """:math:`b_j^T g(M) b_j` on ``columns``, extending the recurrence until converged.
 
         Converged when the rule changes by at most ``rtol`` (relative, per column) over the
         last ``check`` steps (the error falls geometrically, so the last rule is several times
         closer); ``None`` if :attr:`max_steps` is reached first. ``growth`` > 0: after a failed test the run is
         extended by ``max(check, growth x steps)`` steps (as for :meth:`_converged_coefficients`: each test solves
-        every column's tridiagonal eigenproblem at a new size).
+        every column's tridiagonal eigenproblem at a new size). ``scale(k)`` (optional): per column, what the change
+        is relative to after ``k`` steps instead of the rule itself (a dual's Cauchy-Schwarz scale,
+        :class:`~meshdenoise.tuning.spectral.StartDual`).
         """
         cols = list(range(self._q.shape[1])) if columns is None else list(columns)
         if self.steps < check:
@@ -1234,7 +1232,7 @@ class LanczosQuadrature:
             now = self.quadrature(g, cols, k)
             before = self.quadrature(g, cols, k - check)
             done = ~self._active[cols]
-            if np.all(done | (np.abs(now - before) <= rtol * np.abs(now))):
+            if np.all(done | (np.abs(now - before) <= rtol * (np.abs(now) if scale is None else scale(k)))):
                 return now
             if k >= self.max_steps:
                 return None

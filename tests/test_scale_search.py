@@ -1057,3 +1057,22 @@ def test_a_spectral_search_keeps_its_coordinates_basis_within_its_budget(monkeyp
         assert (search._coords._basis is not None) == (budget > 0)
     for a, b in zip(*got.values()):
         np.testing.assert_array_equal(a, b)
+
+
+def test_evaluate_tests_convergence_against_a_given_scale():
+    """LanczosQuadrature.evaluate(scale=...): the change over the last steps is compared with scale(k) instead of the
+    rule: a large scale stops at the first test, a tiny one runs on until the rule itself has converged."""
+    from meshdenoise.solvers import CompiledLanczos, ShiftedInverse
+
+    _, Vn, F = _noisy(torus(60, 30), 0.01)
+    ops = Operators(F, len(Vn))
+    B = np.random.default_rng(3).choice([-1.0, 1.0], size=(ops.n, 4))
+    g = ShiftedInverse(50.0, 2)
+    plain = CompiledLanczos(ops.L, B)
+    ref = plain.evaluate(g, rtol=1e-8)
+    loose = CompiledLanczos(ops.L, B)
+    loose.evaluate(g, rtol=1e-8, scale=lambda k: np.full(4, 1e12))
+    assert loose.steps == 10 < plain.steps
+    tight = CompiledLanczos(ops.L, B)
+    got = tight.evaluate(g, rtol=1e-8, scale=lambda k: np.abs(tight.quadrature(g, k=k)))
+    assert tight.steps == plain.steps and np.array_equal(got, ref)

@@ -242,26 +242,17 @@ def _lifted(g: Callable[[np.ndarray], np.ndarray], power: int) -> Callable[[np.n
 
 
 def _start_rules(run: LanczosDots, g: Callable[[np.ndarray], np.ndarray], power: int, columns: range,
-                 dual_norms: np.ndarray, rtol: float, check: int = 10, growth: float = 0.25) -> np.ndarray | None:
-    """The Gauss rules :math:`b_j^T M^k g(M)\\, b_j` of ``run`` on ``columns`` (``k = power``), the run extended until
-    none of the active columns' moved by more than ``rtol`` times :math:`\\|M^k b_j\\|\\, \\|g(M)\\, b_j\\|` over the
-    last ``check`` steps (``dual_norms`` the first factors; the second the rule of :math:`g^2`): the test
-    :meth:`~meshdenoise.solvers.LanczosDots.dots` makes for a recorded dual. ``None`` past the run's ``max_steps``."""
-    f = _lifted(g, power)
+                 dual_norms: np.ndarray, rtol: float) -> np.ndarray | None:
+    """The Gauss rules :math:`b_j^T M^k g(M)\\, b_j` of ``run`` on ``columns`` (``k = power``), converged to ``rtol``
+    times :math:`\\|M^k b_j\\|\\, \\|g(M)\\, b_j\\|` (``dual_norms`` the first factors; the second the rule of
+    :math:`g^2`): the test :meth:`~meshdenoise.solvers.LanczosDots.dots` makes for a recorded dual
+    (:meth:`~meshdenoise.solvers.LanczosQuadrature.evaluate` with that ``scale``). ``None`` past the run's
+    ``max_steps``."""
     square = ShiftedInverse(g.mu, g.order, 2, 2 * g.lift) if isinstance(g, ShiftedInverse) and g.power == 1 \
         else (lambda y: g(y) ** 2)
     cols = list(columns)
-    if run.steps < check:
-        run.extend(check - run.steps)
-    while True:
-        k = run.steps
-        now, before = run.quadrature(f, cols, k), run.quadrature(f, cols, k - check)
-        scale = dual_norms * np.sqrt(np.maximum(run.quadrature(square, cols, k), 0.0))
-        if np.all(~run.active[cols] | (np.abs(now - before) <= rtol * scale)):
-            return now
-        if k >= run.max_steps:
-            return None
-        run.extend(min(max(check, int(growth * k)), run.max_steps - k))
+    return run.evaluate(_lifted(g, power), cols, rtol=rtol, growth=0.25,
+                        scale=lambda k: dual_norms * np.sqrt(np.maximum(run.quadrature(square, cols, k), 0.0)))
 
 
 class SpectralFailed(RuntimeError):
