@@ -15,6 +15,7 @@ from .adapters import to_arrays
 from .arrays import MeshValidationError
 from .metrics import snr
 from .noise import add_normal_noise, add_scanner_noise
+from .scanner import RangeScan, ScannerSettings, simulate_scan
 from .operators import Operators, get_operators
 from .plugins.filtering import filtering
 from .plugins.heat import heat
@@ -88,7 +89,7 @@ __all__ = [
     "heat",
     "sinkhorn",
     "sobolev",
-    "add_normal_noise", "add_scanner_noise",
+    "add_normal_noise", "add_scanner_noise", "simulate_scan", "RangeScan", "ScannerSettings",
     "snr",
     "apply_filter",
     "get_filter",
