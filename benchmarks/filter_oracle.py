@@ -2,7 +2,8 @@
 
 Issue 22's target: each filter's automatic choice (``meshdenoise.denoise(mesh, method=M)``, no clean mesh) within
 10 % of that filter's oracle error, the error being the mean face-normal angle to the clean mesh (deg, lower is
-better). Rows: :data:`benchmarks.peers.MESHES` (the peers table's eight, ``tiny`` for tests); filters: every
+better). Rows: :data:`benchmarks.peers.MESHES` (the peers table's eight, ``tiny`` for tests) or corpus cases
+(``corpus:NAME``, benchmarks/corpus.py); filters: every
 registered filter with an automatic rule (:func:`benchmarks.peers.our_methods`).
 
 Per (row, filter) cell: the automatic choice (:func:`benchmarks.peers.run_ours`: normal error, SNR, the time of the
@@ -61,7 +62,7 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from peers import DEFAULT_MESHES, MESHES, _quality, our_methods, run_ours  # noqa: E402
+from peers import CORPUS_PREFIX, DEFAULT_MESHES, MESHES, _quality, build_mesh, our_methods, run_ours  # noqa: E402
 
 TARGET = 1.10  # issue 22: the automatic choice within 10 % of the filter's oracle error
 SPACING = 0.25  # decades between the points of a continuous axis's coarse grid
@@ -450,7 +451,7 @@ def measure(row: str, name: str, two_stage_grid: dict | None = None) -> dict:
     stored ``grid_ne`` of benchmarks/two_stage_auto.py for this row, used instead of measuring the grid)."""
     from meshdenoise.registry import apply_filter
 
-    m = MESHES[row]()
+    m = build_mesh(row)
     V0, F, Vn = m["V0"], m["F"], m["Vn"]
     out = {"row": row, "filter": name, "n": int(V0.shape[0])}
     a = run_ours(name, V0, F, Vn)
@@ -594,7 +595,7 @@ def main(argv: list[str] | None = None) -> int:
         print(json.dumps(measure(row, name, grid), default=float))
         return 0
     filters = a.filters or our_methods()
-    bad = [r for r in a.rows if r not in MESHES] + [f for f in filters if f not in ORACLES]
+    bad = [r for r in a.rows if r not in MESHES and not r.startswith(CORPUS_PREFIX)] + [f for f in filters if f not in ORACLES]
     if bad:
         print(f"filter_oracle.py: unknown row or filter {bad[0]!r}; rows: {', '.join(MESHES)}; filters: "
               f"{', '.join(ORACLES)}", file=sys.stderr)

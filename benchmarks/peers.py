@@ -219,6 +219,16 @@ MESHES: dict[str, Callable[[], dict]] = {
     "tiny": _tiny,
 }
 DEFAULT_MESHES = [m for m in MESHES if m != "tiny"]
+CORPUS_PREFIX = "corpus:"  # "corpus:NAME" is case NAME of the validation corpus (benchmarks/corpus.py)
+
+
+def build_mesh(name: str) -> dict:
+    """A benchmark mesh by name: a row of :data:`MESHES` or a corpus case ``corpus:NAME``."""
+    if name.startswith(CORPUS_PREFIX):
+        import corpus
+
+        return corpus.load_case(name[len(CORPUS_PREFIX):])
+    return MESHES[name]()
 
 
 # ----------------------------------------------------------------------------- vertex order
@@ -548,7 +558,16 @@ def _quality(V0: np.ndarray, F: np.ndarray, X: np.ndarray, distance: bool = Fals
     out = {"normal_error_deg": normal_error_deg((V0, F), X), "snr_db": snr(V0, X)}
     if distance:
         out["mean_distance"] = mean_distance((V0, F), X)
+        out["flipped"] = flipped_faces(V0, F, X)
     return out
+
+
+def flipped_faces(V0: np.ndarray, F: np.ndarray, X: np.ndarray) -> int:
+    """Faces of ``(X, F)`` whose normal turned more than 90 degrees from the clean mesh's (degenerate ones left out)."""
+    from meshdenoise.geometry import face_normals
+
+    N0, N = face_normals(V0, F), face_normals(X, F)
+    return int(np.count_nonzero(np.einsum("ij,ij->i", N0, N) < 0))
 
 
 def _run_once(session_cls: type, V: np.ndarray, F: np.ndarray, params: dict, iterations: int) -> tuple[np.ndarray, float]:
@@ -664,7 +683,7 @@ def mesh_fingerprint(m: dict) -> str:
 def measure_cell(mesh: str, kind: str, name: str, quick: bool) -> dict:
     """One cell: ``kind`` is "peer", "ours" (``name`` a method or "default") or "input"; its result names the mesh's
     :func:`mesh_fingerprint`."""
-    m = MESHES[mesh]()
+    m = build_mesh(mesh)
     return {**_measure(m, kind, name, quick), "mesh_fingerprint": mesh_fingerprint(m)}
 
 
@@ -715,7 +734,7 @@ def run_cells(cells: list[Cell], store: Path, timeout: float, jobs: int, quick: 
         stored = json.loads(f.read_text()) if resume and f.is_file() else None
         if stored is not None:
             if c.mesh not in current:
-                m = MESHES[c.mesh]()
+                m = build_mesh(c.mesh)
                 current[c.mesh] = {"fingerprint": mesh_fingerprint(m), "noise": m["noise"]}
             why = stale(stored, current[c.mesh], store / (_slug(c.mesh, "input", "input") + ".json"))
             if why:
