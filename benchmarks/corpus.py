@@ -17,9 +17,9 @@ Cases (:data:`CASES`, 53 of them):
   remeshed to about 5,000 vertices, with one of three noises (cycled in the order of the parts):
   Gaussian along the normals (``normal``), Gaussian in random directions (``random``), or
   impulsive (``impulsive``: a tenth of the vertices moved along their normals);
-- every organic shape (9) at two resolutions (about 3,000 and 10,000 vertices), the same cycle;
-- virtual range scans (``scan``, :func:`meshdenoise.simulate_scan`) of 8 CAD parts and the 9 organic
-  shapes, one view each, about 6,000 vertices, with correlation 0 to 3 pixels, stripes on one in three;
+- every organic shape (10) at two resolutions (about 3,000 and 10,000 vertices), the same cycle;
+- virtual range scans (``scan``, :func:`meshdenoise.simulate_scan`) of 8 CAD parts and the 10 organic
+  shapes (10), one view each, about 6,000 vertices, with correlation 0 to 3 pixels, stripes on one in three;
 - noise levels cycle through 0.1, 0.2, 0.3, 0.4, 0.5 and 0.7 mean edge lengths of the clean mesh (out of step
   with the kinds, so that every kind meets several levels).
 

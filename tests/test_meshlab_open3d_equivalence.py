@@ -83,3 +83,46 @@ def test_open3d_laplacian_matches(mesh, lam):
     theirs = np.asarray(o3d_mesh(V, F).filter_smooth_laplacian(number_of_iterations=6, lambda_filter=lam).vertices)
     ours = md.filtering((V, F), iterations=6, weights="inverse_distance", lam=lam)[0]
     assert rel_err(ours, theirs) < 1e-10
+
+
+@pytest.mark.parametrize("lam, mu, steps", [(0.5, -0.53, 10), (0.33, -0.34, 3)])
+def test_meshlab_taubin_matches(mesh, lam, mu, steps):
+    V, F = mesh
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=F.astype(np.int32)))
+    ms.apply_coord_taubin_smoothing(lambda_=lam, mu=mu, stepsmoothnum=steps)
+    theirs = ms.current_mesh().vertex_matrix()
+    assert rel_err(md.taubin((V, F), iterations=steps, lam=lam, mu=mu, weights="meshlab")[0], theirs) < 1e-10
+    assert rel_err(V, theirs) > 1e-4  # MeshLab really moved the mesh
+
+
+@pytest.mark.parametrize("lam, mu, steps", [(0.5, -0.53, 10), (0.33, -0.34, 3)])
+def test_open3d_taubin_matches(mesh, lam, mu, steps):
+    V, F = mesh
+    theirs = np.asarray(o3d_mesh(V, F).filter_smooth_taubin(steps, lambda_filter=lam, mu=mu).vertices)
+    ours = md.taubin((V, F), iterations=steps, lam=lam, mu=mu, weights="open3d")[0]
+    assert rel_err(ours, theirs) < 1e-10
+    assert rel_err(V, theirs) > 1e-4
+
+
+def grid_with_repeated_indices():
+    V, F = grid(6, 6)
+    V = V + 0.01 * np.random.default_rng(0).standard_normal(V.shape)
+    return V, np.vstack([F, [[7, 7, 14], [20, 20, 20]]])
+
+
+@pytest.mark.parametrize("boundary", [True, False])
+def test_meshlab_laplacian_faces_with_a_repeated_index(boundary):
+    """vcglib counts a face's side i-i like any other (a border side when single); Operators skip it."""
+    V, F = grid_with_repeated_indices()
+    theirs = meshlab_laplacian(V, F, 3, boundary)
+    assert rel_err(md.filtering((V, F), iterations=3, weights="meshlab", boundary=boundary)[0], theirs) < 1e-10
+
+
+def test_meshlab_taubin_faces_with_a_repeated_index():
+    V, F = grid_with_repeated_indices()
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=V, face_matrix=F.astype(np.int32)))
+    ms.apply_coord_taubin_smoothing(lambda_=0.5, mu=-0.53, stepsmoothnum=3)
+    theirs = ms.current_mesh().vertex_matrix()
+    assert rel_err(md.taubin((V, F), iterations=3, lam=0.5, mu=-0.53, weights="meshlab")[0], theirs) < 1e-10

@@ -11,6 +11,7 @@ from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import averaging_step, best_on_curve, best_on_path, iterative_path, path_curve
 from ..tuning.spectral import Spectral, averaging_spectral
+from .filtering import has_repeated_index, vcglib_sum_matrix
 
 __all__ = ["taubin", "meshlab_taubin_operator", "pass_matrix", "TAUBIN_WEIGHTS"]
 
@@ -24,20 +25,24 @@ def meshlab_taubin_operator(ops: Operators) -> sp.csr_matrix:
     excludes the vertex itself, so an interior vertex of a manifold mesh takes the plain
     mean of its neighbours (:math:`D^{-1} W`). A vertex on a border edge (an edge with one
     face side) forgets its interior neighbours and averages itself with its border
-    neighbours: :math:`(x_i + x_a + x_b) / 3`. An isolated vertex keeps its row identity.
+    neighbours: :math:`(x_i + x_a + x_b) / 3`. An isolated vertex keeps its row identity. A face
+    with a repeated index adds its side i-i as vcglib does (:func:`~meshdenoise.plugins.filtering.vcglib_sum_matrix`).
     """
     if "meshlab_taubin" in ops.cache:
         return ops.cache["meshlab_taubin"]
     n = ops.n
-    edges, counts = ops._undirected_edges
-    rows = np.concatenate([edges[:, 0], edges[:, 1]])
-    cols = np.concatenate([edges[:, 1], edges[:, 0]])
-    vals = np.concatenate([counts, counts]).astype(np.float64)
-    on_border = ops.boundary_vertices
-    edge_is_border = vals == 1
-    keep = ~on_border[rows] | edge_is_border  # border vertices see only their border edges
-    A = sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(n, n))
-    A = A + sp.diags(on_border.astype(np.float64))  # ... and themselves, with weight 1
+    if has_repeated_index(ops.F):  # vcglib counts a side i-i, which Operators skips: build it side by side
+        A = vcglib_sum_matrix(ops, True)
+    else:
+        edges, counts = ops._undirected_edges
+        rows = np.concatenate([edges[:, 0], edges[:, 1]])
+        cols = np.concatenate([edges[:, 1], edges[:, 0]])
+        vals = np.concatenate([counts, counts]).astype(np.float64)
+        on_border = ops.boundary_vertices
+        edge_is_border = vals == 1
+        keep = ~on_border[rows] | edge_is_border  # border vertices see only their border edges
+        A = sp.csr_matrix((vals[keep], (rows[keep], cols[keep])), shape=(n, n))
+        A = A + sp.diags(on_border.astype(np.float64))  # ... and themselves, with weight 1
     s = np.asarray(A.sum(axis=1)).ravel()
     inv = np.zeros(n)
     np.divide(1.0, s, out=inv, where=s > 0)
@@ -176,7 +181,10 @@ def taubin(V, F, *, ops, pinned, iterations, lam, mu, weights):
     - ``"meshlab"``: pymeshlab ``apply_coord_taubin_smoothing(lambda_=lam, mu=mu,
       stepsmoothnum=iterations)`` to rounding: :math:`D^{-1} W` inside, the border rule
       :math:`(x_i + x_a + x_b)/3` at a vertex on a border edge, and ``lam``, ``mu``
-      rounded to float32 as vcglib does.
+      rounded to float32 as vcglib does. MeshLab's Taubin has no cotangent form (unlike its
+      Laplacian smoothing, ``filtering(weights="meshlab_cotangent")``): vcglib's
+      ``Smooth::VertexCoordTaubin`` calls ``AccumulateLaplacianInfo`` without the cotangent
+      flag, and pymeshlab's filter has no ``cotangentweight`` parameter.
     - ``"open3d"``: Open3D ``filter_smooth_taubin(iterations, lambda_filter=lam, mu=mu)``:
       inverse-distance weights :math:`1/(\\|x_i - x_j\\| + 10^{-12})`, recomputed
       before every pass (not linear); each pass is one compiled loop over the edges,
