@@ -11,30 +11,37 @@ Every filter takes a ``(V, F)`` tuple, a ``pymeshlab.MeshSet`` (changed in place
 True
 """
 
-from .adapters import to_arrays
-from .arrays import MeshValidationError
-from .metrics import snr
-from .noise import add_normal_noise, add_scanner_noise
-from .scanner import RangeScan, ScannerSettings, simulate_scan
-from .operators import Operators, get_operators
-from .plugins.filtering import filtering
-from .plugins.heat import heat
-from .plugins.sinkhorn import sinkhorn
-from .plugins.two_stage import two_stage
-from .plugins.sobolev import SobolevSolver, sobolev
-from .plugins.sobolev_axes import sobolev_axes
-from .plugins.sobolev_normal import sobolev_normal
-from .plugins.sobolev_gls import sobolev_gls
-from .plugins.sobolev_bilaplacian import sobolev_bilaplacian
-from .plugins.taubin import taubin
-from .quality_metrics import max_distance, mean_distance, normal_error_deg, volume_change
-from .tuning import auto_filters, choose_parameters, estimate_noise
-from .default import DefaultChoice, choose_default, denoise, detect_features
-from .cache import clear_caches
-from .io import MeshFile, MeshFileError, PlyExtras, load_mesh, save_mesh
-from .meshinfo import mesh_info
-from .metrics import compute_metrics
-from .registry import Param, apply_filter, get_filter, list_filters, register
+from ._launch import exit_at_once_on_interrupt, exit_if_the_command
+
+exit_at_once_on_interrupt()  # in the meshdenoise program only, until its main() runs
+try:  # Ctrl-C while the command line loads these: exit 130, no traceback (meshdenoise._launch)
+    from .adapters import to_arrays
+    from .arrays import MeshValidationError
+    from .metrics import snr
+    from .noise import add_normal_noise, add_scanner_noise
+    from .scanner import RangeScan, ScannerSettings, simulate_scan
+    from .operators import Operators, get_operators
+    from .plugins.filtering import filtering
+    from .plugins.heat import heat
+    from .plugins.sinkhorn import sinkhorn
+    from .plugins.two_stage import two_stage
+    from .plugins.sobolev import SobolevSolver, sobolev
+    from .plugins.sobolev_axes import sobolev_axes
+    from .plugins.sobolev_normal import sobolev_normal
+    from .plugins.sobolev_gls import sobolev_gls
+    from .plugins.sobolev_bilaplacian import sobolev_bilaplacian
+    from .plugins.taubin import taubin
+    from .quality_metrics import max_distance, mean_distance, normal_error_deg, volume_change
+    from .tuning import auto_filters, choose_parameters, estimate_noise
+    from .default import DefaultChoice, choose_default, denoise, detect_features
+    from .cache import clear_caches
+    from .io import MeshFile, MeshFileError, PlyExtras, load_mesh, save_mesh
+    from .meshinfo import mesh_info
+    from .metrics import compute_metrics
+    from .registry import Param, apply_filter, get_filter, list_filters, register
+except KeyboardInterrupt:
+    exit_if_the_command()
+    raise
 
 __version__ = "0.1.0"
 

@@ -2,13 +2,20 @@
 
 from __future__ import annotations
 
+import re
 import sys
 
-import click
-from rich.console import Console
-from rich.text import Text
+from ._launch import INTERRUPTED, exit_if_the_command, interrupt_as_usual
 
-from .registry import list_filters
+try:  # Ctrl-C while the command line loads: exit 130, no traceback (meshdenoise._launch)
+    import click
+    from rich.console import Console
+    from rich.text import Text
+
+    from .registry import list_filters
+except KeyboardInterrupt:
+    exit_if_the_command()
+    raise
 
 # User text is never read as rich markup (a mesh called "scan [final].ply" is printed as it is).
 console = Console(markup=False, highlight=False)
@@ -19,12 +26,62 @@ SECTIONS = (
     ("Denoise", ("denoise", "filters", "demo")),
     ("Inspect", ("info", "show", "render", "report")),
     ("Pipelines", ("run", "steps", "mlx2yaml", "yaml2mlx")),
-    ("Reproduce", ("reproduce",)),
+    ("Evaluate", ("simulate-scan", "reproduce")),
 )
 
 
+class OneLineError(click.ClickException):
+    """Bad usage said as the commands say bad input: one ``error: ...`` line on stderr, exit code 2."""
+
+    exit_code = 2
+
+    def show(self, file=None) -> None:
+        Console(stderr=True, markup=False, highlight=False, soft_wrap=True).print(
+            Text.assemble(("error:", "red"), " ", self.message))
+
+
+# click.Path's complaints: "File 'x.ply' is a directory." and the like
+_PATH_PROBLEM = re.compile(r"^(?:File|Directory|Path) (['\"])(?P<path>.*)\1 (?P<what>is a directory|is a file|does not exist|"
+                           r"is not readable|is not writable|is not executable)\.$", re.S)
+_PATH_WORDS = {"is a directory": "a folder, not a file", "is a file": "a file, not a folder",
+               "does not exist": "no such file or folder", "is not readable": "cannot be read (permission denied)",
+               "is not writable": "cannot be written (permission denied)", "is not executable": "not executable"}
+
+
+def path_error(exc: click.BadParameter) -> OneLineError:
+    """A file or folder argument click refused (``IN`` is a folder, ``--mesh`` does not exist), as one line naming it."""
+    hint = (exc.param_hint if isinstance(exc.param_hint, str) else None) or (
+        exc.param.get_error_hint(exc.ctx) if exc.param is not None and exc.ctx is not None else "")
+    hint = hint.replace("'", "") if hint else ""
+    m = _PATH_PROBLEM.match(exc.message)
+    if m:
+        return OneLineError(f"{m['path']}: {_PATH_WORDS[m['what']]}" + (f" ({hint})" if hint else ""))
+    return OneLineError(f"{hint}: {exc.message}" if hint else exc.message)
+
+
+def _warning_line(message, category=None, filename=None, lineno=None, file=None, line=None) -> None:
+    """``warnings.showwarning`` of the command line: ``warning: <message>``, one plain line (no source file or line)."""
+    text = " ".join(str(message).split())
+    Console(stderr=True, markup=False, highlight=False, soft_wrap=True).print(Text.assemble(("warning:", "yellow"), " ", text))
+
+
 class SectionedGroup(click.Group):
-    """A click group whose help lists its commands in :data:`SECTIONS` (every command name still works)."""
+    """A click group whose help lists its commands in :data:`SECTIONS` (every command name still works).
+
+    It also gives every command the exit codes the documentation promises: Ctrl-C ends it with 130 (click
+    would print ``Aborted!`` and exit 1), and a file or folder argument click refuses is one ``error:`` line
+    (:func:`path_error`), exit code 2.
+    """
+
+    def invoke(self, ctx: click.Context):
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt:  # cleanup ran as the exception unwound (temporary files, workers)
+            raise click.exceptions.Exit(INTERRUPTED) from None
+        except click.BadParameter as exc:
+            if isinstance(getattr(exc.param, "type", None), click.Path):
+                raise path_error(exc) from None
+            raise
 
     def format_commands(self, ctx: click.Context, formatter: click.HelpFormatter) -> None:
         commands = {name: self.get_command(ctx, name) for name in self.list_commands(ctx)}
@@ -56,6 +113,7 @@ def cli(ctx: click.Context) -> None:
     ctx.with_resource(np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"))
     ctx.with_resource(warnings.catch_warnings())
     warnings.filterwarnings("ignore", category=RuntimeWarning)
+    warnings.showwarning = _warning_line  # restored with the rest when the command ends
 
 
 def _fail(message: str, code: int = 2) -> None:
@@ -186,12 +244,17 @@ def _add_commands() -> None:
                 cli.add_command(command)
 
 
-_add_commands()
+try:
+    _add_commands()
+except KeyboardInterrupt:
+    exit_if_the_command()
+    raise
 
 
 def main() -> None:
-    """Console-script entry point."""
+    """Console-script entry point: Ctrl-C anywhere ends it with exit code 130 and no traceback."""
     try:
+        interrupt_as_usual()  # loaded: Ctrl-C now unwinds the command (meshdenoise._launch)
         cli.main(standalone_mode=True)
     except KeyboardInterrupt:
-        sys.exit(130)
+        sys.exit(INTERRUPTED)

@@ -14,7 +14,7 @@ import numpy as np
 
 from .geometry import signed_volume
 
-__all__ = ["fixed_mask", "vertex_mask", "restore_volume"]
+__all__ = ["fixed_mask", "vertex_mask", "restore_volume", "check_encloses_volume"]
 
 
 def vertex_mask(spec: Any, n: int, what: str, ops=None, data=None) -> np.ndarray:
@@ -30,6 +30,8 @@ def vertex_mask(spec: Any, n: int, what: str, ops=None, data=None) -> np.ndarray
             sel = data.selection()
             if sel.shape != (n,):
                 raise ValueError(f"{what}='selection': the selection has {sel.shape[0]} vertices, the mesh {n}")
+            if not sel.any():  # pinning nothing, or letting nothing move, is never what was meant
+                raise ValueError(f"{what}='selection': the mesh has no selected vertex")
             return sel
         allowed = "'boundary', 'selection'" if what == "pinned" else "'selection'"
         raise ValueError(f"{what}={spec!r} is not understood: use a boolean mask, vertex indices, or {allowed}")
@@ -42,8 +44,10 @@ def vertex_mask(spec: Any, n: int, what: str, ops=None, data=None) -> np.ndarray
         return np.zeros(n, dtype=bool)
     if not np.issubdtype(arr.dtype, np.integer) or arr.ndim != 1:
         raise TypeError(f"{what} must be a boolean mask, a 1-D array of vertex indices or a keyword; got {spec!r:.80}")
-    if arr.min() < -n or arr.max() >= n:
-        raise ValueError(f"{what}: vertex index out of range 0..{n - 1} (got min {arr.min()}, max {arr.max()})")
+    bad = arr[(arr < 0) | (arr >= n)]
+    if bad.size:  # a negative index would wrap around (-1: the last vertex): refused like any other out of range
+        raise ValueError(f"{what}: vertex index {int(bad[0])} is out of range 0..{n - 1} "
+                         f"({bad.size} of {arr.size} indices outside it; min {int(arr.min())}, max {int(arr.max())})")
     mask = np.zeros(n, dtype=bool)
     mask[arr] = True
     return mask
@@ -60,6 +64,21 @@ def fixed_mask(ops, pinned: Any, region: Any, data) -> np.ndarray | None:
             raise ValueError("region='boundary' is not supported: use pinned='boundary' to keep the boundary fixed")
         fixed |= ~vertex_mask(region, n, "region", ops, data)
     return fixed if fixed.any() else None
+
+
+def check_encloses_volume(V: np.ndarray, F: np.ndarray) -> float:
+    """The signed volume :func:`restore_volume` keeps; ``ValueError`` when the mesh encloses none (flat or empty).
+
+    >>> import numpy as np
+    >>> check_encloses_volume(np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0]]), np.array([[0, 1, 2]]))
+    Traceback (most recent call last):
+    ...
+    ValueError: preserve_volume: the input encloses no volume (flat or empty mesh); leave out preserve_volume
+    """
+    vol0 = signed_volume(V, F, V.mean(axis=0)) if len(V) else 0.0
+    if not abs(vol0) >= 1e-300:
+        raise ValueError("preserve_volume: the input encloses no volume (flat or empty mesh); leave out preserve_volume")
+    return vol0
 
 
 def _det_terms(a, b, c):
@@ -81,9 +100,7 @@ def restore_volume(V0: np.ndarray, V1: np.ndarray, F: np.ndarray, fixed: np.ndar
         If the filtered volume is zero or of the other sign, or no positive scale works.
     """
     origin = V0.mean(axis=0)
-    vol0 = signed_volume(V0, F, origin)
-    if abs(vol0) < 1e-300:
-        raise ValueError("preserve_volume: the input encloses no volume (flat or empty mesh)")
+    vol0 = check_encloses_volume(V0, F)
     movable = np.ones(V0.shape[0], dtype=bool) if fixed is None else ~fixed
     if not movable.any():
         return V1

@@ -26,11 +26,20 @@ def data_file(name: str) -> Path:
     return path
 
 
-def sample_mesh(name: str = "bunny.obj") -> Path:
-    """A sample mesh from pymeshlab's wheel (``bunny.obj``, ``rangemaps/face000.ply``, ...)."""
+def sample_mesh(name: str = "bunny.obj") -> str:
+    """The path (a ``str``) of a sample mesh from pymeshlab's wheel (``bunny.obj``, ``rangemaps/face000.ply``, ...).
+
+    A ``str``, because pymeshlab's ``MeshSet.load_new_mesh`` takes nothing else:
+
+    >>> import pymeshlab
+    >>> ms = pymeshlab.MeshSet()
+    >>> ms.load_new_mesh(sample_mesh())
+    >>> ms.current_mesh().vertex_number() > 0
+    True
+    """
     import pymeshlab
 
     path = Path(pymeshlab.__file__).parent / "tests" / "sample_meshes" / name
     if not path.is_file():
         raise FileNotFoundError(f"{path} not found in the installed pymeshlab wheel")
-    return path
+    return str(path)

@@ -25,7 +25,7 @@ def run_demo(out_dir: str | Path, mesh_path: str | Path | None = None, noise: fl
     as for a scan with no clean version to tune against; the clean mesh only scores the result.
     Returns one row per mesh written: method, parameters, SNR (dB), time (ms), file.
     """
-    path = Path(mesh_path) if mesh_path else sample_mesh("bunny.obj")
+    path = Path(mesh_path or sample_mesh("bunny.obj"))
     V, F = load_arrays(path)
     out = Path(out_dir)
     rho = noise * float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))

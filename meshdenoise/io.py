@@ -42,11 +42,23 @@ __all__ = [
     "save_arrays",
     "atomic_path",
     "MeshFileError",
+    "PrecisionWarning",
     "SUPPORTED_EXTENSIONS",
+    "STL_TOLERANCE",
     "topology_notes",
 ]
 
 SUPPORTED_EXTENSIONS = (".ply", ".obj", ".off", ".stl")
+
+
+#: Largest move, in mean edge lengths, that binary STL's float32 rounding may give a vertex before
+#: :func:`save_mesh` warns (a georeferenced scan: coordinates near 1e6, millimetre detail).
+STL_TOLERANCE = 0.01
+
+
+class PrecisionWarning(UserWarning):
+    """A file format cannot hold the coordinates as they are: binary STL's float32 moves vertices by more
+    than :data:`STL_TOLERANCE` mean edge lengths. The message names the file and the largest move."""
 
 
 class MeshFileError(ValueError):
@@ -1302,7 +1314,9 @@ class atomic_path:
     """Context manager giving a temporary path beside ``path``, renamed onto it only on success.
 
     Nothing is left behind on failure, and a reader never sees a half-written file: the
-    temporary file is flushed to disk and then renamed (atomic on POSIX and Windows). SIGTERM
+    temporary file is flushed to disk and then renamed (atomic on POSIX and Windows). A ``path``
+    that is a folder, a device (``/dev/null``), a pipe or a socket is refused (``MeshFileError``):
+    the rename would replace it. SIGTERM
     and SIGHUP during the write remove the temporary file, then take their previous action
     (by default: the process ends). Only what cannot be caught (SIGKILL, a power cut) can leave
     the hidden temporary ``.<stem>.<8 random characters><suffix>`` beside ``path``.
@@ -1321,6 +1335,9 @@ class atomic_path:
         self.path = Path(path)
 
     def __enter__(self) -> Path:
+        if self.path.exists() and not self.path.is_file():  # renaming onto /dev/null would replace the device
+            kind = "a folder" if self.path.is_dir() else "a device, pipe or socket"
+            raise MeshFileError(f"{self.path}: cannot be written: it is {kind}, not a file")
         try:
             self.path.parent.mkdir(parents=True, exist_ok=True)
             fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=self.path.suffix, dir=self.path.parent)
@@ -1427,9 +1444,42 @@ def save_mesh(
     ext = path.suffix.lower()
     if ext == ".stl" and F.shape[0] == 0:
         raise MeshFileError(f"{path}: STL stores triangles only and this mesh has no faces; use .ply for a point cloud")
+    if ext == ".stl" and binary:
+        _warn_if_float32_moves(path, V, F)
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
         _WRITERS[ext](fh, V, F, C, binary, extras)
     return path
+
+
+def float32_move(V: np.ndarray, F: np.ndarray) -> tuple[float, float]:
+    """``(largest move, mean edge length)``: how far float32 rounding (binary STL) moves a vertex of a face of ``(V, F)``.
+
+    >>> import numpy as np
+    >>> V = np.array([[1e6, 0, 0], [1e6 + 1e-3, 0, 0], [1e6, 1e-3, 0]]) + 0.01
+    >>> move, h = float32_move(V, np.array([[0, 1, 2]]))
+    >>> bool(move > STL_TOLERANCE * h), bool(float32_move(V - 1e6, np.array([[0, 1, 2]]))[0] < STL_TOLERANCE * h)
+    (True, False)
+    """
+    used = np.zeros(V.shape[0], dtype=bool)
+    used[F.ravel()] = True
+    U = V[used]
+    move = float(np.sqrt((np.square(U - U.astype(np.float32).astype(np.float64))).sum(axis=1)).max()) if U.size else 0.0
+    edges = [V[F[:, (k + 1) % 3]] - V[F[:, k]] for k in range(3)]
+    h = float(np.mean([np.sqrt(np.square(e).sum(axis=1)).mean() for e in edges])) if F.size else 0.0
+    return move, h
+
+
+def _warn_if_float32_moves(path: Path, V: np.ndarray, F: np.ndarray) -> None:
+    """Binary STL stores float32: say so (:class:`PrecisionWarning`) when that moves a vertex by more than
+    :data:`STL_TOLERANCE` mean edge lengths; the file is still written, as MeshLab writes it."""
+    import warnings
+
+    move, h = float32_move(V, F)
+    if h > 0 and move > STL_TOLERANCE * h:
+        warnings.warn(
+            f"{path}: binary STL stores float32 coordinates: vertices move by up to {move:.3g} "
+            f"({move / h:.3g} mean edge lengths); write PLY (double) or ASCII STL to keep them",
+            PrecisionWarning, stacklevel=3)
 
 
 def save_arrays(path: str | os.PathLike, V: np.ndarray, F: np.ndarray, *, binary: bool = True) -> Path:

@@ -10,7 +10,9 @@ allocation, no sort, no Python loop over elements.
 Every kernel sums in the same order as the numpy/scipy code it replaces (CSR rows in
 index order, products ``a * x`` added to a zero start), so results agree with it to a few
 units in the last place. Compiled code is cached on disk (``cache=True``): the first call
-in a fresh install compiles (a few seconds), later processes load it.
+in a fresh install compiles (a few seconds), later processes load it. Where numba finds no
+writable place (a read-only install with a read-only HOME) the cache moves to a private
+temporary folder, or is left out (:func:`_find_cache_place`); importing never fails for it.
 
 Index arrays: ``indptr`` int64, ``indices`` int32 (int64 above 2^31 entries).
 """
@@ -30,11 +32,79 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
-from numba import njit, prange  # noqa: E402
+from numba import njit as _numba_njit  # noqa: E402
+from numba import prange  # noqa: E402
 
 # OpenMP first: numba would otherwise try an old TBB (Open3D's) first and warn about its version.
 # Both are safe to call from several threads at once, unlike the workqueue fallback.
 numba.config.THREADING_LAYER_PRIORITY = ["omp", "tbb", "workqueue"]
+
+
+def _cache_probe() -> None:
+    """A function of this file: numba's cache locators are asked where this file's kernels would be cached."""
+
+
+def _private_cache_dir() -> str | None:
+    """``<temp>/meshdenoise-numba-<uid>``, made private (0700) and checked to be ours (another user's folder there
+    could hold cache files that run as code); a new unique folder when it is not; ``None`` when none can be made."""
+    import stat
+    import tempfile
+
+    if hasattr(os, "getuid"):
+        path = os.path.join(tempfile.gettempdir(), f"meshdenoise-numba-{os.getuid()}")
+        try:
+            os.makedirs(path, mode=0o700, exist_ok=True)
+            info = os.lstat(path)
+            if stat.S_ISDIR(info.st_mode) and info.st_uid == os.getuid() and not info.st_mode & 0o022:
+                return path
+        except OSError:
+            pass
+    try:
+        return tempfile.mkdtemp(prefix="meshdenoise-numba-")
+    except OSError:
+        return None
+
+
+def _find_cache_place() -> bool:
+    """Whether numba can cache this package's kernels on disk, choosing a place if it cannot by itself.
+
+    numba caches beside the sources (``__pycache__``), else in the user's cache folder (``~/.cache/numba``),
+    else in ``NUMBA_CACHE_DIR`` when set; with none writable (installed read-only, HOME not writable) every
+    ``cache=True`` kernel raised ``RuntimeError: cannot cache function ...: no locator available`` at import.
+    Then, unless the user set ``NUMBA_CACHE_DIR``, a private folder of the temporary directory
+    (:func:`_private_cache_dir`) becomes numba's cache folder; failing that the kernels are compiled in every
+    process (no cache, :data:`CACHE` False).
+    """
+    from numba.core.caching import FunctionCache
+
+    try:
+        FunctionCache(_cache_probe)
+        return True
+    except RuntimeError:
+        pass
+    if numba.config.CACHE_DIR:  # the user's own choice, unusable: no cache rather than another place
+        return False
+    place = _private_cache_dir()
+    if place is None:
+        return False
+    numba.config.CACHE_DIR = place
+    try:
+        FunctionCache(_cache_probe)
+        return True
+    except RuntimeError:
+        numba.config.CACHE_DIR = ""
+        return False
+
+
+#: Whether the kernels are cached on disk (:func:`_find_cache_place`): ``cache=True`` of :func:`njit` is dropped if not.
+CACHE = _find_cache_place()
+
+
+def njit(*args, **kwargs):
+    """numba's ``njit``, with ``cache=True`` dropped when no place can hold the cache (:data:`CACHE`)."""
+    if not CACHE:
+        kwargs.pop("cache", None)
+    return _numba_njit(*args, **kwargs)
 
 T = TypeVar("T")
 R = TypeVar("R")

@@ -70,7 +70,9 @@ class LogProgress:
 class RichProgress:
     """A rich bar on stderr, shown once the job has run :data:`SHOW_AFTER` seconds; it counts the stages done.
 
-    ``total`` is the number of stages expected (``None``: an indeterminate bar). The job's
+    ``total`` is the number of stages expected (``None``: an indeterminate bar). Only outermost
+    stages count (a stage run inside another is part of it), and the count never passes the total:
+    a job that turns out to have more stages than expected shows ``N/?`` from then on. The job's
     name and the stage descriptions are shown as plain text (never read as markup).
     """
 
@@ -81,6 +83,9 @@ class RichProgress:
                                   TimeElapsedColumn(), console=console, transient=True)
         self._task = self._progress.add_task("", total=total, label=name)
         self._name = name
+        self._total = total
+        self._done = 0
+        self._depth = 0  # stages open now: only the outermost ones are counted
         self._lock = threading.Lock()
         self._shown = False
         self._closed = False
@@ -95,10 +100,22 @@ class RichProgress:
                 self._shown = True
 
     def begin(self, description: str) -> None:
+        with self._lock:
+            self._depth += 1
+            if self._depth == 1 and self._total is not None and self._done >= self._total:
+                self._total = None  # more stages than expected: the total is not known after all
+                for task in self._progress.tasks:  # (Progress.update cannot set a total back to None)
+                    if task.id == self._task:
+                        task.total = None
         self._progress.update(self._task, label=f"{self._name}: {description}")
 
     def end(self, description: str) -> None:
-        self._progress.advance(self._task)
+        with self._lock:
+            self._depth = max(self._depth - 1, 0)
+            if self._depth:
+                return
+            self._done += 1
+        self._progress.update(self._task, completed=self._done)
 
     def close(self) -> None:
         self._timer.cancel()

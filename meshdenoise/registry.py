@@ -26,7 +26,7 @@ import numpy as np
 
 __all__ = [
     "Param", "AutoRule", "FilterSpec", "register", "get_filter", "list_filters", "apply_filter", "REGISTRY",
-    "parse_number", "MAX_ITERATIONS", "ParameterError",
+    "parse_number", "MAX_ITERATIONS", "ParameterError", "UnknownFilterError",
 ]
 
 
@@ -43,7 +43,10 @@ def parse_number(value: Any, kind: type) -> int | float:
     """``value`` as ``kind`` (``int`` or ``float``): the one conversion of numbers given as text or numbers.
 
     The command line (``--param mu=1e-3``, ``--set mu=1e-3``) and YAML files (PyYAML reads
-    ``mu: 1e-3`` as the *string* ``'1e-3'``: YAML 1.1's float rule wants a dot) all come here.
+    ``mu: 1e-3`` as the *string* ``'1e-3'``: YAML 1.1's float rule wants a dot) all come here; the
+    YAML reader of all three (:class:`~meshdenoise.pipeline.yamlsource.NumberLoader`) reads its
+    numbers with this function too and leaves YAML 1.1's other forms (``0x10``, ``0b11``, octal
+    ``010``, base-60 ``1:30``) as text, which this refuses (``010`` is 10).
     A string is accepted when Python's ``float()`` accepts it; an ``int`` parameter takes an
     integral number however written (``10``, ``1e3``, ``10.0``), never a fraction.
 
@@ -367,7 +370,7 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
     # Imported here: adapters and constraints import the registry's users, not the reverse.
     from .adapters import read_mesh
     from .arrays import MeshValidationError
-    from .constraints import fixed_mask, restore_volume
+    from .constraints import check_encloses_volume, fixed_mask, restore_volume
     from .locality import relabelling
     from .operators import Operators, get_operators
 
@@ -393,7 +396,12 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
             f"filter '{spec.name}': parameter 'boundary_motion' = {boundary_motion!r} is not one of "
             + ", ".join(map(repr, BOUNDARY_MOTIONS))
         )
-    pinned = None if ops is None else fixed_mask(ops, options.get("pinned"), options.get("region"), data)
+    try:  # an index out of range for this mesh, a selection of another size: this mesh refuses the option
+        pinned = None if ops is None else fixed_mask(ops, options.get("pinned"), options.get("region"), data)
+        if preserve_volume:
+            check_encloses_volume(V, F)  # before the filter runs: a flat mesh has no volume to keep
+    except ValueError as exc:
+        raise ParameterError(f"filter '{spec.name}': {exc}") from None
     try:
         if relabel is None:
             V_out = run_core(spec, V, ops, values, pinned=pinned, boundary_motion=boundary_motion)
@@ -413,7 +421,10 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
     if pinned is not None:
         V_out[pinned] = V[pinned]
     if preserve_volume:
-        V_out = restore_volume(V, V_out, F, pinned)
+        try:
+            V_out = restore_volume(V, V_out, F, pinned)
+        except ValueError as exc:  # no positive scale restores the volume of this result
+            raise ParameterError(f"filter '{spec.name}' with {_settings_text(values)}: {exc}") from None
     if not np.isfinite(V_out).all():
         raise ParameterError(
             f"filter '{spec.name}' with {_settings_text(values)} produced non-finite coordinates "
@@ -562,13 +573,23 @@ def _settings_text(values: dict) -> str:
     return ", ".join(f"{k}={v!r}" for k, v in values.items()) or "no parameters"
 
 
+class UnknownFilterError(KeyError, ValueError):
+    """A filter name that is not registered: a ``ValueError`` (a bad value given to a public function such as
+    ``denoise(method=...)``) and, as before, a ``KeyError`` (a failed look-up); the message names the value, the
+    closest name and every known one."""
+
+    def __str__(self) -> str:  # the message as written, not KeyError's repr of it
+        return str(self.args[0]) if self.args else ""
+
+
 def get_filter(name: str) -> FilterSpec:
-    """The registered filter ``name``; a ``KeyError`` suggests the closest names."""
+    """The registered filter ``name``; an :class:`UnknownFilterError` (a ``ValueError`` and a ``KeyError``)
+    suggests the closest names."""
     _load_plugins()
-    if name not in REGISTRY:
-        hint = difflib.get_close_matches(name, REGISTRY, n=1)
+    if not isinstance(name, str) or name not in REGISTRY:
+        hint = difflib.get_close_matches(name, REGISTRY, n=1) if isinstance(name, str) else []
         extra = f" (did you mean '{hint[0]}'?)" if hint else ""
-        raise KeyError(f"unknown filter '{name}'{extra}; known filters: {', '.join(sorted(REGISTRY))}")
+        raise UnknownFilterError(f"unknown filter {name!r}{extra}; known filters: {', '.join(sorted(REGISTRY))}")
     return REGISTRY[name]
 
 

@@ -44,7 +44,7 @@ def compile_kernels(mesh: str | Path | None = None) -> dict:
     from .io import load_arrays
     from .kernels import compiled_here
 
-    path = Path(mesh) if mesh is not None else sample_mesh(WARMUP_MESH)
+    path = Path(mesh if mesh is not None else sample_mesh(WARMUP_MESH))
     V, F = load_arrays(path)
     fresh = not compiled_here()
     t = time.perf_counter()

@@ -4,6 +4,7 @@ we read what they read, round trips are exact, writes are atomic and errors name
 from __future__ import annotations
 
 import glob
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -83,7 +84,7 @@ def test_reads_pymeshlab_samples_as_pymeshlab_does(name):
 
 
 def test_reads_a_binary_ply_range_map_as_pymeshlab_does():
-    path = sorted(glob.glob(str(sample_mesh("bunny.obj").parent / "rangemaps" / "*.ply")))[0]
+    path = sorted(glob.glob(str(Path(sample_mesh("bunny.obj")).parent / "rangemaps" / "*.ply")))[0]
     m = load_mesh(path)
     _, Vp, Fp = _pymeshlab_arrays(path)
     np.testing.assert_array_equal(m.V, Vp)

@@ -70,16 +70,24 @@ def test_runtime_failure_exit_1_names_step_no_partial_output_input_untouched(tmp
     src = _sphere_file(tmp_path)
     before = _digest(src)
     out = tmp_path / "out"
-    # The first save is staged; preserve_volume then fails on a flat mesh (no volume): nothing may be written.
+    # The first save is staged; pymeshlab then fails inside step 2 (its expression parser): nothing may be written.
     from meshdenoise.shapes import grid
 
     V, F = grid(6, 6)
     save_mesh(tmp_path / "flat.ply", V, F)
     flat_before = _digest(tmp_path / "flat.ply")
-    p = _write(tmp_path, f"inputs: flat.ply\noutput_dir: {out}\nsteps:\n  - save: {{path: a.ply}}\n  - sobolev: {{preserve_volume: true}}\n  - save: {{path: b.ply}}\n")
+    p = _write(tmp_path, f"inputs: flat.ply\noutput_dir: {out}\nsteps:\n  - save: {{path: a.ply}}\n"
+               "  - compute_selection_by_condition_per_vertex: {condselect: '((x'}\n  - save: {path: b.ply}\n")
     result = _run("run", p)
     assert result.exit_code == 1, result.output
-    assert "flat.ply" in result.output and "step 2 'sobolev'" in result.output and f"{p}:5" in result.output
+    assert "flat.ply" in result.output and "step 2 'compute_selection_by_condition_per_vertex'" in result.output
+    assert f"{p}:5" in result.output and "PyMeshLabException" in result.output
+    assert not out.exists() or not any(out.iterdir())
+    # preserve_volume on a flat mesh (no volume to keep) is bad input: exit 2, nothing written either
+    p = _write(tmp_path, f"inputs: flat.ply\noutput_dir: {out}\nsteps:\n  - save: {{path: a.ply}}\n  - sobolev: {{preserve_volume: true}}\n  - save: {{path: b.ply}}\n")
+    result = _run("run", p)
+    assert result.exit_code == 2, result.output
+    assert "step 2 'sobolev'" in result.output and "preserve_volume" in result.output and f"{p}:5" in result.output
     assert not out.exists() or not any(out.iterdir())
     assert _digest(tmp_path / "flat.ply") == flat_before and _digest(src) == before
 
@@ -265,7 +273,7 @@ def test_render_step_draws_before_after_error_and_is_staged(tmp_path):
         f"output_dir: {out2}\n"
         "steps:\n"
         "  - render: {path: '{stem}.png', backend: matplotlib, size: [64, 64]}\n"
-        "  - sobolev: {preserve_volume: true}\n"
+        "  - compute_selection_by_condition_per_vertex: {condselect: '((x'}\n"
     ))
     assert _run("run", p2, "--serial").exit_code == 1
     assert not out2.exists() or list(out2.iterdir()) == []

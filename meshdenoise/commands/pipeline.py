@@ -256,12 +256,14 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
     if output_path is None:
         _fail("OUT is missing: give the output file (or --dry-run to only see the choice)", 2)
     dst = Path(output_path)
-    if dst.resolve() == src.resolve():
-        _fail(f"{dst}: OUT is the input file; input files are never overwritten", 2)
+    _refuse_overwriting_inputs(dst, [src], "OUT")
+    target = _output_target(dst, "OUT")  # OUT itself, or the file a symbolic link OUT points to
     from ..io import SUPPORTED_EXTENSIONS
 
-    if dst.suffix.lower() not in SUPPORTED_EXTENSIONS:
-        _fail(f"{dst}: unsupported extension {dst.suffix!r}; use one of {', '.join(SUPPORTED_EXTENSIONS)}", 2)
+    for path in dict.fromkeys([dst, target]):
+        if path.suffix.lower() not in SUPPORTED_EXTENSIONS:
+            shown = str(dst) if path == dst else f"{dst} (a link to {path})"
+            _fail(f"{shown}: unsupported extension {path.suffix!r}; use one of {', '.join(SUPPORTED_EXTENSIONS)}", 2)
     name = method or "denoise"
     try:
         if method is not None:
@@ -269,12 +271,12 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
 
             get_filter(method)
         step = parse_step({name: given}, None, "--method" if method else "denoise", None)
+        save = parse_step({"save": {"path": str(target)}}, 2, "denoise", None)
     except KeyError as exc:
         _fail(f"--method: {exc.args[0]}", 2)
     except PipelineValidationError as exc:
         _fail(str(exc), 2)
-    save = parse_step({"save": {"path": str(dst.resolve())}}, 2, "denoise", None)
-    task = Task(0, src.resolve(), {}, "", [step, save], {str(dst.resolve()): dst.resolve()})
+    task = Task(0, src.resolve(), {}, "", [step, save], {str(target): target})
 
     def echo(message) -> None:
         text = str(message)
@@ -290,8 +292,8 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
         err_console.print(f"{src.name}: first run of this installation: compiling the numerical kernels once "
                           "(about 15 s; later runs load them)")
 
-    # stages: (noise, features,) parameters, filter; a bar on a terminal after 2 s, else a line per stage over 2 s
-    total = 4 if method is None else 2 if auto else 1
+    # stages: (the default's choice,) parameters, filter; a bar on a terminal after 2 s, else a line per stage over 2 s
+    total = None if method is None else 2 if auto else 1  # the default's stages depend on the mesh
     listener = (RichProgress(src.name, err_console, total) if err_console.is_terminal
                 else LogProgress(src.name, lambda line: err_console.print(line)))
     try:
@@ -412,18 +414,60 @@ def _finite_json(value):
     return value
 
 
-def _write_text(path: str | None, text: str) -> None:
-    """Write ``text`` to stdout or atomically to ``path`` (its folder is made, as for every output); exit 2 when it cannot be."""
+def _same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether two spellings name one file: the same path once links and ``..`` are resolved, or the same inode
+    (a hard link, a bind mount)."""
+    a, b = Path(a), Path(b)
+    try:
+        if a.resolve() == b.resolve():
+            return True
+        return a.exists() and b.exists() and os.path.samefile(a, b)
+    except (OSError, RuntimeError):  # a link loop, an unreadable folder: not provably the same
+        return False
+
+
+def _refuse_overwriting_inputs(output: str | Path | None, inputs: list, what: str) -> None:
+    """Exit 2 (one line naming both) when the output would be one of the inputs, however spelt."""
+    if output is None:
+        return
+    for inp in inputs:
+        if _same_file(output, inp):
+            shown = str(output) if str(output) == str(inp) else f"{output} (the same file as {inp})"
+            _fail(f"{shown}: {what} is the input file; input files are never overwritten", 2)
+
+
+def _output_target(path: Path, what: str) -> Path:
+    """The file an output path writes (a symbolic link's target); exit 2 when that is not a file one can replace
+    (a device such as /dev/full, a pipe, a folder)."""
+    try:
+        target = path.resolve()
+    except (OSError, RuntimeError) as exc:  # a link loop
+        _fail(f"{path}: {what} cannot be resolved ({exc})", 2)
+    if target.exists() and not target.is_file():
+        kind = "a folder" if target.is_dir() else "a device, pipe or socket"
+        shown = str(path) if target == path.absolute() else f"{path} (a link to {target})"
+        _fail(f"{shown}: {what} is {kind}, not a file", 2)
+    return target
+
+
+def _write_text(path: str | None, text: str, notes: list[str] = ()) -> None:
+    """Write ``text`` to stdout or atomically to ``path`` (its folder is made, as for every output), then print the
+    ``notes`` about it; exit 2 when it cannot be written (then no note: the error is all there is to say)."""
     if path is None:
+        for note in notes:
+            _note(note)
         click.echo(text, nl=False)
         return
     from ..io import MeshFileError, atomic_path
 
+    _output_target(Path(path), "-o")
     try:
         with atomic_path(path) as tmp:
             Path(tmp).write_text(text, encoding="utf-8")
     except MeshFileError as exc:
         _fail(str(exc), 2)
+    for note in notes:
+        _note(note)
     err_console.print(f"written {path}", highlight=False, markup=False)
 
 
@@ -452,21 +496,20 @@ def mlx2yaml_command(script, output, input_glob):
     from ..pipeline.mlx import mlx_to_steps
     from ..pipeline.schema import PLACEHOLDER_INPUT
 
+    _refuse_overwriting_inputs(output, [script], "-o")
     notes: list[str] = []
     try:
         steps = mlx_to_steps(_read_text(script), script, warn=notes.append)
     except ValueError as exc:
         _fail(str(exc), 2)
-    for text in notes:
-        _note(text)
     if input_glob is None:
         inputs = (f"inputs: {PLACEHOLDER_INPUT}   # set your mesh file(s): a file, a glob or a list "
                   "(or give meshdenoise run --input FILE)\n")
-        _note(f"the pipeline's inputs are a placeholder ({PLACEHOLDER_INPUT}): set them, or run it with --input FILE")
+        notes.append(f"the pipeline's inputs are a placeholder ({PLACEHOLDER_INPUT}): set them, or run it with --input FILE")
     else:
         inputs = yaml.safe_dump({"inputs": input_glob}, sort_keys=False)
     body = yaml.safe_dump({"steps": steps + [{"save": {"path": "{stem}_out.ply"}}]}, sort_keys=False)
-    _write_text(output, f"# converted from {Path(script).name} by meshdenoise mlx2yaml\n" + inputs + body)
+    _write_text(output, f"# converted from {Path(script).name} by meshdenoise mlx2yaml\n" + inputs + body, notes)
 
 
 @click.command("yaml2mlx")
@@ -479,6 +522,7 @@ def yaml2mlx_command(pipeline, output, skip_other):
     from ..pipeline.mlx import steps_to_mlx
     from ..pipeline.yamlsource import line_of, load_yaml
 
+    _refuse_overwriting_inputs(output, [pipeline], "-o")
     try:
         doc = load_yaml(_read_text(pipeline), pipeline)
     except PipelineValidationError as exc:
@@ -493,9 +537,7 @@ def yaml2mlx_command(pipeline, output, skip_other):
         index = getattr(exc, "index", None)  # the step's position, for its line
         line = line_of(steps, index - 1) if index else None
         _fail(f"{pipeline}{':' + str(line) if line else ''}: {exc}", 2)
-    for note in notes:
-        _note(f"{pipeline}: {note}")
-    _write_text(output, text)
+    _write_text(output, text, [f"{pipeline}: {note}" for note in notes])
 
 
 @click.command("steps")

@@ -11,7 +11,7 @@ from __future__ import annotations
 import os
 from typing import Callable
 
-from .runner import run_task_safely
+from .runner import WARNINGS_KEY, run_task_safely
 from .schema import Task
 
 __all__ = ["run_tasks"]
@@ -42,7 +42,7 @@ def run_tasks(
     rows: list[dict | None] = [None] * len(tasks)
     if serial or (scheduler is None and len(tasks) <= 1):
         for k, task in enumerate(tasks):
-            rows[k] = run_task_safely(task)
+            rows[k] = _warn_again(run_task_safely(task))
             if on_done:
                 on_done(rows[k])
         return rows  # type: ignore[return-value]
@@ -54,6 +54,9 @@ def run_tasks(
         n = workers or max(1, min(os.cpu_count() or 1, len(tasks)))
         try:
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
+        except KeyboardInterrupt:
+            _abandon_starting_clusters()
+            raise
         except Exception as exc:  # e.g. a script without an ``if __name__ == "__main__"`` guard
             import warnings
 
@@ -71,7 +74,7 @@ def run_tasks(
             except Exception as exc:  # the worker died (a crash inside a native library)
                 task = tasks[k]
                 row = {"input": str(task.input), **task.setting, "status": "failed", "error": f"{task.input}: worker failed: {exc!r}"}
-            rows[k] = row
+            rows[k] = _warn_again(row)
             if on_done:
                 on_done(row)
     finally:
@@ -79,3 +82,23 @@ def run_tasks(
         if cluster is not None:
             cluster.close()
     return rows  # type: ignore[return-value]
+
+
+def _warn_again(row: dict) -> dict:
+    """``row`` without the warnings its task raised (on a worker, or here), which are warned again in this process:
+    the command line prints each as one ``warning:`` line, a Python caller gets them as warnings."""
+    import warnings
+
+    for category, message in row.pop(WARNINGS_KEY, ()):
+        warnings.warn(message, category if isinstance(category, type) and issubclass(category, Warning) else UserWarning,
+                      stacklevel=3)
+    return row
+
+
+def _abandon_starting_clusters() -> None:
+    """Ctrl-C while a local cluster starts: its worker processes end with this one (they are daemons), but
+    Dask's exit handler would try to close the half-started cluster and print the tracebacks of its failure."""
+    from distributed.deploy.spec import SpecCluster
+
+    for cluster in list(SpecCluster._instances):
+        cluster.shutdown_on_close = False

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import functools
 import keyword
+import math
 import re
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -106,6 +107,32 @@ def _float(p: ET.Element, key: str) -> float:
         raise ValueError(f"{key}={text!r} is not a number") from None
 
 
+# MeshLab writes its percentage parameters (class RichPercentage, pymeshlab's PercentageValue) as "RichAbsPerc"
+PERCENT_TYPES = ("RichAbsPerc", "RichPercentage")
+
+
+def _percentage(p: ET.Element) -> float | str:
+    """A percentage parameter as pymeshlab's ``PercentageValue``: ``"5%"`` of the parameter's range.
+
+    MeshLab saves the absolute value it had on the mesh it ran on, with the range ``min``..``max``
+    of that mesh (for most such parameters 0 to the bounding-box diagonal). Kept as a value in mesh
+    units, a 5 % piece size of a 136-unit scan would be 6.8 units on every mesh (a smaller scan
+    loses every face); so it is written back as the percentage of that range, which pymeshlab applies
+    to each mesh (``PercentageValue``). Without a range (an old script) the value stays absolute.
+
+    >>> _percentage(ET.fromstring('<Param name="TargetLen" type="RichAbsPerc" value="6.81822" min="0" max="136.364"/>'))
+    '5%'
+    """
+    value = _float(p, "value")
+    if p.get("min") is None or p.get("max") is None:
+        return value
+    low, high = _float(p, "min"), _float(p, "max")
+    if not (math.isfinite(low) and math.isfinite(high) and high > low):
+        return value
+    # MeshLab writes value and range with 6 significant digits: their ratio holds 5
+    return f"{100.0 * (value - low) / (high - low):.5g}%"
+
+
 class UnsupportedType(ValueError):
     """A parameter type pipelines cannot express (a camera ``RichShotf``, a mesh chooser...)."""
 
@@ -133,7 +160,9 @@ def _read_value(p: ET.Element, t: str | None) -> Any:
         if not v.is_integer():
             raise ValueError(f"value={p.get('value')!r} is not an integer")
         return int(v)
-    if t in ("RichFloat", "RichDynamicFloat", "RichAbsPerc"):
+    if t in PERCENT_TYPES:
+        return _percentage(p)
+    if t in ("RichFloat", "RichDynamicFloat"):
         return _float(p, "value")
     if t == "RichEnum":
         n = int(_float(p, "enum_cardinality")) if p.get("enum_cardinality") is not None else 0
@@ -156,7 +185,9 @@ def mlx_to_steps(text: str, source: str = "<mlx>", warn: Any = None) -> list[dic
     """Steps (``[{pymeshlab_name: {param: value}}, ...]``) of a MeshLab filter script.
 
     Every parameter is written out, as in the script (MeshLab saves all of them).
-    ``RichAbsPerc`` values are absolute (MeshLab stores them so). Points (``RichPosition``,
+    Percentages (``RichAbsPerc``, which MeshLab saves as the absolute value on the mesh it ran on,
+    with that mesh's range) become pymeshlab percentages (``"5%"``, :func:`_percentage`), so they
+    scale with each mesh as in MeshLab's dialog. Points (``RichPosition``,
     ``RichDirection``, older scripts' ``RichPoint3f``) become 3 numbers, matrices 16.
     A parameter of a type pipelines cannot express (a camera, ``RichShotf``) is left out,
     so pymeshlab's default is used, and ``warn`` (a callable, default :func:`warnings.warn`)
@@ -200,6 +231,10 @@ def mlx_to_steps(text: str, source: str = "<mlx>", warn: Any = None) -> list[dic
             except UnsupportedType as exc:
                 warn(f"{exc}; left out, so pymeshlab's default is used (set it in the YAML if needed)")
                 continue
+            if isinstance(value, str) and p.get("type") in PERCENT_TYPES:
+                warn(f"{where}: parameter {pname!r} = {value} of its range ({p.get('value')} on the mesh the script "
+                     f"was saved from): kept as a percentage, which scales with each mesh; write {p.get('value')} "
+                     "for that absolute length")
             params[pname if ours else _param_name(pname)] = value
         steps.append({py: params} if params or ours else py)
     return steps
@@ -225,7 +260,8 @@ def _write_param(parent: ET.Element, mesh_name: str, value: Any, info: dict) -> 
             attrs["min"], attrs["max"] = _fmt(min(0.0, value)), _fmt(max(1.0, value))
     elif t == "RichAbsPerc":
         if isinstance(value, str) and PERCENT.match(value):
-            raise ValueError("a filter script stores absolute values; write the value in mesh units")
+            raise ValueError("a filter script stores one mesh's absolute length (MeshLab and pymeshlab replay it as "
+                             "it is, on every mesh); write the value in mesh units")
         attrs["value"] = _fmt(value)
         attrs["min"], attrs["max"] = "0", _fmt(max(float(value), 1.0) * 100)
     elif t == "RichEnum":

@@ -13,8 +13,9 @@ RichFloat          a number (RichDynamicFloat too)
 RichBool           true / false
 RichString         a string
 RichEnum           one of the labels (``By Angle``) or its index
-RichAbsPerc        a number (absolute, in mesh units) or ``"2%"`` (of the
-                   bounding-box diagonal)
+RichAbsPerc        a number (absolute, in mesh units) or ``"2%"`` (pymeshlab's
+                   ``PercentageValue``: of the parameter's range on each
+                   mesh, for most filters 0 to the bounding-box diagonal)
 RichPosition,      a list of 3 numbers
 RichDirection
 RichColor          a list of 3 or 4 integers 0..255
@@ -103,7 +104,7 @@ def _check_other(value: Any, info: dict) -> str | None:
     if t == "RichAbsPerc":
         if (_is_number(value) and np.isfinite(value)) or (isinstance(value, str) and PERCENT.match(value)):
             return None
-        return "must be a number (absolute, in mesh units) or a percentage of the bounding-box diagonal like '2%'"
+        return "must be a number (absolute, in mesh units) or a percentage of its range on each mesh like '2%'"
     if t in ("RichPosition", "RichDirection"):
         ok = isinstance(value, (list, tuple)) and len(value) == 3 and all(_is_number(v) and np.isfinite(v) for v in value)
         return None if ok else "must be a list of 3 numbers"

@@ -21,7 +21,7 @@ from .schema import Task
 from .state import MeshState
 from .steps import RunContext, run_step
 
-__all__ = ["run_task", "run_task_safely"]
+__all__ = ["run_task", "run_task_safely", "WARNINGS_KEY"]
 
 
 def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
@@ -85,17 +85,32 @@ def _check_finite(step, ctx) -> None:
         )
 
 
+#: Key of a row from :func:`run_task_safely` holding the task's warnings, ``[(category, message), ...]``; taken out
+#: of the row and warned again in the calling process by :func:`~meshdenoise.pipeline.batch.run_tasks`.
+WARNINGS_KEY = "_warnings"
+
+
 def run_task_safely(task: Task) -> dict:
     """:func:`run_task`, with a failure turned into a row (``status: failed``, ``error``); for batches.
 
     numpy's overflow warnings are not printed (also on Dask workers): a non-finite result is
-    refused by the task's own check, whose message names the step and its parameters.
+    refused by the task's own check, whose message names the step and its parameters. The task's
+    other warnings are not printed here (a Dask worker's would reach the terminal in Python's format
+    with a source line) but kept in the row under :data:`WARNINGS_KEY`.
     """
     import warnings
 
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("ignore", RuntimeWarning)
+        row = _run_task_row(task)
+    if caught:
+        row[WARNINGS_KEY] = [(w.category, str(w.message)) for w in caught]
+    return row
+
+
+def _run_task_row(task: Task) -> dict:
     try:
-        with warnings.catch_warnings(), np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
-            warnings.simplefilter("ignore", RuntimeWarning)
+        with np.errstate(over="ignore", invalid="ignore", divide="ignore", under="ignore"):
             return run_task(task)
     except StepFailure as exc:
         kind = exc.failure if isinstance(exc, InputError) else "step"

@@ -26,7 +26,7 @@ from typing import Any
 from .errors import PipelineValidationError, where
 from .steps import Step, parse_step
 from .sweep import check_sweep_size
-from .variables import check_template, substitute
+from .variables import check_template, substitute, used_variables
 from .yamlsource import LineDict, LineList, line_of, load_yaml, read_text
 
 __all__ = ["Plan", "Task", "load_pipeline", "build_plan", "TOP_LEVEL_KEYS", "PipelineProblems", "PLACEHOLDER_INPUT", "fill_template", "distinguishing_names"]
@@ -79,7 +79,7 @@ def _placeholders() -> dict[str, str]:
     try:
         from ..data import sample_mesh
 
-        samples = str(sample_mesh("bunny.obj").parent)
+        samples = str(Path(sample_mesh("bunny.obj")).parent)
     except FileNotFoundError:
         samples = "{samples}"
     return {"samples": samples, "data": str(data_dir())}
@@ -182,6 +182,14 @@ def build_plan(
     if not isinstance(sweep, dict):
         problem(f"{where(source, line_of(doc, 'sweep'))}: sweep must be a mapping name: [values]")
         sweep = {}
+    # --set of a name the pipeline neither declares (variables:, sweep:) nor uses (${name}) would change nothing
+    defined = {str(k) for k in (*variables, *sweep)} | used_variables(doc)
+    for name in overrides:
+        if name not in defined:
+            hint = difflib.get_close_matches(str(name), sorted(defined), n=1)
+            extra = f" (did you mean '{hint[0]}'?)" if hint else ""
+            problem(f"{source}: --set {name}: the pipeline has no variable '{name}'{extra}; its variables: "
+                    f"{', '.join(sorted(defined)) or 'none'} (declare it under 'variables:' or use it as ${{{name}}})")
     sweep = {k: (v if isinstance(v, list) else [v]) for k, v in sweep.items() if k not in overrides}
     for k, v in list(sweep.items()):
         if not v:

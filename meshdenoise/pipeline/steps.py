@@ -603,8 +603,12 @@ def _vertex_option(value: Any, state: MeshState, key: str) -> Any:
     if isinstance(value, list):
         return np.asarray(value, dtype=np.int64)
     if value == "selection":
-        if state.vertex_selection is None:
-            return np.zeros(state.n_vertices, dtype=bool)
+        if state.vertex_selection is None:  # pinning nothing, or moving nothing, is never what was meant
+            from ..arrays import MeshValidationError
+
+            raise MeshValidationError(
+                f"{key}: selection: the mesh has no selected vertex (the file stores no selection, or selects none, "
+                "and no earlier step selected any; save it from MeshLab as PLY with the vertex 'Flags' option)")
         return np.asarray(state.vertex_selection, dtype=bool)
     return value
 

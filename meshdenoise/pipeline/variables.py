@@ -15,7 +15,7 @@ import yaml
 from .errors import PipelineValidationError
 from .yamlsource import LineDict, LineList, NumberLoader
 
-__all__ = ["substitute", "parse_assignment", "check_template", "VARIABLE", "MAX_FIELD_WIDTH"]
+__all__ = ["substitute", "parse_assignment", "check_template", "used_variables", "VARIABLE", "MAX_FIELD_WIDTH"]
 
 #: Largest width or precision allowed in a ``{name:>8}`` placeholder of an output path.
 MAX_FIELD_WIDTH = 255
@@ -105,6 +105,26 @@ def substitute(value: Any, variables: dict, where: str) -> Any:
         out.item_lines = getattr(value, "item_lines", [])
         return out
     return value
+
+
+def used_variables(value: Any) -> set[str]:
+    """The names of every ``${name}`` in ``value`` (nested dicts and lists, keys too).
+
+    >>> sorted(used_variables({"steps": [{"sobolev": {"mu": "${mu}"}}, {"${method}": {}}], "x": "a${b}c"}))
+    ['b', 'method', 'mu']
+    """
+    found: set[str] = set()
+    stack = [value]
+    while stack:
+        item = stack.pop()
+        if isinstance(item, str):
+            found.update(VARIABLE.findall(item))
+        elif isinstance(item, dict):
+            stack.extend(item.keys())
+            stack.extend(item.values())
+        elif isinstance(item, list):
+            stack.extend(item)
+    return found
 
 
 def _lookup(name: str, variables: dict, where: str) -> Any:

@@ -41,14 +41,51 @@ class LineList(list):
 
 
 class NumberLoader(yaml.SafeLoader):
-    """PyYAML's safe loader that also reads ``1e-3`` and ``2E5`` as floats (YAML 1.2; YAML 1.1 wants a dot)."""
+    """PyYAML's safe loader whose numbers are decimal numbers as Python writes them, read by
+    :func:`meshdenoise.registry.parse_number` (the one number reader of the command line and pipelines).
+
+    ``1e-3`` and ``2E5`` are floats (YAML 1.2; YAML 1.1 wants a dot), ``010`` is 10 and ``1_000`` is 1000
+    (Python's ``int()``). YAML 1.1's other number forms are not numbers here but text, which a numeric
+    parameter then refuses: octal ``010`` (8), ``0x10`` (16), ``0b11`` (3) and base 60 ``1:30`` (90).
+    ``.inf`` and ``.nan`` stay floats (a parameter refuses them: it must be finite).
+    """
 
 
-NumberLoader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*(?:\.[0-9_]*)?|\.[0-9_]+)[eE][-+]?[0-9]+$"),
-    list("-+0123456789."),
+_INT_TAG, _FLOAT_TAG = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
+_DIGITS = r"[0-9](?:_?[0-9])*"  # Python's digitpart: underscores only between digits
+#: Scalars read as numbers: what Python's ``int()`` and ``float()`` read, in decimal (and YAML's ``.inf``, ``.nan``).
+DECIMAL_INT = re.compile(rf"^[-+]?{_DIGITS}$")
+DECIMAL_FLOAT = re.compile(
+    rf"^(?:[-+]?(?:(?:(?:{_DIGITS})?\.{_DIGITS}|{_DIGITS}\.)(?:[eE][-+]?{_DIGITS})?|{_DIGITS}[eE][-+]?{_DIGITS})"
+    r"|[-+]?\.(?:inf|Inf|INF)|\.(?:nan|NaN|NAN))$"
 )
+NumberLoader.yaml_implicit_resolvers = {  # YAML 1.1's int and float rules out, ours in
+    first: [(tag, regexp) for tag, regexp in rules if tag not in (_INT_TAG, _FLOAT_TAG)]
+    for first, rules in yaml.SafeLoader.yaml_implicit_resolvers.items()
+}
+NumberLoader.add_implicit_resolver(_INT_TAG, DECIMAL_INT, list("-+0123456789"))
+NumberLoader.add_implicit_resolver(_FLOAT_TAG, DECIMAL_FLOAT, list("-+0123456789."))
+
+
+def _construct_number(kind: type):
+    def construct(loader: yaml.SafeLoader, node: yaml.ScalarNode) -> int | float:
+        from ..registry import parse_number
+
+        text = loader.construct_scalar(node)
+        special = text.strip().lower().lstrip("+")
+        if kind is float and special in (".inf", "-.inf", ".nan"):
+            return float(special.replace(".", ""))
+        try:
+            return parse_number(text, kind)
+        except (TypeError, ValueError, OverflowError) as exc:  # an explicit !!int 0x10
+            raise yaml.constructor.ConstructorError(None, None, f"{text!r} is not a decimal number ({exc})",
+                                                    node.start_mark) from None
+
+    return construct
+
+
+NumberLoader.add_constructor(_INT_TAG, _construct_number(int))
+NumberLoader.add_constructor(_FLOAT_TAG, _construct_number(float))
 
 
 class _Loader(NumberLoader):

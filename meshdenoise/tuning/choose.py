@@ -107,7 +107,11 @@ def _warn_if_worse_than_input(method: str, chosen: dict, found: NormalChoice, su
         f"choose_parameters({method}): the normals criterion's choice {chosen} is estimated to leave the vertex "
         f"positions {-gain:.1f} dB worse than the input's (the filter shrinks the mesh as it smooths the normals); "
         f"criterion='sure' ({sure_choice}) is estimated {sure_gain:+.1f} dB, or use a filter that shrinks less "
-        "(sobolev_bilaplacian, taubin)", UserWarning, stacklevel=3)
+        f"({', '.join(f for f in LESS_SHRINKING if f != method)})", UserWarning, stacklevel=3)
+
+
+#: Filters the warning above suggests instead (never the one being run).
+LESS_SHRINKING = ("sobolev_bilaplacian", "taubin")
 
 
 def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, NormalChoice | None]:
