@@ -49,7 +49,7 @@ import corpus_shapes  # noqa: E402
 
 # The corpus's version: change it whenever a case's arrays change (a shape, a size, a noise), so that the
 # peers' oracle (benchmarks/results/corpus-peers.json) is recomputed for the new meshes.
-CORPUS_VERSION = "1"
+CORPUS_VERSION = "2"
 
 LEVELS = (0.1, 0.2, 0.3, 0.4, 0.5, 0.7)  # noise levels cycled over the cases, in mean edge lengths
 KINDS = ("normal", "random", "impulsive")  # the synthetic noises cycled over the meshes; scans are the fourth
@@ -185,6 +185,33 @@ def describe(case: Case) -> str:
     return f"{what}, {case.level:g} mean edge lengths"
 
 
+def split_nonmanifold_vertices(V0: np.ndarray, F: np.ndarray, Vn: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A vertex where two fans of faces meet (a bowtie: a range grid's corner, a remeshed pinch) becomes one per fan.
+
+    pymeshlab's ``meshing_repair_non_manifold_vertices`` splits them, appending the copies; each copy takes its
+    original's noisy position. MeshLib and PyGEL split such vertices on loading, so without this they could not
+    be compared vertex to vertex (``benchmarks/peers.py``: "topology changed").
+    """
+    import pymeshlab
+
+    ms = pymeshlab.MeshSet()
+    ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.ascontiguousarray(V0), face_matrix=np.ascontiguousarray(F, dtype=np.int32)))
+    ms.meshing_repair_non_manifold_vertices()
+    m = ms.current_mesh()
+    V1, F1 = np.asarray(m.vertex_matrix(), dtype=np.float64), np.asarray(m.face_matrix(), dtype=np.int64)
+    n = len(V0)
+    if len(V1) == n:
+        return V0, F, Vn
+    if len(F1) != len(F) or not np.array_equal(V1[:n], V0):
+        raise RuntimeError("pymeshlab's non-manifold vertex split changed more than it appends")
+    from scipy.spatial import cKDTree
+
+    dist, origin = cKDTree(V0).query(V1[n:])
+    if dist.max() > 0:
+        raise RuntimeError("a split vertex is not at its original's position")
+    return V1, F1, np.concatenate([Vn, Vn[origin]])
+
+
 def build_case(case: Case, vertices: int | None = None) -> dict:
     """The case's arrays: ``{"V0", "F", "Vn", "noise"}`` (clean, faces, noisy, in words).
 
@@ -197,6 +224,7 @@ def build_case(case: Case, vertices: int | None = None) -> dict:
         V, F, Vn = _scan(case, V, F, rng, size)
     else:
         Vn = _noisy(case, V, F, rng)
+    V, F, Vn = split_nonmanifold_vertices(V, F, Vn)
     return {"V0": V, "F": F, "Vn": Vn, "noise": describe(case)}
 
 

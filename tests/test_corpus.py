@@ -116,6 +116,18 @@ def test_a_three_case_smoke_run_of_the_oracle_and_the_report(small_cases, tmp_pa
     assert json.loads(out.read_text())["cases"].keys() == cases.keys()
 
 
+def test_bowtie_vertices_are_split_with_their_noise():
+    V0 = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0]])
+    F = np.array([[0, 1, 2], [0, 3, 4]])  # two triangles meeting at vertex 0 only
+    Vn = V0 + 0.01 * np.arange(15.0).reshape(5, 3)
+    V1, F1, Vn1 = corpus.split_nonmanifold_vertices(V0, F, Vn)
+    assert len(V1) == 6 and np.array_equal(V1[:5], V0) and np.array_equal(V1[5], V0[0])
+    assert np.array_equal(Vn1[:5], Vn) and np.array_equal(Vn1[5], Vn[0])
+    assert sorted(np.bincount(F1.ravel(), minlength=6).tolist()) == [1, 1, 1, 1, 1, 1]  # one face at each copy
+    same = corpus.split_nonmanifold_vertices(V0, F[:1], Vn)  # nothing to split: the same arrays back
+    assert same[0] is V0 and same[2] is Vn
+
+
 def test_best_peer_skips_failed_peers():
     per = {"peers": {"a": {"status": "failed"},
                      "b": {"best_normal": {"normal_error_deg": 3.0}, "best_snr": {"snr_db": 40.0}},
