@@ -66,6 +66,8 @@ def run_tasks(
     else:
         client = Client(scheduler, timeout="20s")
     try:
+        # before any task: pymeshlab must be loaded on each worker's main thread, not on a task thread (_load_pymeshlab_here)
+        client.register_plugin(_pymeshlab_on_main_thread())
         futures = {client.submit(run_task_safely, task, pure=False, key=f"meshdenoise-task-{task.index}-{os.getpid()}-{id(task)}"): k for k, task in enumerate(tasks)}
         for future in as_completed(futures):
             k = futures[future]
@@ -82,6 +84,44 @@ def run_tasks(
         if cluster is not None:
             cluster.close()
     return rows  # type: ignore[return-value]
+
+
+def _load_pymeshlab_here() -> None:
+    """Import pymeshlab in the calling thread, which must outlive every use of pymeshlab in the process (the main thread).
+
+    Importing pymeshlab loads MeshLab's filter plugins into a process-wide ``PluginManager``, Qt objects that
+    belong to the importing thread: Qt adopts it (a ``QThreadData``, held by those objects). A Dask worker runs
+    its tasks on threads of a pool, so the first task touching pymeshlab imported it there; when that pool
+    thread ended (the worker closing), Qt let go of its thread data, and at process exit the
+    ``PluginManager``'s destructor, unloading the plugins, freed that ``QThreadData`` with the last plugin and
+    then decremented its reference count once more for each plugin loader: a write into freed memory. glibc
+    found the damaged free list in a later ``free`` (gnutls' destructor) and aborted the worker:
+    ``malloc_consolidate(): unaligned fastbin chunk detected`` after the results (valgrind: invalid access in
+    ``QThreadData::deref`` to a block freed by ``~QObjectPrivate``, allocated by ``PluginManager::loadPlugins``).
+    Whether glibc notices depends on what else was allocated (it did after our filters had loaded scipy's
+    BLAS), the corruption does not; nor does it need our filters, numba's or BLAS's threads, or two tasks at
+    once (one task thread per worker). Imported first on the main thread, which lives until exit, the plugins
+    belong to it; a task thread then only uses them.
+    """
+    try:
+        import pymeshlab  # noqa: F401
+    except Exception:  # a worker where pymeshlab cannot load: its pymeshlab steps fail as tasks, with their message
+        pass
+
+
+def _pymeshlab_on_main_thread():
+    """A Dask worker plugin calling :func:`_load_pymeshlab_here` on each worker, present or started later (its
+    ``setup`` runs on the worker's event loop, in the main thread of the worker process, before it takes tasks)."""
+    from distributed import WorkerPlugin
+
+    class PymeshlabOnMainThread(WorkerPlugin):
+        name = "meshdenoise-pymeshlab-on-main-thread"
+        idempotent = True  # registered once per scheduler, whatever the number of runs
+
+        def setup(self, worker) -> None:
+            _load_pymeshlab_here()
+
+    return PymeshlabOnMainThread()
 
 
 def _warn_again(row: dict) -> dict:
