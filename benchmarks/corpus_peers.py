@@ -2,7 +2,7 @@
 
 Usage::
 
-    python benchmarks/corpus_peers.py [--cases NAME ...] [--peers NAME ...] [--jobs 2] [--resume]
+    python benchmarks/corpus_peers.py [--cases NAME ...] [--peers NAME ...] [--jobs 2] [--resume [--retry]]
                                       [--out benchmarks/results/corpus-peers.json]
 
 For every case of ``benchmarks/corpus.py`` and every peer of ``benchmarks/peers.py`` (MeshLib,
@@ -12,10 +12,10 @@ metrics are stored beside. The result is one JSON, committed, with the corpus ve
 measured on: ``{"corpus_version", "meta", "cases": {name: {"split", "family", "kind", "level",
 "input": {...}, "peers": {peer: {"best_normal", "best_snr"} or {"status"}}}}}``.
 
-It takes about an hour on 2 cores. ``--resume`` keeps what the JSON at ``--out`` already holds for
-the same corpus version and mesh (a cell records its mesh's fingerprint), and what ``out/corpus-peers/cells``
-holds, and measures the rest; the JSON is rewritten after every cell, so an interrupted run loses
-at most the cells in flight.
+It takes about an hour on 2 cores. ``--resume`` keeps what the JSON at ``--out`` already holds (a cell
+records its mesh's fingerprint: a cell of another mesh is measured again), and what
+``out/corpus-peers/cells`` holds, and measures the rest (``--retry``: and the cells that failed); the
+JSON is rewritten after every cell, so an interrupted run loses at most the cells in flight.
 """
 
 from __future__ import annotations
@@ -93,6 +93,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--jobs", type=int, default=2)
     ap.add_argument("--peer-timeout", type=float, default=900.0, help="seconds per peer cell (default 900)")
     ap.add_argument("--resume", action="store_true", help="keep the cells already measured (the JSON, out/)")
+    ap.add_argument("--retry", action="store_true", help="with --resume: measure again the cells that failed")
     ap.add_argument("--out", type=Path, default=DEFAULT_OUT)
     ap.add_argument("--cells", type=Path, default=CELLS, help=argparse.SUPPRESS)
     a = ap.parse_args(argv)
@@ -115,6 +116,11 @@ def main(argv: list[str] | None = None) -> int:
     for n in names:
         cells.append(peers.Cell(peers.CORPUS_PREFIX + n, "input", "input"))
         cells += [peers.Cell(peers.CORPUS_PREFIX + n, "peer", p) for p in chosen]
+    if a.retry:
+        for c in cells:
+            f = _cell_file(a.cells, c.mesh[len(peers.CORPUS_PREFIX):], c.kind, c.name)
+            if f.is_file() and "status" in json.loads(f.read_text()):
+                f.unlink()
     t0 = time.time()
     meta = {"date": time.strftime("%Y-%m-%d", time.gmtime()), "commit": peers._commit(),
             "command": "python benchmarks/corpus_peers.py " + shlex.join(argv if argv is not None else sys.argv[1:]),

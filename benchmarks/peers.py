@@ -274,8 +274,32 @@ def vertex_map(V: np.ndarray, F: np.ndarray, V_lib: np.ndarray, F_lib: np.ndarra
         if dist.max() > tol:
             raise TopologyChanged(f"a vertex moved by {dist.max():.3g} on loading (tolerance {tol:.3g})")
         if np.unique(idx).size != n:
-            raise TopologyChanged(f"the vertex mapping is not a bijection ({n - np.unique(idx).size} collisions)")
+            idx = _resolve_coincident(V, F, V_lib, np.asarray(F_lib, dtype=np.int64), idx, tol)
     check_faces(F, F_lib, idx)
+    return idx
+
+
+def _resolve_coincident(V: np.ndarray, F: np.ndarray, V_lib: np.ndarray, F_lib: np.ndarray, idx: np.ndarray,
+                        tol: float) -> np.ndarray:
+    """Tell apart vertices at one position (a non-manifold vertex split into one per fan) by their faces.
+
+    Each of our vertices that shares its nearest library vertex with another is matched to the library vertex
+    at its position whose faces' other corners (mapped through ``idx``) are its own; :class:`TopologyChanged`
+    when not exactly one does. A loop over those few vertices only.
+    """
+    from scipy.spatial import cKDTree
+
+    idx = idx.copy()
+    tree = cKDTree(V_lib)
+    for i in np.flatnonzero(np.bincount(idx, minlength=len(V_lib))[idx] > 1):
+        ours = {frozenset(int(idx[v]) for v in row if v != i) for row in F[(F == i).any(1)]}
+        match = [j for j in tree.query_ball_point(V[i], tol)
+                 if {frozenset(int(v) for v in row if v != j) for row in F_lib[(F_lib == j).any(1)]} == ours]
+        if len(match) != 1:
+            raise TopologyChanged(f"the vertex mapping is not a bijection (vertex {i} has {len(match)} matches)")
+        idx[i] = match[0]
+    if np.unique(idx).size != len(idx):
+        raise TopologyChanged(f"the vertex mapping is not a bijection ({len(idx) - np.unique(idx).size} collisions)")
     return idx
 
 

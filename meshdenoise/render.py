@@ -13,6 +13,12 @@ Two rasterisers draw the same camera:
     with Open3D 0.20 on Mesa 22 llvmpipe a frame now and then stalls (it is drawn again once
     by a fresh child). Without a Vulkan loader or driver no child starts, and a failure is
     remembered for the rest of the process, so the fallback comes at once.
+``auto`` (the default)
+    Open3D when this machine has a GPU, else matplotlib at once: on Linux without a GPU
+    device node (``/dev/dri/renderD*``, ``/dev/nvidia*``, ``/dev/dxg``) Open3D could only
+    draw on the CPU Vulkan driver, whose stalls made a three-panel render wait 17-24 s
+    before falling back. The check looks at a few device files (well under a millisecond).
+    ``backend='open3d'`` (or ``MESHDENOISE_RENDER_BACKEND=open3d``) still tries Open3D there.
 ``matplotlib``
     A pure-software fallback: the same pinhole camera and a z-buffer in numpy (pixel centres
     sampled, perspective-correct depth and colours), composed and coloured with matplotlib.
@@ -46,10 +52,13 @@ __all__ = [
     "RenderResult",
     "frame_camera",
     "camera_around",
+    "camera_along",
+    "mean_normal",
     "vertex_error",
     "error_colors",
     "render_mesh",
     "render_comparison",
+    "panel_grid",
     "RenderError",
 ]
 
@@ -133,10 +142,15 @@ def frame_camera(
     >>> cam.project(np.array([[0.0, 0, 0]]), (100, 100))[0, :2].tolist()
     [50.0, 50.0]
     """
+    center, radius = _bounding_ball(vertex_sets)
+    return camera_around(center, radius, size, view, fov, margin)
+
+
+def _bounding_ball(vertex_sets: Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
+    """The centre of the union's bounding box and the largest distance of a vertex from it."""
     pts = np.vstack([np.asarray(v, dtype=np.float64).reshape(-1, 3) for v in vertex_sets])
     center = (pts.min(axis=0) + pts.max(axis=0)) / 2.0
-    radius = float(np.linalg.norm(pts - center, axis=1).max()) or 1.0
-    return camera_around(center, radius, size, view, fov, margin)
+    return center, float(np.linalg.norm(pts - center, axis=1).max()) or 1.0
 
 
 def camera_around(
@@ -158,24 +172,52 @@ def camera_around(
     >>> round(cam.eye[2], 3)
     4.173
     """
+    if len(view) != 2:
+        raise ValueError(f"view must be (azimuth, elevation) in degrees, got {view!r}")
+    az, el = np.radians(view[0]), np.radians(view[1])
+    direction = (np.sin(az) * np.cos(el), np.sin(el), np.cos(az) * np.cos(el))
+    return camera_along(center, radius, direction, size, fov, margin)
+
+
+def camera_along(
+    center: Sequence[float],
+    radius: float,
+    direction: Sequence[float],
+    size: tuple[int, int] = (400, 400),
+    fov: float = 30.0,
+    margin: float = 1.08,
+) -> Camera:
+    """A camera at ``center + t * direction`` looking back at ``center``, the ball of ``radius`` filling the picture.
+
+    ``direction`` points from the centre towards the eye (a surface whose normal it is faces
+    the camera). Screen up is world +y (made perpendicular to the view); looking straight
+    along the y axis, -z (from above) or +z (from below).
+
+    Examples
+    --------
+    >>> cam = camera_along((0.0, 0.0, 0.0), 1.0, (2.0, 0.0, 0.0), size=(100, 100))
+    >>> [round(c, 3) for c in cam.eye], cam.up
+    ([4.173, 0.0, 0.0], (0.0, 1.0, 0.0))
+    """
     w, h = _check_size(size)
     if not 0 < fov < 170:
         raise ValueError(f"fov must be in (0, 170) degrees, got {fov!r}")
     if margin < 1:
         raise ValueError(f"margin must be >= 1, got {margin!r}")
-    if len(view) != 2:
-        raise ValueError(f"view must be (azimuth, elevation) in degrees, got {view!r}")
     center = np.asarray(center, dtype=np.float64)
     radius = float(radius)
     if center.shape != (3,) or not np.isfinite(center).all() or not (np.isfinite(radius) and radius > 0):
-        raise ValueError(f"camera_around needs a finite centre (3,) and a radius > 0, got {center!r}, {radius!r}")
+        raise ValueError(f"the camera needs a finite centre (3,) and a radius > 0, got {center!r}, {radius!r}")
+    direction = np.asarray(direction, dtype=np.float64)
+    length = float(np.linalg.norm(direction)) if direction.shape == (3,) else 0.0
+    if not (np.isfinite(length) and length > 0):
+        raise ValueError(f"direction must be a finite non-zero vector (3,), got {direction!r}")
+    direction = direction / length
     half_v = np.radians(fov) / 2.0
     half_h = np.arctan(np.tan(half_v) * w / h)
     dist = radius / np.sin(min(half_v, half_h)) * margin
-    az, el = np.radians(view[0]), np.radians(view[1])
-    direction = np.array([np.sin(az) * np.cos(el), np.sin(el), np.cos(az) * np.cos(el)])
-    # looking straight up or down: +y is the viewing axis, so "up" on the screen is -z or +z
-    up = (0.0, 1.0, 0.0) if abs(np.cos(el)) > 1e-6 else (0.0, 0.0, -float(np.sign(np.sin(el))))
+    # world +y (Camera.axes makes it perpendicular); looking straight up or down, -z or +z
+    up = (0.0, 1.0, 0.0) if np.hypot(direction[0], direction[2]) > 1e-6 else (0.0, 0.0, -float(np.sign(direction[1])))
     eye = center + dist * direction
     return Camera(
         tuple(float(c) for c in center), tuple(float(c) for c in eye), up, float(fov),
@@ -411,6 +453,28 @@ def _vulkan_missing() -> str | None:
     return None
 
 
+DEVICES = "/dev"  # where GPU device nodes are looked for
+GPU_NODES = ("dri/renderD*", "dri/card*", "nvidia[0-9]*", "dxg")  # Mesa/DRM GPUs, NVIDIA's driver, WSL2's GPU
+
+
+def _no_gpu() -> str | None:
+    """Why Open3D would draw on the CPU here (no GPU device node on Linux), or None; a few ``stat`` calls, no process.
+
+    Open3D 0.20's OffscreenRenderer needs a Vulkan 1.3 device. Without a GPU device node
+    (``/dev/dri/renderD*``, ``/dev/nvidia0``, WSL2's ``/dev/dxg``) the only one can be Mesa's
+    CPU driver (lavapipe/llvmpipe), and there Filament frames stall at random for seconds to
+    minutes, so ``backend='auto'`` draws with matplotlib at once. Not checked on other systems.
+    """
+    import glob
+
+    if sys.platform != "linux":
+        return None
+    if any(glob.glob(os.path.join(DEVICES, pattern)) for pattern in GPU_NODES):
+        return None
+    return (f"no GPU device ({DEVICES}/dri/renderD*, {DEVICES}/nvidia*): Open3D's renderer would run on the CPU "
+            "Vulkan driver, slower than matplotlib and prone to stalls; backend 'open3d' forces it")
+
+
 class _Stall(Exception):
     """The child stopped reporting: the message says what it was waiting for."""
 
@@ -583,7 +647,8 @@ def _resolve_backend(backend: str) -> str:
 def _prestart(backend: str, size: tuple[int, int]) -> _Child | None:
     """The Open3D child, started now when it will be used, so that it starts while the panels are prepared."""
     backend = _resolve_backend(backend)
-    if backend == "matplotlib" or (backend == "auto" and _OPEN3D_VERDICT is not None) or _vulkan_missing():
+    if backend == "matplotlib" or (backend == "auto" and (_OPEN3D_VERDICT is not None or _no_gpu())) \
+            or _vulkan_missing():
         return None
     return _Child(size)
 
@@ -594,9 +659,12 @@ def _draw(jobs: list[dict], size, camera: Camera, backend: str,
     global _OPEN3D_VERDICT
     backend = _resolve_backend(backend)
     reason = "requested"
+    cpu_only = _no_gpu() if backend == "auto" and _OPEN3D_VERDICT is None else None
     if backend == "auto" and _OPEN3D_VERDICT is not None:  # failed before in this process: do not wait again
         reason = f"Open3D failed earlier in this process: {_OPEN3D_VERDICT}"
         warnings.warn(f"{reason}; drawing with the matplotlib software rasteriser instead", UserWarning, stacklevel=3)
+    elif cpu_only:  # headless without a GPU: the expected case, said in backend_detail, not a warning
+        reason = cpu_only
     elif backend in ("auto", "open3d"):
         try:
             images, detail = _draw_open3d(jobs, size, camera, _render_timeout(), child)
@@ -789,6 +857,9 @@ class RenderResult:
     percentile : float or None
         The percentile of the shown values the colour bar tops at (None when ``vmax`` was given).
     zoom : (centre (3,), radius in mesh units) or None
+    facing : (3,) or None
+        The mean normal the camera looks along (``view='facing'``, or ``zoom`` without a
+        view); None when a view was used (given, or the normals cancel out).
     """
 
     path: Path
@@ -804,6 +875,7 @@ class RenderResult:
     heat: str | None = None
     percentile: float | None = None
     zoom: tuple[tuple[float, float, float], float] | None = None
+    facing: tuple[float, float, float] | None = None
 
 
 def _zoom_ball(zoom, V: np.ndarray, F: np.ndarray) -> tuple[np.ndarray, float]:
@@ -846,6 +918,38 @@ def _crop(V: np.ndarray, F: np.ndarray, centre: np.ndarray, radius: float) -> tu
     return V[keep], index[faces], keep
 
 
+NET_NORMAL_SHARE = 0.05  # below this share of the area facing one way net, a detail faces no side
+
+
+def mean_normal(V: np.ndarray, F: np.ndarray) -> tuple[float, float, float] | None:
+    """The area-weighted mean normal of the faces, as a unit vector; None when the normals cancel out.
+
+    :math:`n = \\sum_f A_f n_f / \\|\\sum_f A_f n_f\\|` (the faces' orientation decides the
+    side). None when :math:`\\|\\sum_f A_f n_f\\| < 0.05 \\sum_f A_f`: no side is seen
+    more than another (a closed part, a thin sheet seen from both sides), or there is no area.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> V = np.array([[0.0, 0, 0], [0, 1, 0], [0, 0, 1], [0, 1, 1]]); F = np.array([[0, 1, 2], [1, 3, 2]])
+    >>> mean_normal(V, F)
+    (1.0, 0.0, 0.0)
+    >>> mean_normal(V, np.vstack([F, F[:, ::-1]])) is None
+    True
+    """
+    V = np.asarray(V, dtype=np.float64)
+    F = np.asarray(F)
+    if F.shape[0] == 0:
+        return None
+    cross = np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]])  # 2 A_f n_f
+    net = cross.sum(axis=0)
+    length = float(np.linalg.norm(net))
+    total = float(np.linalg.norm(cross, axis=1).sum())
+    if not (np.isfinite(length) and total > 0) or length < NET_NORMAL_SHARE * total:
+        return None
+    return tuple(float(c) + 0.0 for c in net / length)
+
+
 def _bar_top(values: Sequence[np.ndarray], percentile: float) -> float:
     """The ``percentile`` of all shown values; the maximum when that is 0; a tiny scale when all are 0."""
     every = np.concatenate([np.ravel(v) for v in values]) if values else np.zeros(0)
@@ -864,7 +968,7 @@ def render_comparison(
     titles: Sequence[str] | None = None,
     *,
     size: tuple[int, int] = (400, 400),
-    view: tuple[float, float] = (0.0, 0.0),
+    view: tuple[float, float] | str | None = None,
     error_of: str = "last",
     error_mode: str = "auto",
     vmax: float | None = None,
@@ -896,8 +1000,12 @@ def render_comparison(
         One per mesh (default: file names, else "mesh 1", "mesh 2", ...).
     size : (width, height)
         Pixels of one panel.
-    view : (azimuth, elevation)
-        Degrees; see :func:`frame_camera`.
+    view : (azimuth, elevation) or 'facing', optional
+        Degrees; see :func:`frame_camera`. ``'facing'``: look along the area-weighted mean
+        normal (:func:`mean_normal`) of the first mesh (of its faces in view with ``zoom``),
+        so an open surface such as a range scan faces the camera; when its normals cancel out
+        (a closed mesh) the view is ``(0, 0)``. Default: ``'facing'`` with ``zoom``, else
+        ``(0, 0)`` (from +z, +y up, MeshLab's default). A view given is always used.
     error_of : {'last', 'all'}
         Heat maps of the last mesh only, or of every mesh (every later mesh with
         ``show_change``); one shared colour bar.
@@ -920,7 +1028,11 @@ def render_comparison(
         Look at a detail: ``centre`` a vertex index of the first mesh or a point (x, y, z),
         ``radius`` in mean edge lengths of the first mesh. Only the faces with a vertex in
         that ball are drawn, filling the picture; heat-map statistics and the colour bar are
-        those of the vertices in view.
+        those of the vertices in view. Without ``view`` the camera looks along the
+        area-weighted mean normal of the first mesh's faces in the ball (``'facing'``), so a
+        detail facing sideways is not seen edge-on; when those normals cancel out (less than
+        5 % of the area is net facing one way, e.g. a ball around a whole thin part) it
+        keeps the view ``(0, 0)``.
 
     Returns
     -------
@@ -941,6 +1053,13 @@ def render_comparison(
     ('change: mesh 1 → mesh 2', 'change', 99.0, 0.02)
     """
     size = _check_size(size)
+    if view is not None and view != "facing":
+        try:
+            view = (float(view[0]), float(view[1])) if len(view) == 2 and not isinstance(view, str) else None
+        except (TypeError, ValueError):
+            view = None
+        if view is None or not all(np.isfinite(view)):
+            raise ValueError("view must be (azimuth, elevation) in degrees or 'facing'")
     if isinstance(meshes, (str, os.PathLike)) or (isinstance(meshes, tuple) and len(meshes) == 2
                                                   and isinstance(meshes[0], np.ndarray)):
         meshes = [meshes]  # one mesh given bare
@@ -990,19 +1109,26 @@ def _render_comparison(meshes, out_png, reference, titles, size, view, error_of,
             err, mode_used = vertex_error(arrays[k], arrays[0], error_mode)
             maps.append((k, err, f"change: {titles[0]} → {titles[k]}"))
 
-    ball = None
+    # the camera: along the mean normal of what is shown of the first mesh with faces ("facing": the default
+    # with zoom), else from the view given (default (0, 0))
+    fixed = view if isinstance(view, tuple) else (0.0, 0.0)
+    want_facing = view == "facing" or (view is None and zoom is not None)
+    ball, facing = None, None
     if zoom is not None:
         centre, radius = _zoom_ball(zoom, *arrays[0])
         ball = (tuple(float(c) for c in centre), radius)
-        camera = camera_around(centre, radius, size, view)
         cropped = [_crop(V, F, centre, radius) for V, F in arrays]
         if all(c[1].shape[0] == 0 for c in cropped):
             raise ValueError(f"zoom: no face has a vertex within {radius:.4g} (mesh units) of {tuple(centre)}")
         shown = [(c[0], c[1]) for c in cropped]
         maps = [(k, err[cropped[k][2]], title) for k, err, title in maps]
     else:
-        camera = frame_camera([V for V, _ in arrays] + ([ref[0]] if ref else []), size, view)
         shown = arrays
+        centre, radius = _bounding_ball([V for V, _ in arrays] + ([ref[0]] if ref else []))
+    if want_facing:
+        facing = mean_normal(*next(m for m in shown if m[1].shape[0]))
+    camera = (camera_along(centre, radius, facing, size) if facing is not None
+              else camera_around(centre, radius, size, fixed))
     used_percentile = None
     if maps:
         if vmax is None:
@@ -1011,28 +1137,60 @@ def _render_comparison(meshes, out_png, reference, titles, size, view, error_of,
         vmax = float(vmax)
     jobs = [_job(V, F, camera) for V, F in shown if F.shape[0]]
     panel_titles = [t for t, (_, F) in zip(titles, shown) if F.shape[0]]
-    errors = []
+    column = np.cumsum([F.shape[0] > 0 for _, F in shown]) - 1  # mesh k's geometry panel
+    errors, under = [], []
     for k, err, title in maps:
         if shown[k][1].shape[0]:
             jobs.append(_job(*shown[k], camera, err, vmax, cmap))
             panel_titles.append(title)
             errors.append(err)
+            under.append(int(column[k]))
     panels, which, detail = _draw(jobs, size, camera, backend, child)
     if heat == "change":
         label = "distance to the first mesh" if mode_used == "nearest" else "displacement from the first mesh"
     else:
         label = "distance to reference" if mode_used == "nearest" else "vertex displacement"
-    boxes = _compose(out_png, panels, panel_titles, errors, vmax, cmap, label, used_percentile)
+    boxes = _compose(out_png, panels, panel_titles, errors, vmax, cmap, label, used_percentile, under)
     return RenderResult(out_png, which, detail, panels, boxes, panel_titles, errors, mode_used,
-                        vmax if maps else None, camera, heat, used_percentile, ball)
+                        vmax if maps else None, camera, heat, used_percentile, ball, facing)
 
 
-TITLE_BAND = 40  # pixels above the panels for titles
+TITLE_BAND = 40  # pixels above each row of panels for titles
 BAR_BAND = 110  # pixels right of the panels for the colour bar
+GAP = 8  # pixels between panels in a row
+MAX_PER_ROW = 4  # panels in a row before they go into a grid
 
 
-def _compose(out_png: Path, panels, titles, errors, vmax, cmap, label, percentile) -> list[tuple[int, int, int, int]]:
-    """Paste the panels pixel for pixel (``figimage``, no resampling) with titles and a colour bar."""
+def panel_grid(n_geometry: int, under: Sequence[int]) -> list[tuple[int, int]]:
+    """(row, column) of each panel: the geometry panels, then one heat map per index in ``under``.
+
+    Up to :data:`MAX_PER_ROW` panels in all stand in one row (before / after / error). More
+    go into a grid of at most :data:`MAX_PER_ROW` columns: the meshes in the first rows, then
+    each heat map under the mesh it colours (``under[j]`` is that mesh's geometry panel), so
+    the first mesh of a change map has an empty place below it.
+
+    Examples
+    --------
+    >>> panel_grid(2, [1])
+    [(0, 0), (0, 1), (0, 2)]
+    >>> panel_grid(4, [1, 2, 3])
+    [(0, 0), (0, 1), (0, 2), (0, 3), (1, 1), (1, 2), (1, 3)]
+    >>> panel_grid(5, [4])
+    [(0, 0), (0, 1), (0, 2), (0, 3), (1, 0), (2, 0)]
+    """
+    if n_geometry + len(under) <= MAX_PER_ROW:
+        return [(0, k) for k in range(n_geometry + len(under))]
+    cols = min(MAX_PER_ROW, max(n_geometry, 1))
+    places = [divmod(k, cols) for k in range(n_geometry)]
+    first_heat_row = -(-n_geometry // cols)
+    heat_rows = sorted({m // cols for m in under})  # only rows holding a heat map, packed
+    return places + [(first_heat_row + heat_rows.index(m // cols), m % cols) for m in under]
+
+
+def _compose(out_png: Path, panels, titles, errors, vmax, cmap, label, percentile,
+             under: Sequence[int] | None = None) -> list[tuple[int, int, int, int]]:
+    """Paste the panels pixel for pixel (``figimage``, no resampling) in :func:`panel_grid`'s places, with
+    titles and a colour bar right of the heat maps."""
     import matplotlib
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.colorbar import ColorbarBase
@@ -1041,26 +1199,34 @@ def _compose(out_png: Path, panels, titles, errors, vmax, cmap, label, percentil
     from matplotlib.ticker import FuncFormatter
 
     h, w = panels[0].shape[:2]
-    gap = 8
-    width = len(panels) * w + (len(panels) - 1) * gap + (BAR_BAND if errors else 0)
-    height = h + TITLE_BAND
+    n_geometry = len(panels) - len(errors)
+    if under is None:
+        under = [n_geometry - len(errors) + j for j in range(len(errors))]
+    places = panel_grid(n_geometry, list(under))
+    n_rows = max(r for r, _ in places) + 1
+    n_cols = max(c for _, c in places) + 1
+    grid_w = n_cols * w + (n_cols - 1) * GAP
+    width = grid_w + (BAR_BAND if errors else 0)
+    height = n_rows * (h + TITLE_BAND)
     fig = Figure(figsize=(width / 100.0, height / 100.0), dpi=100, facecolor="white")
     FigureCanvasAgg(fig)
     boxes = []
-    n_geometry = len(panels) - len(errors)
-    for k, (img, title) in enumerate(zip(panels, titles)):
-        x0 = k * (w + gap)
-        fig.figimage(img, xo=x0, yo=0, origin="upper")
-        boxes.append((TITLE_BAND, x0, h, w))
+    for k, (img, title, (r, c)) in enumerate(zip(panels, titles, places)):
+        x0, top = c * (w + GAP), r * (h + TITLE_BAND)
+        fig.figimage(img, xo=x0, yo=height - top - TITLE_BAND - h, origin="upper")
+        boxes.append((top + TITLE_BAND, x0, h, w))
         lines = [title.replace("$", r"\$")]  # a file name is text, never mathtext
         if k >= n_geometry:
             e = errors[k - n_geometry]
             lines.append(f"max {e.max():.3g}, RMS {np.sqrt(np.mean(e**2)):.3g}")
-        fig.text((x0 + w / 2) / width, 1 - 4 / height, "\n".join(lines), ha="center", va="top",
+        fig.text((x0 + w / 2) / width, 1 - (top + 4) / height, "\n".join(lines), ha="center", va="top",
                  fontsize=9, wrap=False, clip_on=True)
     if errors:
-        x0 = len(panels) * (w + gap) + 4
-        cax = fig.add_axes([x0 / width, 0.08 * h / height, 14 / width, 0.84 * h / height])
+        rows = [r for r, _ in places[n_geometry:]]
+        top = min(rows) * (h + TITLE_BAND) + TITLE_BAND  # the bar spans the rows of heat maps
+        span = (max(rows) + 1) * (h + TITLE_BAND) - top
+        cax = fig.add_axes([(grid_w + 4) / width, (height - top - 0.92 * span) / height,
+                            14 / width, 0.84 * span / height])
         over = any(float(e.max()) > vmax for e in errors)
         bar = ColorbarBase(cax, cmap=matplotlib.colormaps[cmap], norm=Normalize(0.0, vmax),
                            extend="max" if over else "neither")
@@ -1069,7 +1235,7 @@ def _compose(out_png: Path, panels, titles, errors, vmax, cmap, label, percentil
         top = "maximum" if percentile is None or percentile >= 100 else f"{_ordinal(percentile)} percentile"
         if percentile is None:
             top = "given vmax"
-        bar.set_label(f"{label} (mesh units)\ntop = {top}", fontsize=7)
+        bar.set_label(f"{label}\n(mesh units), top = {top}", fontsize=7)
     with atomic_path(out_png) as tmp:
         fig.savefig(tmp, dpi=100, format="png", facecolor="white")
     return boxes

@@ -1,11 +1,13 @@
-"""One static HTML page for a run folder: the pipeline, one results table, a chart per swept parameter,
-the plots and renders, links to the other files.
+"""One static HTML page for a run folder: the results table, a chart per swept parameter, each output
+before / after / change, the plots and renders, the pipeline, links to the other files.
 
 No server and no script: the page is HTML and CSS only, every text from the run folder is
 escaped (user text is never markup), and pictures are linked by relative URLs (or embedded as
-``data:`` URLs with ``embed=True``, for a page that travels alone). The charts are drawn here with
-matplotlib and always embedded. The page fits a 1280-pixel window: a table wider than the page
-scrolls inside its own box.
+``data:`` URLs with ``embed=True``, for a page that travels alone). The before / after / change
+pictures are drawn by :func:`meshdenoise.render.render_comparison` into a folder beside the page;
+the charts are drawn here with matplotlib and always embedded. The page fits a 1280-pixel window
+without scrolling sideways: text wraps, and a table with more columns than fit is cut into
+several tables, each repeating the columns that name the row.
 """
 
 from __future__ import annotations
@@ -17,22 +19,35 @@ import io
 import json
 import math
 import os
+import re
+import tempfile
+import warnings
 from datetime import datetime, timezone
 from pathlib import Path
 from urllib.parse import quote
 
-from .io import atomic_path
+from .io import SUPPORTED_EXTENSIONS, atomic_path
 
-__all__ = ["write_report", "format_number", "sweep_parameters", "sweep_series"]
+__all__ = ["write_report", "format_number", "sweep_parameters", "sweep_series", "split_columns"]
 
 REPORT_NAME = "report.html"
 MAX_TABLE_ROWS = 2000  # beyond this a table is cut, and the page says so
 SIGNIFICANT = 4  # significant digits of a number shown in a table (the full value is its tooltip)
 MAX_CHART_METRICS = 4  # panels per chart
+RENDER_PANEL = (260, 260)  # pixels of one before / after / change panel: the picture is 906 x 300
+MAX_RENDERS = 24  # outputs drawn before / after / change; the page says when there are more
 
 # Keys a pipeline's runner writes into every results row; every other key that is not a metric
 # (see _is_measurement) is a sweep variable.
-_ROW_KEYS = {"input", "status", "outputs", "vertices", "faces", "seconds", "error", "traceback"}
+_ROW_KEYS = {"input", "status", "outputs", "vertices", "faces", "seconds", "error", "traceback", "failure"}
+
+# How wide a table may be, and how wide its columns are at the least, estimated from their text: a
+# character of the table's font (0.9 em of 16 px; DejaVu Sans digits are 0.64 em, bold capitals
+# wider) takes at most CHAR_PX, a cell's padding and border CELL_PX. The page's text is 1152 px wide
+# in a 1280-pixel window.
+TABLE_PX = 1120
+CHAR_PX = 10.0
+CELL_PX = 20
 
 _STYLE = """
 body { font-family: sans-serif; margin: 1.5em auto; padding: 0 1.5em; max-width: 1200px; color: #222;
@@ -42,35 +57,47 @@ h2 { margin-top: 1.6em; border-bottom: 1px solid #ddd; }
 h3 { font-size: 1em; overflow-wrap: anywhere; }
 .scroll { max-width: 100%; overflow-x: auto; margin: 0.5em 0 1.5em; }
 table { border-collapse: collapse; font-size: 0.9em; }
-th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; vertical-align: top; }
+th, td { border: 1px solid #ccc; padding: 0.25em 0.6em; vertical-align: top; overflow-wrap: break-word; }
 th { background: #f0f0f0; text-align: left; }
-td { overflow-wrap: break-word; }
+td.any { overflow-wrap: anywhere; }
 td.nw { white-space: nowrap; }
 td.num { text-align: right; font-variant-numeric: tabular-nums; white-space: nowrap; }
 figure { display: inline-block; margin: 0 1em 1.5em 0; vertical-align: top; max-width: 100%; }
 figure img { max-width: 100%; height: auto; border: 1px solid #ddd; }
 figcaption, .note { font-size: 0.85em; color: #555; overflow-wrap: anywhere; }
-pre { background: #f7f7f7; padding: 0.6em; overflow-x: auto; max-width: 100%; box-sizing: border-box; }
+pre { background: #f7f7f7; padding: 0.6em; max-width: 100%; box-sizing: border-box;
+      white-space: pre-wrap; overflow-wrap: anywhere; }
 li { overflow-wrap: anywhere; }
 """
 
 
 def write_report(run_dir: str | os.PathLike, *, embed: bool = False, out: str | os.PathLike | None = None,
-                 pipeline: str | os.PathLike | None = None) -> Path:
+                 pipeline: str | os.PathLike | None = None, renders: bool = True) -> Path:
     """Write ``report.html`` for a pipeline run or a reproduction folder; return its path.
 
     The page holds, in this order:
 
-    - the pipeline: the file ``pipeline`` if given, and every ``*.yaml`` / ``*.yml`` of the folder, as text;
+    - the pipeline's ``description:`` under the title;
     - the results: one table per ``*.csv`` / ``*.json`` file, in file-name order (sub-folders included),
       and one only when ``name.csv`` and ``name.json`` hold the same rows (a pipeline's results);
       numbers are shown to 4 significant digits (the full value as the cell's tooltip), input paths by
       their shortest distinguishing tail, output files inside the folder as links. A list of objects
-      gives one row per object, an object one row per (dotted) key, anything else indented JSON;
-    - for a pipeline's results, a chart per swept numeric parameter: each metric against its value,
-      one line per input and setting of the other swept parameters;
-    - every ``*.png`` as a figure, linked relatively (or embedded with ``embed=True``);
+      gives one row per object, an object one row per (dotted) key, anything else indented JSON.
+      A table wider than the page is cut into several (see :func:`split_columns`);
+    - for a pipeline's results with a sweep, a chart per swept parameter: each metric against its
+      value, one line per input and setting of the other swept parameters (nothing without a sweep);
+    - for a pipeline's results, each output mesh before / after / change: the input, the output and
+      the displacement of each output vertex from the input (:func:`meshdenoise.render.render_comparison`
+      with ``show_change``, drawn by the matplotlib rasteriser, seen along the input's mean normal so
+      that a range scan faces the camera; a closed mesh from +z), at most :data:`MAX_RENDERS`;
+    - every other ``*.png`` as a figure, linked relatively (or embedded with ``embed=True``);
+    - the pipeline: the file ``pipeline`` if given, and every ``*.yaml`` / ``*.yml`` of the folder, as text;
     - links to all other files (meshes, logs), with their sizes.
+
+    The before / after / change pictures are written into the folder ``<report name>-renders``
+    beside the page (``report-renders/``; a picture newer than both its meshes is kept, pictures no
+    longer shown are removed) and linked relatively; with ``embed=True`` they are drawn in a
+    temporary folder and put inside the page.
 
     Parameters
     ----------
@@ -83,8 +110,12 @@ def write_report(run_dir: str | os.PathLike, *, embed: bool = False, out: str | 
         ``embed`` (relative links are computed from it).
     pipeline : path, optional
         The pipeline file of the run (``meshdenoise run`` does not copy it into the output folder).
-        Its ``sweep:`` keys name the swept parameters; without it they are the row keys that are
-        neither the runner's own (input, status, outputs, vertices, faces, seconds) nor metrics.
+        Its ``sweep:`` keys name the swept parameters (none when it has no ``sweep:``); without it
+        they are the row keys that are plain names (no dot) and neither the runner's own (input,
+        status, outputs, vertices, faces, seconds) nor metrics.
+    renders : bool
+        Draw each output before / after / change (the only slow part of a report: about a second
+        per output of a million vertices).
 
     Raises
     ------
@@ -108,12 +139,11 @@ def write_report(run_dir: str | os.PathLike, *, embed: bool = False, out: str | 
         raise ValueError(f"report: {target} is outside {run}; relative image links would break (use embed=True)")
     if pipeline is not None and not Path(pipeline).is_file():
         raise ValueError(f"report: pipeline {pipeline} is not a file")
+    render_dir = target.with_name(target.stem + "-renders")
     files = sorted((p for p in run.rglob("*") if p.is_file() and not p.name.startswith(".")
-                    and p.resolve() != target.resolve()), key=lambda p: _natural(p.relative_to(run).as_posix()))
+                    and p.resolve() != target.resolve() and not _inside(p.resolve().parent, render_dir.resolve())),
+                   key=lambda p: _natural(p.relative_to(run).as_posix()))
     page_dir = target.parent
-    parts = [f"<h1>meshdenoise report: {_e(run.resolve().name)}</h1>",
-             f"<p class=\"note\">{_e(str(run.resolve()))}, written "
-             f"{_e(datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC'))}</p>"]
     configs = [p for p in files if p.suffix.lower() in (".yaml", ".yml")]
     images = [p for p in files if p.suffix.lower() == ".png"]
     data = [p for p in files if p.suffix.lower() in (".csv", ".json")]
@@ -123,21 +153,35 @@ def write_report(run_dir: str | os.PathLike, *, embed: bool = False, out: str | 
     others = [p for p in files if p not in data and p not in configs and p not in images] + sorted(twins)
 
     sources = ([Path(pipeline)] if pipeline is not None else []) + configs
-    sweep_keys = None
-    if sources:
-        parts.append("<h2>Pipeline</h2>")
-        for p in sources:
-            text = _read_text(p)
-            name = str(p) if pipeline is not None and p == Path(pipeline) else _rel(p, run)
-            parts.append(f"<h3>{_e(name)}</h3><div class=\"scroll\"><pre>{_e(text)}</pre></div>")
-            sweep_keys = sweep_keys or _sweep_keys_of(text)
+    texts = {p: _read_text(p) for p in sources}
+    sweep_keys, description = None, None
+    for text in texts.values():
+        keys, about = _pipeline_facts(text)
+        sweep_keys = keys if sweep_keys is None else sweep_keys
+        description = about if description is None else description
+
+    parts = [f"<h1>meshdenoise report: {_e(run.resolve().name)}</h1>"]
+    if description:
+        parts.append(f"<p>{_e(description)}</p>")
+    parts.append(f"<p class=\"note\">{_e(str(run.resolve()))}, written "
+                 f"{_e(datetime.now(timezone.utc).strftime('%Y-%m-%d %H:%M UTC'))}</p>")
+    results: list[dict] = []  # a pipeline's rows, for the before / after / change pictures
     if tables:
         parts.append("<h2>Results</h2>")
         for p in tables:
-            parts.append(_table_section(p, run, page_dir, twins, sweep_keys))
+            section, rows = _table_section(p, run, page_dir, twins, sweep_keys)
+            parts.append(section)
+            results += rows
+    if results and renders:
+        parts.append(_outputs_section(results, run, page_dir, render_dir, embed, sweep_keys))
     if images:
         parts.append("<h2>Plots and renders</h2>")
         parts += [_figure(p, run, page_dir, embed) for p in images]
+    if sources:
+        parts.append("<h2>Pipeline</h2>")
+        for p, text in texts.items():
+            name = str(p) if pipeline is not None and p == Path(pipeline) else _rel(p, run)
+            parts.append(f"<h3>{_e(name)}</h3><pre>{_e(text)}</pre>")
     if others:
         parts.append("<h2>Other files</h2><ul>")
         for p in others:
@@ -154,6 +198,86 @@ def write_report(run_dir: str | os.PathLike, *, embed: bool = False, out: str | 
     with atomic_path(target) as tmp:
         tmp.write_text(page, encoding="utf-8")
     return target
+
+
+# ----------------------------------------------------------------------------- before / after / change
+
+
+def _outputs_section(rows: list[dict], run: Path, page_dir: Path, render_dir: Path, embed: bool,
+                     sweep_keys) -> str:
+    """Each output mesh of the rows that succeeded beside its input, and the change between them."""
+    pairs = []
+    for r in rows:
+        if r.get("status", "ok") != "ok" or not r.get("input"):
+            continue
+        outputs = r.get("outputs", [])
+        outputs = outputs if isinstance(outputs, list) else [x for x in str(outputs).split(";") if x]
+        for o in outputs:
+            if Path(str(o)).suffix.lower() in SUPPORTED_EXTENSIONS:
+                pairs.append((r, Path(str(r["input"])), Path(str(o))))
+    if not pairs:
+        return ""
+    names = _short_names(sorted({str(i) for _, i, _ in pairs}))
+    swept = [k for k in dict.fromkeys(k for r in rows for k in r) if _is_swept(k, sweep_keys)]
+    out = ["<h2>Outputs: before / after / change</h2>",
+           "<p class=\"note\">Each output (after) beside its input (before), one camera for both, and how far each "
+           "output vertex moved from the input (its own vertex when the faces are the same, else the nearest point "
+           "of the input's surface), on a colour bar topped at the 99th percentile.</p>"]
+    if len(pairs) > MAX_RENDERS:
+        out.append(f"<p class=\"note\">the first {MAX_RENDERS} of {len(pairs)} outputs are drawn</p>")
+    used = set()
+    with tempfile.TemporaryDirectory(prefix="meshdenoise-report-") as tmp:
+        folder = Path(tmp) if embed else render_dir
+        for row, before, after in pairs[:MAX_RENDERS]:
+            try:
+                rel = after.resolve().relative_to(run.resolve()).as_posix()
+            except ValueError:
+                rel = after.name
+            png = folder / (re.sub(r"[/\\:]", "--", rel) + ".png")
+            used.add(png.name)
+            setting = ", ".join(f"{k}={row[k]}" for k in swept if k in row)
+            caption = f"{_e(names[str(before)])} → {_breakable(rel)}"
+            if setting:
+                caption += f" <span class=\"note\">({_e(setting)})</span>"
+            try:
+                _draw_change(before, after, png)
+            except Exception as exc:  # noqa: BLE001 - any mesh that cannot be drawn: say why, draw the rest
+                out.append(f"<p class=\"note\">{caption}: not drawn ({_e(' '.join(str(exc).split()))})</p>")
+                continue
+            src = ("data:image/png;base64," + base64.b64encode(png.read_bytes()).decode("ascii")) if embed \
+                else _href(png, page_dir)
+            w, h = _png_size(png)
+            out.append(f"<figure><img src=\"{src}\" width=\"{w}\" height=\"{h}\" loading=\"eager\" "
+                       f"alt=\"before, after and change of {_e(rel)}\"><figcaption>{caption}</figcaption></figure>")
+    if not embed and render_dir.is_dir():  # pictures of outputs no longer in the results
+        for old in render_dir.glob("*.png"):
+            if old.name not in used:
+                old.unlink()
+    return "\n".join(out)
+
+
+def _draw_change(before: Path, after: Path, png: Path) -> None:
+    """Draw before / after / change into ``png``, unless a picture newer than both meshes is there."""
+    for mesh in (before, after):
+        if not mesh.is_file():
+            raise ValueError(f"{mesh} is missing")
+    newest = max(before.stat().st_mtime, after.stat().st_mtime)
+    if png.is_file() and png.stat().st_mtime >= newest:
+        return
+    from .render import render_comparison
+
+    png.parent.mkdir(parents=True, exist_ok=True)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        render_comparison([before, after], png, titles=["before", "after"], size=RENDER_PANEL, view="facing",
+                          show_change=True, backend="matplotlib")
+
+
+def _png_size(path: Path) -> tuple[int, int]:
+    import struct
+
+    head = path.read_bytes()[:24]
+    return struct.unpack(">II", head[16:24])
 
 
 # ----------------------------------------------------------------------------- numbers
@@ -230,8 +354,10 @@ def sweep_parameters(rows: list[dict], sweep_keys: list[str] | None = None) -> t
     rows : list of dict
         The results rows (``results.json``).
     sweep_keys : list of str, optional
-        The pipeline's ``sweep:`` keys. Without them, a sweep variable is a key that is neither the
-        runner's own (input, status, outputs, vertices, faces, seconds, error) nor a measurement.
+        The pipeline's ``sweep:`` keys (``[]``: it has no sweep). Without them, a sweep variable is
+        a key that is a plain name (a pipeline variable: no dot, as the columns steps add have) and
+        neither the runner's own (input, status, outputs, vertices, faces, seconds, error) nor a
+        measurement.
 
     Returns
     -------
@@ -241,10 +367,7 @@ def sweep_parameters(rows: list[dict], sweep_keys: list[str] | None = None) -> t
         Numeric measurements (metrics, ``auto.*`` choices), at most ``MAX_CHART_METRICS``.
     """
     keys = list(dict.fromkeys(k for r in rows for k in r))
-    if sweep_keys is None:
-        swept = [k for k in keys if k not in _ROW_KEYS and not _is_measurement(k)]
-    else:
-        swept = [k for k in keys if k in sweep_keys]
+    swept = [k for k in keys if _is_swept(k, sweep_keys)]
     ok = [r for r in rows if r.get("status", "ok") == "ok"]
 
     def numeric(k):
@@ -254,6 +377,14 @@ def sweep_parameters(rows: list[dict], sweep_keys: list[str] | None = None) -> t
     params = [k for k in swept if len({_key(r[k]) for r in ok if k in r}) >= 2]
     metrics = [k for k in keys if k not in _ROW_KEYS and k not in swept and _is_measurement(k) and numeric(k)]
     return params, metrics[:MAX_CHART_METRICS]
+
+
+def _is_swept(key: str, sweep_keys: list[str] | None) -> bool:
+    """Whether a results column is a swept variable: one of ``sweep_keys``, or without them a plain variable name."""
+    if sweep_keys is not None:
+        return key in sweep_keys
+    return (key not in _ROW_KEYS and not _is_measurement(key) and "." not in key
+            and re.fullmatch(r"[A-Za-z][A-Za-z0-9_]*", key) is not None)
 
 
 def _key(value) -> str:
@@ -299,40 +430,64 @@ def sweep_series(rows: list[dict], param: str, metric: str, swept: list[str]) ->
     return {k: sorted(v) for k, v in lines.items()} if numeric else lines
 
 
-def _sweep_keys_of(text: str) -> list[str] | None:
+def _pipeline_facts(text: str) -> tuple[list[str] | None, str | None]:
+    """A pipeline file's swept keys (``[]`` for a pipeline without ``sweep:``) and its description.
+
+    (None, None) for text that is not a pipeline (no ``steps:``).
+    """
     import yaml
 
     try:
         doc = yaml.safe_load(text)
     except yaml.YAMLError:
-        return None
-    sweep = doc.get("sweep") if isinstance(doc, dict) else None
-    return [str(k) for k in sweep] if isinstance(sweep, dict) else None
+        return None, None
+    if not isinstance(doc, dict) or "steps" not in doc:
+        return None, None
+    sweep = doc.get("sweep")
+    about = doc.get("description")
+    return ([str(k) for k in sweep] if isinstance(sweep, dict) else []), (str(about) if about else None)
 
 
 def _charts(rows: list[dict], sweep_keys: list[str] | None) -> str:
+    """The sweep's charts: one per swept parameter, a panel per metric with points; nothing without a sweep."""
     params, metrics = sweep_parameters(rows, sweep_keys)
-    if not params or not metrics:
-        return ""
     keys = list(dict.fromkeys(k for r in rows for k in r))
-    swept = [k for k in keys if (k in sweep_keys if sweep_keys is not None
-                                 else k not in _ROW_KEYS and not _is_measurement(k))]
+    swept = [k for k in keys if _is_swept(k, sweep_keys)]
     out = []
     for param in params:
-        png = _chart_png(rows, param, metrics, swept)
-        alt = f"{', '.join(metrics)} against {param}"
+        shown = [m for m in metrics if any(sweep_series(rows, param, m, swept).values())]
+        if not shown:
+            continue
+        png = _chart_png(rows, param, shown, swept)
+        alt = f"{', '.join(shown)} against {param}"
         out.append(f"<figure><img src=\"data:image/png;base64,{base64.b64encode(png).decode('ascii')}\" "
                    f"alt=\"{_e(alt)}\" loading=\"eager\">"
                    f"<figcaption>{_e(alt)}</figcaption></figure>")
-    return "<h3>Sweep</h3>" + "".join(out)
+    return "<h3>Sweep</h3>" + "".join(out) if out else ""
 
 
 _CHART_W, _CHART_H, _DPI = 2.9, 2.4, 100  # inches per panel; a chart of 4 panels is 1160 px wide
 
 
 def _chart_png(rows, param, metrics, swept) -> bytes:
-    from matplotlib.figure import Figure  # no pyplot: no global backend or state, nothing left open
-    from matplotlib.text import Text
+    buf = io.BytesIO()
+    _chart_figure(rows, param, metrics, swept).savefig(buf, format="png")
+    return buf.getvalue()
+
+
+def _plain(text) -> str:
+    """User text for a matplotlib label: a ``$`` is shown as itself, never starts mathtext."""
+    return str(text).replace("$", r"\$")
+
+
+def _chart_figure(rows, param, metrics, swept):
+    """The chart of ``metrics`` against ``param`` as a matplotlib Figure (no pyplot: no global state).
+
+    Names from the rows (parameter, metric, input and method names) are escaped for mathtext
+    (:func:`_plain`); tick labels keep matplotlib's own mathtext (a log axis labels ``10^-2`` as
+    a power), so no ``$\\mathdefault{...}$`` source is ever drawn as text.
+    """
+    from matplotlib.figure import Figure
 
     n = len(metrics)
     ok = [r for r in rows if r.get("status", "ok") == "ok"]
@@ -347,40 +502,37 @@ def _chart_png(rows, param, metrics, swept) -> bytes:
         for i, (label, pts) in enumerate(series.items()):
             if numeric:
                 xs, ys = zip(*pts)
-                ax.plot(xs, ys, marker="o", markersize=3, color=f"C{i % 10}", label=label or None)
+                ax.plot(xs, ys, marker="o", markersize=3, color=f"C{i % 10}", label=_plain(label) if label else None)
             else:  # one bar per value of the parameter (a method...), one colour per line
                 bar = 0.8 / len(series)
                 at = {name: j for j, name in enumerate(names)}
                 ax.barh([at[x] + (i - (len(series) - 1) / 2) * bar for x, _ in pts], [y for _, y in pts],
-                        height=bar, color=f"C{i % 10}", label=label or None)
+                        height=bar, color=f"C{i % 10}", label=_plain(label) if label else None)
         if numeric:
             xs_all = [x for pts in series.values() for x, _ in pts]
             if xs_all and min(xs_all) > 0 and max(xs_all) / min(xs_all) >= 20:
                 ax.set_xscale("log")
-            ax.set_xlabel(param)
+            ax.set_xlabel(_plain(param))
         else:
-            ax.set_yticks(range(len(names)), names, fontsize=7)
+            ax.set_yticks(range(len(names)), [_plain(n) for n in names], fontsize=7)
             ax.tick_params(axis="y", labelleft=ax is axes[0])
             if ax is axes[0]:
                 ax.invert_yaxis()  # the first value on top (the y axis is shared: invert it once)
-        ax.set_title(metric, fontsize=10)
+        ax.set_title(_plain(metric), fontsize=10)
         ax.grid(True, alpha=0.3)
     if 1 < len(series) <= 12:  # the same lines in every panel: one legend under them
         handles, labels = axes[0].get_legend_handles_labels()
         per_label = 4.5 * max(len(lb) for lb in labels) + 45  # pixels of a 7-point label and its handle
         ncols = max(1, min(len(labels), int(_CHART_W * n * _DPI // per_label)))
         fig.legend(handles, labels, loc="outside lower center", ncols=ncols, fontsize=7, frameon=False)
-    for text in fig.findobj(match=Text):
-        text.set_parse_math(False)  # names are user text: "$x$" stays "$x$"
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png")
-    return buf.getvalue()
+    return fig
 
 
 # ----------------------------------------------------------------------------- tables
 
 
-def _table_section(path: Path, run: Path, page_dir: Path, twins: set, sweep_keys) -> str:
+def _table_section(path: Path, run: Path, page_dir: Path, twins: set, sweep_keys) -> tuple[str, list[dict]]:
+    """The table of one file (and a pipeline's sweep charts); the pipeline's results rows it holds, if any."""
     twin = path.with_suffix(".json") if path.with_suffix(".json") in twins else None
     title = f"<h3>{_e(_rel(path, run))}</h3>"
     try:
@@ -388,22 +540,21 @@ def _table_section(path: Path, run: Path, page_dir: Path, twins: set, sweep_keys
             with path.open(newline="", encoding="utf-8", errors="replace") as fh:
                 header = next(csv.reader(fh), [])
             rows = json.loads(_read_text(twin))
-            return (title + _rows_table(rows, header, run, page_dir)
-                    + _charts(rows, sweep_keys))
+            return title + _rows_table(rows, header, run, page_dir, sweep_keys) + _charts(rows, sweep_keys), rows
         if path.suffix.lower() == ".csv":
             with path.open(newline="", encoding="utf-8", errors="replace") as fh:
                 rows = list(csv.reader(fh))
             if not rows:
-                return title + "<p class=\"note\">empty file</p>"
+                return title + "<p class=\"note\">empty file</p>", []
             width = max(len(r) for r in rows)
-            return title + _html_table(rows[0] + [""] * (width - len(rows[0])), rows[1:])
+            return title + _html_table(rows[0] + [""] * (width - len(rows[0])), rows[1:]), []
         data = json.loads(_read_text(path))
     except (json.JSONDecodeError, csv.Error) as exc:
         return title + (f"<p class=\"note\">cannot be read as a table ({_e(exc)}); shown as text:</p>"
-                        f"<div class=\"scroll\"><pre>{_e(_read_text(path))}</pre></div>")
+                        f"<pre>{_e(_read_text(path))}</pre>"), []
     if _is_results_rows(data):
-        return title + _rows_table(data, [], run, page_dir) + _charts(data, sweep_keys)
-    return title + _json_table(data)
+        return title + _rows_table(data, [], run, page_dir, sweep_keys) + _charts(data, sweep_keys), data
+    return title + _json_table(data), []
 
 
 def _is_results_rows(data) -> bool:
@@ -425,9 +576,15 @@ def _same_rows(csv_path: Path, json_path: Path) -> bool:
     return len(body) == len(data) and all(set(r) - {"traceback"} <= set(header) for r in data)
 
 
-def _rows_table(rows: list[dict], header: list[str], run: Path, page_dir: Path) -> str:
-    """A pipeline's results: input paths shortened, output files linked, numbers rounded."""
+def _rows_table(rows: list[dict], header: list[str], run: Path, page_dir: Path, sweep_keys=None) -> str:
+    """A pipeline's results: input paths shortened, output files linked, numbers rounded.
+
+    The input and the swept variables name a row: they come first, and every part of a table
+    cut to fit the page repeats them.
+    """
     keys = list(dict.fromkeys([*header, *(k for r in rows for k in r if k != "traceback")]))
+    first = [k for k in keys if k == "input"] + [k for k in keys if _is_swept(k, sweep_keys)]
+    keys = first + [k for k in keys if k not in first]
     names = _short_names(sorted({str(r["input"]) for r in rows if "input" in r}))
     cells = []
     for r in rows:
@@ -437,14 +594,16 @@ def _rows_table(rows: list[dict], header: list[str], run: Path, page_dir: Path) 
             if k == "input" and str(v) in names:
                 name = names[str(v)]
                 short = len(name) <= 2 * SHORT
-                line.append(("html", f"<span title=\"{_e(v)}\">{_e(name) if short else _breakable(name)}</span>", short))
+                line.append(("html", f"<span title=\"{_e(v)}\">{_e(name) if short else _breakable(name)}</span>",
+                             short, name))
             elif k == "outputs":
                 paths = v if isinstance(v, list) else [p for p in str(v).split(";") if p]
-                line.append(("html", "<br>".join(_file_link(Path(p), run, page_dir) for p in paths), False))
+                line.append(("html", "<br>".join(_file_link(Path(p), run, page_dir) for p in paths), False,
+                             " ".join(Path(p).name for p in paths)))
             else:
                 line.append(v)
         cells.append(line)
-    return _html_table(keys, cells)
+    return _html_table(keys, cells, keep=max(len(first), 1))
 
 
 def _file_link(path: Path, run: Path, page_dir: Path) -> str:
@@ -466,33 +625,134 @@ def _short_names(paths: list[str]) -> dict[str, str]:
     return out
 
 
-def _html_table(header: list, rows: list[list]) -> str:
+def _html_table(header: list, rows: list[list], keep: int = 1) -> str:
+    """One table, or several when its columns do not fit the page: each part repeats the first ``keep`` columns."""
     cut = len(rows) > MAX_TABLE_ROWS
-    head = "".join(f"<th>{_breakable(h)}</th>" for h in header)
-    body = "\n".join("<tr>" + "".join(_cell(c) for c in row) + "</tr>" for row in rows[:MAX_TABLE_ROWS])
-    note = f"<p class=\"note\">first {MAX_TABLE_ROWS} of {len(rows)} rows shown</p>" if cut else ""
-    return f"<div class=\"scroll\"><table><thead><tr>{head}</tr></thead><tbody>\n{body}\n</tbody></table></div>{note}"
+    rows = rows[:MAX_TABLE_ROWS]
+    widths = [_column_px(h, [row[i] if i < len(row) else "" for row in rows]) for i, h in enumerate(header)]
+    parts = split_columns(widths, keep)
+    out = []
+    for n, cols in enumerate(parts, 1):
+        if len(parts) > 1:
+            rest = cols[keep:] if n > 1 and len(cols) > keep else cols
+            named = ", ".join(str(header[i]) for i in range(min(keep, len(header))))
+            out.append(f"<p class=\"note\">part {n} of {len(parts)}: columns {rest[0] + 1}-{rest[-1] + 1} of "
+                       f"{len(header)}" + (f", after {_e(named)}" if n > 1 and named else "")
+                       + (" (the table is cut to fit the page)" if n == 1 else "") + "</p>")
+        head = "".join(f"<th>{_breakable(header[i])}</th>" for i in cols)
+        body = "\n".join("<tr>" + "".join(_cell(row[i] if i < len(row) else "") for i in cols) + "</tr>"
+                         for row in rows)
+        out.append(f"<div class=\"scroll\"><table><thead><tr>{head}</tr></thead>"
+                   f"<tbody>\n{body}\n</tbody></table></div>")
+    if cut:
+        out.append(f"<p class=\"note\">first {MAX_TABLE_ROWS} rows shown</p>")
+    return "".join(out)
+
+
+def split_columns(widths: list[float], keep: int = 1, budget: float = TABLE_PX) -> list[list[int]]:
+    """The columns of each table a table too wide for the page is cut into.
+
+    Every part starts with the first ``keep`` columns (those naming a row: the input, the swept
+    variables) and holds as many of the next columns, in order, as fit in ``budget`` pixels
+    with them (always at least one), the parts as even as their number allows.
+
+    Parameters
+    ----------
+    widths : list of float
+        Each column's least width in pixels (see ``_column_px``).
+    keep : int
+        Leading columns repeated in every part.
+    budget : float
+        Pixels a table may take.
+
+    Returns
+    -------
+    list of list of int
+        Column indices of each part; one part when everything fits.
+
+    Examples
+    --------
+    >>> split_columns([100, 300, 300, 300], keep=1, budget=800)
+    [[0, 1, 2], [0, 3]]
+    >>> split_columns([100, 200, 200, 200, 200, 200], keep=1, budget=1000)
+    [[0, 1, 2, 3], [0, 4, 5]]
+    >>> split_columns([100, 300], keep=1, budget=800)
+    [[0, 1]]
+    >>> split_columns([900, 300, 300], keep=1, budget=800)
+    [[0, 1], [0, 2]]
+    """
+    keep = min(keep, len(widths))
+
+    def greedy(limit):
+        parts, current, used = [], [], sum(widths[:keep])
+        for i in range(keep, len(widths)):
+            if current and used + widths[i] > limit:
+                parts.append(list(range(keep)) + current)
+                current, used = [], sum(widths[:keep])
+            current.append(i)
+            used += widths[i]
+        if current or not parts:
+            parts.append(list(range(keep)) + current)
+        return parts
+
+    parts = greedy(budget)
+    low, high = 0.0, float(budget)  # the same number of parts, as even as can be: the least budget giving it
+    for _ in range(30):
+        mid = (low + high) / 2
+        low, high = (low, mid) if len(greedy(mid)) <= len(parts) else (mid, high)
+    return greedy(high)
 
 
 SHORT = 16  # text cells up to this many characters never wrap
+_BREAKS = re.compile(r"(?<=[_/.,=\- ])")
+
+
+def _longest_piece(text: str) -> int:
+    """Characters of the longest run between break opportunities (after ``_ / . , = -`` and spaces)."""
+    return max((len(piece) for piece in _BREAKS.split(text)), default=0)
+
+
+def _cell_chars(value) -> int:
+    """Characters a cell needs on one line at the least: numbers and short text whole, longer text its longest
+    piece (at most SHORT: beyond that it may break anywhere)."""
+    if isinstance(value, tuple) and value[0] == "html":
+        return len(value[3]) if value[2] else min(_longest_piece(value[3]), SHORT)
+    if isinstance(value, list):
+        value = ", ".join(str(v) for v in value)
+    number = _number(value)
+    if number is not None:
+        return len(format_number(number))
+    text = str(value)
+    return len(text) if len(text) <= SHORT else min(_longest_piece(text), SHORT)
+
+
+def _column_px(header, cells: list) -> float:
+    """An upper bound of a column's least width in pixels: its widest unbreakable cell or header piece."""
+    chars = max([_longest_piece(str(header)), *(_cell_chars(c) for c in cells)])  # a header breaks at those only
+    return chars * CHAR_PX + CELL_PX
 
 
 def _breakable(text) -> str:
     """Escaped text with break opportunities after ``_ / . , = -`` (long names wrap there, not mid-word)."""
-    import re
-
     return re.sub(r"([_/.,=\-])", r"\1<wbr>", _e(text))
 
 
 def _cell(value) -> str:
-    if isinstance(value, tuple) and value[0] == "html":  # ("html", markup built here and escaped, no-wrap)
-        return f"<td class=\"nw\">{value[1]}</td>" if value[2] else f"<td>{value[1]}</td>"
+    """A ``<td>``: numbers and text up to SHORT characters on one line; longer text wraps after ``_ / . , = -`` and
+    spaces, and anywhere when a piece between those is longer than SHORT (a table never outgrows the page)."""
+    if isinstance(value, tuple) and value[0] == "html":  # ("html", markup built here and escaped, no-wrap, text)
+        if value[2]:
+            return f"<td class=\"nw\">{value[1]}</td>"
+        return f"<td class=\"any\">{value[1]}</td>" if _longest_piece(value[3]) > SHORT else f"<td>{value[1]}</td>"
     if isinstance(value, list):
         value = ", ".join(str(v) for v in value)
     number = _number(value)
     if number is None:
         text = str(value)
-        return f"<td class=\"nw\">{_e(text)}</td>" if len(text) <= SHORT else f"<td>{_breakable(text)}</td>"
+        if len(text) <= SHORT:
+            return f"<td class=\"nw\">{_e(text)}</td>"
+        wrap = " class=\"any\"" if _longest_piece(text) > SHORT else ""
+        return f"<td{wrap}>{_breakable(text)}</td>"
     shown = format_number(number)
     full = str(value).strip()
     title = f" title=\"{_e(full)}\"" if shown != full else ""
@@ -528,7 +788,7 @@ def _json_table(data) -> str:
         for k, v in lists.items():
             parts.append(f"<h4>{_e(k)}</h4>" + _json_table(v))
         return "\n".join(parts) or "<p class=\"note\">empty object</p>"
-    return f"<div class=\"scroll\"><pre>{_e(json.dumps(data, indent=2))}</pre></div>"
+    return f"<pre>{_e(json.dumps(data, indent=2))}</pre>"
 
 
 # ----------------------------------------------------------------------------- files
@@ -536,8 +796,6 @@ def _json_table(data) -> str:
 
 def _natural(text: str) -> list:
     """Sort key with runs of digits compared as numbers: ``a_2`` before ``a_10``."""
-    import re
-
     return [(0, int(t), "") if t.isdigit() else (1, 0, t) for t in re.split(r"(\d+)", text)]
 
 

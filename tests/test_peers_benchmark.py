@@ -297,3 +297,15 @@ def test_sample_meshes_drop_unreferenced_vertices_and_keep_the_triangles(tmp_pat
     assert mesh["V0"].shape == V.shape and "2 unreferenced vertices of the file dropped" in mesh["noise"]
     np.testing.assert_allclose(mesh["V0"][mesh["F"]], V2[F2], atol=1e-6)  # the same triangles, renumbered
     assert mesh["Vn"].shape == V.shape
+
+
+def test_vertex_map_tells_coincident_vertices_apart_by_their_faces():
+    """A bowtie split into one vertex per fan (two vertices at one position), in a library's shuffled order."""
+    V = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0], [0.0, 0, 0]])
+    F = np.array([[0, 1, 2], [5, 3, 4]])
+    perm = np.array([5, 2, 4, 0, 3, 1])  # library vertex k is our vertex perm[k]
+    inv = np.argsort(perm)
+    idx = peers.vertex_map(V, F, V[perm], inv[F])
+    assert np.array_equal(perm[idx], np.arange(6))  # our vertex i is the library's idx[i]
+    with pytest.raises(peers.TopologyChanged):  # fans of other corners: another mesh at the same positions
+        peers.vertex_map(V, F, V[perm], inv[np.array([[0, 1, 3], [5, 2, 4]])])

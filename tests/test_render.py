@@ -278,10 +278,14 @@ def test_png_mode_follows_the_umask_like_other_outputs(tmp_path):
 
 
 @pytest.fixture
-def fresh_verdict(monkeypatch):
+def fresh_verdict(monkeypatch, tmp_path):
+    """The render module with no Open3D failure remembered, on a machine with a GPU device node (a file made here)."""
     import meshdenoise.render as render
 
     monkeypatch.setattr(render, "_OPEN3D_VERDICT", None)
+    (tmp_path / "dev" / "dri").mkdir(parents=True)
+    (tmp_path / "dev" / "dri" / "renderD128").touch()
+    monkeypatch.setattr(render, "DEVICES", str(tmp_path / "dev"))
     return render
 
 
@@ -377,3 +381,189 @@ def test_software_zbuffer_batches_do_not_change_the_picture(monkeypatch):
     monkeypatch.setattr(render, "ZBUFFER_CHUNK", 37)  # smaller than one triangle: cut into bands of rows
     assert np.array_equal(render._draw_matplotlib(job, (90, 90), cam), whole)
     assert 0.3 < covered(whole).mean() < 0.8
+
+
+# --- headless without a GPU: matplotlib at once; zoom faces the detail; panels in a grid -------------------
+def test_without_a_gpu_auto_draws_with_matplotlib_at_once(fresh_verdict, monkeypatch, tmp_path):
+    """No GPU device node: no Open3D child, no warning, and the decision is made in well under a second."""
+    import subprocess
+    import time
+    import warnings
+
+    render = fresh_verdict
+    monkeypatch.setattr(render, "DEVICES", str(tmp_path / "empty"))  # a machine without /dev/dri or /dev/nvidia*
+    monkeypatch.setattr(subprocess, "Popen", lambda *a, **k: pytest.fail("no child may start"))
+    monkeypatch.setattr(render, "_draw_open3d", lambda *a, **k: pytest.fail("Open3D may not be tried"))
+    monkeypatch.delenv("MESHDENOISE_RENDER_BACKEND", raising=False)
+    started, first_frame = time.perf_counter(), []
+    draw = render._draw_matplotlib
+    monkeypatch.setattr(render, "_draw_matplotlib",
+                        lambda *a: (first_frame.append(first_frame or time.perf_counter() - started), draw(*a))[1])
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the expected case on a server: said in backend_detail, not warned
+        res = render_comparison([icosphere(1)], tmp_path / "a.png", size=(32, 32))
+    assert res.backend == "matplotlib" and "no GPU device" in res.backend_detail
+    assert first_frame[0] < 0.5, first_frame  # from the call to the first matplotlib frame
+    assert render._OPEN3D_VERDICT is None  # nothing failed: a GPU showing up later is used
+    start = time.perf_counter()
+    for _ in range(100):
+        assert render._no_gpu()
+    assert (time.perf_counter() - start) / 100 < 0.01
+
+
+def test_with_a_gpu_auto_tries_open3d_and_an_explicit_backend_always_does(fresh_verdict, monkeypatch, tmp_path):
+    render = fresh_verdict
+    tried = []
+
+    class FakeChild:  # started early by render_comparison; must be closed
+        def __init__(self, size):
+            tried.append(("child", size))
+
+        def close(self):
+            tried.append("closed")
+
+    def fake_open3d(jobs, size, camera, timeout, child=None):
+        tried.append(("draw", len(jobs)))
+        return [render._draw_matplotlib(j, size, camera) for j in jobs], "fake Open3D"
+
+    monkeypatch.setattr(render, "_Child", FakeChild)
+    monkeypatch.setattr(render, "_draw_open3d", fake_open3d)
+    monkeypatch.setattr(render, "_vulkan_missing", lambda: None)
+    res = render_comparison([icosphere(1)], tmp_path / "a.png", size=(32, 32))
+    assert res.backend == "open3d" and tried == [("child", (32, 32)), ("draw", 1), "closed"]
+    tried.clear()
+    monkeypatch.setattr(render, "DEVICES", str(tmp_path / "empty"))  # no GPU, but Open3D asked for by name
+    assert render_comparison([icosphere(1)], tmp_path / "b.png", size=(32, 32), backend="open3d").backend == "open3d"
+    assert tried == [("child", (32, 32)), ("draw", 1), "closed"]
+
+
+def _plane_facing(direction, n=81):
+    """The grid turned so that its normal is ``direction``: grid triangles (i, j), (i+1, j), (i+1, j+1) turn
+    counter-clockwise seen from +z, so +z goes to ``direction`` by a rotation (u, v, d) with u x v = d."""
+    d = np.asarray(direction, float) / np.linalg.norm(direction)
+    u = np.cross(d, [0.3, 0.2, 0.9])
+    u /= np.linalg.norm(u)
+    v = np.cross(d, u)
+    V, F = grid(n, n)
+    V = V - [0.5, 0.5, 0.0]
+    return V[:, :1] * u + V[:, 1:2] * v + V[:, 2:] * d, F, d
+
+
+@pytest.mark.parametrize("direction", [(1.0, 0.0, 0.0), (0.5, 0.5, -0.7)])
+def test_zoom_looks_along_the_details_mean_normal(tmp_path, direction):
+    V, F, d = _plane_facing(direction)
+    centre = 40 * 81 + 40
+    res = render_comparison([(V, F)], tmp_path / "z.png", size=(64, 64), zoom=(centre, 6.0), backend="matplotlib")
+    assert res.facing == pytest.approx(tuple(d), abs=1e-9)
+    eye = np.subtract(res.camera.eye, res.camera.center)
+    assert eye / np.linalg.norm(eye) == pytest.approx(d, abs=1e-9)  # the camera in front of the detail
+    assert covered(res.panels[0]).mean() > 0.6  # seen face on: a disc filling the panel
+    lit = res.panels[0][covered(res.panels[0])].mean()
+    # a --view given wins: from +z this plane is seen edge-on (x facing) or from behind at a slant
+    side = render_comparison([(V, F)], tmp_path / "v.png", size=(64, 64), zoom=(centre, 6.0), view=(0, 0),
+                             backend="matplotlib")
+    assert side.facing is None
+    eye = np.subtract(side.camera.eye, side.camera.center)
+    assert eye / np.linalg.norm(eye) == pytest.approx([0, 0, 1], abs=1e-12)
+    if direction[2] == 0:
+        assert covered(side.panels[0]).mean() < 0.1  # edge-on: a line
+    else:
+        assert covered(side.panels[0]).mean() < covered(res.panels[0]).mean()
+    assert lit > 100
+
+
+def test_mean_normal_is_the_area_weighted_normal_or_none():
+    from meshdenoise.render import mean_normal
+
+    # two triangles in the x = 0 plane (areas 1/2 and 2), both counter-clockwise seen from +x: (1, 0, 0)
+    V = np.array([[0.0, 0, 0], [0, 1, 0], [0, 0, 1], [0, 2, 0], [0, 0, 2]])
+    assert mean_normal(V, np.array([[0, 1, 2], [0, 3, 4]])) == pytest.approx((1, 0, 0))
+    # area 1/2 facing +x and area 2 facing +y: (1/2, 2, 0) normalised, (1, 4, 0) / sqrt(17)
+    W = np.array([[0.0, 0, 0], [0, 1, 0], [0, 0, 1], [2, 0, 0], [0, 0, -2]])
+    assert mean_normal(W, np.array([[0, 1, 2], [0, 3, 4]])) == pytest.approx(np.array([1, 4, 0]) / np.sqrt(17))
+    assert mean_normal(*icosphere(2)) is None  # closed: the normals cancel out
+    assert mean_normal(V, np.zeros((0, 3), dtype=int)) is None
+
+
+def test_view_facing_turns_an_open_scan_to_the_camera(tmp_path):
+    """view='facing' without zoom: the whole first mesh's mean normal, as a range scan seen from its scanner."""
+    V, F, d = _plane_facing((-0.6, 0.3, -0.5), n=41)
+    res = render_comparison([(V, F), (V * 1.01, F)], tmp_path / "f.png", size=(48, 48), view="facing",
+                            show_change=True, backend="matplotlib")
+    assert res.facing == pytest.approx(tuple(d), abs=1e-9)
+    eye = np.subtract(res.camera.eye, res.camera.center)
+    assert eye / np.linalg.norm(eye) == pytest.approx(d, abs=1e-9)
+    default = render_comparison([(V, F)], tmp_path / "d.png", size=(48, 48), backend="matplotlib")
+    assert default.facing is None and covered(default.panels[0]).mean() < covered(res.panels[0]).mean()
+    with pytest.raises(ValueError, match="view must be"):
+        render_comparison([(V, F)], tmp_path / "x.png", view="sideways")
+
+
+def test_zoom_on_a_closed_part_keeps_the_default_view(tmp_path):
+    V, F = icosphere(2)
+    res = render_comparison([(V, F)], tmp_path / "z.png", size=(48, 48), zoom=(0, 100.0), backend="matplotlib")
+    assert res.facing is None
+    eye = np.subtract(res.camera.eye, res.camera.center)
+    assert eye / np.linalg.norm(eye) == pytest.approx([0, 0, 1], abs=1e-12)
+
+
+def test_render_cli_zoom_says_where_it_looks_from(tmp_path):
+    from click.testing import CliRunner
+
+    from meshdenoise.cli import cli
+    from meshdenoise.io import save_arrays
+
+    V, F, _ = _plane_facing((1.0, 0.0, 0.0), n=41)
+    save_arrays(tmp_path / "a.ply", V, F)
+    save_arrays(tmp_path / "b.ply", V * 1.01, F)
+    base = ["render", str(tmp_path / "a.ply"), str(tmp_path / "b.ply"), "--size", "40x40", "--backend", "matplotlib",
+            "--zoom", f"{20 * 41 + 20},4"]
+    res = CliRunner().invoke(cli, [*base, "--png", str(tmp_path / "a.png")])
+    assert res.exit_code == 0, res.output
+    assert "seen along its mean normal (1, 0, 0)" in res.output
+    res = CliRunner().invoke(cli, [*base, "--png", str(tmp_path / "b.png"), "--view", "0,0"])
+    assert res.exit_code == 0, res.output
+    assert "seen from --view 0,0" in res.output
+    res = CliRunner().invoke(cli, [*base[:-2], "--png", str(tmp_path / "d.png"), "--view", "facing"])
+    assert res.exit_code == 0, res.output
+    assert "seen along the first mesh's mean normal (1, 0, 0)" in res.output
+    res = CliRunner().invoke(cli, [*base, "--png", str(tmp_path / "c.png"), "--view", "north"])
+    assert res.exit_code == 2
+    assert res.output.strip().splitlines() == ["error: --view: expected AZIMUTH,ELEVATION in degrees, e.g. 30,20, or "
+                                               "facing; got 'north'"]
+
+
+def test_show_puts_four_meshes_and_their_changes_in_a_grid(tmp_path, monkeypatch):
+    """Seven panels: the four meshes in a row, each change map under its mesh; the PNG is 4 panels wide."""
+    from click.testing import CliRunner
+
+    from meshdenoise.cli import cli
+    from meshdenoise.io import save_arrays
+
+    monkeypatch.delenv("DISPLAY", raising=False)
+    monkeypatch.delenv("WAYLAND_DISPLAY", raising=False)
+    V, F = icosphere(2)
+    for name, s in (("a", 1.0), ("b", 1.01), ("c", 1.02), ("d", 1.04)):
+        save_arrays(tmp_path / f"{name}.ply", V * s, F)
+    res = CliRunner().invoke(cli, ["show", *(str(tmp_path / f"{n}.ply") for n in "abcd"), "--png",
+                                   str(tmp_path / "s.png"), "--size", "40x40", "--backend", "matplotlib"])
+    assert res.exit_code == 0, res.output
+    assert "7 panels" in res.output
+    png = matplotlib.image.imread(tmp_path / "s.png")
+    # 4 panels of 40 px with 3 gaps of 8 and the colour bar's 110 px; two rows of 40 px under 40-px title bands
+    assert png.shape[:2] == (2 * (40 + 40), 4 * 40 + 3 * 8 + 110)
+    again = render_comparison([(V * s, F) for s in (1.0, 1.01, 1.02, 1.04)], tmp_path / "api.png", size=(40, 40),
+                              show_change=True, error_of="all", backend="matplotlib")
+    rows = [r for r, c, h, w in again.boxes]
+    cols = [c for r, c, h, w in again.boxes]
+    assert rows == [40] * 4 + [120] * 3
+    assert cols == [0, 48, 96, 144, 48, 96, 144]  # the change to b under b, to c under c, to d under d
+    img = (matplotlib.image.imread(tmp_path / "api.png")[:, :, :3] * 255).round().astype(np.uint8)
+    for (r, c, h, w), panel in zip(again.boxes, again.panels):
+        assert np.array_equal(img[r:r + h, c:c + w], panel)
+    assert not covered(img[120:160, 0:40]).any()  # nothing under the first mesh
+    # three panels (render: before / after / change) stay in one row
+    three = render_comparison([(V, F), (V * 1.01, F)], tmp_path / "three.png", size=(40, 40), show_change=True,
+                              backend="matplotlib")
+    assert [b[0] for b in three.boxes] == [40, 40, 40]
+    assert matplotlib.image.imread(tmp_path / "three.png").shape[:2] == (80, 3 * 40 + 2 * 8 + 110)

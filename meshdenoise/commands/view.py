@@ -14,29 +14,34 @@ import click
 MESH = click.Path(exists=True, dir_okay=False, path_type=Path)
 
 
-def _fail(message: str) -> None:
+def _fail(message: str, code: int = 2) -> None:
     """One line on stderr, exit code 2 (bad input); the message is printed as it is (no markup)."""
     click.echo(f"error: {message}", err=True)
-    sys.exit(2)
+    sys.exit(code)
 
 
 def _parse_size(text: str) -> tuple[int, int]:
     try:
         w, h = (int(x) for x in text.lower().split("x"))
     except ValueError:
-        raise click.BadParameter(f"expected WIDTHxHEIGHT in pixels, e.g. 400x400; got {text!r}", param_hint="--size") from None
+        _fail(f"--size: expected WIDTHxHEIGHT in pixels, e.g. 400x400; got {text!r}")
     if not (16 <= w <= 4096 and 16 <= h <= 4096):
-        raise click.BadParameter(f"{text!r}: width and height must be 16..4096 pixels", param_hint="--size")
+        _fail(f"--size: {text!r}: width and height must be 16..4096 pixels")
     return w, h
 
 
-def _parse_view(text: str) -> tuple[float, float]:
+def _parse_view(text: str | None) -> tuple[float, float] | str | None:
+    """'AZ,EL' -> (azimuth, elevation), 'facing' as it is; None without --view (0,0, or 'facing' with --zoom)."""
+    if text is None:
+        return None
+    if text.strip().lower() == "facing":
+        return "facing"
     try:
         az, el = (float(x) for x in text.split(","))
     except ValueError:
-        raise click.BadParameter(f"expected AZIMUTH,ELEVATION in degrees, e.g. 30,20; got {text!r}", param_hint="--view") from None
+        _fail(f"--view: expected AZIMUTH,ELEVATION in degrees, e.g. 30,20, or facing; got {text!r}")
     if not (math.isfinite(az) and math.isfinite(el)):
-        raise click.BadParameter(f"{text!r}: azimuth and elevation must be finite numbers of degrees", param_hint="--view")
+        _fail(f"--view: {text!r}: azimuth and elevation must be finite numbers of degrees")
     return az, el
 
 
@@ -52,14 +57,15 @@ def _parse_zoom(text: str | None):
             return tuple(float(x) for x in parts[:3]), float(parts[3])
     except ValueError:
         pass
-    raise click.BadParameter(f"expected VERTEX,RADIUS or X,Y,Z,RADIUS (radius in mean edge lengths), e.g. 1200,15; "
-                             f"got {text!r}", param_hint="'--zoom'")
+    _fail(f"--zoom: expected VERTEX,RADIUS or X,Y,Z,RADIUS (radius in mean edge lengths), e.g. 1200,15; got {text!r}")
 
 
 _common = [
     click.option("--size", default="400x400", show_default=True, help="Pixels of one panel, WIDTHxHEIGHT."),
-    click.option("--view", default="0,0", show_default=True,
-                 help="AZIMUTH,ELEVATION in degrees; 0,0 looks from +z with +y up."),
+    click.option("--view", default=None, metavar="AZ,EL | facing",
+                 help="AZIMUTH,ELEVATION in degrees; 0,0 (the default) looks from +z with +y up. facing: along "
+                      "the first mesh's mean normal (a range scan faces you), the default with --zoom; a --view "
+                      "given wins."),
     click.option("--error-mode", type=click.Choice(["auto", "vertex", "nearest"]), default="auto", show_default=True,
                  help="vertex: displacement of vertex i from reference vertex i; nearest: distance to the "
                       "reference surface; auto: vertex when the faces are the same."),
@@ -70,9 +76,10 @@ _common = [
                       "99 for the change from the first mesh."),
     click.option("--zoom", default=None, metavar="VERTEX,R | X,Y,Z,R",
                  help="Look at a detail: the ball of radius R (mean edge lengths) around a vertex of the first "
-                      "mesh or a point; only it is drawn."),
+                      "mesh or a point; only it is drawn, seen along its mean normal (unless --view is given)."),
     click.option("--backend", type=click.Choice(["auto", "open3d", "matplotlib"]), default="auto", show_default=True,
-                 help="Rasteriser; auto tries Open3D's OffscreenRenderer, then matplotlib."),
+                 help="Rasteriser; auto: Open3D's OffscreenRenderer when there is a GPU (else, or when it fails, "
+                      "matplotlib)."),
 ]
 
 
@@ -85,27 +92,38 @@ def _with_common(f):
 def _render(meshes, png, reference, titles, size, view, error_mode, vmax, backend, error_of="last",
             percentile=None, zoom=None):
     from ..io import MeshFileError
-    from ..render import render_comparison
+    from ..render import RenderError, render_comparison
 
     if vmax is not None and not math.isfinite(vmax):  # click's FloatRange lets nan and inf through
-        raise click.BadParameter(f"{vmax!r}: the top of the colour bar must be a finite positive number", param_hint="--vmax")
+        _fail(f"--vmax: {vmax!r}: the top of the colour bar must be a finite positive number")
+    size, view, zoom = _parse_size(size), _parse_view(view), _parse_zoom(zoom)
     try:
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always", UserWarning)
             result = render_comparison(list(meshes), png, reference=reference, titles=titles,
-                                       size=_parse_size(size), view=_parse_view(view), error_of=error_of,
+                                       size=size, view=view, error_of=error_of,
                                        error_mode=error_mode, vmax=vmax, backend=backend,
-                                       show_change=reference is None, percentile=percentile, zoom=_parse_zoom(zoom))
-    except click.BadParameter:
-        raise
+                                       show_change=reference is None, percentile=percentile, zoom=zoom)
     except (ValueError, TypeError, MeshFileError) as exc:
-        raise click.UsageError(str(exc)) from None
+        _fail(" ".join(str(exc).split()))
+    except OSError as exc:  # the PNG's folder is missing or not writable
+        _fail(f"{png}: cannot be written: {exc.strerror or exc}")
+    except RenderError as exc:  # --backend open3d asked for, and it failed: not bad input
+        _fail(" ".join(str(exc).split()), code=1)
     for w in caught:  # one line each, not Python's warning format with a source line
         click.echo(f"warning: {w.message}", err=True)
     click.echo(f"wrote {result.path} ({len(result.panels)} panels) with {result.backend_detail}")
+    if result.facing is not None:
+        seen = "seen along its mean normal ({:.3g}, {:.3g}, {:.3g})".format(*result.facing)
+    elif isinstance(view, tuple):
+        seen = f"seen from --view {view[0]:g},{view[1]:g}"
+    else:
+        seen = "seen from 0,0 (its normals cancel out: no side faces the camera)"
     if result.zoom is not None:
         (x, y, z), r = result.zoom
-        click.echo(f"zoomed on ({x:.4g}, {y:.4g}, {z:.4g}), radius {r:.4g} (mesh units)")
+        click.echo(f"zoomed on ({x:.4g}, {y:.4g}, {z:.4g}), radius {r:.4g} (mesh units), {seen}")
+    elif view == "facing":
+        click.echo(seen.replace("its", "the first mesh's"))
     if result.vmax is not None:
         what = "error" if result.heat == "error" else "displacement from the first mesh"
         top = "maximum" if result.percentile in (None, 100.0) else f"{result.percentile:g}th percentile"
@@ -182,7 +200,9 @@ def render(before, after, reference, png, size, view, error_mode, vmax, percenti
     The heat map is the error of AFTER against --reference, or without a reference the
     displacement of every vertex from BEFORE to AFTER, on a colour bar topped at the 99th
     percentile (--percentile, --vmax). --zoom VERTEX,R or X,Y,Z,R draws only a ball of
-    radius R mean edge lengths.
+    radius R mean edge lengths, seen along the detail's mean normal unless --view is given;
+    --view facing turns a whole scan to the camera. Without a GPU the software rasteriser
+    draws at once (--backend open3d forces Open3D).
     """
     _render([before, after], png, reference, [f"before: {before.name}", f"after: {after.name}"],
             size, view, error_mode, vmax, backend, percentile=percentile, zoom=zoom)
@@ -193,12 +213,17 @@ def render(before, after, reference, png, size, view, error_mode, vmax, percenti
 @click.option("--embed", is_flag=True, help="Put the pictures inside the page (it can then be moved alone).")
 @click.option("--pipeline", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="The run's pipeline file, shown in the page (run does not copy it into RUN_DIR).")
-def report(run_dir, embed, pipeline):
-    """Write RUN_DIR/report.html: the pipeline, one results table, a chart per swept parameter, plots and renders."""
+@click.option("--no-renders", is_flag=True, help="Leave out the before / after / change picture of each output.")
+def report(run_dir, embed, pipeline, no_renders):
+    """Write RUN_DIR/report.html: the results table and a chart per swept parameter (with a sweep), each
+    output before / after / change, the plots and renders, the pipeline.
+
+    The pictures go into RUN_DIR/report-renders/ (inside the page with --embed).
+    """
     from ..report import write_report
 
     try:
-        path = write_report(run_dir, embed=embed, pipeline=pipeline)
+        path = write_report(run_dir, embed=embed, pipeline=pipeline, renders=not no_renders)
     except RecursionError:  # json.load on [[[[...]]]]: a results file nested thousands of levels deep
         _fail(f"{run_dir}: a JSON file there is nested too deeply to be a results table")
     except (json.JSONDecodeError, UnicodeDecodeError) as exc:
