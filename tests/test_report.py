@@ -169,11 +169,19 @@ def test_format_number_keeps_four_significant_digits(value, shown):
         assert abs(float(shown) - number) <= 0.5e-3 * abs(number)  # within half a unit of the 4th digit
 
 
-def _pipeline_run(tmp_path):
-    """A real two-input sweep through `meshdenoise run`: inputs sharing a file name, mu and iterations swept."""
+def _run(pipeline, out):
+    """Run the pipeline file through `meshdenoise run --serial`; (its output folder, the file)."""
     from click.testing import CliRunner
 
     from meshdenoise.cli import cli
+
+    res = CliRunner().invoke(cli, ["run", str(pipeline), "--serial"])
+    assert res.exit_code == 0, res.output
+    return out, pipeline
+
+
+def _pipeline_run(tmp_path):
+    """A real two-input sweep through `meshdenoise run`: inputs sharing a file name, mu and iterations swept."""
     from meshdenoise.io import save_mesh
     from meshdenoise.noise import add_normal_noise
 
@@ -192,9 +200,7 @@ def _pipeline_run(tmp_path):
         "  - metrics: {reference: {before: clean}, metrics: [snr, normal_error_deg]}\n"
         "  - save: {path: '{stem}_{index}_{setting}.ply'}\n"
         "sweep: {lam: [0.25, 0.5], iterations: [1, 3, 10]}\n")
-    res = CliRunner().invoke(cli, ["run", str(pipeline), "--serial"])
-    assert res.exit_code == 0, res.output
-    return tmp_path / "out", pipeline
+    return _run(pipeline, tmp_path / "out")
 
 
 def test_pipeline_report_is_one_rounded_table_with_a_chart_per_swept_parameter(tmp_path):
@@ -366,9 +372,6 @@ LONG = "a_rather_long_scan_file_name_straight_from_the_scanner_software_0001.ply
 
 def _scan_run(tmp_path):
     """A clean-up of two scans through `meshdenoise run` (no sweep): one with an odd name, one with a long one."""
-    from click.testing import CliRunner
-
-    from meshdenoise.cli import cli
     from meshdenoise.io import save_mesh
     from meshdenoise.noise import add_normal_noise
     from meshdenoise.shapes import torus
@@ -383,9 +386,7 @@ def _scan_run(tmp_path):
         "steps:\n"
         "  - taubin: {iterations: 10}\n"
         "  - save: {path: '{stem}_clean.ply'}\n")
-    res = CliRunner().invoke(cli, ["run", str(pipeline), "--serial"])
-    assert res.exit_code == 0, res.output
-    return tmp_path / "out", pipeline
+    return _run(pipeline, tmp_path / "out")
 
 
 def test_scan_cleanup_report_shows_each_output_and_nothing_that_was_not_run(tmp_path):
