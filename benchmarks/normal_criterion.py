@@ -26,7 +26,7 @@ sys.path.insert(0, str(HERE))
 from tables import grid_lines  # noqa: E402
 
 TARGET = 1.10  # issue 22: within 10 % of the filter's oracle
-ORACLES = HERE / "results" / "filter-oracle-session15.json"
+ORACLES = HERE / "results" / "filter-oracle.json"
 
 
 def run_cell(row: str, name: str, timeout: float) -> dict:
@@ -55,7 +55,7 @@ def table(cells: list[dict], command: str, note: str = "") -> str:
     lines = [f"# Linear filters' automatic choice, criterion \"normals\", against each filter's oracle\n",
              f"Command: `{command}`\n" + (f"\n{note}\n" if note else ""),
              "Cell: normal error of `denoise(mesh, method=M)` (deg) / its oracle's (`benchmarks/filter_oracle.py`: "
-             "session 15's `filter-oracle-session15.json`, or the files the command's `--oracles` names) = ratio; in "
+             "session 15's `filter-oracle.json`, or the files the command's `--oracles` names) = ratio; in "
              "brackets the position-SURE choice's ratio (from the same file). "
              "**Bold**: outside 10 %.\n",
              "| filter | " + " | ".join(rows) + " |", "|---|" + "---|" * len(rows)]

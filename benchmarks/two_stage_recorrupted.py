@@ -19,8 +19,8 @@ against the clean mesh). The guard, the lighter runs and the fine run of the rul
 compares the criteria that choose the consistency point.
 
 Run:  PYTHONPATH=. python benchmarks/two_stage_recorrupted.py [--rows ...] [--a 0.5 0.7 1.0] [--draws 3]
-      [--truth-from FILE.json] --out benchmarks/results/two-stage-recorrupted-session12.md
-      PYTHONPATH=. python benchmarks/two_stage_recorrupted.py --replay benchmarks/results/two-stage-recorrupted-session12.json
+      [--truth-from FILE.json] --out benchmarks/results/two-stage-recorrupted.md
+      PYTHONPATH=. python benchmarks/two_stage_recorrupted.py --replay benchmarks/results/two-stage-recorrupted.json
 """
 
 from __future__ import annotations
