@@ -35,7 +35,7 @@ it (CPU seconds are given for the pairs).
 
 Usage::
 
-    python benchmarks/scale.py --sizes 100k,400k --timeout 120 --out benchmarks/results/scale-100k-400k
+    python benchmarks/scale.py --sizes 400k,1.6M --timeout 900 --out benchmarks/results/scale   # OUT.txt and OUT.json
     python benchmarks/scale.py --sizes 1.6M --pairs-only
 """
 
