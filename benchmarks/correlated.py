@@ -4,7 +4,7 @@ Usage::
 
     python benchmarks/correlated.py [--meshes elephant bunny face] [--lengths 0 1 2 4] [--sigma 0.3]
                                     [--methods sobolev sobolev_bilaplacian taubin filtering] [--seed 0]
-                                    [--out benchmarks/results/correlated-DATE.md]
+                                    [--out benchmarks/results/correlated.md]
 
 Rows: each mesh with :func:`meshdenoise.add_scanner_noise` along the normals, ``sigma``
 mean edge lengths, correlation length 0, 1, 2 and 4 mean edge lengths (one seed). Meshes:

@@ -1,6 +1,6 @@
 """Two commits' automatic choices timed in turn: per cell, fresh processes alternating between the codes (issue 22).
 
-This machine's speed drifts by 10 to 30 % within a session (docs/automatic-parameters.md, sessions 29 and 30): two
+A shared machine's speed drifts by 10 to 30 % within an hour (measured on the project's 2 cores: benchmarks/results/filter-time-ab.md): two
 codes timed one after the other can differ by the drift alone. Here each code runs from a git worktree of its
 commit, and each cell's calls alternate between them (base, new, base, new, ...), so both see the same machine.
 A call is ``benchmarks/filter_time.py --rows ROW --filters F`` in a fresh process (``denoise(mesh, method=F)``, the

@@ -1,6 +1,6 @@
 """Record the noise model's readings (and the default's noise step) to JSON, or compare two such records field by field.
 
-For a change meant to leave the estimates alone (docs/scale.md, "The noise model at scale (session 11)"): record
+For a change meant to leave the estimates alone: record
 before and after, then compare; every float is kept as its ``repr``, so "0 differences" means bit for bit.
 
 Usage::

@@ -1,10 +1,10 @@
 """Each linear filter's automatic choice under the "normals" criterion against its own normal-error oracle.
 
 For every row of the peers table and every filter of :func:`meshdenoise.tuning.choose.normal_filters`,
-``denoise(mesh, method=M)`` (no clean mesh; since session 16 its criterion is ``"normals"``) is run in a
+``denoise(mesh, method=M)`` (no clean mesh; its criterion is ``"normals"``) is run in a
 process of its own and its mean face-normal error compared with the filter's oracle measured by
 ``benchmarks/filter_oracle.py`` (the least error over the rule's parameters, read from ``--oracles``,
-session 15's table; where the new choice beats that oracle, the choice is the oracle: ratio 1).
+by default benchmarks/results/filter-oracle.json; where the new choice beats that oracle, the choice is the oracle: ratio 1).
 The position-SURE choice of the same table is shown beside it.
 
     PYTHONPATH=. python benchmarks/normal_criterion.py --out benchmarks/results/normal-criterion.md
@@ -55,7 +55,7 @@ def table(cells: list[dict], command: str, note: str = "") -> str:
     lines = [f"# Linear filters' automatic choice, criterion \"normals\", against each filter's oracle\n",
              f"Command: `{command}`\n" + (f"\n{note}\n" if note else ""),
              "Cell: normal error of `denoise(mesh, method=M)` (deg) / its oracle's (`benchmarks/filter_oracle.py`: "
-             "session 15's `filter-oracle.json`, or the files the command's `--oracles` names) = ratio; in "
+             "`benchmarks/results/filter-oracle.json`, or the files the command's `--oracles` names) = ratio; in "
              "brackets the position-SURE choice's ratio (from the same file). "
              "**Bold**: outside 10 %.\n",
              "| filter | " + " | ".join(rows) + " |", "|---|" + "---|" * len(rows)]
@@ -66,7 +66,7 @@ def table(cells: list[dict], command: str, note: str = "") -> str:
     lines += grid_lines(by, rows, filters, ratio_cell)
     done = [c for c in cells if "error" not in c]
     inside = sum(c["ratio"] <= TARGET for c in done)
-    lines.append(f"\n{inside} of {len(done)} cells within 10 % (position SURE, session 15: "
+    lines.append(f"\n{inside} of {len(done)} cells within 10 % (position SURE: "
                  f"{sum(c['sure_ratio'] <= TARGET for c in done)} of the same cells).\n")
     lines.append("SNR (dB) and time (s, one call, choice and filter) of the normals choice, SNR of the SURE choice:\n")
     lines.append("| filter | " + " | ".join(rows) + " |")

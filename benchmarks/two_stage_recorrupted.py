@@ -1,4 +1,4 @@
-"""Recorrupted pairs as ``two_stage``'s criterion, replayed on the rule's region (issue 22, session 12).
+"""Recorrupted pairs as ``two_stage``'s criterion, replayed on the rule's region (issue 22).
 
 Per row of ``benchmarks/two_stage_auto.py``: the rule's sampled region and its noise level; every run of
 the rule's grid (``TWO_STAGE_SIGMA_R`` x ``TWO_STAGE_NORMAL_ITERATIONS`` x ``TWO_STAGE_VERTEX_ITERATIONS``,
@@ -174,7 +174,7 @@ def variants(r: dict) -> dict[str, list[dict]]:
 
 def table(results: list[dict], truths: dict, command: str, load: str) -> str:
     rows = [r["row"] for r in results]
-    lines = ["# two_stage's criterion on recorrupted pairs (issue 22, session 12)", "", f"Command: `{command}`  ",
+    lines = ["# two_stage's criterion on recorrupted pairs (issue 22)", "", f"Command: `{command}`  ",
              f"Load average when started: {load} (2 cores, shared).", "",
              "Cells: the mean face-normal error (deg, whole mesh, against the clean mesh) of the point the rule's staged "
              "search chooses on each score's curves; per draw, then (bold) on the mean of the draws' curves. The "

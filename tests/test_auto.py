@@ -372,7 +372,7 @@ def test_sobolev_axes_matches_dense_solves_in_the_normal_frame():
 
 def test_sobolev_axes_per_axis_sure_matches_the_dense_weighted_risk():
     """The per-axis SURE's weighted trace sum_i H_ii c_i: Hutchinson's z^T diag(c) H z (the rule's, one solve H z for
-    the three axes) and (z * sqrt c)^T H (z * sqrt c) (before session 29) against the dense diagonal."""
+    the three axes) and (z * sqrt c)^T H (z * sqrt c) (three solves, the same expectation) against the dense diagonal."""
     V, F = icosphere(2)
     n = len(V)
     _, L = _dense_P(F, n)

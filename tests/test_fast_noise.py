@@ -213,7 +213,7 @@ def test_weighted_median_and_nearest_stratum():
     np.testing.assert_array_equal(_nearest_present(np.array([False, True, False])), [1, 1, 1])
 
 
-# --- the noise model's probes of every correlation length from one Krylov space (session 10) -------------------
+# --- the noise model's probes of every correlation length from one Krylov space ------------------------------
 def _dense_heat(V, F, length, Z):
     """HeatFilter written out densely: diag(s) Z, then HEAT_STEPS implicit steps (M + tau/k L) u' = M u."""
     from meshdenoise.noise import HEAT_STEPS, heat_geometry
@@ -275,7 +275,7 @@ def test_heat_krylov_falls_back_to_cg_for_lengths_it_cannot_settle():
 
 
 class _PerLengthHeatFilters:
-    """The fit's colouring before session 10, as a drop-in for HeatKrylov: a HeatFilter per length, to FIT_TOL."""
+    """The fit's colouring by a HeatFilter per length (CG solves), as a drop-in for HeatKrylov, to FIT_TOL."""
 
     def __init__(self, V, F, Z, *, geometry=None, tol=1e-5):
         self.args = (V, F, Z, geometry, tol)

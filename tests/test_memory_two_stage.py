@@ -28,6 +28,6 @@ def test_a_two_stage_run_allocates_its_buffers_and_not_more_than_one_extra_verte
         peak = tracemalloc.get_traced_memory()[1]
     finally:
         tracemalloc.stop()
-    # small (n,) arrays fit in one (n, 3) array's bytes; a copy of the input or of the result (as before
-    # session 9: 2.6 of them) does not
+    # small (n,) arrays fit in one (n, 3) array's bytes; a copy of the input or of the result (2.6 of them)
+    # does not
     assert buffers <= peak <= buffers + 8 * 3 * n, (peak, buffers)

@@ -25,7 +25,7 @@ def test_ratio_and_table_count_cells_within_ten_percent():
               "snr": 30.0, "sure_snr": 31.0, "time": 1.0},
              {"row": "B", "filter": "sobolev", "error": "timeout after 1 s"}]
     text = nc.table(cells, "cmd", "a note [x]")
-    assert "1 of 2 cells within 10 % (position SURE, session 15: 1 of the same cells)" in text
+    assert "1 of 2 cells within 10 % (position SURE: 1 of the same cells)" in text
     assert "**12.00 / 10.00 = 1.200 (1.050)**" in text and "fails: timeout after 1 s" in text and "a note [x]" in text
 
 

@@ -418,8 +418,8 @@ def test_a_rules_normals_region_reaches_the_region_search(monkeypatch):
 def test_sobolev_gls_searches_no_mu_when_the_normals_search_follows(monkeypatch):
     """Under criterion normals the rule holds mu at the isotropic filter's SURE weight (the normals search's start,
     which moves it on) and sweeps beta only: no search over mu of its own, and a lower normal error than the SURE
-    choice. On this 162-vertex sphere session 18's shortcut (the SURE search at beta 3 without its last refinement)
-    ended at mu 3e-9 and the normals search from there chose 3e-7: 3.49 degrees where SURE's choice has 2.16.
+    choice. On this 162-vertex sphere a shortcut (the SURE search at beta 3 without its last refinement)
+    ends at mu 3e-9 and the normals search from there chooses 3e-7: 3.49 degrees where SURE's choice has 2.16.
     Probes, not exact traces: a few seconds instead of 28."""
     import meshdenoise.plugins.sobolev_gls as gls
 
@@ -460,7 +460,7 @@ def _walk(f, size, start, passes=6):
 
 
 def _bisection_passes(f, size, start, passes=6):
-    """The walk as it was until session 28 (bisection once bracketed): its pass count, the reference."""
+    """The walk by bisection once bracketed: its pass count, the reference."""
     lo, hi, at = -1, size, start
     for k in range(1, passes + 1):
         best = f(at)

@@ -528,7 +528,7 @@ def test_sinkhorn_rule_scores_a_regions_inner_vertices_and_cuts_again_while_its_
     choice's reach (sinkhorn_reach) is wider than the margin used the region is cut again with that margin (here
     the second region would be the whole mesh, so the whole-mesh rule decides). The first cut's margin is the reach
     of the search's start (first_margin), here narrowed to see the second cut. On a 24,000-vertex torus the third
-    cut's choice was within 0.4 % of the whole mesh's t (docs/scale.md, session 20)."""
+    cut's choice is within 0.4 % of the whole mesh's t."""
     import meshdenoise.plugins.sinkhorn as sk
     import meshdenoise.tuning.search as search
 
@@ -719,7 +719,7 @@ def test_sobolev_axes_factor_free_filter_equals_the_factor_filter(monkeypatch):
     np.testing.assert_allclose(after, before, atol=1e-11)
 
 
-# --------------------------------------------------------------------------- session 9: cheaper region searches
+# --------------------------------------------------------------------------- cheaper region searches
 def test_search_log_narrow_grid_finds_the_minimum_with_few_evaluations():
     """A quadratic in log10 mu with its minimum at 0.3: the default grid and the narrow refining grid both find it;
     the narrow one (three points 0.2 decades apart, 4 golden steps) from a start 0.15 decades off in at most 9."""
@@ -855,7 +855,7 @@ def test_curve_terms_are_the_records_sums_on_any_thread_count(monkeypatch):
             break
 
 
-# --------------------------------------------------------------------------- session 22: LogSearch's two phases
+# --------------------------------------------------------------------------- LogSearch's two phases
 def _reference_search_log(evaluate, center, golden_steps=8, lo_limit=-8.0, hi_limit=10.0, spacing=0.75, half_width=2):
     """The log search written out in one function (grid extended at its ends, then golden section), for comparison."""
     import math

@@ -1,4 +1,4 @@
-"""sobolev_axes at scan size (session 10): one Lanczos run for the three axes, the search's own run for its coordinates,
+"""sobolev_axes at scan size: one Lanczos run for the three axes, the search's own run for its coordinates,
 and the Lanczos recurrences written in place (the same numbers as before)."""
 
 import numpy as np
@@ -49,7 +49,7 @@ def test_quadrature_coordinates_are_the_solve_of_the_search_s_own_run():
 
 
 def _reference_extend(M, B, steps):
-    """The recurrence as written before session 10 (a new array per product), for the bit-for-bit comparison."""
+    """The recurrence with a new array per product, for the bit-for-bit comparison with the in-place one."""
     n, k = B.shape
     norms2 = np.einsum("ij,ij->j", B, B)
     scale = float(abs(M).sum(axis=1).max())

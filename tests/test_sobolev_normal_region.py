@@ -1,4 +1,4 @@
-"""sobolev_normal's region search without the reach loop (session 10): one cut, its outer rings held at the whole
+"""sobolev_normal's region search without a reach loop: one cut, its outer rings held at the whole
 mesh's result, against the whole-mesh rule on a torus whose best weight is large (where a free border loses dB)."""
 
 import numpy as np

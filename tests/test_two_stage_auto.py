@@ -230,8 +230,8 @@ def test_staged_search_ends_with_both_counts_jointly_where_one_at_a_time_stalls(
 
 
 def test_the_rule_searches_40_vertex_steps_20_and_40_under_correlated_noise_and_the_oracle_10_as_well():
-    # session 14: under independent noise the criterion preferred 20 steps where 40 was better (Block0.4: 2.94
-    # against 2.78 degrees at the rule's two draws; docs/automatic-parameters.md)
+    # under independent noise the criterion with 20 steps chose worse than with 40 (Block0.4: 2.94
+    # against 2.78 degrees at the rule's two draws; benchmarks/results/two-stage-auto.md has 2.78)
     assert ts._search_grid({})["vertex_iterations"] == (40,)
     assert ts._search_grid({}, correlated=True)["vertex_iterations"] == (20, 40)
     assert ts._search_grid({"vertex_iterations": 7}, correlated=True)["vertex_iterations"] == (7,)
@@ -360,8 +360,8 @@ def test_guard_lighter_run_is_taken_on_a_detailed_smooth_scan_and_lowers_the_tru
     """pymeshlab's bunny with independent noise of 0.3 edge lengths along the normals (the correlated
     benchmark's row at l = 0): the consistency criterion asks for 10 normal passes and 20 vertex steps,
     the guard's lighter run (5 and 10) is taken, and it is better against the clean mesh on both
-    measures (benchmarks/results/correlated-two-stage-2026-11-24.md: 58.63 dB against 56.57; since session 14's
-    two synthetic draws and 40 vertex steps the unguarded choice is better, 57.85 dB, the guarded one the same)."""
+    measures (the guarded choice 58.63 dB, benchmarks/results/correlated-two-stage.md, the bunny at ell 0; the
+    unguarded one 57.85 dB with the rule's two synthetic draws and 40 vertex steps)."""
     from meshdenoise.data import sample_mesh
     from meshdenoise.io import load_arrays
     from meshdenoise.noise import add_scanner_noise, mean_edge_length
@@ -559,8 +559,8 @@ def test_rules_second_sigma_r_stage_stays_next_to_the_best_so_far_and_the_oracle
 
 
 def test_correlated_fields_on_a_grown_region_equal_the_whole_meshs_colouring_at_the_model_scale(monkeypatch):
-    """Where the region is small next to the mesh the fields are coloured on the region grown by some rings (session
-    11): at the region's vertices they must be the whole mesh's heat-filtered draws (HeatFilter written out here on
+    """Where the region is small next to the mesh the fields are coloured on the region grown by some rings:
+    at the region's vertices they must be the whole mesh's heat-filtered draws (HeatFilter written out here on
     the whole mesh, tight tolerance), each column scaled so that its mean square over the grown core is the
     model's there (from the model's coloured averaging probes), up to the sampling of that scale; and growing
     it by 2 rings only must break the agreement (the outside is held at 0)."""
@@ -725,7 +725,7 @@ def test_start_runs_a_job_on_a_worker_with_one_kernel_thread_or_at_once_on_one_t
             kernels.start(boom).result(timeout=30)
 
 
-# --- session 14: two synthetic draws, the residual's whiteness ------------------------------------
+# --- two synthetic draws, the residual's whiteness --------------------------------------------------
 def test_residual_correlation_is_the_lag_one_autocorrelation_over_edges_written_by_hand():
     V, F = icosphere(3)
     n = len(V)
@@ -796,7 +796,7 @@ def test_consistency_scores_are_the_mean_median_angle_of_the_draws_seeds_0_up(mo
 
 
 def test_whiteness_switch_sets_the_outer_iterations_of_the_whitest_residual(monkeypatch):
-    """TWO_STAGE_WHITENESS (off in the rule, measured in session 14): the chosen run's outer iterations become
+    """TWO_STAGE_WHITENESS (off in the rule): the chosen run's outer iterations become
     the count whose residual is whitest on the noisy mesh (brute force over the counts with apply_filter;
     the box is its own region). The guard and the fine run are switched off to see the step alone."""
     V, Vn, F, rho = noisy_box()
@@ -814,7 +814,7 @@ def test_whiteness_switch_sets_the_outer_iterations_of_the_whitest_residual(monk
 
 
 def test_fine_run_must_beat_the_least_sure_along_the_chosen_run_not_its_last_point():
-    # Block0.4's numbers with the chosen run at 8 iterations (session 14): least 3.86 at 2, 8.84 at 8; the fine run 5.54
+    # Block0.4's numbers with the chosen run at 8 iterations: least 3.86 at 2, 8.84 at 8; the fine run 5.54
     along = [11.82, 3.86, 4.86, 5.30, 5.56, 6.47, 7.63, 8.84]
     assert not ts.fine_run_wins(5.54, along, 0.2)  # 37 % below the last point, above the least
     assert ts.fine_run_wins(3.0, along, 0.2) and not ts.fine_run_wins(3.2, along, 0.2)  # 0.8 x 3.86 = 3.088
