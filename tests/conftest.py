@@ -4,7 +4,14 @@ from __future__ import annotations
 
 import os
 
-import numpy as np
+# One OpenBLAS thread per pytest-xdist worker (set before numpy is first imported, which is here): the workers
+# already fill the cores, and OpenBLAS's threads, spinning while they wait, crawl when the cores are oversubscribed
+# (a 384 x 384 Cholesky factor 30 times slower with two workers of two threads each, or with another job beside).
+# numba's threads (which the tests do check) are not touched; a serial run keeps OpenBLAS's own default.
+if os.environ.get("PYTEST_XDIST_WORKER"):
+    os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
 import pytest
 
 from meshdenoise.data import data_dir
