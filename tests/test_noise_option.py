@@ -80,24 +80,11 @@ def noisy_sphere_file(tmp_path):
 def test_cli_dry_run_uses_the_given_level_in_edge_lengths(noisy_sphere_file):
     src, Vn, F = noisy_sphere_file
     h = edge_length_by_hand(Vn, F)
-    result = CliRunner().invoke(cli, ["denoise", str(src), "--dry-run", "--noise", "0.5h"])
-    assert result.exit_code == 0, result.output
-    assert f"noise: {0.5 * h:.4g} (0.5 mean edge lengths" in result.output
-    assert "the noise level was given" in result.output
     result = CliRunner().invoke(cli, ["denoise", str(src), "--dry-run", "--method", "sobolev", "--auto",
                                       "--noise", "0.5h"])
     assert result.exit_code == 0, result.output
     mu = choose_parameters((Vn, F), "sobolev", noise=0.5 * h, criterion="normals")["mu"]  # as denoise(method=)
     assert f"mu={mu!r}" in result.output and "given by --noise" in result.output
-
-
-def test_cli_denoise_with_a_given_level_writes_the_default_for_that_level(noisy_sphere_file, tmp_path):
-    src, Vn, F = noisy_sphere_file
-    dst = tmp_path / "out.ply"
-    result = CliRunner().invoke(cli, ["denoise", str(src), str(dst), "--noise", "0.03"])
-    assert result.exit_code == 0, result.output
-    expected = md.denoise((Vn, F), noise=0.03)[0]
-    np.testing.assert_allclose(load_mesh(dst).V, expected, atol=1e-9)
 
 
 def test_a_larger_given_level_smooths_more():
@@ -111,7 +98,9 @@ def test_a_larger_given_level_smooths_more():
 @pytest.mark.parametrize("args, message", [
     (["--noise", "0.3x"], "error: --noise: '0.3x' is not understood; give RHO[h][,L]"),
     (["--noise", "-1"], "error: --noise: '-1': the level must be a finite number >= 0"),
-    (["--noise", "0.3h", "--method", "sobolev"], "error: --noise 0.3h: the noise level is used only to choose parameters"),
+    (["--noise", "0.3h", "--method", "sobolev"], "error: --noise 0.3h: the noise level is used only by a filter's own rule"),
+    (["--noise", "0.3h"], "error: --noise 0.3h: the noise level is used only by a filter's own rule"),
+    (["--dry-run", "--noise", "0.3h"], "with no method the default reads the noise from held-out vertices"),
 ])
 def test_cli_bad_noise_is_one_line_and_exit_2(noisy_sphere_file, tmp_path, args, message):
     src, _, _ = noisy_sphere_file
@@ -121,7 +110,7 @@ def test_cli_bad_noise_is_one_line_and_exit_2(noisy_sphere_file, tmp_path, args,
     assert not (tmp_path / "o.ply").exists()
 
 
-def test_pipeline_noise_option_for_the_default_and_for_automatic_parameters(noisy_sphere_file, tmp_path):
+def test_pipeline_noise_option_for_automatic_parameters(noisy_sphere_file, tmp_path):
     src, Vn, F = noisy_sphere_file
     out = tmp_path / "out"
     p = tmp_path / "p.yaml"
@@ -131,15 +120,12 @@ def test_pipeline_noise_option_for_the_default_and_for_automatic_parameters(nois
     assert result.exit_code == 0, result.output
     mu = choose_parameters((Vn, F), "sobolev", noise=0.5 * edge_length_by_hand(Vn, F))["mu"]
     np.testing.assert_allclose(load_mesh(out / "a.ply").V, md.apply_filter("sobolev", (Vn, F), mu=mu)[0], atol=1e-9)
-    p.write_text(f"inputs: '{src.name}'\noutput_dir: {out}\nsteps:\n  - denoise: {{noise: 0.03}}\n  - save: {{path: b.ply}}\n")
-    result = CliRunner().invoke(cli, ["run", str(p), "--serial"])
-    assert result.exit_code == 0, result.output
-    np.testing.assert_allclose(load_mesh(out / "b.ply").V, md.denoise((Vn, F), noise=0.03)[0], atol=1e-9)
 
 
 @pytest.mark.parametrize("step, expected", [
     ("  - sobolev: {noise: 0.01}\n", "step 1 'sobolev': noise: the noise level is used only to choose parameters"),
-    ("  - denoise: {noise: 'lots'}\n", "noise: 'lots' is not understood"),
+    ("  - sobolev: {parameters: auto, noise: 'lots'}\n", "noise: 'lots' is not understood"),
+    ("  - denoise: {noise: 0.01}\n", "unknown parameter 'noise': the default reads the noise from held-out vertices"),
 ])
 def test_pipeline_bad_noise_option_names_file_line_step(noisy_sphere_file, tmp_path, step, expected):
     src, _, _ = noisy_sphere_file

@@ -676,28 +676,6 @@ def test_staged_search_with_an_evaluator_runs_each_stage_at_once_and_chooses_as_
     assert batches[0] == len(ts.TWO_STAGE_SIGMA_R)  # the first stage: every sigma_r at once
 
 
-def test_the_rule_and_feature_risk_give_the_same_bits_with_runs_side_by_side_or_one_after_another(monkeypatch):
-    """The rule's candidates and guard probes, and feature_risk's probes, run side by side on one
-    kernel thread each; a plain loop (each run's kernels on every thread) must give the same numbers."""
-    from meshdenoise import default, kernels
-    from meshdenoise.tuning.covariance import NoiseModel
-
-    V, Y, F, rho = noisy_box()
-
-    def both():
-        params, risk = choose_parameters((Y, F), "two_stage", noise=rho, return_risk=True)
-        normals = vertex_normals(V, F)
-        fr, out = default.feature_risk(Y, F, params, NoiseModel(rho), normals, probes=5)
-        return params, risk, fr, out
-
-    side = both()
-    monkeypatch.setattr(kernels, "run_concurrently", lambda fn, items, vertices=0: [fn(x) for x in items])
-    loop = both()
-    assert side[0] == loop[0]
-    assert side[1] == loop[1] and side[2] == loop[2]  # bit for bit
-    assert np.array_equal(side[3], loop[3])
-
-
 def test_start_runs_a_job_on_a_worker_with_one_kernel_thread_or_at_once_on_one_thread(monkeypatch):
     import threading
 

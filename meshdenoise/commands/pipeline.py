@@ -181,8 +181,9 @@ def _print_rows(rows: list[dict]) -> None:
 @click.argument("input_path", metavar="IN", type=click.Path(dir_okay=False))
 @click.argument("output_path", metavar="OUT", type=click.Path(dir_okay=False), required=False)
 @click.option("--method", default=None,
-              help="A filter of ours (see `meshdenoise filters`). Default: chosen for the mesh, with its parameters "
-                   "(two_stage for sharp features, else sobolev_bilaplacian; the choice and why are printed).")
+              help="A filter of ours (see `meshdenoise filters`), run with the parameters given (--param) or, with --auto, "
+                   "chosen by its own rule (else its defaults). Default: the filter and its parameters chosen for the "
+                   "mesh by held-out vertices; three lines printed (--explain: why).")
 @click.option("--param", "params", multiple=True, metavar="NAME=VALUE", help="A filter parameter (repeatable; needs --method).")
 @click.option("--pinned", type=click.Choice(["boundary", "selection"]), default=None, help="Keep these vertices exactly fixed.")
 @click.option("--region-from-selection", is_flag=True, help="Move only the vertices selected in IN (PLY vertex flags).")
@@ -193,18 +194,20 @@ def _print_rows(rows: list[dict]) -> None:
                    "free: as the filter moves them.")
 @click.option("--noise", "noise", default=None, metavar="RHO[h][,L]",
               help="The noise level to choose for, instead of the estimate: RHO in mesh units, or in mean edge lengths "
-                   "with h (0.4h); L its correlation length in mean edge lengths (0.4h,2). With no --method, or with --auto.")
+                   "with h (0.4h); L its correlation length in mean edge lengths (0.4h,2). With --method and --auto.")
 @click.option("--criterion", type=click.Choice(["normals", "sure"]), default=None,
               help="With --method and --auto: what the choice minimises. normals (default where the filter has it: "
                    "filtering, heat, taubin, sinkhorn, sobolev, sobolev_bilaplacian, sobolev_axes): the face-normal error, what a rendering "
                    "shows; it smooths and shrinks more. sure: the position error (SNR), a pipeline's default.")
-@click.option("--dry-run", is_flag=True, help="Only print the noise estimate and what would be chosen; write nothing.")
+@click.option("--explain", is_flag=True, help="With no --method: also print why (every candidate's held-out error).")
+@click.option("--dry-run", is_flag=True, help="Only print what would be chosen; write nothing.")
 def denoise_command(input_path, output_path, method, params, pinned, region_from_selection, preserve_volume, auto,
-                    boundary_motion, noise, criterion, dry_run):
+                    boundary_motion, noise, criterion, explain, dry_run):
     """Denoise the mesh IN and write OUT (PLY, OBJ, OFF or STL; colours kept).
 
-    With no --method the filter and its parameters are chosen from the mesh alone and
-    printed with the noise estimate and the reasons (the default for scans).
+    With no --method the filter and its parameters are chosen from the mesh alone (the default
+    for scans) and three lines are printed: the noise removed, the filter with its parameters, and
+    how far the vertices moved with the faces flipped; --explain adds why.
     """
     from ..pipeline.schema import Task
     from ..pipeline.errors import PipelineValidationError
@@ -236,16 +239,20 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
         except KeyError:
             pass
     given["boundary_motion"] = boundary_motion
+    if explain:
+        if method is not None:
+            _fail("--explain: it says why the default chose its filter: drop --method", 2)
+        given["explain"] = True
     if noise is not None:
         from ..pipeline.noise_option import parse_noise_option
 
-        if method is not None and not auto:
-            _fail(f"--noise {noise}: the noise level is used only to choose parameters: add --auto, or drop --method "
-                  "(the default chooses the filter and its parameters for that level)", 2)
         try:
             parse_noise_option(noise, "--noise")  # said here with the option's name; the step reads it again
         except ValueError as exc:
             _fail(str(exc), 2)
+        if method is None or not auto:
+            _fail(f"--noise {noise}: the noise level is used only by a filter's own rule: give --method M --auto "
+                  "(with no method the default reads the noise from held-out vertices)", 2)
         given["noise"] = noise
     src = Path(input_path)
     if not src.is_file():
@@ -321,10 +328,10 @@ def _dry_run(src: Path, method: str | None, given: dict) -> None:
 
         known = parse_noise_option(given["noise"]).model(mesh.V, mesh.F) if "noise" in given else None
         if method is None:
-            from ..default import choose_default
+            from ..policy import choose_default
 
-            choice = choose_default(arrays, noise=known, boundary_motion=given.get("boundary_motion", "normal"))
-            lines = choice.lines()
+            choice = choose_default(arrays)
+            lines = choice.lines()[1:2] + (choice.explain() if given.get("explain") else [])
         else:
             from ..operators import get_operators
             from ..pipeline.steps import COMMON

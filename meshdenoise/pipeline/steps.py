@@ -286,10 +286,11 @@ def describe_steps() -> list[dict]:
         return out
 
     out = [
-        entry("denoise", "the default for scans: chooses the filter (two_stage for sharp features, else "
-              "sobolev_bilaplacian) and its parameters from the mesh alone, and records why (denoise.* columns)",
+        entry("denoise", "the default for scans: chooses the filter and its parameters from the mesh alone (candidates "
+              "scored on held-out vertices), runs it with a flipped-face guard, records the choice (denoise.* columns)",
               [(n, t, "normal" if n == "boundary_motion" else d, h) for n, t, d, h in OURS_OPTIONS_DOC
-               if n not in ("parameters", "criterion")]),
+               if n not in ("parameters", "criterion", "noise")]
+              + [("explain", "bool", False, "print why: every candidate's held-out error")]),
         entry("add_noise", "displace every vertex along its normal by Gaussian noise", from_params(BUILTIN_STEPS["add_noise"])),
         entry("save", "write the current mesh (PLY, OBJ, OFF, STL) once every step succeeded", from_params(BUILTIN_STEPS["save"])),
         entry("metrics", "measure the current mesh against a reference; values go to the results table", METRICS_DOC),
@@ -451,14 +452,20 @@ def _parse(name, given, index, label, source, line, at_param) -> Step:
             raise _unknown_step(name, at)
         return Step(index, name, "open3d", _check_params(OPEN3D_OPS[op], given, at), label, source, line)
     if name == "denoise":
-        options, rest = _filter_options(given, at, ("pinned", "region", "preserve_volume", "boundary_motion", "noise"))
+        explain = given.get("explain", False)
+        if not isinstance(explain, bool):
+            raise PipelineValidationError(f"{at_param('explain')}: explain must be true or false, got {explain!r}")
+        given = {k: v for k, v in given.items() if k != "explain"}
+        options, rest = _filter_options(given, at, ("pinned", "region", "preserve_volume", "boundary_motion"))
         if rest:
             key = next(iter(rest))
-            raise PipelineValidationError(
-                f"{at_param(key)}: unknown parameter '{key}': denoise chooses the filter and its parameters "
-                "(its options: pinned, region, preserve_volume, boundary_motion, noise); to set a filter's parameters, "
-                "use the filter as the step"
-            )
+            why = ("the default reads the noise from held-out vertices; to choose a filter's parameters for a known "
+                   "level use the filter as the step with parameters: auto and noise" if key == "noise" else
+                   "denoise chooses the filter and its parameters (its options: pinned, region, preserve_volume, "
+                   "boundary_motion, explain); to set a filter's parameters, use the filter as the step")
+            raise PipelineValidationError(f"{at_param(key)}: unknown parameter '{key}': {why}")
+        if explain:
+            options["explain"] = True
         options.setdefault("boundary_motion", "normal")
         return Step(index, name, "default", {}, label, source, line, options)
     if name in ("add_noise", "save"):
@@ -644,44 +651,28 @@ def _run_ours(step: Step, ctx: RunContext) -> None:
 
 
 def _run_default(step: Step, ctx: RunContext) -> None:
-    """The ``denoise`` step: :func:`meshdenoise.default.choose_default`, then the chosen filter; the decision is recorded."""
-    import warnings
-
-    from ..default import choose_default, run_post_step, warn_if_not_smoothing
-    from ..tuning.memo import release_before_filter
+    """The ``denoise`` step: :func:`meshdenoise.policy.run_default` (what ``denoise()`` runs); the decision is recorded."""
+    from ..policy import run_default
 
     state = ctx.state
     options = dict(step.options)
     for key in ("pinned", "region"):
         if key in options:
             options[key] = _vertex_option(options[key], state, key)
-    given_noise = options.pop("noise", None)
-    noise = given_noise.model(state.V, state.F) if given_noise is not None else None
-    choice = choose_default(state.arrays(), noise=noise, boundary_motion=options.get("boundary_motion", "normal"))
-    if ctx.echo:  # the choice is said before the filter runs
-        for line in choice.lines():
+    options.pop("noise", None)  # the default reads the noise from held-out vertices
+    explain = bool(options.pop("explain", False))
+    (V, _), choice = run_default(state.arrays(), **options)
+    if ctx.echo:
+        for line in choice.lines() + (choice.explain() if explain else []):
             ctx.echo(f"{ctx.input_path.name}: {line}")
-    release_before_filter()
-    with stage(f"running {choice.method}"):
-        V, _ = get_filter(choice.method).public(state.arrays(), **choice.params, **options)
-    V, _ = run_post_step(choice, (V, state.F), **options)  # Taubin steps after a smooth prior (none otherwise)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        warn_if_not_smoothing(state.V, V, choice)
     row = ctx.row
     row["denoise.method"] = choice.method
     row["denoise.noise"] = choice.noise
     row["denoise.noise_edges"] = choice.noise_in_edges
-    row["denoise.sharp_share"] = choice.features.share
+    row["denoise.flipped"] = choice.flipped
+    row["denoise.moved_rms_edges"] = choice.moved_rms
     for k, v in choice.params.items():
         row[f"auto.{choice.method}.{k}"] = v
-    row["denoise.post_steps"] = choice.post_steps
-    if ctx.echo:
-        for w in caught:
-            ctx.echo(f"{ctx.input_path.name}: warning: {w.message}")
-    if not ctx.echo:  # told through echo (the CLI), else still a warning for Python callers and logs
-        for w in caught:
-            warnings.warn(str(w.message), UserWarning, stacklevel=2)
     ctx.state = state.with_vertices(V)
 
 

@@ -1,0 +1,237 @@
+"""The default's policy: a few named steps, each returning a small record.
+
+1. :func:`score`: every candidate family's held-out loss along its run
+   (:mod:`meshdenoise.tuning.holdout`: vertices hidden with a hole around them, the run on the copy
+   compared with the hidden noisy positions along the normals), on the whole mesh or, above
+   :attr:`DefaultConfig.region_vertices`, on a sampled region;
+2. :func:`pick`: the family and count of least loss;
+3. :func:`guard`: the chosen filter on the whole mesh, its flipped faces counted against the input's,
+   and fewer steps where it flips more.
+
+The noise reported is what the chosen run removed: the root mean square of the vertices' moves
+along the result's vertex normals.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..geometry import face_normals, vertex_normals
+from ..operators import Operators, get_operators
+from ..tuning.holdout import NoHoldout, holdout, path_losses, region
+from .config import DefaultConfig, Family
+from .paths import family_path
+
+NONE = "none"  # the method of a choice that runs nothing
+
+__all__ = ["NONE", "Score", "DefaultChoice", "score", "pick", "flipped_faces", "choose"]
+
+
+@dataclass(frozen=True)
+class Score:
+    """One family's held-out losses along its run (mean per centre, mesh units squared)."""
+
+    family: Family
+    losses: np.ndarray
+
+    @property
+    def step(self) -> int:
+        """The count of least loss (1-based)."""
+        return int(np.argmin(self.losses)) + 1
+
+    @property
+    def loss(self) -> float:
+        return float(np.min(self.losses))
+
+
+@dataclass
+class DefaultChoice:
+    """What the default decided for one mesh, and why.
+
+    Attributes
+    ----------
+    method : str
+        The filter chosen.
+    params : dict
+        Its parameters.
+    edge_length : float
+        Mean edge length (mesh units).
+    noise : float
+        What the run removed: the rms of the vertices' moves along the result's normals (mesh units;
+        set by :func:`guard`).
+    scores : list of Score
+        Every candidate's losses.
+    scored_vertices : int
+        Vertices of the mesh (or region) the losses were read on.
+    centres : int
+        Held-out vertices scored.
+    seconds : float
+        Time taken to choose.
+    flipped : int
+        Faces of the result turned over (:func:`flipped_faces`; set by :func:`guard`).
+    moved_rms, moved_max : float
+        How far the vertices moved, in mean edge lengths (set by :func:`guard`).
+    fallback : str
+        Why fewer steps than chosen were run ('' when the choice ran as it was).
+    reason : str
+        Why nothing was run (``method`` is ``"none"``), else ''.
+    """
+
+    method: str
+    params: dict
+    edge_length: float
+    noise: float
+    scores: list = field(default_factory=list)
+    scored_vertices: int = 0
+    centres: int = 0
+    seconds: float = 0.0
+    flipped: int = 0
+    moved_rms: float = 0.0
+    moved_max: float = 0.0
+    fallback: str = ""
+    reason: str = ""
+
+    def rescaled(self, k: int) -> "DefaultChoice":
+        """The choice with its lengths multiplied by ``2**k`` (read on a mesh divided by it)."""
+        self.edge_length = float(np.ldexp(self.edge_length, k))
+        self.noise = float(np.ldexp(self.noise, k))
+        return self
+
+    @property
+    def noise_in_edges(self) -> float:
+        return self.noise / self.edge_length if self.edge_length > 0 else 0.0
+
+    def lines(self) -> list[str]:
+        """Three lines for a person: the noise, the filter, how far the mesh moved."""
+        if self.method == NONE:
+            return ["noise removed: none", f"filter: none, the mesh is left as it is ({self.reason})",
+                    "moved the vertices 0 mean edge lengths; 0 faces flipped"]
+        params = ", ".join(f"{k}={v}" for k, v in self.params.items())
+        moved = (f"moved the vertices {self.moved_rms:.2g} mean edge lengths rms, {self.moved_max:.2g} at most; "
+                 f"{self.flipped} faces flipped")
+        if self.fallback:
+            moved += f" ({self.fallback})"
+        return [
+            f"noise removed: {self.noise_in_edges:.2g} mean edge lengths rms along the normals ({self.noise:.3g})",
+            f"filter: {self.method} ({params}), chosen in {self.seconds:.1f} s",
+            moved,
+        ]
+
+    def explain(self) -> list[str]:
+        """Why: each candidate's least held-out error and where along its run."""
+        out = [f"{self.centres} vertices hidden with the rings around them; each candidate "
+               f"ran on the mesh ({self.scored_vertices} vertices) with them hidden, and its face normals there were "
+               "compared with the noisy ones (mean angle, the noise's own included):"]
+        for s in sorted(self.scores, key=lambda s: s.loss):
+            angle = math.degrees(math.acos(max(-1.0, 1.0 - s.loss))) if np.isfinite(s.loss) else float("nan")
+            out.append(f"  {s.family.label}: {angle:.3g} degrees at {s.family.count}={s.step}")
+        return out
+
+
+def score(V: np.ndarray, F: np.ndarray, ops: Operators, config: DefaultConfig) -> tuple[list[Score], int, int]:
+    """Step 1: the held-out losses of every family; also the vertices scored on and the centres."""
+    part = region(V, F, ops, config.region_vertices, config.region_patches, margin=2 * config.radius + 4)
+    if part.vertices.size < len(V):
+        V, F = V[part.vertices], part.F
+        ops = get_operators(F, len(V))
+    held = holdout(V, ops, config.radius, config.masks, allowed=part.inner)
+    scores = []
+    for family in config.families:
+        path = family_path(family, F, ops, config.steps)
+        scores.append(Score(family, path_losses(path, V, F, held, config.steps, config.patience)))
+    return scores, len(V), held.count
+
+
+def pick(scores: list[Score]) -> Score:
+    """Step 2: the family of least held-out loss (the first listed on a tie)."""
+    return min(scores, key=lambda s: s.loss)
+
+
+def turned_over(V: np.ndarray, X: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """Mask (m,) of the faces of ``(X, F)`` turned over: more than 90 degrees from their own normal in ``(V, F)``
+    and from their neighbours' in ``(X, F)``.
+
+    The neighbours' normal of a face: the sum of the unit normals of the faces of ``(X, F)`` sharing a
+    vertex with it (itself left out). A noisy face that the filter turns back into line with its
+    neighbours is not counted; a fold the filter makes is.
+    """
+    from ..geometry import vertex_face_incidence
+
+    M = vertex_face_incidence(F, len(V))
+    N = face_normals(X, F)
+    around = M.T @ (M @ N) - 3.0 * N  # faces sharing a vertex, each once per shared vertex; the face's own 3 left out
+    turned = np.einsum("ij,ij->i", N, face_normals(V, F)) < 0
+    return turned & (np.einsum("ij,ij->i", N, around) < 0)
+
+
+def flipped_faces(V: np.ndarray, X: np.ndarray, F: np.ndarray, ops: Operators | None = None) -> int:
+    """How many faces of ``(X, F)`` are turned over (:func:`turned_over`)."""
+    return int(np.count_nonzero(turned_over(V, X, F))) if F.shape[0] else 0
+
+
+def unfold(V: np.ndarray, X: np.ndarray, F: np.ndarray, ops: Operators, rounds: int) -> tuple[np.ndarray, int]:
+    """``X`` with its folds smoothed out: up to ``rounds`` times, the corners of the turned-over faces and their
+    neighbours take their neighbours' mean (the rest stays); returns the positions and the folds left.
+
+    Only vertices the filter moved and not on an open border are moved (pinned vertices, those outside a
+    region and borders keep what the filter gave them).
+    """
+    X = np.array(X, dtype=np.float64)
+    W = ops.W.tocsr()
+    movable = np.any(X != V, axis=1) & (ops.degree > 0)
+    movable[ops.boundary_vertices] = False
+    for _ in range(rounds):
+        folded = turned_over(V, X, F)
+        if not folded.any():
+            return X, 0
+        near = np.zeros(len(X), dtype=bool)
+        near[F[folded].ravel()] = True
+        near |= W @ near.astype(np.float64) > 0
+        idx = np.flatnonzero(near & movable)
+        X[idx] = ops.P[idx] @ X
+    return X, int(np.count_nonzero(turned_over(V, X, F)))
+
+
+def choose(V: np.ndarray, F: np.ndarray, ops: Operators, config: DefaultConfig) -> DefaultChoice:
+    """Steps 1 and 2: the filter and its parameters for the mesh ``(V, F)``."""
+    t0 = time.perf_counter()
+    edges = ops.edges
+    h = float(np.mean(np.linalg.norm(V[edges[:, 0]] - V[edges[:, 1]], axis=1))) if edges.size else 0.0
+    try:
+        scores, scored, centres = score(V, F, ops, config)
+    except NoHoldout as exc:
+        return DefaultChoice(method=NONE, params={}, edge_length=h, noise=0.0, reason=str(exc),
+                             seconds=time.perf_counter() - t0)
+    best = pick(scores)
+    return DefaultChoice(method=best.family.method, params=best.family.params(best.step), edge_length=h,
+                         noise=0.0, scores=scores,
+                         scored_vertices=scored, centres=centres, seconds=time.perf_counter() - t0)
+
+
+def guard(choice: DefaultChoice, V: np.ndarray, F: np.ndarray, ops: Operators, run: Any,
+          rounds: int = 10) -> np.ndarray:
+    """Step 3: run the choice on the whole mesh and smooth out any fold it made (:func:`unfold`).
+
+    ``run(params)`` returns the filter's positions (n, 3) with ``params``. Sets ``choice.flipped``
+    (folds left), ``noise``, ``moved_rms``, ``moved_max`` and ``fallback`` (what was unfolded);
+    returns the positions.
+    """
+    X = run(choice.params)
+    folds = flipped_faces(V, X, F)
+    if folds:
+        X, left = unfold(V, X, F, ops, rounds)
+        choice.fallback = f"{folds} faces turned over by the filter, {folds - left} of them smoothed out"
+        folds = left
+    choice.flipped = folds
+    h = choice.edge_length if choice.edge_length > 0 else 1.0
+    move = np.linalg.norm(X - V, axis=1)
+    along = np.einsum("ij,ij->i", X - V, vertex_normals(X, F))
+    choice.noise = float(np.sqrt(np.mean(along ** 2))) if along.size else 0.0
+    choice.moved_rms = float(np.sqrt(np.mean(move ** 2))) / h if move.size else 0.0
+    choice.moved_max = float(move.max()) / h if move.size else 0.0
+    return X

@@ -1,0 +1,102 @@
+"""The default's settings: one frozen object a caller (and a test) passes in.
+
+Every constant here was chosen on the corpus's tune half (``benchmarks/corpus.py``; the split is by a
+hash of each case's name) and is reported on its check half too: ``python benchmarks/policy_tune.py``
+writes the comparison of the values tried to ``benchmarks/results/policy-tune.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = ["Family", "DefaultConfig", "FAMILIES"]
+
+
+@dataclass(frozen=True)
+class Family:
+    """A registered filter with all its parameters fixed but one count, the step along its run.
+
+    Attributes
+    ----------
+    method : str
+        The filter's registered name.
+    fixed : tuple of (name, value)
+        Its other parameters.
+    count : str
+        The parameter counted along a run (``iterations``): the k-th state of one run is the filter
+        with ``count = k``.
+    """
+
+    method: str
+    fixed: tuple = ()
+    count: str = "iterations"
+
+    def params(self, k: int) -> dict[str, Any]:
+        """The filter's parameters at step ``k``."""
+        return {**dict(self.fixed), self.count: int(k)}
+
+    @property
+    def label(self) -> str:
+        inner = ", ".join(f"{k}={v}" for k, v in self.fixed)
+        return f"{self.method}({inner})"
+
+
+def _two_stage(sigma_r: float, keep_tangential: bool) -> Family:
+    # one normal pass and five vertex steps per outer iteration: the run reaches every amount of smoothing
+    # in small steps (PyGEL's anisotropic smoothing is this with its own range kernel)
+    return Family("two_stage", (("normal_iterations", 1), ("vertex_iterations", 5), ("sigma_r", sigma_r),
+                                ("sigma_s", 1.0), ("guidance", "bilateral"), ("keep_tangential", keep_tangential)))
+
+
+# sharp (sigma_r 0.35) and smooth (2.0: every neighbour's normal counts) normal filters, each keeping or
+# dropping the input's tangential part, and Taubin's low-pass (uniform weights, lambda 0.5, mu -0.53)
+FAMILIES = (
+    _two_stage(0.35, True),
+    _two_stage(0.35, False),
+    _two_stage(2.0, True),
+    _two_stage(2.0, False),
+    Family("taubin", (("lam", 0.5), ("mu", -0.53), ("weights", "uniform"))),
+)
+
+
+@dataclass(frozen=True)
+class DefaultConfig:
+    """What the default may try and how it scores the tries.
+
+    Attributes
+    ----------
+    families : tuple of Family
+        The candidates; each is scored along one run per mask.
+    radius : int
+        Rings hidden around each held-out vertex (:func:`meshdenoise.tuning.holdout.holdout`); must
+        exceed the noise's correlation length (a scanner's: a few samples).
+    masks : int
+        Masks of held-out vertices (each costs one run per family).
+    steps : int
+        Most steps read along a run.
+    patience : int
+        A run's scoring stops this many steps after its least loss.
+    region_vertices : int
+        Above this many vertices the losses are read on a sampled region of about this many
+        vertices (balls around seeds), so that choosing costs the same at any size.
+    region_patches : int
+        Balls of the region.
+    """
+
+    families: tuple = field(default=FAMILIES)
+    radius: int = 1
+    masks: int = 4
+    steps: int = 60
+    patience: int = 8
+    region_vertices: int = 30_000
+    region_patches: int = 24
+
+    def __post_init__(self):
+        for name in ("radius", "masks", "steps", "patience", "region_vertices", "region_patches"):
+            value = getattr(self, name)
+            low = 0 if name == "radius" else 1
+            if not isinstance(value, int) or isinstance(value, bool) or value < low:
+                raise ValueError(f"DefaultConfig: {name} must be an int >= {low}, got {value!r}")
+        if not self.families or not all(isinstance(f, Family) for f in self.families):
+            raise ValueError(f"DefaultConfig: families must be a non-empty tuple of Family, got {self.families!r}")

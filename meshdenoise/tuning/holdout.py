@@ -1,0 +1,285 @@
+"""Held-out vertices: the error of a filter's run read on vertices it was not shown (knows no filter).
+
+A filter run on the noisy mesh cannot be scored against the noisy positions it was given: it
+would be rewarded for keeping the noise. Hide some vertices first (Batson and Royer's
+Noise2Self): each hidden *centre* and the vertices within ``radius`` rings of it (its *hole*)
+take harmonic values interpolated from the vertices around the hole, the filter runs on that
+copy, and its result at the centre is compared with the centre's own noisy position, along the
+result's normal there:
+
+.. math:: L = \\frac{1}{|C|} \\sum_{i \\in C} \\big((y_i - f(\\tilde y)_i) \\cdot u_i\\big)^2
+
+where :math:`\\tilde y` is the copy with the holes filled and :math:`u_i` the result's unit vertex
+normal. When the noise at a centre is independent of the noise outside its hole (zero mean), the
+cross term vanishes and :math:`L` is the filter's squared error along the normals plus the noise
+variance, a constant: its least value over candidates picks the least error, whatever the noise's
+distribution (Gaussian, along random directions, impulsive). Scanner noise is correlated over a few
+samples; a hole of ``radius`` rings keeps the centre's noise out of what the filter sees as long as
+the correlation is shorter than the hole.
+
+Centres are spread over the mesh: a vertex is a centre of a mask when its key is the least within
+``2 radius + 1`` rings, so holes of one mask neither overlap nor touch. Keys are read from the
+geometry (the fractional part of a large multiple of each vertex's distance to its neighbours'
+mean, over the median), not from vertex indices: the same surface numbered or oriented otherwise,
+rotated, moved or scaled gets the same centres.
+
+References
+----------
+J. Batson, L. Royer, "Noise2Self: blind denoising by self-supervision", ICML 2019.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Iterator
+
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+from scipy.sparse.linalg import splu
+
+from ..geometry import vertex_face_incidence
+from ..operators import Operators
+
+__all__ = ["Holdout", "NoHoldout", "Region", "holdout", "path_losses", "region"]
+
+_KEY_DIGITS = 1e6  # keys: fractional part of this multiple of a vertex's relative offset (roundoff stays far below 1)
+
+
+class NoHoldout(ValueError):
+    """The mesh has no vertex that can be held out (every piece is too small for a hole)."""
+
+
+@dataclass(frozen=True)
+class Holdout:
+    """Masks of held-out vertices on one mesh (:func:`holdout`).
+
+    Attributes
+    ----------
+    centres : list of ndarray of int64
+        Per mask, the vertices scored.
+    filled : list of ndarray, shape (n, 3)
+        Per mask, the noisy positions with every hole replaced by its harmonic interpolation.
+    radius : int
+        Rings around a centre hidden with it.
+    """
+
+    centres: list
+    filled: list
+    radius: int
+
+    @property
+    def count(self) -> int:
+        """Centres over all masks."""
+        return int(sum(len(c) for c in self.centres))
+
+
+def _ring_min(W: sp.csr_matrix, key: np.ndarray, rings: int) -> np.ndarray:
+    """The least key within ``rings`` rings of each vertex (itself included)."""
+    out = key.copy()
+    starts = W.indptr[:-1]
+    has = np.diff(W.indptr) > 0
+    for _ in range(rings):
+        nb = np.full(key.shape, np.inf)
+        if W.indices.size:
+            nb[has] = np.minimum.reduceat(out[W.indices], starts[has])
+        out = np.minimum(out, nb)
+    return out
+
+
+def _grow(W: sp.csr_matrix, mask: np.ndarray, rings: int) -> np.ndarray:
+    for _ in range(rings):
+        mask = mask | (W @ mask.astype(np.float64) > 0)
+    return mask
+
+
+def _keys(V: np.ndarray, ops: Operators) -> np.ndarray:
+    """Pseudo-random keys in [0, 1) read from the geometry: invariant to numbering, orientation and similarity."""
+    offset = np.linalg.norm(ops.P @ V - V, axis=1)
+    scale = float(np.median(offset[offset > 0])) if np.any(offset > 0) else 1.0
+    return np.mod(offset / scale * _KEY_DIGITS, 1.0)
+
+
+def holdout(V: np.ndarray, ops: Operators, radius: int, masks: int, allowed: np.ndarray | None = None) -> Holdout:
+    """Choose ``masks`` disjoint sets of centres and fill their holes.
+
+    Parameters
+    ----------
+    V : ndarray, shape (n, 3)
+        Noisy positions.
+    ops : Operators
+        The mesh's operators (adjacency ``W``, averaging ``P``, Laplacian ``L``).
+    radius : int, >= 0
+        Rings hidden around each centre.
+    masks : int, >= 1
+        Masks (each a filter run per candidate).
+    allowed : ndarray of bool, shape (n,), optional
+        Vertices that may be centres (default: all).
+
+    Returns
+    -------
+    Holdout
+
+    Examples
+    --------
+    >>> from meshdenoise.shapes import icosphere
+    >>> from meshdenoise.operators import get_operators
+    >>> V, F = icosphere(3)
+    >>> h = holdout(V, get_operators(F, len(V)), radius=1, masks=2)
+    >>> len(h.centres), h.count > 20
+    (2, True)
+    """
+    if not isinstance(radius, (int, np.integer)) or radius < 0:
+        raise ValueError(f"holdout: radius must be an int >= 0, got {radius!r}")
+    if not isinstance(masks, (int, np.integer)) or masks < 1:
+        raise ValueError(f"holdout: masks must be an int >= 1, got {masks!r}")
+    W = ops.W.tocsr()
+    n = W.shape[0]
+    key = _keys(V, ops)
+    # a centre's hole must leave most of its piece of the mesh outside (else nothing is left to fill it from)
+    _, label = connected_components(W, directed=False)
+    piece = np.bincount(label)[label]
+    usable = (ops.degree > 0) & (piece >= 4 * (1 + 3 * radius * (radius + 1)))
+    if allowed is not None:
+        usable &= allowed
+    key = np.where(usable, key, np.inf)
+    L = ops.L.tocsr()
+    centres, filled = [], []
+    for c in range(masks):
+        # another digit of the same offsets for each mask, then the centres already used left out
+        k = np.mod(key * (c + 1) * 7.0, 1.0) if c else key.copy()
+        k[~usable] = np.inf
+        for used in centres:
+            k[used] = np.inf
+        C = np.flatnonzero(np.isfinite(k) & (k <= _ring_min(W, k, 2 * radius + 1)))
+        if C.size == 0:
+            break
+        start = np.zeros(n, dtype=bool)
+        start[C] = True
+        hole = _grow(W, start, radius)
+        Y = np.array(V, dtype=np.float64)
+        h = np.flatnonzero(hole)
+        rest = np.flatnonzero(~hole)
+        Lhh = L[h][:, h].tocsc()
+        Y[h] = splu(Lhh).solve(-(L[h][:, rest] @ Y[rest]))
+        centres.append(C)
+        filled.append(Y)
+    if not centres:
+        raise NoHoldout(f"no vertex can be held out: every piece of the mesh has fewer than "
+                        f"{4 * (1 + 3 * radius * (radius + 1))} vertices")
+    return Holdout(centres=centres, filled=filled, radius=int(radius))
+
+
+def _unit_face_normals(X: np.ndarray, F: np.ndarray) -> np.ndarray:
+    a = X[F[:, 0]]
+    n = np.cross(X[F[:, 1]] - a, X[F[:, 2]] - a)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
+def path_losses(
+    path: Callable[[np.ndarray], Iterator[np.ndarray]],
+    V: np.ndarray,
+    F: np.ndarray,
+    held: Holdout,
+    steps: int,
+    patience: int,
+) -> np.ndarray:
+    """The held-out loss of the face normals after each step of a filter's run, over the masks.
+
+    The faces scored are those around the centres (with ``radius >= 1`` their corners are all
+    hidden): the loss is the mean of :math:`1 - \\hat n_f \\cdot n_f` with :math:`\\hat n_f` the run's
+    face normal on the copy with the holes filled and :math:`n_f` the noisy mesh's own. With the
+    run blind to face f's noise, :math:`E[\\hat n_f \\cdot n_f] = \\hat n_f \\cdot E[n_f]`, and when
+    the noise is symmetric about the tangent plane (along the normals, along random directions,
+    impulsive) :math:`E[n_f] = c\\,n^*_f` with :math:`0 < c \\le 1` and :math:`n^*_f` the clean normal:
+    the loss is :math:`1 - c\\,E[\\cos\\theta_f]`, least where the mean angle error is least.
+
+    Parameters
+    ----------
+    path : callable
+        ``path(Y)`` yields the filter's positions after steps 1, 2, ... of one run from ``Y``.
+    V : ndarray, shape (n, 3)
+        The noisy positions.
+    F : ndarray of int, shape (m, 3)
+    held : Holdout
+    steps : int
+        Most steps read.
+    patience : int
+        A mask's run stops this many steps after its least loss.
+
+    Returns
+    -------
+    ndarray, shape (steps,)
+        Mean loss per scored face after each step; ``inf`` past the steps every mask reached.
+    """
+    total = np.zeros(steps)
+    reached = steps
+    incidence = vertex_face_incidence(F, len(V)).tocsr()
+    faces = [np.unique(incidence[C].indices) for C in held.centres]
+    count = sum(f.size for f in faces)
+    for C, Y, f in zip(held.centres, held.filled, faces):
+        Ff = F[f]
+        noisy = _unit_face_normals(V, Ff)
+        best, at, k = np.inf, 0, 0
+        for k, X in enumerate(path(Y)):
+            if k >= steps:
+                break
+            loss = float(f.size - np.einsum("ij,ij->", _unit_face_normals(X, Ff), noisy)) / count
+            total[k] += loss
+            if loss < best:
+                best, at = loss, k
+            elif k - at >= patience:
+                break
+        reached = min(reached, k + 1)
+    total[reached:] = np.inf
+    return total
+
+
+@dataclass(frozen=True)
+class Region:
+    """A part of a mesh scored instead of the whole (:func:`region`).
+
+    Attributes
+    ----------
+    vertices : ndarray of int64, shape (k,)
+        The part's vertices (indices into the mesh), increasing.
+    F : ndarray of int64, shape (l, 3)
+        Its faces (all three corners in the part), on the part's numbering.
+    inner : ndarray of bool, shape (k,)
+        Vertices farther than the margin from where the part was cut (centres are drawn there).
+    """
+
+    vertices: np.ndarray
+    F: np.ndarray
+    inner: np.ndarray
+
+
+def region(V: np.ndarray, F: np.ndarray, ops: Operators, size: int, patches: int, margin: int) -> Region:
+    """Balls of rings around ``patches`` seeds, about ``size`` vertices in all; seeds drawn from the geometry.
+
+    The seeds are the vertices of least key (:func:`holdout`'s keys), so the same surface numbered
+    otherwise gets the same part. A mesh of at most ``size`` vertices is its own region.
+    """
+    n = len(V)
+    W = ops.W.tocsr()
+    if n <= size:
+        return Region(np.arange(n), np.asarray(F, dtype=np.int64), np.ones(n, dtype=bool))
+    key = np.where(ops.degree > 0, _keys(V, ops), np.inf)
+    seeds = np.argsort(key, kind="stable")[: min(patches, n)]
+    inside = np.zeros(n, dtype=bool)
+    inside[seeds] = True
+    while inside.sum() < size:
+        grown = _grow(W, inside, 1)
+        if grown.sum() == inside.sum():
+            break
+        inside = grown
+    keep = inside[F].all(axis=1)
+    used = np.zeros(n, dtype=bool)
+    used[F[keep].ravel()] = True
+    vertices = np.flatnonzero(used)
+    local = np.full(n, -1, dtype=np.int64)
+    local[vertices] = np.arange(vertices.size)
+    # a vertex within `margin` rings of one outside the part is near the cut
+    near_cut = _grow(W, ~used, margin)
+    return Region(vertices, local[F[keep]], ~near_cut[vertices])
