@@ -13,6 +13,8 @@ VENV := .venv
 BIN := $(VENV)/bin
 STAMP := $(VENV)/.installed
 PYTEST_WORKERS ?= 2
+# extra pytest arguments, e.g. PYTEST_ARGS='-m data' (the second pass of .ci/run); empty: the whole suite
+PYTEST_ARGS ?=
 
 .PHONY: all demo test system-deps venv clean
 
@@ -39,7 +41,7 @@ demo: venv
 	$(BIN)/meshdenoise demo --out out/demo
 
 test: venv
-	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) -q
+	$(BIN)/python -m pytest -n $(PYTEST_WORKERS) -q $(PYTEST_ARGS)
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

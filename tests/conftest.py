@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import os
+import shutil
+import tempfile
 
 # One OpenBLAS thread per pytest-xdist worker (set before numpy is first imported, which is here): the workers
 # already fill the cores, and OpenBLAS's threads, spinning while they wait, crawl when the cores are oversubscribed
@@ -37,12 +39,68 @@ def pytest_collection_modifyitems(items):
             item.add_marker(pytest.mark.data)
 
 
+# A test without the ``data`` marker runs as on a clone without the meshes (CI's second pass): MESHDENOISE_DATA
+# names an empty folder and MESHDENOISE_REQUIRE_DATA is unset, from before its fixtures are set up until after they
+# are torn down (subprocesses inherit both). So a test that reads the data folder without the marker fails here, on
+# the first pass, and the second pass need only run ``-m data`` (.ci/run); a skip naming that folder fails too
+# (see data_skip_as_failure).
+_DATA_VARS = ("MESHDENOISE_DATA", "MESHDENOISE_REQUIRE_DATA")
+_no_data = {"folder": None, "saved": None}
+
+
+def pytest_configure(config):
+    _no_data["folder"] = tempfile.mkdtemp(prefix="meshdenoise-no-data-")
+
+
+def pytest_unconfigure(config):
+    if _no_data["folder"]:
+        shutil.rmtree(_no_data["folder"], ignore_errors=True)
+
+
+def no_data_folder() -> str:
+    """The empty folder an unmarked test sees as MESHDENOISE_DATA."""
+    return _no_data["folder"]
+
+
+@pytest.hookimpl(tryfirst=True)
 def pytest_runtest_setup(item):
     _running["item"] = item
+    if item.get_closest_marker("data") is None:
+        _no_data["saved"] = {k: os.environ.get(k) for k in _DATA_VARS}
+        os.environ["MESHDENOISE_DATA"] = _no_data["folder"]
+        os.environ.pop("MESHDENOISE_REQUIRE_DATA", None)
 
 
-def pytest_runtest_teardown(item):
-    _running["item"] = None
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_teardown(item, nextitem):  # a wrapper: the data variables come back after the fixtures' teardown
+    try:
+        return (yield)
+    finally:
+        _running["item"] = None
+        saved, _no_data["saved"] = _no_data["saved"], None
+        for k, v in (saved or {}).items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+def data_skip_as_failure(marked: bool, skip_reason: str) -> str | None:
+    """The failure message for an unmarked test that skipped because the data folder was empty, else None."""
+    if marked or not _no_data["folder"] or _no_data["folder"] not in skip_reason:
+        return None
+    return (f"skipped for want of the data folder ({skip_reason.strip()}): a test that reads MESHDENOISE_DATA must be "
+            "marked @pytest.mark.data (or use a fixture of DATA_FIXTURES in tests/conftest.py)")
+
+
+@pytest.hookimpl(wrapper=True)
+def pytest_runtest_makereport(item, call):
+    report = yield
+    if report.skipped and call.excinfo is not None:
+        message = data_skip_as_failure(item.get_closest_marker("data") is not None, str(call.excinfo.value))
+        if message:
+            report.outcome, report.longrepr = "failed", f"{item.nodeid}: {message}"
+    return report
 
 
 def data_mesh_path(name: str):
