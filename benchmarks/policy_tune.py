@@ -36,7 +36,9 @@ def variants() -> dict:
     from meshdenoise.policy import FAMILIES, DefaultConfig
 
     base = DefaultConfig()
-    out = {"base": base, "radius 2": dataclasses.replace(base, radius=2), "masks 2": dataclasses.replace(base, masks=2)}
+    out = {"base": base, "radius 2": dataclasses.replace(base, radius=2), "masks 2": dataclasses.replace(base, masks=2),
+           "steps 40": dataclasses.replace(base, steps=40), "region 6000": dataclasses.replace(base, region_vertices=6000),
+           "no fold guard": dataclasses.replace(base, unfold_rounds=0)}
     for i, family in enumerate(FAMILIES):
         out[f"without {family.label}"] = dataclasses.replace(base, families=FAMILIES[:i] + FAMILIES[i + 1:])
     return out

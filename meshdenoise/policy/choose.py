@@ -223,7 +223,7 @@ def guard(choice: DefaultChoice, V: np.ndarray, F: np.ndarray, ops: Operators, r
     """
     X = run(choice.params)
     folds = flipped_faces(V, X, F)
-    if folds:
+    if folds and rounds > 0:
         X, left = unfold(V, X, F, ops, rounds)
         choice.fallback = f"{folds} faces turned over by the filter, {folds - left} of them smoothed out"
         folds = left

@@ -82,6 +82,9 @@ class DefaultConfig:
         vertices (balls around seeds), so that choosing costs the same at any size.
     region_patches : int
         Balls of the region.
+    unfold_rounds : int
+        Most rounds of averaging the corners of faces the chosen run turned over
+        (:func:`meshdenoise.policy.choose.unfold`); 0 leaves folds as they are.
     """
 
     families: tuple = field(default=FAMILIES)
@@ -89,13 +92,14 @@ class DefaultConfig:
     masks: int = 4
     steps: int = 60
     patience: int = 8
-    region_vertices: int = 30_000
+    region_vertices: int = 12_000
     region_patches: int = 24
+    unfold_rounds: int = 10
 
     def __post_init__(self):
-        for name in ("radius", "masks", "steps", "patience", "region_vertices", "region_patches"):
+        for name in ("radius", "masks", "steps", "patience", "region_vertices", "region_patches", "unfold_rounds"):
             value = getattr(self, name)
-            low = 0 if name == "radius" else 1
+            low = 0 if name in ("radius", "unfold_rounds") else 1
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise ValueError(f"DefaultConfig: {name} must be an int >= {low}, got {value!r}")
         if not self.families or not all(isinstance(f, Family) for f in self.families):

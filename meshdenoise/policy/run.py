@@ -60,5 +60,6 @@ def run_default(mesh: Any, config: DefaultConfig | None = None, **options: Any) 
         return m.write(np.array(m.V, dtype=np.float64)), choice.rescaled(k)
     spec = get_filter(choice.method)
     with stage(f"running {choice.method}"):
-        Y = guard(choice, X, m.F, ops, lambda params: spec.public((X, m.F), **params, **options)[0])
+        Y = guard(choice, X, m.F, ops, lambda params: spec.public((X, m.F), **params, **options)[0],
+                  config.unfold_rounds)
     return m.write(np.ldexp(Y, k)), choice.rescaled(k)

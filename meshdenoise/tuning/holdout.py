@@ -147,8 +147,8 @@ def holdout(V: np.ndarray, ops: Operators, radius: int, masks: int, allowed: np.
     centres, filled = [], []
     for c in range(masks):
         # another digit of the same offsets for each mask, then the centres already used left out
-        k = np.mod(key * (c + 1) * 7.0, 1.0) if c else key.copy()
-        k[~usable] = np.inf
+        k = np.full(n, np.inf)
+        k[usable] = np.mod(key[usable] * (c + 1) * 7.0, 1.0) if c else key[usable]
         for used in centres:
             k[used] = np.inf
         C = np.flatnonzero(np.isfinite(k) & (k <= _ring_min(W, k, 2 * radius + 1)))
