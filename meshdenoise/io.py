@@ -13,8 +13,8 @@ Binary PLY is read through numpy structured dtypes and ASCII PLY (and plain OBJ/
 number stream, without a Python object per line. What is accepted, refused and guaranteed:
 docs/file-formats.md.
 
-Writers are numpy too: PLY stores ``double`` coordinates, OFF and OBJ 17 significant
-digits, so a write-read round trip is exact (binary STL stores float32 by definition).
+Writers are numpy too: PLY stores ``double`` coordinates (``float`` on request), OFF and OBJ 17
+significant digits, so a write-read round trip is exact (binary STL stores float32 by definition).
 A temporary file being written is removed on SIGTERM/SIGHUP (see :class:`atomic_path`).
 """
 
@@ -1385,11 +1385,13 @@ def save_mesh(
     *,
     binary: bool = True,
     extras: PlyExtras | None = None,
+    vertex_normals: np.ndarray | None = None,
+    precision: str = "float64",
 ) -> Path:
     """Write a mesh atomically (temporary file, then rename); the format comes from the extension.
 
     PLY (binary little-endian, or ASCII with ``binary=False``) stores ``double``
-    coordinates and ``uchar`` RGBA colours; OFF (COFF with colours) and OBJ (``v x y z r g b``)
+    coordinates (``float`` with ``precision="float32"``) and ``uchar`` RGBA colours; OFF (COFF with colours) and OBJ (``v x y z r g b``)
     store 17 significant digits, so reading the file back gives the same arrays. STL
     stores float32 corners (binary) or 17 digits (ASCII), and no colours. Nothing is left at ``path``
     if writing fails, and an existing file there is replaced only once the new one is complete.
@@ -1406,7 +1408,14 @@ def save_mesh(
     extras : PlyExtras, optional
         A PLY file's other properties and elements (:attr:`MeshFile.extras`), written to a PLY
         (other formats cannot hold them): what stays valid for ``V`` and ``F``
-        (:meth:`PlyExtras.for_mesh`), normals recomputed from ``V``.
+        (:meth:`PlyExtras.for_mesh`), normals recomputed from ``V`` (unless ``vertex_normals`` are given).
+    vertex_normals : array_like, shape (n, 3), optional
+        Per-vertex normals written as they are: PLY ``nx ny nz`` (in the coordinates' type), OBJ
+        ``vn`` lines (faces ``f a//a b//b c//c``). OFF and STL have no per-vertex normals: not written.
+    precision : {"float64", "float32"}
+        PLY's coordinate type: ``double`` (exact) or ``float`` (half the size, what MeshLab's float
+        build and most viewers write). A :class:`PrecisionWarning` says when float32 moves a vertex by
+        more than :data:`STL_TOLERANCE` mean edge lengths (a georeferenced scan), as for binary STL.
 
     Returns
     -------
@@ -1415,8 +1424,8 @@ def save_mesh(
     Raises
     ------
     MeshFileError
-        Naming the file: bad arrays (NaN, bad indices), bad colours, a point cloud as STL,
-        or an OS error (permission, disk full).
+        Naming the file: bad arrays (NaN, bad indices), bad colours or normals, a point cloud as
+        STL, ``precision="float32"`` for another format than PLY, or an OS error (permission, disk full).
 
     Examples
     --------
@@ -1442,12 +1451,27 @@ def save_mesh(
         if C.shape[1] == 3:
             C = np.hstack([C, np.ones((C.shape[0], 1))])
     ext = path.suffix.lower()
+    if precision not in ("float64", "float32"):
+        raise MeshFileError(f"{path}: precision must be 'float64' or 'float32', got {precision!r}")
+    if precision == "float32" and ext != ".ply":
+        raise MeshFileError(f"{path}: precision 'float32' is for PLY only (OBJ and OFF write 17 significant digits, "
+                            "binary STL is always float32)")
+    N = None
+    if vertex_normals is not None:
+        N = np.asarray(vertex_normals, dtype=np.float64)
+        if N.shape != V.shape:
+            raise MeshFileError(f"{path}: vertex_normals must have shape {V.shape}, got {N.shape}")
+        if not np.isfinite(N).all():
+            raise MeshFileError(f"{path}: vertex_normals must be finite")
     if ext == ".stl" and F.shape[0] == 0:
         raise MeshFileError(f"{path}: STL stores triangles only and this mesh has no faces; use .ply for a point cloud")
     if ext == ".stl" and binary:
         _warn_if_float32_moves(path, V, F)
+    if ext == ".ply" and precision == "float32":
+        _warn_if_float32_moves(path, V, F, "PLY (precision float32)", "save with precision float64")
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        _WRITERS[ext](fh, V, F, C, binary, extras)
+        more = (N, "f4" if precision == "float32" else "f8") if N is not None or precision == "float32" else ()
+        _WRITERS[ext](fh, V, F, C, binary, extras, *more)
     return path
 
 
@@ -1469,16 +1493,17 @@ def float32_move(V: np.ndarray, F: np.ndarray) -> tuple[float, float]:
     return move, h
 
 
-def _warn_if_float32_moves(path: Path, V: np.ndarray, F: np.ndarray) -> None:
-    """Binary STL stores float32: say so (:class:`PrecisionWarning`) when that moves a vertex by more than
-    :data:`STL_TOLERANCE` mean edge lengths; the file is still written, as MeshLab writes it."""
+def _warn_if_float32_moves(path: Path, V: np.ndarray, F: np.ndarray, what: str = "binary STL",
+                           keep: str = "write PLY (double) or ASCII STL") -> None:
+    """Binary STL (or PLY asked for float32) stores float32: say so (:class:`PrecisionWarning`) when that moves a
+    vertex by more than :data:`STL_TOLERANCE` mean edge lengths; the file is still written, as MeshLab writes it."""
     import warnings
 
     move, h = float32_move(V, F)
     if h > 0 and move > STL_TOLERANCE * h:
         warnings.warn(
-            f"{path}: binary STL stores float32 coordinates: vertices move by up to {move:.3g} "
-            f"({move / h:.3g} mean edge lengths); write PLY (double) or ASCII STL to keep them",
+            f"{path}: {what} stores float32 coordinates: vertices move by up to {move:.3g} "
+            f"({move / h:.3g} mean edge lengths); {keep} to keep them",
             PrecisionWarning, stacklevel=3)
 
 
@@ -1588,15 +1613,19 @@ def _ply_element_bytes(count: int, props, values: dict, binary: bool) -> tuple[l
         return head, "".join(line + "\n" for line in lines).encode()
 
 
-def _write_ply(fh, V, F, C, binary, extras: PlyExtras | None = None):
+def _write_ply(fh, V, F, C, binary, extras: PlyExtras | None = None, normals=None, coordinate="f8"):
     extras = extras.for_mesh(len(V), len(F)) if extras is not None else PlyExtras()
-    vcols = [("x", "f8", None), ("y", "f8", None), ("z", "f8", None)]
+    if coordinate == "f4":  # float32 values: ASCII then writes the digits that read back as these floats
+        V = V.astype(np.float32)
+    vcols = [("x", coordinate, None), ("y", coordinate, None), ("z", coordinate, None)]
     vdata = {"x": V[:, 0], "y": V[:, 1], "z": V[:, 2]}
-    if extras.normals:  # the file had normals: the new coordinates' (MeshLab writes them as float)
+    if normals is None and extras.normals:  # the file had normals: the new coordinates'
         from .geometry import vertex_normals
 
-        N = vertex_normals(V, F) if len(F) else np.zeros_like(V)
-        vcols += [("nx", "f4", None), ("ny", "f4", None), ("nz", "f4", None)]
+        normals = vertex_normals(V, F) if len(F) else np.zeros_like(V)
+    if normals is not None:  # in the coordinates' type, as MeshLab writes them
+        N = normals.astype(np.float32) if coordinate == "f4" else normals
+        vcols += [("nx", coordinate, None), ("ny", coordinate, None), ("nz", coordinate, None)]
         vdata.update(nx=N[:, 0], ny=N[:, 1], nz=N[:, 2])
     if C is not None:
         cb = _colour_bytes(C)
@@ -1630,7 +1659,7 @@ def _write_ply(fh, V, F, C, binary, extras: PlyExtras | None = None):
         fh.write(block)
 
 
-def _write_off(fh, V, F, C, binary, extras=None):  # extras: PLY only
+def _write_off(fh, V, F, C, binary, extras=None, normals=None, coordinate="f8"):  # extras: PLY only; no normals
     fh.write(f"{'COFF' if C is not None else 'OFF'}\n{len(V)} {len(F)} 0\n".encode())
     if C is None:
         fh.write(_rows_text(V, "%.17g"))
@@ -1641,13 +1670,18 @@ def _write_off(fh, V, F, C, binary, extras=None):  # extras: PLY only
     fh.write(_rows_text(np.hstack([np.full((len(F), 1), 3), F]), "%d"))
 
 
-def _write_obj(fh, V, F, C, binary, extras=None):  # extras: PLY only
+def _write_obj(fh, V, F, C, binary, extras=None, normals=None, coordinate="f8"):  # extras: PLY only
     fh.write(b"# written by meshdenoise\n")
     fh.write(_rows_text(V if C is None else np.hstack([V, C[:, :3]]), "%.17g", "v "))
-    fh.write(_rows_text(F + 1, "%d", "f "))
+    if normals is None:
+        fh.write(_rows_text(F + 1, "%d", "f "))
+        return
+    fh.write(_rows_text(normals, "%.17g", "vn "))  # normal i is vertex i's: faces 'f a//a b//b c//c'
+    if len(F):
+        fh.write((("f %d//%d %d//%d %d//%d\n" * len(F)) % tuple(np.repeat(F + 1, 2, axis=1).ravel().tolist())).encode())
 
 
-def _write_stl(fh, V, F, C, binary, extras=None):  # extras: PLY only
+def _write_stl(fh, V, F, C, binary, extras=None, normals=None, coordinate="f8"):  # extras: PLY only; face normals
     from .geometry import face_normals
 
     N = np.nan_to_num(face_normals(V, F)) if len(F) else np.zeros((0, 3))

@@ -55,10 +55,10 @@ def run_task(task: Task, echo: Callable[[str], Any] | None = None) -> dict:
                 raise StepFailure(f"{task.input}: {step.where} failed: {type(exc).__name__}: {detail}") from exc
             _check_finite(step, ctx)
         try:
-            for path, V, F, colors, binary, extras in ctx.staged:
+            for path, V, F, colors, binary, extras, *options in ctx.staged:  # options: save's normals and precision
                 if mesh.vertex_colors is None and colors is not None and (colors == 1.0).all():
                     colors = None  # pymeshlab's default white, not the input's: no colours in, no colours out
-                save_mesh(path, V, F, colors, binary=binary, extras=extras)
+                save_mesh(path, V, F, colors, binary=binary, extras=extras, **(options[0] if options else {}))
             for tmp, path in ctx.staged_files:
                 os.replace(tmp, path)
         except (MeshFileError, OSError) as exc:  # read-only folder, full disk, /proc/x.ply: its message names the file

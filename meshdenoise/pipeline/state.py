@@ -6,6 +6,12 @@ a step may read or set: colours, quality, selection). Our filters, Open3D operat
 ``pymeshlab.MeshSet`` is built only around pymeshlab steps (and kept while several
 pymeshlab steps follow each other), then read back. No custom attribute is ever left on a
 mesh: the MeshSet is ours and thrown away.
+
+Vertex normals are held only once a pymeshlab vertex-normal filter computed them
+(``compute_normal_per_vertex``, ``compute_normal_for_point_clouds``...); ``save`` writes what is held.
+A later step that moves the vertices or changes the mesh recomputes them from its result (the
+normalised sum of the faces' unit normals: ``compute_normal_per_vertex``'s default, "Simple
+Average"), as MeshLab's own filters update the normals of what they move.
 """
 
 from __future__ import annotations
@@ -34,6 +40,9 @@ class MeshState:
         MeshLab's per-element scalar ("quality"), set by some pymeshlab filters.
     vertex_selection, face_selection : ndarray, shape (n,) / (m,), bool, or None
         MeshLab's selection (``None``: nothing selected).
+    vertex_normals : ndarray, shape (n, 3), float64, or None
+        The per-vertex normals a step computed for these vertices (None: no step computed any);
+        see the module's docstring for how later steps keep them.
     extras : meshdenoise.io.PlyExtras or None
         The input PLY's other data (a scanner's confidence, MeshLab flags, a camera), written
         again by ``save`` to a PLY while the vertices and faces are the same
@@ -49,6 +58,7 @@ class MeshState:
     vertex_selection: np.ndarray | None = None
     face_selection: np.ndarray | None = None
     extras: Any = None
+    vertex_normals: np.ndarray | None = None
     _meshset: Any = field(default=None, repr=False, compare=False)  # in step with the arrays when not None
 
     @property
@@ -74,14 +84,26 @@ class MeshState:
         V = np.asarray(V, dtype=np.float64)
         if V.shape != self.V.shape:
             raise ValueError(f"new coordinates have shape {V.shape}, the mesh {self.V.shape}")
-        return replace(self, V=V, _meshset=None)
+        return replace(self, V=V, vertex_normals=self.normals_for(V, self.F), _meshset=None)
 
     def with_mesh(self, V: np.ndarray, F: np.ndarray, vertex_colors: np.ndarray | None = None) -> "MeshState":
         """A new mesh (new vertices and faces): the vertex colours given are kept, and the extras still valid."""
         V = np.asarray(V, dtype=np.float64)
         F = np.asarray(F, dtype=np.int64).reshape(-1, 3)
         extras = self.extras.for_mesh(V.shape[0], F.shape[0]) if self.extras is not None else None
-        return MeshState(V, F, vertex_colors, extras=extras)
+        return MeshState(V, F, vertex_colors, extras=extras, vertex_normals=self.normals_for(V, F))
+
+    def normals_for(self, V: np.ndarray, F: np.ndarray) -> np.ndarray | None:
+        """The normals this state holds, carried to the mesh ``(V, F)``: kept when it is this one,
+        recomputed from it when it moved or changed (``compute_normal_per_vertex``'s "Simple Average"),
+        None when none are held."""
+        if self.vertex_normals is None:
+            return None
+        if V.shape == self.V.shape and F.shape == self.F.shape and np.array_equal(V, self.V) and np.array_equal(F, self.F):
+            return self.vertex_normals
+        from ..geometry import vertex_normals
+
+        return vertex_normals(V, F) if len(F) else np.zeros_like(V)
 
     def extras_to_write(self):
         """:attr:`extras` for a file of this mesh: what is still valid, the current selection and quality in it."""
@@ -92,17 +114,25 @@ class MeshState:
 
     # --- pymeshlab --------------------------------------------------------------------------
     def meshset(self):
-        """A ``pymeshlab.MeshSet`` holding this mesh and its attributes (built once, then reused)."""
+        """A ``pymeshlab.MeshSet`` holding this mesh and its attributes (built once, then reused).
+
+        Returned wrapped (every method of the MeshSet is there): the wrapper remembers this state
+        and the filter applied, so :meth:`from_meshset` knows which normals the result holds.
+        """
         if self._meshset is None:
             self._meshset = _to_meshset(self)
-        return self._meshset
+        return _StepMeshSet(self._meshset, self)
 
     @classmethod
     def from_meshset(cls, ms, extras: Any = None) -> "MeshState":
         """The current mesh of ``ms`` (compacted first) as a state that keeps ``ms`` for the next pymeshlab step.
 
-        ``extras`` (the state's before the step) are kept while still valid.
+        ``extras`` (the state's before the step) are kept while still valid. Given the MeshSet
+        :meth:`meshset` returned, the vertex normals are read after a vertex-normal filter and
+        carried from the state before otherwise (:meth:`normals_for`).
         """
+        before, applied = getattr(ms, "before", None), getattr(ms, "applied", None)
+        ms = getattr(ms, "meshset", ms)
         m = ms.current_mesh()
         if not m.is_compact():
             m.compact()
@@ -120,8 +150,32 @@ class MeshState:
         )
         if extras is not None:
             state.extras = extras.for_mesh(state.n_vertices, state.n_faces)
+        if applied is not None and _sets_vertex_normals(applied):
+            state.vertex_normals = np.array(m.vertex_normal_matrix(), dtype=np.float64).reshape(-1, 3)
+        elif before is not None:
+            state.vertex_normals = before.normals_for(state.V, state.F)
         state._meshset = ms
         return state
+
+
+class _StepMeshSet:
+    """A ``pymeshlab.MeshSet`` (every attribute forwarded) with the state it was made for and the last filter applied."""
+
+    def __init__(self, meshset, before: MeshState):
+        self.meshset, self.before, self.applied = meshset, before, None
+
+    def apply_filter(self, name: str, *args, **kwargs):
+        self.applied = name
+        return self.meshset.apply_filter(name, *args, **kwargs)
+
+    def __getattr__(self, name: str):
+        return getattr(self.meshset, name)
+
+
+def _sets_vertex_normals(filter_name: str) -> bool:
+    """pymeshlab's filters that compute or change per-vertex normals (``compute_normal_per_vertex``,
+    ``compute_normal_for_point_clouds``, ``apply_normal_normalization_per_vertex``...)."""
+    return filter_name.startswith(("compute_normal", "apply_normal")) and "per_face" not in filter_name
 
 
 def _to_meshset(state: MeshState):

@@ -59,6 +59,10 @@ BUILTIN_STEPS: dict[str, list[Param]] = {
         Param("path", str, "", help="output file; {stem} {name} {parent} {dir} {setting} {index} are filled in"),
         Param("binary", bool, True, help="binary PLY/STL"),
         Param("colors", bool, True, help="write vertex colours when the mesh has them"),
+        Param("normals", bool, True, help="write the vertex normals a pymeshlab normal step computed (recomputed "
+              "from the vertices if a later step moved them), or the input PLY had; PLY and OBJ"),
+        Param("precision", str, "float64", choices=("float64", "float32"),
+              help="PLY coordinates and normals: double, or float (half the size; warns when it moves vertices)"),
     ],
     "denoise": [],  # the default: its options are our filters' (_filter_options), described in describe_steps
     "metrics": [],  # checked by _check_metrics, described by METRICS_DOC
@@ -479,6 +483,10 @@ def _parse(name, given, index, label, source, line, at_param) -> Step:
                 raise PipelineValidationError(
                     f"{at_param('path')}: path {params['path']!r}: unsupported extension; use one of {', '.join(SUPPORTED_EXTENSIONS)}"
                 )
+            if params["precision"] == "float32" and Path(params["path"]).suffix.lower() != ".ply":
+                raise PipelineValidationError(
+                    f"{at_param('precision')}: precision 'float32' is for PLY only (path {params['path']!r}: OBJ and "
+                    "OFF write 17 significant digits, binary STL is always float32)")
         return Step(index, name, name, params, label, source, line)
     if name == "metrics":
         return Step(index, name, "metrics", _check_metrics(given, at), label, source, line)
@@ -580,7 +588,14 @@ def run_step(step: Step, ctx: RunContext) -> None:
     elif step.kind == "save":
         path = ctx.resolve_path(step.params["path"])
         colors = state.vertex_colors if step.params["colors"] else None
-        ctx.staged.append((path, state.V, state.F, colors, step.params["binary"], state.extras_to_write()))
+        extras = state.extras_to_write()
+        if not step.params["normals"] and extras is not None:
+            from dataclasses import replace
+
+            extras = replace(extras, normals=False)
+        normals = state.vertex_normals if step.params["normals"] else None
+        ctx.staged.append((path, state.V, state.F, colors, step.params["binary"], extras,
+                           {"vertex_normals": normals, "precision": step.params["precision"]}))
         ctx.row.setdefault("outputs", []).append(str(path))
     elif step.kind == "render":
         from ..render import new_file_mode, render_comparison  # written separately; imported only when used
