@@ -25,7 +25,7 @@ sys.path.insert(0, str(ROOT.parent))
 
 import peers  # noqa: E402
 
-from meshdenoise.default import choose_default  # noqa: E402
+from meshdenoise.policy import choose_default  # noqa: E402
 
 
 def main() -> None:

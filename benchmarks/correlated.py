@@ -18,11 +18,6 @@ Columns per filter: SNR of the automatic choice as it was before the noise model
 oracle over the same filter's parameter (``choose_parameters(..., criterion="oracle",
 reference=clean)``); ``loss`` = oracle - auto now. Also the estimate: rho / sigma and the
 correlation length read.
-
-``--policy`` adds the default's noise model (:func:`meshdenoise.default.default_noise`: the fine
-bands' reading, the detail fit's verdict and correlation test, :func:`~meshdenoise.default.noise_policy`),
-with which ``md.denoise``/``choose_default`` choose each filter's parameters
-(``choose_parameters(..., noise=model)``): its SNR, loss against the oracle, level, length and verdict.
 """
 
 from __future__ import annotations
@@ -75,20 +70,14 @@ def load(name: str) -> tuple[np.ndarray, np.ndarray]:
     raise SystemExit(f"--meshes: unknown mesh {name!r}; choose from elephant, bunny, face")
 
 
-def run_row(name: str, V0: np.ndarray, F: np.ndarray, ell: float, sigma: float, methods: list[str], seed: int,
-            policy: bool = False) -> list[dict]:
+def run_row(name: str, V0: np.ndarray, F: np.ndarray, ell: float, sigma: float, methods: list[str],
+            seed: int) -> list[dict]:
     h = mean_edge_length(V0, F)
     Vn, _ = add_scanner_noise((V0, F), sigma * h, correlation_length=ell, seed=seed)
     t = time.perf_counter()
     model = estimate_noise_model((Vn, F))
     t_est = time.perf_counter() - t
     rho_white = estimate_noise((Vn, F))
-    pol = verdict = None
-    if policy:
-        from meshdenoise.default import default_noise
-
-        pol, _, _, verdict, _ = default_noise(Vn, F, mean_edge_length(Vn, F))
-        same = pol.rho == model.rho and pol.correlation_length == model.correlation_length
     out = []
     for method in methods:
         res = {"mesh": name, "n": V0.shape[0], "ell": ell, "method": method, "noisy": snr(V0, Vn),
@@ -100,26 +89,15 @@ def run_row(name: str, V0: np.ndarray, F: np.ndarray, ell: float, sigma: float, 
         res["t_auto"] = time.perf_counter() - t
         p_orc = choose_parameters((Vn, F), method, criterion="oracle", reference=V0)
         runs = [("old", p_old), ("auto", p_new), ("oracle", p_orc)]
-        if pol is not None:
-            res.update(rho_pol=pol.rho / (sigma * h), ell_pol=pol.correlation_length, verdict=verdict)
-            if not same:  # the same model chooses the same parameters: no second search
-                runs.append(("pol", choose_parameters((Vn, F), method, noise=pol)))
         for key, p in runs:
             X, _ = apply_filter(method, (Vn, F), **p)
             res[key] = snr(V0, X)
             res[key + "_params"] = p
-        if pol is not None and same:
-            res["pol"], res["pol_params"] = res["auto"], res["auto_params"]
         res["loss"] = res["oracle"] - res["auto"]
-        extra = ""
-        if pol is not None:
-            res["loss_pol"] = res["oracle"] - res["pol"]
-            extra = (f"; default's noise: {verdict}, rho/sigma {res['rho_pol']:.3f} ell {res['ell_pol']:.2f}, "
-                     f"SNR {res['pol']:.2f} (loss {res['loss_pol']:.2f}) {res['pol_params']}")
         out.append(res)
         print(f"{name} ell={ell:g} {method}: noisy {res['noisy']:.2f} old {res['old']:.2f} auto {res['auto']:.2f} "
               f"oracle {res['oracle']:.2f} (loss {res['loss']:.2f}); rho/sigma {res['rho']:.3f} "
-              f"ell_hat {res['ell_hat']:.2f}; {p_new} vs oracle {p_orc}{extra}", flush=True)
+              f"ell_hat {res['ell_hat']:.2f}; {p_new} vs oracle {p_orc}", flush=True)
     return out
 
 
@@ -148,8 +126,6 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--methods", nargs="*", default=METHODS)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", help="markdown table to write")
-    ap.add_argument("--policy", action="store_true",
-                    help="also the default's noise model (default_noise: detail fit and correlation test) and its SNR")
     args = ap.parse_args(argv)
     t0 = time.time()
     load0 = os.getloadavg()
@@ -158,7 +134,7 @@ def main(argv: list[str] | None = None) -> None:
     for name in args.meshes:
         V0, F = load(name)
         for ell in args.lengths:
-            rows += run_row(name, V0, F, ell, args.sigma, args.methods, args.seed, args.policy)
+            rows += run_row(name, V0, F, ell, args.sigma, args.methods, args.seed)
     wall = time.time() - t0
     load1 = os.getloadavg()
     cmd = "python benchmarks/correlated.py " + " ".join(argv if argv is not None else sys.argv[1:])
@@ -171,35 +147,18 @@ def main(argv: list[str] | None = None) -> None:
              "SNR in dB. *before*: SURE with estimate_noise's level, independent noise (the rule before the noise "
              "model); *auto*: estimate_noise_model (level and correlation length) and coloured SURE; *oracle*: the "
              "same filter's parameter chosen against the clean mesh. rho/sigma and ell: what the estimate read.", "",
-             ]
-    if args.policy:
-        lines += ["*default's noise*: the noise model of `md.denoise`/`choose_default` (`default_noise`: the fine "
-                  "bands' reading, the detail fit's verdict and correlation test) given to choose_parameters; "
-                  "its level, length and verdict (*independent*: the fine bands' reading of independent noise "
-                  "kept).", ""]
-        lines += ["| mesh | ell | filter | noisy | before | auto | oracle | oracle - auto | rho/sigma | ell read "
-                  "| default's noise | its oracle - SNR | its rho/sigma @ ell (verdict) | auto params | oracle params |",
-                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
-    else:
-        lines += ["| mesh | ell | filter | noisy | before | auto | oracle | oracle - auto | rho/sigma | ell read "
-                  "| auto params | oracle params |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| mesh | ell | filter | noisy | before | auto | oracle | oracle - auto | rho/sigma | ell read "
+             "| auto params | oracle params |", "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        pol = (f"{r['pol']:.2f} | {r['loss_pol']:.2f} | {r['rho_pol']:.3f} @ {r['ell_pol']:.2f} ({r['verdict']}) | "
-               if args.policy else "")
         lines.append(f"| {r['mesh']} ({r['n']}) | {r['ell']:g} | {r['method']} | {r['noisy']:.2f} | {r['old']:.2f} | "
                      f"{r['auto']:.2f} | {r['oracle']:.2f} | {r['loss']:.2f} | {r['rho']:.3f} | {r['ell_hat']:.2f} | "
-                     f"{pol}{fmt(r['auto_params'])} | {fmt(r['oracle_params'])} |")
+                     f"{fmt(r['auto_params'])} | {fmt(r['oracle_params'])} |")
     losses = np.array([r["loss"] for r in rows])
     lines += ["", f"Rows within 1 dB of the oracle: {int(np.sum(losses <= 1.0))} of {len(rows)}; "
               f"worst loss {losses.max():.2f} dB; mean {losses.mean():.2f} dB."]
     worst = [max((r for r in rows if r["ell"] == e), key=lambda r: r["loss"]) for e in args.lengths]
     lines += ["Worst loss per correlation length: " + "; ".join(
         f"ell {r['ell']:g}: {r['loss']:.2f} dB ({r['mesh']}, {r['method']})" for r in worst) + "."]
-    if args.policy:
-        lp = np.array([r["loss_pol"] for r in rows])
-        lines += ["", f"With the default's noise model: within 1 dB {int(np.sum(lp <= 1.0))} of {len(rows)}; "
-                  f"worst loss {lp.max():.2f} dB; mean {lp.mean():.2f} dB; the model differs from the fine bands' on "
-                  f"{sum(r['pol_params'] is not r['auto_params'] for r in rows)} rows."]
     print(write_table(Path(args.out) if args.out else None, lines))  # atomic: never half-written
 
 

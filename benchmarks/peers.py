@@ -668,8 +668,6 @@ def run_ours(method: str | None, V0: np.ndarray, F: np.ndarray, Vn: np.ndarray) 
     if method is None:  # the default returns its decision: the method it picked and that method's parameters
         (X, _), choice = md.denoise((Vn.copy(), F), return_params=True)
         used = {"method": choice.method, **choice.params}
-        if getattr(choice, "post_steps", 0):  # Taubin steps after a smooth prior (meshdenoise.default.run_post_step)
-            used["post_steps"] = choice.post_steps
     else:
         (X, _), used = md.denoise((Vn.copy(), F), method=method, return_params=True)
     elapsed = time.perf_counter() - t0

@@ -20,7 +20,6 @@ Index arrays: ``indptr`` int64, ``indices`` int32 (int64 above 2^31 entries).
 from __future__ import annotations
 
 import os
-from concurrent.futures import Future
 from contextlib import contextmanager
 from typing import Callable, Iterator, Sequence, TypeVar
 
@@ -114,7 +113,6 @@ __all__ = [
     "single_threaded",
     "every_thread",
     "run_concurrently",
-    "start",
     "face_geometry",
     "normal_turns",
     "centroid_spacing_sums",
@@ -212,41 +210,6 @@ def run_concurrently(fn: Callable[[T], R], items: Sequence[T], vertices: int = 0
 
     with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="meshdenoise-runs") as pool:
         return list(pool.map(one, items))
-
-
-def start(fn: Callable[..., R], *args: object) -> Future:
-    """``fn(*args)`` on a worker thread, its kernels on one thread (:func:`single_threaded`); a finished future
-    at once when only one thread is allowed (:func:`~meshdenoise.operators.spmm_threads` or numba's pool).
-
-    For a part of a job that needs nothing from the part the caller does meanwhile (the
-    default's feature test beside its noise estimate, the smooth prior's rule beside
-    ``two_stage``'s). It runs in a copy of the caller's context (its progress listener: its
-    stages are reported as the caller's, like :func:`asyncio.to_thread`). ``future.result()``
-    re-raises its error.
-    """
-    import contextvars
-    from concurrent.futures import ThreadPoolExecutor
-
-    from .operators import spmm_threads
-
-    context = contextvars.copy_context()
-    if min(spmm_threads(), numba.config.NUMBA_NUM_THREADS) <= 1:
-        done: Future = Future()
-        try:
-            done.set_result(context.run(fn, *args))
-        except Exception as error:  # delivered by result(), as a worker's would be
-            done.set_exception(error)
-        return done
-
-    def one() -> R:
-        with single_threaded():
-            return context.run(fn, *args)
-
-    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="meshdenoise-start")
-    try:
-        return pool.submit(one)
-    finally:
-        pool.shutdown(wait=False)  # the job runs on; the caller awaits its result
 
 
 # --------------------------------------------------------------------------- small helpers

@@ -9,8 +9,8 @@ vertices the products wait on cache misses. A real range scan, listed row by row
 :func:`relabelling` decides from the faces alone whether a mesh needs it and returns a
 :class:`Relabelling` (reverse Cuthill-McKee of the edge graph: bandwidth-reducing, so
 neighbours are near each other in the new order). The choice of parameters and the filters
-run on the relabelled arrays (:func:`meshdenoise.tuning.choose.choose_parameters`,
-:func:`meshdenoise.default.choose_default`, the filter adapter) and give the result back
+run on the relabelled arrays (:func:`meshdenoise.tuning.choose.choose_parameters`, the filter
+adapter) and give the result back
 in the caller's labels: the same computation on relabelled vertices. Deterministic filters
 give the same coordinates up to rounding (row sums in another order); the automatic
 choices draw their random probes and regions per vertex index, so they see other draws

@@ -441,8 +441,8 @@ def run_core(spec: FilterSpec, V: np.ndarray, ops: Any, values: dict, *, pinned:
     result is the same, but nothing overflows or underflows), then is scaled back; with
     ``boundary_motion="normal"`` border vertices move along their normals only
     (:func:`boundary_along_normals`). ``values`` are resolved parameters (``spec.resolve``).
-    Used by the public adapter and by callers that run one filter many times on one topology
-    (:func:`meshdenoise.default.feature_risk`), who then skip the adapter's copies.
+    Used by the public adapter; a caller that runs one filter many times on one topology can
+    call it directly and skip the adapter's copies.
     """
     scale = power_of_two_scale(V) if spec.scale_free else 1.0
     V_in = V.view() if scale == 1.0 else V / scale

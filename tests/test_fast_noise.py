@@ -292,7 +292,10 @@ def test_noise_model_from_one_krylov_space_keeps_the_per_length_estimate(sample,
     """The same chosen length, level and band spectrum as the per-length heat filters (whose own CG error,
     4e-5 relative, is the larger one), on the whole mesh and on a sampled region."""
     from meshdenoise.tuning import covariance
-    from meshdenoise.tuning.detail import BANDS, ELL_GRID
+
+    # the bands (s of (I - P)^2 P^s) and the correlation lengths (edge lengths) of the spectrum this test reads
+    BANDS = (0, 1, 2, 4, 8, 16, 32, 64)
+    ELL_GRID = (0.0, 0.5, 1.0, 1.5, 2.0, 2.5, 3.0, 3.5, 4.0, 5.0)
 
     Vn, F = _scanner(2.0)
     kw = dict(details=True, spectrum=(BANDS, ELL_GRID), **({} if sample is None else {"sample": sample}))

@@ -144,30 +144,6 @@ def test_every_thread_lifts_a_workers_cap_for_the_block_only():
     assert op_module.thread_limit() is None
 
 
-def test_start_runs_its_job_in_the_callers_context(monkeypatch):
-    """A job started beside the caller's work sees the caller's context variables (its progress listener), and
-    what it sets there stays in its own copy."""
-    import contextvars
-
-    from meshdenoise import kernels
-
-    var = contextvars.ContextVar("meshdenoise_test_var", default="unset")
-    token = var.set("the caller's")
-    try:
-        def job():
-            seen = var.get()
-            var.set("the job's")
-            return seen, op_module.thread_limit()
-
-        for threads in ("2", "1"):  # on a worker (cap 1), and at once on the caller's thread
-            monkeypatch.setenv("MESHDENOISE_THREADS", threads)
-            seen, limit = kernels.start(job).result(timeout=30)
-            assert seen == "the caller's" and var.get() == "the caller's"
-            assert limit == (1 if threads == "2" else None)
-    finally:
-        var.reset(token)
-
-
 @pytest.mark.parametrize("mesh", [icosphere(2), grid(9, 6), torus(12, 7)], ids=["sphere", "plane", "torus"])
 def test_fast_operator_build_matches_coo_construction(mesh):
     """W and P built from sorted keys equal scipy's COO -> CSR construction with duplicates summed."""

@@ -676,33 +676,6 @@ def test_staged_search_with_an_evaluator_runs_each_stage_at_once_and_chooses_as_
     assert batches[0] == len(ts.TWO_STAGE_SIGMA_R)  # the first stage: every sigma_r at once
 
 
-def test_start_runs_a_job_on_a_worker_with_one_kernel_thread_or_at_once_on_one_thread(monkeypatch):
-    import threading
-
-    import numba
-
-    from meshdenoise import kernels
-
-    def where():
-        kernels.set_threads()
-        return threading.get_ident(), numba.get_num_threads()
-
-    if min(ts_threads(), numba.config.NUMBA_NUM_THREADS) > 1:
-        ident, k = kernels.start(where).result(timeout=30)
-        assert ident != threading.get_ident() and k == 1
-    monkeypatch.setenv("MESHDENOISE_THREADS", "1")  # one thread allowed: at once, on the caller's thread
-    job = kernels.start(where)
-    assert job.done() and job.result()[0] == threading.get_ident()
-
-    def boom():
-        raise ValueError("the job failed")
-
-    for threads in ("1", "2"):
-        monkeypatch.setenv("MESHDENOISE_THREADS", threads)
-        with pytest.raises(ValueError, match="the job failed"):
-            kernels.start(boom).result(timeout=30)
-
-
 # --- two synthetic draws, the residual's whiteness --------------------------------------------------
 def test_residual_correlation_is_the_lag_one_autocorrelation_over_edges_written_by_hand():
     V, F = icosphere(3)

@@ -770,7 +770,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     grid); parameters in ``ctx.given`` are held. ``TWO_STAGE_WHITENESS`` (off) would set the outer
     iterations afterwards to the count of the whitest method noise on the noisy region
     (:func:`residual_correlation`; Block0.4 2.68 degrees against 2.78, but 33 % more choice time in
-    ``choose_default`` from the longer run, and the elephant 1.5 % worse; docs/automatic-parameters.md, session 14).
+    the default's choice of then from the longer run, and the elephant 1.5 % worse; session 14).
 
     **Cost.** Everything runs on a :class:`SampledRegion` of ``TWO_STAGE_SAMPLE`` vertices in
     ``TWO_STAGE_PATCHES`` patches (24 from 100,000 vertices, ``TWO_STAGE_PATCHES_LARGE``: smaller

@@ -10,11 +10,9 @@ and is registered with it, ``register(..., auto=AutoRule(...))``):
 - :mod:`~meshdenoise.tuning.noise_level`: :func:`estimate_noise` and the normals' spread;
 - :mod:`~meshdenoise.tuning.covariance`: :func:`estimate_noise_model` (level and correlation length) and :class:`NoiseModel`;
 - :mod:`~meshdenoise.tuning.region`: a sampled region of a large mesh (balls of vertex rings) that fits run on;
-- :mod:`~meshdenoise.tuning.detail`: :func:`separate_detail`, surface detail or correlated noise (a band spectrum
-  with a surface term; the default's noise policy uses its verdict: docs/noise-vs-detail.md);
 - :mod:`~meshdenoise.tuning.context`: the :class:`TuningContext` a rule is given;
 - :mod:`~meshdenoise.tuning.choose`: :func:`choose_parameters` (``meshdenoise.denoise``, which also chooses
-  the filter, is the policy above this floor: :mod:`meshdenoise.default`);
+  the filter, is the policy above this floor: :mod:`meshdenoise.policy`);
 - :mod:`~meshdenoise.tuning.memo`: the bounded memo of repeated solves.
 """
 
@@ -22,7 +20,6 @@ from .choose import auto_filters, choose_parameters, given_noise_model
 from .context import TuningContext
 from .covariance import NoiseModel, estimate_noise_model
 from .noise_level import estimate_noise
-from .detail import DetailVerdict, separate_detail
 from .risk import EXACT_TRACE_MAX, Criterion, Point, gcv, probe_block, sure
 from .walk import Walk, walk
 
@@ -42,6 +39,4 @@ __all__ = [
     "EXACT_TRACE_MAX",
     "walk",
     "Walk",
-    "separate_detail",
-    "DetailVerdict",
 ]

@@ -107,7 +107,7 @@ class NoiseModel:
     F: np.ndarray | None = field(default=None, repr=False, compare=False)
     _filter: Any = field(default=None, init=False, repr=False, compare=False)
     _coloured: dict = field(default_factory=dict, init=False, repr=False, compare=False)
-    # colour() may be called from threads at once (the default's rules side by side): the lock guards the filter's
+    # colour() may be called from threads at once (rules run side by side): the lock guards the filter's
     # build and the cache; a colouring under way is waited for, not computed twice
     _lock: Any = field(default_factory=threading.Lock, init=False, repr=False, compare=False)
     _pending: dict = field(default_factory=dict, init=False, repr=False, compare=False)
@@ -377,8 +377,8 @@ def estimate_noise_model(mesh: Any, *, refine: int = 2, seed: int = 0, details: 
         ``details``; absent when the noise reads independent) holds ``bands``, ``lengths``,
         ``observed`` (len(bands),: the median square of the normal component of the mesh's own
         :math:`B_s X`) and ``probes`` (len(lengths), len(bands): the same of unit-variance probes of
-        each correlation length). :func:`meshdenoise.tuning.detail.separate_detail` fits it; the
-        default asks for both at once so that the probes are coloured once. ``info["smooth"]`` is
+        each correlation length), for the caller to fit; asked for with the noise model, the
+        probes are coloured once. ``info["smooth"]`` is
         always the smoothed mesh (n, 3) the normals come from.
     release : bool
         When the noise reads correlated, forget the averaging runs this call added to the tuning
