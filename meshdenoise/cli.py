@@ -53,10 +53,34 @@ def path_error(exc: click.BadParameter) -> OneLineError:
     hint = (exc.param_hint if isinstance(exc.param_hint, str) else None) or (
         exc.param.get_error_hint(exc.ctx) if exc.param is not None and exc.ctx is not None else "")
     hint = hint.replace("'", "") if hint else ""
+    if isinstance(exc, click.MissingParameter):  # its message is empty: "Missing option '--png'." comes from format_message
+        return OneLineError(" ".join(exc.format_message().split()))
     m = _PATH_PROBLEM.match(exc.message)
     if m:
         return OneLineError(f"{m['path']}: {_PATH_WORDS[m['what']]}" + (f" ({hint})" if hint else ""))
     return OneLineError(f"{hint}: {exc.message}" if hint else exc.message)
+
+
+def usage_error(exc: click.UsageError, command_path: str | None = None) -> OneLineError:
+    """Any usage error click raises while reading a command's arguments (a value not among the choices or out of
+    range, an unknown option, a missing argument) as one ``error:`` line, exit code 2, instead of click's usage block:
+    ``--backend: 'foo' is not one of 'auto', 'open3d', 'matplotlib' (meshdenoise render --help)``. A file argument
+    click refused reads as :func:`path_error` says."""
+    if (isinstance(exc, click.BadParameter) and not isinstance(exc, click.MissingParameter)
+            and isinstance(getattr(exc.param, "type", None), click.Path)):
+        return path_error(exc)
+    if isinstance(exc, click.BadParameter) and not isinstance(exc, click.MissingParameter):
+        hint = (exc.param_hint if isinstance(exc.param_hint, str) else None) or (
+            exc.param.get_error_hint(exc.ctx) if exc.param is not None and exc.ctx is not None else "")
+        hint = hint.replace("'", "").replace('"', "") if hint else ""
+        m = re.match(r"^(.*) is not a valid (?:float|integer) range\.?$", exc.message, re.S)
+        message = f"expected a number, got {m[1]}" if m else exc.message
+        text = f"{hint}: {message}" if hint else message
+    else:
+        text = exc.format_message()
+    text = " ".join(text.split()).rstrip(".")
+    command_path = command_path or (exc.ctx.command_path if exc.ctx is not None else None)
+    return OneLineError(f"{text} ({command_path} --help)" if command_path else text)
 
 
 def _warning_line(message, category=None, filename=None, lineno=None, file=None, line=None) -> None:

@@ -14,6 +14,20 @@ import click
 MESH = click.Path(exists=True, dir_okay=False, path_type=Path)
 
 
+class _OneLineUsage(click.Command):
+    """A command whose usage errors (a bad option value, an unknown option, a missing argument) are one
+    ``error: ...`` line and exit code 2, as its other bad input (:func:`meshdenoise.cli.usage_error`)."""
+
+    def make_context(self, info_name, args, parent=None, **extra):
+        try:
+            return super().make_context(info_name, args, parent=parent, **extra)
+        except click.UsageError as exc:
+            from ..cli import usage_error
+
+            path = f"{parent.command_path} {info_name}" if parent is not None else info_name
+            raise usage_error(exc, path) from None
+
+
 def _fail(message: str, code: int = 2) -> None:
     """One line on stderr, exit code 2 (bad input); the message is printed as it is (no markup)."""
     click.echo(f"error: {message}", err=True)
@@ -136,7 +150,7 @@ def _has_display() -> bool:
     return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
 
 
-@click.command()
+@click.command(cls=_OneLineUsage)
 @click.argument("meshes", nargs=-1, required=True, type=MESH)
 @click.option("--png", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Render to this PNG instead of opening a window (default without a display: show.png).")
@@ -186,7 +200,7 @@ def _open_viewer(paths, reference, error_mode, vmax):
     o3d.visualization.draw_geometries(geoms, window_name="meshdenoise: " + ", ".join(p.name for p in paths))
 
 
-@click.command()
+@click.command(cls=_OneLineUsage)
 @click.argument("before", type=MESH)
 @click.argument("after", type=MESH)
 @click.option("--reference", type=MESH, default=None,
@@ -208,7 +222,7 @@ def render(before, after, reference, png, size, view, error_mode, vmax, percenti
             size, view, error_mode, vmax, backend, percentile=percentile, zoom=zoom)
 
 
-@click.command()
+@click.command(cls=_OneLineUsage)
 @click.argument("run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--embed", is_flag=True, help="Put the pictures inside the page (it can then be moved alone).")
 @click.option("--pipeline", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
