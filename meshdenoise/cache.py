@@ -18,7 +18,7 @@ from typing import Any, Callable, Hashable
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["ByteLRU", "nbytes", "clear_caches"]
+__all__ = ["ByteLRU", "nbytes", "clear_caches", "on_clear"]
 
 # an estimate for a factor whose size the library does not report: bytes per nonzero of the
 # factorised matrix (cholespy/CHOLMOD fill on mesh Laplacians is 5 to 10 times nnz(A), 12 B each)
@@ -148,10 +148,17 @@ class ByteLRU:
             total -= sizes[key]
 
 
+_CLEARS: list[Callable[[], None]] = []
+
+
+def on_clear(clear: Callable[[], None]) -> Callable[[], None]:
+    """Have :func:`clear_caches` call ``clear`` too: each module keeping a module-level cache registers its own
+    clear at import (:func:`meshdenoise.operators.clear_cache`, the tuning memo's), so this module names none."""
+    _CLEARS.append(clear)
+    return clear
+
+
 def clear_caches() -> None:
     """Empty every module-level cache of the package (operators with their factors, tuning memo)."""
-    from .operators import clear_cache
-    from .tuning.memo import MEMO
-
-    clear_cache()
-    MEMO.clear()
+    for clear in list(_CLEARS):
+        clear()

@@ -20,6 +20,7 @@ Index arrays: ``indptr`` int64, ``indices`` int32 (int64 above 2^31 entries).
 from __future__ import annotations
 
 import os
+import threading
 from contextlib import contextmanager
 from typing import Callable, Iterator, Sequence, TypeVar
 
@@ -137,10 +138,33 @@ __all__ = [
 ]
 
 
+_limits = threading.local()  # the calling Python thread's own cap on threads (single_threaded sets it)
+
+
+def thread_limit() -> int | None:
+    """The calling Python thread's cap on the threads of its products and kernels, None when uncapped
+    (:func:`single_threaded` sets it for runs going side by side)."""
+    return getattr(_limits, "limit", None)
+
+
+def spmm_threads() -> int:
+    """Threads :func:`meshdenoise.operators.spmm` uses on large products: ``$MESHDENOISE_THREADS``, else the CPU
+    count (at most 8)."""
+    env = os.environ.get("MESHDENOISE_THREADS")
+    if env:
+        try:
+            value = int(env)
+        except ValueError:
+            raise ValueError(f"MESHDENOISE_THREADS = {env!r} is not a whole number of threads") from None
+        if value < 1:
+            raise ValueError(f"MESHDENOISE_THREADS = {env!r} must be at least 1")
+        return value
+    return max(1, min(os.cpu_count() or 1, 8))
+
+
 def set_threads() -> int:
-    """Use :func:`meshdenoise.operators.spmm_threads` threads (at most numba's pool size, and at most
+    """Use :func:`spmm_threads` threads (at most numba's pool size, and at most
     the calling thread's :func:`single_threaded` limit); returns the count."""
-    from .operators import spmm_threads, thread_limit
 
     k = max(1, min(spmm_threads(), numba.config.NUMBA_NUM_THREADS, thread_limit() or 1 << 30))
     numba.set_num_threads(k)  # numba's count is the calling thread's own
@@ -150,9 +174,7 @@ def set_threads() -> int:
 @contextmanager
 def single_threaded() -> Iterator[None]:
     """Inside the block, kernels and sparse products (:func:`~meshdenoise.operators.spmm`) started from this Python
-    thread run on one thread (:func:`set_threads`, :func:`~meshdenoise.operators.thread_limit`)."""
-    from .operators import _limits
-
+    thread run on one thread (:func:`set_threads`, :func:`thread_limit`)."""
     old = getattr(_limits, "limit", None)
     _limits.limit = 1
     try:
@@ -166,8 +188,6 @@ def single_threaded() -> Iterator[None]:
 def every_thread() -> Iterator[None]:
     """Inside the block, this Python thread's kernels and products use every thread again (lifts
     :func:`single_threaded`): for work that other threads are waiting for (a shared colouring)."""
-    from .operators import _limits
-
     old = getattr(_limits, "limit", None)
     _limits.limit = None
     try:
@@ -181,7 +201,7 @@ CONCURRENT_BELOW = 10_000  # vertices: runs of smaller meshes go side by side (r
 
 
 def run_concurrently(fn: Callable[[T], R], items: Sequence[T], vertices: int = 0) -> list[R]:
-    """``[fn(x) for x in items]``, computed on :func:`~meshdenoise.operators.spmm_threads` Python threads.
+    """``[fn(x) for x in items]``, computed on :func:`spmm_threads` Python threads.
 
     For many independent runs on a small mesh (a tuning rule's candidates on its sampled
     region): each run's kernels are then single-threaded (:func:`single_threaded`), so the
@@ -196,8 +216,6 @@ def run_concurrently(fn: Callable[[T], R], items: Sequence[T], vertices: int = 0
     bits as a loop's. The first exception raised is re-raised.
     """
     from concurrent.futures import ThreadPoolExecutor
-
-    from .operators import spmm_threads
 
     items = list(items)
     workers = min(spmm_threads(), numba.config.NUMBA_NUM_THREADS, len(items))

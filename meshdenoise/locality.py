@@ -24,12 +24,20 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .operators import (  # noqa: F401 - far_side_fraction and its limits live with Operators.in_locality_order
+    FAR_ROWS,
+    FAR_SIDES_MAX,
+    LOCALITY_MIN_VERTICES,
+    Operators,
+    far_side_fraction,
+    gather_rows,
+    on_clear_cache,
+    topology_key,
+)
+
 __all__ = ["Relabelling", "relabelling", "far_side_fraction", "clear", "LOCALITY_MIN_VERTICES", "FAR_ROWS",
            "FAR_SIDES_MAX"]
 
-LOCALITY_MIN_VERTICES = 1 << 16  # below this the coordinates fit in cache and relabelling cannot pay
-FAR_ROWS = 1 << 14  # a face side joining rows further apart than this misses the cache (16k rows = 384 KB of x, y, z)
-FAR_SIDES_MAX = 0.05  # relabel when more face sides than this are far: a row-by-row range scan has about none
 
 _lock = threading.Lock()
 _last: tuple[tuple, "Relabelling | None"] | None = None  # one entry: the choice and the filter of one call share it
@@ -83,8 +91,6 @@ class Relabelling:
 
     def vertices(self, X: np.ndarray) -> np.ndarray:
         """Per-vertex rows ``X`` (n, ...) in the new labels: ``X[order]``, a new array."""
-        from .operators import gather_rows
-
         X = np.asarray(X)
         if X.shape[0] != self.n:
             raise ValueError(f"Relabelling: {X.shape[0]} rows for a relabelling of {self.n} vertices")
@@ -98,8 +104,6 @@ class Relabelling:
 
     def restore(self, Y: np.ndarray) -> np.ndarray:
         """Per-vertex rows computed in the new labels, back in the old ones: ``Z[order] = Y``."""
-        from .operators import gather_rows
-
         Y = np.asarray(Y)
         if Y.shape[0] != self.n:
             raise ValueError(f"Relabelling: {Y.shape[0]} rows for a relabelling of {self.n} vertices")
@@ -110,24 +114,6 @@ class Relabelling:
     @property
     def nbytes(self) -> int:
         return int(self.order.nbytes + self.inverse.nbytes + self.faces.nbytes)
-
-
-def far_side_fraction(F: np.ndarray, far: int = FAR_ROWS) -> float:
-    """The fraction of face sides (three per face) whose two vertices are more than ``far`` rows apart.
-
-    Examples
-    --------
-    >>> import numpy as np
-    >>> far_side_fraction(np.array([[0, 1, 2], [0, 1, 100000]]), far=10)
-    0.3333333333333333
-    """
-    F = np.asarray(F)
-    if len(F) == 0:
-        return 0.0
-    far_sides = 0
-    for a, b in ((0, 1), (1, 2), (2, 0)):
-        far_sides += int(np.count_nonzero(np.abs(F[:, a].astype(np.int64) - F[:, b]) > far))
-    return far_sides / (3 * len(F))
 
 
 def relabelling(F: np.ndarray, n: int) -> Relabelling | None:
@@ -154,8 +140,6 @@ def relabelling(F: np.ndarray, n: int) -> Relabelling | None:
     global _last
     if n < LOCALITY_MIN_VERTICES or far_side_fraction(F) <= FAR_SIDES_MAX:
         return None
-    from .operators import Operators, topology_key
-
     key = topology_key(F, n)
     with _lock:
         if _last is not None and _last[0] == key:
@@ -173,3 +157,6 @@ def clear() -> None:
     global _last
     with _lock:
         _last = None
+
+
+on_clear_cache(clear)  # operators.clear_cache forgets it too

@@ -16,9 +16,8 @@ coordinates) share the operators and the factorisations stored in
 from __future__ import annotations
 
 import hashlib
-import os
-import threading
 from functools import cached_property
+from typing import Callable
 
 import numba
 import numpy as np
@@ -27,7 +26,8 @@ from scipy.sparse.csgraph import reverse_cuthill_mckee
 from scipy.sparse.linalg import eigsh
 
 from . import kernels
-from .cache import ByteLRU, nbytes
+from .cache import ByteLRU, nbytes, on_clear
+from .kernels import _limits, spmm_threads, thread_limit  # noqa: F401 - the thread limits live in kernels; named here too
 
 __all__ = ["Operators", "get_operators", "topology_key", "clear_cache", "trim_cache", "CACHE_BYTES", "spmm", "spmm_threads", "gather_rows"]
 
@@ -46,6 +46,29 @@ _COMPILED_FROM_COLUMNS = 16
 
 CACHE_BYTES = 1 << 30  # operators of recent topologies, with their stored factorisations, up to 1 GiB
 _cache = ByteLRU(CACHE_BYTES)  # topology key -> Operators
+
+
+LOCALITY_MIN_VERTICES = 1 << 16  # below this the coordinates fit in cache and relabelling cannot pay
+FAR_ROWS = 1 << 14  # a face side joining rows further apart than this misses the cache (16k rows = 384 KB of x, y, z)
+FAR_SIDES_MAX = 0.05  # locality relabels when more face sides than this are far: a row-by-row range scan has about none
+
+
+def far_side_fraction(F: np.ndarray, far: int = FAR_ROWS) -> float:
+    """The fraction of face sides (three per face) whose two vertices are more than ``far`` rows apart.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> far_side_fraction(np.array([[0, 1, 2], [0, 1, 100000]]), far=10)
+    0.3333333333333333
+    """
+    F = np.asarray(F)
+    if len(F) == 0:
+        return 0.0
+    far_sides = 0
+    for a, b in ((0, 1), (1, 2), (2, 0)):
+        far_sides += int(np.count_nonzero(np.abs(F[:, a].astype(np.int64) - F[:, b]) > far))
+    return far_sides / (3 * len(F))
 
 
 def topology_key(F: np.ndarray, n: int) -> tuple:
@@ -313,12 +336,10 @@ class Operators:
         """Whether the vertices are already in a cache-friendly order (then :attr:`locality_order` is the identity).
 
         True for a large mesh whose face sides rarely join far rows
-        (:func:`meshdenoise.locality.far_side_fraction`): a range scan listed row by row, or a
+        (:func:`far_side_fraction`): a range scan listed row by row, or a
         mesh :mod:`meshdenoise.locality` relabelled. Small meshes (below
-        :data:`meshdenoise.locality.LOCALITY_MIN_VERTICES`) keep reverse Cuthill-McKee.
+        :data:`LOCALITY_MIN_VERTICES`) keep reverse Cuthill-McKee.
         """
-        from .locality import FAR_SIDES_MAX, LOCALITY_MIN_VERTICES, far_side_fraction
-
         return self.n >= LOCALITY_MIN_VERTICES and far_side_fraction(self.F) <= FAR_SIDES_MAX
 
     def permuted(self, A: sp.csr_matrix, name: str) -> sp.csr_matrix:
@@ -351,29 +372,6 @@ class Operators:
             B.eliminate_zeros()
             self.cache[key] = B
         return self.cache[key]
-
-
-_limits = threading.local()  # the calling Python thread's own cap on threads (kernels.single_threaded sets it)
-
-
-def thread_limit() -> int | None:
-    """The calling Python thread's cap on the threads of its products and kernels, None when uncapped
-    (:func:`meshdenoise.kernels.single_threaded` sets it for runs going side by side)."""
-    return getattr(_limits, "limit", None)
-
-
-def spmm_threads() -> int:
-    """Threads :func:`spmm` uses on large products: ``$MESHDENOISE_THREADS``, else the CPU count (at most 8)."""
-    env = os.environ.get("MESHDENOISE_THREADS")
-    if env:
-        try:
-            value = int(env)
-        except ValueError:
-            raise ValueError(f"MESHDENOISE_THREADS = {env!r} is not a whole number of threads") from None
-        if value < 1:
-            raise ValueError(f"MESHDENOISE_THREADS = {env!r} must be at least 1")
-        return value
-    return max(1, min(os.cpu_count() or 1, 8))
 
 
 def _check_kernel() -> bool:
@@ -525,10 +523,20 @@ def trim_cache() -> None:
 
 def clear_cache() -> None:
     """Forget every cached topology (operators and factorisations), the solvers' symbolic analyses and the kept
-    vertex relabelling."""
-    from .locality import clear
-    from .solvers import clear_symbolic
-
+    vertex relabelling (the modules above that hold them register their own clear: :func:`on_clear_cache`)."""
     _cache.clear()
-    clear()
-    clear_symbolic()
+    for clear in list(_ON_CLEAR):
+        clear()
+
+
+_ON_CLEAR: list[Callable[[], None]] = []
+
+
+def on_clear_cache(clear: Callable[[], None]) -> Callable[[], None]:
+    """Have :func:`clear_cache` call ``clear`` too: a module above this one keeping something per topology
+    (:func:`meshdenoise.solvers.clear_symbolic`, :func:`meshdenoise.locality.clear`) registers it at import."""
+    _ON_CLEAR.append(clear)
+    return clear
+
+
+on_clear(clear_cache)

@@ -24,7 +24,7 @@ from cholespy import CholeskySolverD, MatrixType
 
 from . import kernels
 from .cache import FACTOR_BYTES_PER_NNZ, nbytes
-from .operators import Operators, mask_key, spmm, trim_cache
+from .operators import Operators, mask_key, on_clear_cache, spmm, trim_cache
 
 __all__ = [
     "DirichletSystem", "SPDSolver", "CHOLMOD", "CHOLMOD_MAX_ROWS", "CHOLMOD_METIS_MAX_ROWS", "clear_symbolic", "CGSolver", "block_cg", "cached_solver", "retain_factors", "laplacian_power", "shifted_solver",
@@ -163,6 +163,9 @@ def clear_symbolic() -> None:
     """Forget the stored symbolic analyses of :class:`SPDSolver` (CHOLMOD's orderings of each sparsity pattern)."""
     with _symbolic_lock:
         _symbolic.clear()
+
+
+on_clear_cache(clear_symbolic)  # operators.clear_cache forgets them too
 
 
 def _cholmod_factor(A: sp.csr_matrix) -> Any:

@@ -15,12 +15,13 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from ..cache import ByteLRU
+from ..cache import ByteLRU, on_clear
 
 __all__ = ["MEMO", "MEMO_BYTES", "digest", "release_before_filter"]
 
 MEMO_BYTES = 256 << 20
 MEMO = ByteLRU(MEMO_BYTES)
+on_clear(lambda: MEMO.clear())  # meshdenoise.cache.clear_caches empties it too
 
 
 def release_before_filter() -> None:
