@@ -10,6 +10,8 @@ A zero-area face has a zero normal (not NaN) and contributes nothing to vertex n
 
 from __future__ import annotations
 
+from typing import Callable
+
 import numpy as np
 import scipy.sparse as sp
 
@@ -128,15 +130,19 @@ def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     From 65,536 vertices the compiled kernel
     :func:`meshdenoise.tuning.noise_kernels.vertex_normals` computes the same numbers, bit for
     bit, without nine ``(m,)`` temporaries (0.7 -> 0.1 s at 1.6M vertices);
-    :func:`numpy_vertex_normals` is the numpy computation at every size.
+    :func:`numpy_vertex_normals` is the numpy computation at every size. That module sits above
+    this one and registers its kernel here when imported (:data:`LARGE_VERTEX_NORMALS`).
     """
-    from .tuning.noise_kernels import KERNEL_MIN_VERTICES
-
-    if np.shape(V)[0] >= KERNEL_MIN_VERTICES:
-        from .tuning.noise_kernels import vertex_normals as compiled_vertex_normals
-
-        return compiled_vertex_normals(V, F)
+    for compiled in LARGE_VERTEX_NORMALS:
+        N = compiled(V, F)
+        if N is not None:
+            return N
     return numpy_vertex_normals(V, F)
+
+
+# (V, F) -> the normals, or None when the mesh is too small for it: meshdenoise.tuning.noise_kernels (above this module,
+# loaded with the package) appends its compiled kernel at import
+LARGE_VERTEX_NORMALS: list[Callable[[np.ndarray, np.ndarray], np.ndarray | None]] = []
 
 
 def numpy_vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:

@@ -25,6 +25,7 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
+from .. import geometry
 from .. import kernels as _kernels  # the threading layer and OpenMP settings of the project's kernels
 from ..kernels import njit, numba, prange
 
@@ -134,13 +135,11 @@ def fourth_difference_csr(P: sp.csr_matrix, threads: int | None = None) -> sp.cs
 
     The same as ``sp.csr_matrix((sp.identity(n, format="csr") - P) @ (sp.identity(n, format="csr") - P))``:
     scipy's own kernel (``csr_matmat``, which releases the GIL) on ``threads`` blocks of rows
-    (default :func:`meshdenoise.operators.spmm_threads`; a row of the product depends on that row of
+    (default :func:`meshdenoise.kernels.spmm_threads`; a row of the product depends on that row of
     the left factor only, so the split changes no entry and no order), ``I - P`` by
     :func:`_i_minus_counts` / :func:`_i_minus_fill` (``csr_minus_csr``'s merge). A ``P`` whose
     indices are not sorted and unique, or a scipy without the private kernels, takes scipy's route.
     """
-    from ..operators import spmm_threads
-
     n = P.shape[0]
     if P.shape != (n, n) or n < max(KERNEL_MIN_VERTICES, 1) or not P.has_canonical_format or not _check_matmat():
         A = sp.identity(n, format="csr") - sp.csr_matrix(P)
@@ -151,7 +150,7 @@ def fourth_difference_csr(P: sp.csr_matrix, threads: int | None = None) -> sp.cs
 
     idx = _index_dtype(max(n + 1, P.nnz + n))
     Ap, Aj, Ax = _i_minus(P, idx)
-    threads = max(1, min(spmm_threads() if threads is None else int(threads), n))
+    threads = max(1, min(_kernels.spmm_threads() if threads is None else int(threads), n))
     # row blocks of about equal numbers of entries of I - P (a mesh's rows cost about alike)
     bounds = np.searchsorted(Ap, np.linspace(0, int(Ap[-1]), threads + 1)).astype(np.int64)
     bounds[0], bounds[-1] = 0, n
@@ -239,9 +238,7 @@ def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     if F.size and (F.min() < 0 or F.max() >= V.shape[0]):
         raise ValueError(f"vertex_normals: face indices must lie in 0 .. {V.shape[0] - 1}, got {F.min()} .. {F.max()}")
     if V.shape[0] < KERNEL_MIN_VERTICES:
-        from ..geometry import numpy_vertex_normals
-
-        return numpy_vertex_normals(V, F)
+        return geometry.numpy_vertex_normals(V, F)
     _kernels.set_threads()
     normals = np.empty((F.shape[0], 3))
     _unit_face_normals(V, F, normals)
@@ -250,6 +247,15 @@ def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     del normals
     _normalise_rows(out)
     return out
+
+
+def _large_vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray | None:
+    """:func:`vertex_normals` from :data:`KERNEL_MIN_VERTICES` vertices on, else None: what
+    :func:`meshdenoise.geometry.vertex_normals` asks first."""
+    return vertex_normals(V, F) if np.shape(V)[0] >= KERNEL_MIN_VERTICES else None
+
+
+geometry.LARGE_VERTEX_NORMALS.append(_large_vertex_normals)
 
 
 # --------------------------------------------------------------------------- edge lengths
