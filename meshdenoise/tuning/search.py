@@ -7,6 +7,7 @@ choice (SURE, GCV) and the oracle (the true error against a clean mesh).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import threading
 import warnings
@@ -722,7 +723,7 @@ def region_rule(ctx, rule: Callable, size: int, patches: int, margin: int = 0, s
     size, margin = region_shape(ctx, size, patches, margin)
     if n <= size:
         return rule(ctx, None)
-    from .region import SampledRegion  # context imports this module: local imports
+    from .region import SampledRegion
 
     held = {**(given() if given is not None else {}), **ctx.given}
     previous: dict | None = None
@@ -755,8 +756,6 @@ def region_rule(ctx, rule: Callable, size: int, patches: int, margin: int = 0, s
 
 def _on_region(ctx, rule: Callable, region, held: dict) -> tuple[dict, Point]:
     """``rule(sub_ctx, region.inner)`` on ``region`` cut out of ``ctx``'s mesh, ``held`` parameters fixed."""
-    from ..operators import Operators
-    from .context import TuningContext
     from .risk import noise_colouring
 
     k = region.vertices.size
@@ -765,11 +764,11 @@ def _on_region(ctx, rule: Callable, region, held: dict) -> tuple[dict, Point]:
     ops = Operators(F, k)  # not in the operators cache: the region's factors go with it when the rule returns
     model = ctx.noise
     if model is not None and getattr(model, "correlated", False):
-        from .covariance import NoiseModel
-
         with noise_colouring(None):  # the region's own smoothing: its probes are not the whole mesh's rows
             smoothed = sure_smoothed(V, ops, ctx.rho).X
-        model = NoiseModel(ctx.rho, float(model.correlation_length), smoothed, F)
-    sub = TuningContext(V, F, ops, ctx.rho, ctx.criterion, ctx.exact, held, model, ctx.normals_next)
+        # the model's own class (a covariance.NoiseModel, above this module) on the region's smoothed mesh
+        model = type(model)(ctx.rho, float(model.correlation_length), smoothed, F)
+    # the context's own class (a context.TuningContext, above this module) on the region
+    sub = dataclasses.replace(ctx, V=V, F=F, ops=ops, given=held, noise=model)
     with noise_colouring(model):
         return rule(sub, region.inner)
