@@ -15,6 +15,12 @@ from ._launch import exit_at_once_on_interrupt, exit_if_the_command
 
 exit_at_once_on_interrupt()  # in the meshdenoise program only, until its main() runs
 try:  # Ctrl-C while the command line loads these: exit 130, no traceback (meshdenoise._launch)
+    from .registry import add_plugin_loader as _add_plugin_loader
+
+    @_add_plugin_loader
+    def _load_plugins() -> None:
+        from . import plugins  # noqa: F401  (importing registers every filter; the registry names none)
+
     from .adapters import to_arrays
     from .arrays import MeshValidationError
     from .metrics import snr

@@ -604,5 +604,16 @@ def apply_filter(name: str, mesh: Any, **params) -> Any:
     return get_filter(name).public(mesh, **params)
 
 
+_PLUGIN_LOADERS: list[Callable[[], None]] = []
+
+
+def add_plugin_loader(load: Callable[[], None]) -> Callable[[], None]:
+    """Have :func:`get_filter` and :func:`list_filters` call ``load()`` first. The plugins import this module, so it
+    names none of them: the package's ``__init__`` (above both) adds the import of :mod:`meshdenoise.plugins`."""
+    _PLUGIN_LOADERS.append(load)
+    return load
+
+
 def _load_plugins() -> None:
-    from . import plugins  # noqa: F401  (importing registers every filter)
+    for load in _PLUGIN_LOADERS:
+        load()
