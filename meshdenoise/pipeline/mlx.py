@@ -15,14 +15,13 @@ script form and are refused by :func:`steps_to_mlx`.
 
 from __future__ import annotations
 
-import functools
 import keyword
 import math
 import re
 import xml.etree.ElementTree as ET
-from pathlib import Path
 from typing import Any
 
+from .meshlab_gui import gui_names, pymeshlab_name, pythonize  # noqa: F401 - pythonize named here too
 from .meshlab_names import FILTERS
 from .pymeshlab_steps import PERCENT, check_value, filter_names, parameter_types
 from .steps import COMMON
@@ -32,34 +31,6 @@ __all__ = ["mlx_to_steps", "steps_to_mlx", "OURS_PREFIX", "pythonize", "pymeshla
 OURS_PREFIX = "meshdenoise:"
 
 
-@functools.lru_cache(maxsize=1)
-def _by_meshlab_name() -> dict[str, str]:
-    return {entry["meshlab"]: name for name, entry in FILTERS.items()}
-
-
-@functools.lru_cache(maxsize=1)
-def _renamed() -> dict[str, str]:
-    import pymeshlab
-
-    keys = Path(pymeshlab.__file__).parent / "keys.txt"
-    out = {}
-    if keys.is_file():
-        for line in keys.read_text().splitlines():
-            parts = line.split()
-            if len(parts) == 2:
-                out[parts[0]] = parts[1]
-    return out
-
-
-def pythonize(meshlab_name: str) -> str:
-    """pymeshlab's old rule for a MeshLab name: lower case, runs of other characters -> ``_``.
-
-    >>> pythonize("Remeshing: Isotropic Explicit Remeshing")
-    'remeshing_isotropic_explicit_remeshing'
-    """
-    return re.sub(r"[^0-9a-z]+", "_", meshlab_name.lower()).strip("_")
-
-
 def _pymeshlab_name(meshlab_name: str, where: str = "") -> str | None:
     """pymeshlab's name of a MeshLab filter; ``ValueError`` naming ``where`` when there is none."""
     found = pymeshlab_name(meshlab_name)
@@ -67,15 +38,6 @@ def _pymeshlab_name(meshlab_name: str, where: str = "") -> str | None:
         raise ValueError(f"{where + ': ' if where else ''}MeshLab filter {meshlab_name!r} has no pymeshlab equivalent in this pymeshlab version")
     return found
 
-
-def pymeshlab_name(meshlab_name: str) -> str | None:
-    """pymeshlab's name of a filter known by its MeshLab (GUI) name (``"Taubin Smooth"``), or None."""
-    if meshlab_name in _by_meshlab_name():
-        return _by_meshlab_name()[meshlab_name]
-    guess = _renamed().get(pythonize(meshlab_name), pythonize(meshlab_name))
-    if guess in filter_names():
-        return guess
-    return None
 
 
 def _param_name(meshlab_param: str) -> str:
@@ -318,36 +280,6 @@ def _step_parts(item: Any, k: int) -> tuple[str, dict]:
             "indent the parameters under the name, or write two steps"
         )
     raise ScriptStepError(k, f"step {k}: a step is a name or a one-key mapping 'name: {{parameters}}', got {item!r}")
-
-
-def gui_names(name: str, params: dict) -> tuple[str, dict, list[str]]:
-    """Accept MeshLab's GUI names for a pymeshlab step: ``("Taubin Smooth", {"lambda": ..})`` ->
-    ``("apply_coord_taubin_smoothing", {"lambda_": ..})``, with one note per renaming naming the canonical name.
-
-    Names that are already pymeshlab's (or not MeshLab's) are returned unchanged, with no note.
-    """
-    notes = []
-    canonical = name
-    if name not in filter_names():
-        found = pymeshlab_name(name) if not name.startswith("open3d.") else None
-        if found is None or found == name:
-            return name, params, notes
-        canonical = found
-        notes.append(f"'{name}' is MeshLab's name of the pymeshlab filter '{canonical}': write '{canonical}'")
-    entry = FILTERS.get(canonical)
-    if entry is None:
-        return canonical, params, notes
-    known = parameter_types(canonical)
-    by_gui = {info["name"]: py for py, info in entry["params"].items()}
-    by_gui.update({info["name"].lower(): py for py, info in entry["params"].items() if info["name"].lower() not in known})
-    out = {}
-    for key, value in params.items():
-        if isinstance(key, str) and key not in known and (key in by_gui or key.lower() in by_gui):
-            py = by_gui.get(key, by_gui.get(key.lower()))
-            notes.append(f"'{key}' is MeshLab's name of {canonical}'s parameter '{py}': write '{py}'")
-            key = py
-        out[key] = value
-    return canonical, out, notes
 
 
 def _our_param(spec, key: str, value: Any, k: int, name: str) -> dict:

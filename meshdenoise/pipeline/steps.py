@@ -245,7 +245,7 @@ def describe_pymeshlab_step(name: str) -> dict:
     KeyError
         Not a pymeshlab filter (nor a MeshLab GUI name of one), with the closest names.
     """
-    from .mlx import gui_names
+    from .meshlab_gui import gui_names
 
     canonical, _, _ = gui_names(name, {})
     if canonical not in pymeshlab_steps.filter_names():
@@ -492,7 +492,7 @@ def _parse(name, given, index, label, source, line, at_param) -> Step:
         return Step(index, name, "metrics", _check_metrics(given, at), label, source, line)
     if name == "render":
         return Step(index, name, "render", _check_render(given, at), label, source, line)
-    from .mlx import gui_names  # MeshLab's GUI names ("Taubin Smooth", "stepSmoothNum") are accepted, with a note
+    from .meshlab_gui import gui_names  # MeshLab's GUI names ("Taubin Smooth", "stepSmoothNum") are accepted, with a note
 
     canonical, given, renamed = gui_names(name, given)
     if canonical in pymeshlab_steps.filter_names():
