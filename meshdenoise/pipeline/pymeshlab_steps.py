@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from .meshlab_names import FILTERS
+from .meshlab_names import FILTERS, _probe
 
 __all__ = ["filter_names", "parameter_types", "check_parameters", "check_value", "to_pymeshlab_value", "PERCENT"]
 
@@ -45,18 +45,6 @@ def filter_names() -> tuple[str, ...]:
     import pymeshlab
 
     return tuple(pymeshlab.filter_list())
-
-
-@functools.lru_cache(maxsize=1)
-def _probe():
-    import pymeshlab
-
-    from ..shapes import icosphere
-
-    V, F = icosphere(1)
-    ms = pymeshlab.MeshSet()
-    ms.add_mesh(pymeshlab.Mesh(V, F.astype(np.int32)))
-    return ms
 
 
 @functools.lru_cache(maxsize=None)
