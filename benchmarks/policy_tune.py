@@ -3,7 +3,8 @@
 A setting is kept when it improves the **tune** half's geometric mean ratio (our mean face-normal
 error over the best oracle-tuned peer's, ``benchmarks/results/corpus-peers.json``); the **check**
 half is reported beside it and never used to choose. Each variant changes one thing of the
-shipped config (``base``): the hole radius, the masks, a candidate family left out.
+shipped config (``base``): the hole radius, the masks, the steps read, the region's size, the fold
+guard, a candidate family left out or one of ``OTHER_FAMILIES`` added.
 
 Run: ``python benchmarks/policy_tune.py [--split tune|check|all] [--jobs 2]``
 (writes ``benchmarks/results/policy-tune.md``; about 4 s per case and variant on 2 cores).
@@ -32,15 +33,18 @@ RESULTS = HERE / "results" / "policy-tune.md"
 
 
 def variants() -> dict:
-    """Name -> DefaultConfig: the shipped one and one change each."""
-    from meshdenoise.policy import FAMILIES, DefaultConfig
+    """Name -> DefaultConfig: the shipped one (``base``) and one change each."""
+    from meshdenoise.policy import FAMILIES, OTHER_FAMILIES, DefaultConfig
 
     base = DefaultConfig()
-    out = {"base": base, "radius 2": dataclasses.replace(base, radius=2), "masks 2": dataclasses.replace(base, masks=2),
-           "steps 40": dataclasses.replace(base, steps=40), "region 6000": dataclasses.replace(base, region_vertices=6000),
-           "no fold guard": dataclasses.replace(base, unfold_rounds=0)}
+    change = dataclasses.replace
+    out = {"base": base, "radius 2": change(base, radius=2), "masks 2": change(base, masks=2),
+           "masks 6": change(base, masks=6), "steps 60": change(base, steps=60),
+           "region 12000": change(base, region_vertices=12_000), "no fold guard": change(base, unfold_rounds=0)}
     for i, family in enumerate(FAMILIES):
-        out[f"without {family.label}"] = dataclasses.replace(base, families=FAMILIES[:i] + FAMILIES[i + 1:])
+        out[f"without {family.label}"] = change(base, families=FAMILIES[:i] + FAMILIES[i + 1:])
+    for family in OTHER_FAMILIES:
+        out[f"with {family.label}"] = change(base, families=FAMILIES + (family,))
     return out
 
 

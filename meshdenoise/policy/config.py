@@ -10,7 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["Family", "DefaultConfig", "FAMILIES"]
+__all__ = ["Family", "DefaultConfig", "FAMILIES", "OTHER_FAMILIES"]
 
 
 @dataclass(frozen=True)
@@ -49,11 +49,15 @@ def _two_stage(sigma_r: float, keep_tangential: bool) -> Family:
                                 ("sigma_s", 1.0), ("guidance", "bilateral"), ("keep_tangential", keep_tangential)))
 
 
-# sharp (sigma_r 0.35) and smooth (2.0: every neighbour's normal counts) normal filters, each keeping or
-# dropping the input's tangential part, and Taubin's low-pass (uniform weights, lambda 0.5, mu -0.53)
+# the sharp normal filter (sigma_r 0.35: normals more than about 20 degrees apart hardly average), keeping or
+# dropping the input's tangential part (noise along the normals, or along any direction). Families tried and left
+# out because the tune half's aggregate was as good or better without them: the smooth range kernel (sigma_r 2.0)
+# with and without the tangential part, Taubin's low-pass (benchmarks/results/policy-tune.md, `OTHER_FAMILIES`)
 FAMILIES = (
     _two_stage(0.35, True),
     _two_stage(0.35, False),
+)
+OTHER_FAMILIES = (
     _two_stage(2.0, True),
     _two_stage(2.0, False),
     Family("taubin", (("lam", 0.5), ("mu", -0.53), ("weights", "uniform"))),
@@ -90,9 +94,9 @@ class DefaultConfig:
     families: tuple = field(default=FAMILIES)
     radius: int = 1
     masks: int = 4
-    steps: int = 60
+    steps: int = 40
     patience: int = 8
-    region_vertices: int = 12_000
+    region_vertices: int = 6_000
     region_patches: int = 24
     unfold_rounds: int = 10
 
