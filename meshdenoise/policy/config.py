@@ -50,16 +50,16 @@ def _two_stage(sigma_r: float, keep_tangential: bool) -> Family:
 
 
 # the sharp normal filter (sigma_r 0.35: normals more than about 20 degrees apart hardly average), keeping or
-# dropping the input's tangential part (noise along the normals, or along any direction). Families tried and left
-# out because the tune half's aggregate was as good or better without them: the smooth range kernel (sigma_r 2.0)
-# with and without the tangential part, Taubin's low-pass (benchmarks/results/policy-tune.md, `OTHER_FAMILIES`)
+# dropping the input's tangential part (noise along the normals, or along any direction), and the smooth one
+# (sigma_r 2.0: every neighbour's normal counts) dropping it. Each kept because the tune half's aggregate is worse
+# without it; the others tried are OTHER_FAMILIES (benchmarks/results/policy-tune.md)
 FAMILIES = (
     _two_stage(0.35, True),
     _two_stage(0.35, False),
+    _two_stage(2.0, False),
 )
 OTHER_FAMILIES = (
     _two_stage(2.0, True),
-    _two_stage(2.0, False),
     Family("taubin", (("lam", 0.5), ("mu", -0.53), ("weights", "uniform"))),
 )
 
@@ -96,7 +96,7 @@ class DefaultConfig:
     masks: int = 4
     steps: int = 40
     patience: int = 8
-    region_vertices: int = 6_000
+    region_vertices: int = 12_000
     region_patches: int = 24
     unfold_rounds: int = 10
 
