@@ -1,4 +1,4 @@
-"""Each filter's automatic choice, timed: ``denoise(mesh, method=M)`` in a fresh process per cell (issue 22).
+"""Each filter's automatic choice, timed: ``denoise(mesh, method=M)`` in a fresh process per cell.
 
 Issue 22's target: automatic choices in time comparable to one peer call, under 3 s per mesh of 50,000
 vertices on 2 cores. Per (row, filter) cell one process runs :func:`peers.run_ours` (the choice and the

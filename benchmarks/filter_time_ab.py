@@ -1,4 +1,4 @@
-"""Two commits' automatic choices timed in turn: per cell, fresh processes alternating between the codes (issue 22).
+"""Two commits' automatic choices timed in turn: per cell, fresh processes alternating between the codes.
 
 A shared machine's speed drifts by 10 to 30 % within an hour (measured on the project's 2 cores: benchmarks/results/filter-time-ab.md): two
 codes timed one after the other can differ by the drift alone. Here each code runs from a git worktree of its

@@ -1,4 +1,4 @@
-"""Scan-sized meshes: automatic parameters, filters and the command line at 100k to 1.6M vertices (issue 17).
+"""Scan-sized meshes: automatic parameters, filters and the command line at 100k to 1.6M vertices.
 
 Meshes: the elephant (24,955 vertices, ``MESHDENOISE_DATA``) Loop-subdivided by Open3D's
 ``subdivide_loop`` 1, 2 and 3 times (99,832, 399,340 and 1,597,372 vertices), with

@@ -1,8 +1,8 @@
-"""``two_stage``'s automatic parameters against the rule before issue 22 and against the oracles.
+"""``two_stage``'s automatic parameters against a position-SURE rule and against the oracles.
 
-Per row: the noisy mesh; the rule before issue 22 (Monte-Carlo SURE on positions over the
+Per row: the noisy mesh; the position-SURE rule (column "previous auto"; Monte-Carlo SURE on positions over the
 outer iterations only, other parameters at their defaults, reimplemented here as
-:func:`previous_rule`); the new automatic rule (``choose_parameters(mesh, "two_stage")``,
+:func:`previous_rule`); the automatic rule (column "new auto"; ``choose_parameters(mesh, "two_stage")``,
 with the time of the choice); the generic oracle (``criterion="oracle"``: the same staged
 search on the whole mesh, scored by squared position error against the clean mesh); and the
 normal-error oracle: the least mean face-normal error over the rule's whole grid
@@ -67,7 +67,7 @@ def load_row(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def previous_rule(V: np.ndarray, F: np.ndarray, rho: float) -> dict:
-    """The rule before issue 22: outer iterations by Monte-Carlo SURE on positions, the rest at defaults."""
+    """The position-SURE rule: outer iterations by Monte-Carlo SURE on positions, the rest at defaults."""
     n = V.shape[0]
     ops = get_operators(F, n)
     N = vertex_normals(sure_smoothed(V, ops, rho).X, F)

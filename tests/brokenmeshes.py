@@ -255,7 +255,7 @@ def cases() -> list[Case]:
          match=r"(?i)no faces|point cloud")
     read("point_cloud.obj", obj_text(pts, []), pts, np.zeros((0, 3), int), match=r"(?i)no faces|point cloud")
 
-    # --- round two (issue 19): byte-order marks, colours out of range, counts that disagree, legal layouts
+    # --- byte-order marks, colours out of range, counts that disagree, legal layouts
     bom = b"\xef\xbb\xbf"
     read("bom.obj", bom + obj_text(V, F).encode(), V, F, match=r"(?i)byte-order mark")
     read("bom_crlf.obj", bom + obj_text(V, F).replace("\n", "\r\n").encode(), V, F, match=r"(?i)byte-order mark")

@@ -95,7 +95,7 @@ def test_heat_tau_between_one_and_bound_is_accepted_on_non_bipartite_mesh():
     md.heat((V, F), tau=1.0 + 0.5 * (2 / lam - 1), time=3)
 
 
-# --- the command line and pipelines on bad input (issue 19) ---------------------------------------------
+# --- the command line and pipelines on bad input --------------------------------------------------------
 # Every case: exit code 2, one line naming the file / step / parameter, no traceback, nothing written,
 # the input unchanged. Cases are counted in docs/reliability.md.
 
@@ -416,7 +416,7 @@ def test_info_json_is_strict_json(mesh_file):
     json.loads(r.output, parse_constant=lambda c: pytest.fail(f"{c} is not JSON"))
 
 
-# issue 22: filters --json ------------------------------------------------------------------------------
+# filters --json ---------------------------------------------------------------------------------------
 def test_filters_json_lists_every_filter_and_step_as_the_registry_has_them():
     from meshdenoise.pipeline.steps import BUILTIN_STEPS, OPEN3D_OPS
 

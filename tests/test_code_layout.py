@@ -137,7 +137,7 @@ def test_every_registered_filter_is_exported_at_the_top_level():
 
 
 def test_every_filter_docstring_says_how_to_choose_its_main_parameter_for_a_scan():
-    # issue 20: the advice is in mean edge lengths and points at the measured table it comes from
+    # the advice is in mean edge lengths and points at the measured table it comes from
     from meshdenoise.registry import list_filters
 
     missing = [spec.name for spec in list_filters()

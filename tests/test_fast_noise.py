@@ -1,4 +1,4 @@
-"""The cheaper noise estimates (issue 17, issue 22) against the computations they replace.
+"""The cheaper noise estimates against the computations they replace.
 
 - ``_normal_residual_scale`` / ``_residual_energy_scale`` without per-entry gathers: equal to the
   old COO-and-gather computation (kept here as the reference) to rounding;
@@ -80,7 +80,7 @@ def test_fourth_difference_is_the_squared_averaging_difference_and_the_estimate_
     np.testing.assert_allclose(nl.fourth_difference(ops).toarray(), A @ A, atol=1e-14)
     before = set(ops.cache)
     md.estimate_noise((Vn, F))
-    assert set(ops.cache) == before  # 220 bytes per vertex not kept after the call (issue 17's memory)
+    assert set(ops.cache) == before  # 220 bytes per vertex not kept after the call
 
 
 def _bfs(W, sources, n):

@@ -295,7 +295,7 @@ def test_sigterm_mid_write_removes_the_temporary_file(tmp_path, mode):
     assert list(out.parent.iterdir()) == [], "the temporary file was left behind"
 
 
-# ------------------------------------------------------------------ classes of issue 19 (round two)
+# ------------------------------------------------------------------ classes of malformed and unusual files
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 

@@ -1,4 +1,4 @@
-"""two_stage's run holds its buffers and no copy beyond them (issue 17: peak memory per vertex)."""
+"""two_stage's run holds its buffers and no copy beyond them (peak memory per vertex)."""
 
 from __future__ import annotations
 

@@ -117,7 +117,7 @@ def test_meshlab_table_check_reports_what_pymeshlab_lacks(monkeypatch):
     assert "'no_such_filter'" in diff and "'bogus'" in diff, diff
 
 
-# --- MeshLab interop from the command line (issue 20, issue 19) ---------------------------------------
+# --- MeshLab interop from the command line -------------------------------------------------------------
 import pytest  # noqa: E402
 import yaml  # noqa: E402
 from click.testing import CliRunner  # noqa: E402

@@ -1,4 +1,4 @@
-"""The noise estimate's compiled kernels and its shared intermediate results (issue 17) against the code they replace.
+"""The noise estimate's compiled kernels and its shared intermediate results against the code they replace.
 
 Every comparison is bit for bit (``np.array_equal``, ``==``): the kernels promise the numpy/scipy
 arithmetic in the same order, and the estimate the same numbers as before.

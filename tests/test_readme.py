@@ -15,7 +15,7 @@ from meshdenoise.shapes import icosphere
 ROOT = Path(__file__).resolve().parent.parent
 README = (ROOT / "README.md").read_text(encoding="utf-8")
 
-# Pages other branches write (issue 20's helpers); linked already, checked once they exist.
+# Pages of docs/ a link may name before the page exists; a link to one is checked once it exists.
 PAGES_FROM_OTHER_BRANCHES = {"file-formats.md", "reliability.md", "pipelines.md", "scale.md", "scans.md", "peers.md"}
 
 

@@ -1,4 +1,4 @@
-"""Classes of defects found by a hostile user (issue 52): each test covers its class, not only the case found.
+"""Classes of defects found by a hostile user: each test covers its class, not only the case found.
 
 Documented for users in docs/reliability.md ("Interrupts, warnings and files", "Numbers", "Vertex options").
 """

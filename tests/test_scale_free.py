@@ -1,4 +1,4 @@
-"""Scale-free filters commute with scaling, even at 1e200 and 1e-200 (issue 19, item 12)."""
+"""Scale-free filters commute with scaling, even at 1e200 and 1e-200."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""The scan-size search paths (issue 17) against the direct computations they replace.
+"""The scan-size search paths against the direct computations they replace.
 
 - :class:`LanczosQuadrature` against dense ``b^T g(M) b`` (eigendecomposition / inverse);
 - ``best_shifted(search="quadrature")`` against ``search="factor"`` (one Cholesky factor per

@@ -395,7 +395,7 @@ def test_coherent_normals_derivative_matches_central_differences_on_both_branche
     assert not coherent_normals_derivative(flat, np.array([[0, 1, 2]]), rng.standard_normal((3, 3, 2))).any()
 
 
-# ----------------------------------------------------------------------------- scan-sized path (issue 17)
+# ----------------------------------------------------------------------------- scan-sized path
 @pytest.mark.parametrize("gate", ["size", "bound"])
 @pytest.mark.parametrize("mu, beta, order, jacobi_cap", [(0.4, 4.0, 3, 3000), (5.0, 12.0, 2, 3000), (0.4, 4.0, 3, 3)])
 def test_sobolev_gls_factor_free_path_matches_the_dense_solve(monkeypatch, mu, beta, order, jacobi_cap, gate):

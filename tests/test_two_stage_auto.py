@@ -1,4 +1,4 @@
-"""two_stage's keep_tangential step, its run iterator and its automatic rule (issue 22), against
+"""two_stage's keep_tangential step, its run iterator and its automatic rule, against
 computations written here: numpy projections, graph distances by scipy, brute-force runs."""
 
 from __future__ import annotations

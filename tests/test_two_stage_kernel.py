@@ -4,7 +4,7 @@ tests/reference_two_stage.py is the numpy ``two_stage`` as it was (vectorised ov
 pairs, one sort per pass); the old Open3D-weight Taubin is written out below. The compiled
 kernels must give the same coordinates to ~1e-12, on closed and open meshes, with sharp
 edges, degenerate and non-manifold faces, pinned vertices, and in both guidance modes; and
-``two_stage`` must not care about the mesh's scale (issue 19 item 12).
+``two_stage`` must not care about the mesh's scale.
 """
 
 from __future__ import annotations

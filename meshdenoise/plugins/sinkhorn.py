@@ -164,7 +164,7 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
 
     if held == 0:
         return {"t": float(spec.param("t").default)}, Point(0, 0.0, float(n), ctx.V, 0.0)
-    p = search_log(evaluate, ctx.mu_guess(1), parabolic=True)  # the golden section's 9 runs -> 1 to 4 (session 22)
+    p = search_log(evaluate, ctx.mu_guess(1), parabolic=True)  # 1 to 4 runs where the golden section took 9
     return {"t": float(p.value), "iterations": int(best_k[p.value])}, p
 
 

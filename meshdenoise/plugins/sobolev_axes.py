@@ -23,12 +23,12 @@ from ..tuning.spectral import Spectral, shifted_spectral
 
 AXES_SCALE_MIN_VERTICES = 50_000  # from this size: the frame's estimate by Lanczos
 AXES_LANCZOS_MIN_VERTICES = 20_000  # from this size the filter runs without a factor: two Lanczos passes per axis, and
-AXES_PINNED_CG_BOUND = 600  # ... with held vertices CG while its bound is at most this (50,000 until session 24; a
-# factor of I + mu L^3 with a held border took 1.2 s per axis on Bunny0.2, 3.5 of the filter's 4.9 s)
+AXES_PINNED_CG_BOUND = 600  # ... with held vertices CG while its bound is at most this (a factor
+# of I + mu L^3 with a held border took 1.2 s per axis on Bunny0.2, 3.5 of the filter's 4.9 s)
 AXES_QUADRATURE_MIN_VERTICES = QUADRATURE_MIN_VERTICES  # from this size the search by Lanczos quadrature (the same
-# candidates and probes as by a factor per mu, the same scores to about 1e-12; session 19, was 50,000)
-AXES_QUADRATURE_TOL = 1e-6  # ... each rule to this relative change over its last steps (1e-10 until session 26), as the
-# normals searches' SPECTRAL_TOL: the grid's candidates compared, no parabola. Measured on the 7 rows of
+# candidates and probes as by a factor per mu, the same scores to about 1e-12)
+AXES_QUADRATURE_TOL = 1e-6  # ... each rule to this relative change over its last steps, as the normals
+# searches' SPECTRAL_TOL: the grid's candidates compared, no parabola. Measured against 1e-10 on the 7 rows of
 # benchmarks/filter_time.py it runs on: every per-axis score within 2.7e-5 of 1e-10's (the elephant; the others 8e-8 or
 # less), each axis's best ahead of its next by 1.7e-4 (Twelve0.5Impulsive) to 9e-3, the same choices; the elephant
 # 187 -> 120 steps, 3.2 -> 2.8 s
@@ -123,8 +123,8 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
 
     whose weighted trace is Hutchinson's :math:`\\mathbb E\\, (c_d \\odot z)^T H z = \\sum_i H_{ii} c_{id}`:
     one solve :math:`H z` per probe serves the three axes, each dotting it with its own weighted probe
-    (until session 29 :math:`(z \\odot \\sqrt{c_d})^T H (z \\odot \\sqrt{c_d})`, the same sum in expectation by
-    three times the solves: face000's rule 1.6 -> 1.2 s), exact (identity probes) on small meshes. One
+    (not :math:`(z \\odot \\sqrt{c_d})^T H (z \\odot \\sqrt{c_d})`, the same sum in expectation by
+    three times the solves: face000's rule 1.2 s against 1.6 s), exact (identity probes) on small meshes. One
     factorisation per ``mu`` serves the three axes: a half-decade grid around the ``sobolev`` guess, extended until
     every axis's minimum is inside, then refined to an eighth of a decade around each minimum.
 
@@ -393,7 +393,7 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=
     stored = ops.cache.get(f"shifted-p{order}-cholesky", {})
     mus = (mu1, mu2, mu3)
     # a 100k factor of I + mu L^3: 20 s. The axes without a stored factor by one compiled Lanczos run on their columns,
-    # one function of L per column (the elephant: 0.65 -> 0.42 s; three numpy runs of one column each until session 25)
+    # one function of L per column (the elephant: 0.42 s; three numpy runs of one column each: 0.65 s)
     free = [d for d, mu in enumerate(mus) if mu != 0 and factor_free and (float(mu), None) not in stored]
     tol = DRAFT_LANCZOS_TOL if rough else FILTER_LANCZOS_TOL  # rough: the border option's free run, a draft
     lanczos = _axes_by_lanczos(ops, C[:, free], [float(mus[d]) for d in free], order, tol) if free else None

@@ -18,9 +18,9 @@ from .sobolev import AUTO_CG_MAX_ITERATIONS, AUTO_CG_MIN_VERTICES
 SOLVERS = ("auto", "cholesky", "cg", "lanczos")
 LANCZOS_MAX_STEPS = 1000
 LANCZOS_MIN_VERTICES = 50_000  # "auto" without pinned vertices: two Lanczos passes from this size (100k, load 15:
-# 2.9 s against a 15 s factorisation of I + mu L^2, same SNR to 13 digits; 20,000 was tried in session 24, 2-3 times
-# faster than a factor for one run, but the default of then ran the filter at one mu once per probe: the
-# elephant's whole call 2.2 -> 7.7 s)
+# 2.9 s against a 15 s factorisation of I + mu L^2, same SNR to 13 digits; from 20,000 it is 2-3 times
+# faster than a factor for one run, but a choice that ran the filter at one mu once per probe took the elephant's
+# whole call from 2.2 to 7.7 s)
 PINNED_CG_BOUND = 500  # with pinned vertices (the border option's one run) from 20,000 vertices CG while its bound is at most this (the
 # Bunny0.2's border at mu 0.26: bound 135, 0.09 s against a 0.49 s factor; face000 at 12: 496, 0.76 against 1.19 s;
 # the elephant at 163: 2,726, 1.5 against 0.14 s), from AUTO_CG_MIN_VERTICES the bound AUTO_CG_MAX_ITERATIONS as for sobolev

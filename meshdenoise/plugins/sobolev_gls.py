@@ -149,7 +149,7 @@ def _dense_normal_weighted_solve(
 
 GLS_ITERATIVE_MIN_VERTICES = 200_000  # without held rows the filter factorises nothing from this size: at 400k (mu
 # 4.7, CG's bound 820) CG preconditioned by the one-ring factor took 13.2 s and 1,181 MB at its peak, block-Jacobi CG
-# 7.9 s and 635 MB (benchmarks/scale.py; until session 27 this was 50,000)
+# 7.9 s and 635 MB (benchmarks/scale.py)
 GLS_FACTOR_FREE_MIN_VERTICES = 20_000  # ... and below it from this size, held rows or not, while CG's bound for
 GLS_FACTOR_FREE_CG_BOUND = 700  # I + mu L^p at GLS_FILTER_TOL is at most this (past it, CG preconditioned by a one-ring
 # factor, ShiftedPCG): measured, factor-free (Lanczos or Jacobi CG, then
@@ -282,7 +282,7 @@ SOBOLEV_GLS_LOOSE_TOL = 1e-3  # on a region, or before the normals search: CG's 
 SOBOLEV_GLS_SWEEP_TOL = 1e-2  # ... and for a sweep over beta alone (mu held: before the normals search), whose candidates
 # are 26 % or more apart: measured on the 8 rows of benchmarks/filter_time.py against 1e-6, every score's gap to the best
 # moved by at most 4.2 % of itself (the bunny scanner; the elephant 4.0 %), the same betas; the elephant's sweep
-# 0.88 -> 0.59 s (15 -> 9 steps), the bunny scanner's 0.52 -> 0.29 s (session 30)
+# 0.88 -> 0.59 s (15 -> 9 steps), the bunny scanner's 0.52 -> 0.29 s
 GLS_FAMILY_MIN_BETAS = 2  # a sweep over at least this many betas at one mu solves them by one CG run (shifted_family_cg:
 # Block0.4's sweep 71 -> 21 preconditioner solves, its choice 3.0-3.4 -> 2.4 s; bunny scanner 6.5 -> 5.4 s, the same betas)
 SOBOLEV_GLS_LOOSE_WARM = 4  # ... of the last this many candidates
@@ -333,7 +333,7 @@ def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
     filter's SURE weight (:func:`~meshdenoise.tuning.search.best_shifted`, :math:`(I + \\mu L^p)^{-1}`, the
     normals search's start) and only ``beta`` is chosen, by the SURE sweep at that ``mu`` (CG to
     ``SOBOLEV_GLS_SWEEP_TOL``; on the sampled region from ``GLS_SWEEP_REGION_FROM`` vertices).
-    Fandisk0.3: 44 s -> 10 s, the same beta and 9.52 degrees against 9.56 (docs/automatic-parameters.md, session 19).
+    Fandisk0.3: 44 s -> 10 s, the same beta and 9.52 degrees against 9.56 (docs/automatic-parameters.md).
     """
     order = int(get_filter("sobolev_gls").resolve(ctx.given, where="choose_parameters(method='sobolev_gls')")["order"])
     sweep_only = ctx.normals_next and "mu" not in ctx.given and ctx.reference is None and bool(ctx.rho)

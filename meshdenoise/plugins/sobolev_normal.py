@@ -46,7 +46,7 @@ SOBOLEV_NORMAL_ORDERS = (2, 3)  # candidate Laplacian powers of the automatic so
 SOBOLEV_NORMAL_ORDER_MARGIN = 0.02  # an order's log search is refined when its grid's parabola predicts a score within this share of the least grid score
 SOBOLEV_NORMAL_PROBES = 16  # Monte-Carlo SURE probes (along the normals) of sobolev_normal
 SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES = 20_000  # without pinned vertices the filter factorises nothing from this size
-# (50,000 until session 24; the default runs sobolev_normal on small meshes only, so a run is a one-off here) ...
+# (the default runs sobolev_normal on small meshes only, so a run is a one-off here) ...
 SOBOLEV_NORMAL_PINNED_CG_BOUND = 600  # ... and with them solves by CG while its iteration bound is at most this (face000,
 # its border held, mu 6.7: order 2, bound 370, 192 iterations, 0.58 s against a 1.22 s factor; order 3, bound 1,280,
 # 531 iterations, 2.8 against 3.3 s)
@@ -115,9 +115,9 @@ def choose_sobolev_normal(ctx: TuningContext) -> tuple[dict, Point]:
             return {}
         return {"tangential": normal_trust(ctx.rho, mean_edge_length(ctx.smoothed("sure").X, ctx.ops))}
 
-    # One cut, no reach loop (session 10): the region's outer rings are held at the whole mesh's result for each
+    # One cut, no reach loop: the region's outer rings are held at the whole mesh's result for each
     # candidate, so its free rows are the whole mesh's result whatever the weight, and a larger margin is not needed
-    # for strong smoothing (the loop grew the region to 38,900 of 51,200 vertices on a torus, docs/scale.md).
+    # for strong smoothing (a reach loop grew the region to 38,900 of 51,200 vertices on a torus, docs/scale.md).
     return region_rule(ctx, choose_sobolev_normal_whole, SOBOLEV_NORMAL_REGION, SOBOLEV_NORMAL_PATCHES,
                        SOBOLEV_NORMAL_MARGIN, given=whole_tangential,
                        pin=SOBOLEV_NORMAL_PIN, boundary=lambda rows: whole_result_at(ctx, rows))
@@ -186,7 +186,7 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     interpolation to 0.02 decades (:meth:`~meshdenoise.tuning.search.LogSearch.refine_parabolic`,
     1 to 4 candidates where the golden section took 9). On the eight benchmark rows: 28 -> 14 s
     on Bunny0.2, 22 -> 10 s on the bunny scanner, normal errors within 0.5 % of the golden
-    section's (docs/automatic-parameters.md, session 22). The smaller score wins.
+    section's (docs/automatic-parameters.md). The smaller score wins.
 
     ``scored`` (bool (n,), optional): SURE or GCV of the scored vertices only (the residual
     summed over them, the probes zero elsewhere, so the divergence is the trace of the scored

@@ -54,7 +54,7 @@ def meshlab_taubin_operator(ops: Operators) -> sp.csr_matrix:
 
 # ----------------------------------------------------------------------------- automatic rule
 TAUBIN_LAMBDAS = (0.5, 0.25, 0.125)  # candidate shrinking steps of the automatic taubin rule
-TAUBIN_FINE_MIN_VERTICES = 10_000  # from this size a finer lambda is tried only while ... (50,000 until session 19)
+TAUBIN_FINE_MIN_VERTICES = 10_000  # from this size a finer lambda is tried only while ...
 TAUBIN_FINE_MAX_ITERATIONS = 8  # ... the coarser one's best count is below this
 
 

@@ -127,7 +127,7 @@ def _quantisation(H: np.ndarray) -> float:
     the mesh changes the rounding (6e-12 of the scores at 1000 times the extent): hypothesis found a
     face subset of ``icosphere(2)`` moved by 1024 whose result moved by 0.145 that way. A coarser grid
     (1e6) fixes that mesh but makes near-ties ties, broken by the labels: a shuffled mesh then gives
-    results 2e-8 apart (tests/test_locality.py). Kept at 1e9 (docs/peers.md, session 15).
+    results 2e-8 apart (tests/test_locality.py). Hence 1e9 (docs/peers.md).
     """
     scale = float(H.max()) if H.size else 0.0
     return QUANTUM / scale if scale > 0 else 0.0
@@ -347,10 +347,10 @@ TWO_STAGE_MAX_NORMAL_PASSES = 8  # ... or more: up to this many normal-filtering
 TWO_STAGE_PATIENCE_PASSES = 0  # a run also goes on this many normal-filtering passes after its minimum
 TWO_STAGE_SIGMA_R = (0.2, 0.25, 0.3, 0.35, 0.45)  # the grid of the automatic rule (docs/filters.md)
 TWO_STAGE_NORMAL_ITERATIONS = (5, 10, 20)
-TWO_STAGE_VERTEX_ITERATIONS = (40,)  # independent noise: 40 only (session 14: the criterion preferred 20 where 40 was better)
+TWO_STAGE_VERTEX_ITERATIONS = (40,)  # independent noise: 40 only (offered 20 and 40, the criterion preferred 20 where 40 was better)
 TWO_STAGE_VERTEX_ITERATIONS_CORRELATED = (20, 40)  # correlated noise: 10 dropped, 40 added (docs/automatic-parameters.md, docs/peers.md)
-TWO_STAGE_DRAWS = 2  # independent noise: synthetic copies (seeds 0..) whose median angles are averaged (session 14)
-TWO_STAGE_WHITENESS = False  # on: independent, light-tailed noise gets its outer iterations from the residual's whiteness (measured, off: session 14)
+TWO_STAGE_DRAWS = 2  # independent noise: synthetic copies (seeds 0..) whose median angles are averaged (one draw's choice is a lottery)
+TWO_STAGE_WHITENESS = False  # on: independent, light-tailed noise gets its outer iterations from the residual's whiteness (measured, off: choose_two_stage's docstring)
 TWO_STAGE_ORACLE_VERTEX_ITERATIONS = (20, 10, 40)  # the oracle (criterion="oracle") searches these
 TWO_STAGE_SAMPLE = 3000  # vertices of the sampled region the rule runs on (the whole mesh below it)
 TWO_STAGE_PATCHES = 6  # ... grown from this many seed vertices
@@ -379,7 +379,7 @@ TUNED = ("iterations", "normal_iterations", "vertex_iterations", "sigma_r", "sig
 STAGES = ("sigma_r", "normal_iterations", "sigma_r", "vertex_iterations",  # the coordinate search ...
           ("normal_iterations", "vertex_iterations"))  # ... and the two counts jointly at the end
 TWO_STAGE_REVISIT_SPAN = 1  # the rule's second sigma_r stage tries the grid values within this many steps of the best
-# so far (the oracle: all): on 15 rows the same choices, 10-25 % fewer runs where the first stages moved (session 10)
+# so far (the oracle: all): on 15 rows the same choices, 10-25 % fewer runs where the first stages moved
 
 
 def synthetic_noise(N: np.ndarray, rho: float, seed: int = 0) -> np.ndarray:
@@ -425,7 +425,7 @@ def correlated_fields(ctx: TuningContext, vertices: np.ndarray, probes: int) -> 
     (``TWO_STAGE_COLOUR_RINGS``): the same system matrix, mass and white-noise scale as the whole
     mesh's filter on those rows, the outside held at 0. At the region's vertices this is the whole
     mesh's colouring to the solver's tolerance (bunny scanner, 14 rings: 1.3e-3 of the unit scale,
-    the tolerance's own level; docs/automatic-parameters.md, session 11). Each column is scaled to mean
+    the tolerance's own level; docs/automatic-parameters.md). Each column is scaled to mean
     square 1 over the vertices within half those rings of ``vertices`` (the whole mesh's realised energy
     is not known there: the two scales differ by the sampling of a correlated field's energy, 1-4 %).
     When the grown region exceeds ``TWO_STAGE_COLOUR_SHARE`` of the mesh, the whole mesh is coloured
@@ -529,7 +529,7 @@ def guard_probes(vertices: int) -> int:
     which grow as the square root of the vertex count over the probes; on a small mesh with 6
     probes the guard could never cut (the Nefertiti, 299 vertices: a drop of 1.2 against 2 standard
     errors of 1.4; with 24 or more probes it cut 3 outer iterations to 1, 21.95 -> 18.66 degrees,
-    the oracle's 17.75; docs/automatic-parameters.md, session 22).
+    the oracle's 17.75; docs/automatic-parameters.md).
 
     >>> guard_probes(3000), guard_probes(1500), guard_probes(299)
     (6, 12, 48)
@@ -557,7 +557,7 @@ def fine_run_wins(fine: float, along: list[float], gain: float) -> bool:
     chosen run, (k,)) by ``gain`` times that least's magnitude.
 
     The least, not the chosen count's: SURE is a position risk, whose best count comes before the normals'
-    (docs/automatic-parameters.md, session 14).
+    (docs/automatic-parameters.md).
     """
     least = min(along)
     return bool(fine < least - gain * abs(least))
@@ -646,7 +646,7 @@ def _staged_search(path: Callable[[dict], Point], grid: dict[str, tuple],
     ``benchmarks/two_stage_auto.py``, the default's bunny scanner, face000 and face000 scanner, the
     bunny and elephant with scanner noise 0.3 h at correlation lengths 1, 2 and 4), every search
     ends at the same point as with the full stage, with 10 to 25 % fewer normal-filtering passes
-    where the count had moved (docs/automatic-parameters.md, session 10).
+    where the count had moved (docs/automatic-parameters.md).
 
     ``evaluate(path, candidates)``: the points of a stage's new candidates, in order (a loop
     when None; the rule runs them side by side, :func:`~meshdenoise.kernels.run_concurrently`).
@@ -695,8 +695,8 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     :math:`f_\\theta(\\tilde Y)` and of :math:`P` (:func:`median_angle`), averaged over
     ``TWO_STAGE_DRAWS`` (2) copies drawn with seeds 0, 1 (independent noise; one coloured copy under
     correlated noise): with one draw the choice was a lottery (over 8 seeds 1.04-1.18 times the grid's best
-    normal error on Fandisk0.3 before the fine run, 1.00-1.46 on Twelve0.5Impulsive; docs/automatic-parameters.md,
-    session 14). The median, not the
+    normal error on Fandisk0.3 before the fine run, 1.00-1.46 on Twelve0.5Impulsive; docs/automatic-parameters.md).
+    The median, not the
     mean: :math:`P`'s own errors sit at its sharp edges, where a candidate like the pilot's
     reproduces them, so a mean prefers the pilot's parameters; the median is decided by the
     faces the pilot got right. ``keep_tangential`` is on (the noise model moves vertices
@@ -731,7 +731,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     and (b) its region SURE is below the least SURE along the chosen run by ``TWO_STAGE_FINE_GAIN``
     (0.2, about 1 dB) of it (the least, not the chosen count's: SURE is a position risk, whose best count
     comes before the normals'; Block0.4 at (0.3, 5, 40, 8): 8.84 at the chosen count, 3.86 at 2, the fine
-    run 5.54 and 3.03 degrees against the choice's 2.68; session 14). The
+    run 5.54 and 3.03 degrees against the choice's 2.68). The
     median decides the run length (it is not dominated by the pilot's own feature errors) but does
     not compare regimes: the pilot is made in the heavy regime (10 passes), which reproduces its
     own flat sides better on the copy, so the median preferred it (Fandisk0.3: 0.0363 against
@@ -751,7 +751,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     iterations (Twelve0.5Impulsive: 4 against 7 or 8, 1.29 times the grid's best normal
     error; at 1.3: 1.00; docs/automatic-parameters.md).
 
-    **Vertex steps.** ``TWO_STAGE_VERTEX_ITERATIONS`` is 40 (independent noise, session 14): with 20 and 40
+    **Vertex steps.** ``TWO_STAGE_VERTEX_ITERATIONS`` is 40 (independent noise): with 20 and 40
     the criterion preferred 20 where 40 was better (Block0.4, on the rule's two draws: (0.3, 10, 20), 3.04
     degrees, against (0.3, 5, 40), 2.78; the grid's truth prefers 40 at every sigma_r there with 5 or 10
     passes), and the search
@@ -770,7 +770,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     grid); parameters in ``ctx.given`` are held. ``TWO_STAGE_WHITENESS`` (off) would set the outer
     iterations afterwards to the count of the whitest method noise on the noisy region
     (:func:`residual_correlation`; Block0.4 2.68 degrees against 2.78, but 33 % more choice time in
-    the default's choice of then from the longer run, and the elephant 1.5 % worse; session 14).
+    a default's choice that runs two_stage, from the longer run, and the elephant 1.5 % worse).
 
     **Cost.** Everything runs on a :class:`SampledRegion` of ``TWO_STAGE_SAMPLE`` vertices in
     ``TWO_STAGE_PATCHES`` patches (24 from 100,000 vertices, ``TWO_STAGE_PATCHES_LARGE``: smaller
@@ -852,7 +852,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
         fields = correlated_fields(ctx, region.vertices, n_probes)
         eps = fields[:, 0]
         synthetics = [pilot + ctx.rho * eps[:, None] * Np]
-    else:  # TWO_STAGE_DRAWS copies: one draw's choice is a lottery (session 14: 1.04-1.18 times the grid's best on Fandisk0.3)
+    else:  # TWO_STAGE_DRAWS copies: one draw's choice is a lottery (over 8 seeds 1.04-1.18 times the grid's best on Fandisk0.3)
         synthetics = [pilot + synthetic_noise(Np, TWO_STAGE_SYNTHETIC_SCALE * ctx.rho, seed=d)
                       for d in range(max(1, TWO_STAGE_DRAWS))]
     synthetic = synthetics[0]  # the fine run's copy
@@ -878,7 +878,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
     if TWO_STAGE_WHITENESS and not fixed_k and not heavy and not correlated:
         # the outer iterations: the count whose method noise along the result's normals is whitest (least |lag-one
         # autocorrelation|, residual_correlation); the synthetic copy, as smooth as the pilot, stops runs early
-        # (Block0.4: 6 iterations at (0.3, 5, 20), the truth 8; docs/automatic-parameters.md, session 14)
+        # (Block0.4: 6 iterations at (0.3, 5, 20), the truth 8; docs/automatic-parameters.md)
         clean_run = list(runs(Y, F, ops, chosen))
         lag = [abs(residual_correlation(Y, X, F, ops.W, inner)) for _, X in clean_run]
         chosen["iterations"] = int(clean_run[int(np.argmin(lag))][0])
@@ -971,7 +971,7 @@ def choose_two_stage(ctx: TuningContext) -> tuple[dict, Point]:
                       final.score, int(inner.sum()) * ctx.rho**2, [round(p.score, 4) for p, _ in path_sure])
             # against the least SURE along the chosen run, not its last point: SURE is a position risk, whose best
             # count comes before the normals' (Block0.4 at (0.3, 5, 40): least at 2 iterations, 3.86, the chosen 8
-            # 8.84; the fine run's 5.54 is 37 % below the latter and 3.03 degrees against 2.68; session 14)
+            # 8.84; the fine run's 5.54 is 37 % below the latter and 3.03 degrees against 2.68)
             if fine_run_wins(fine_sure[-1][0].score, [p.score for p, _ in path_sure], TWO_STAGE_FINE_GAIN):
                 chosen, final = fine, fine_sure[-1][0]
     # the returned score estimates the whole mesh's squared error ||f(X) - X0||^2 (comparable with

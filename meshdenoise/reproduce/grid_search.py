@@ -37,7 +37,7 @@ class GridSpec:
 
 
 # Filter name -> grid. An entry is used only when its filter is registered, so a new filter
-# (issue 4's OT filter, issue 5's stronger filters) appears in the tables by adding one line here.
+# appears in the tables by adding one line here.
 GRIDS: dict[str, GridSpec] = {
     # down to t = 1e-3, where the filter returns nearly its input: at low noise the best is "almost nothing"
     "sinkhorn": GridSpec("t", tuple(float(t) for t in np.logspace(-3, 2, 21))),

@@ -30,7 +30,7 @@ __all__ = ["NormalJacobian", "NormalChoice", "normal_risk", "dirichlet_sure", "r
 
 # Rademacher vector probes: NORMAL_PROBE_BUDGET / n, from NORMAL_PROBES to NORMAL_MAX_PROBES (the estimate averages
 # over the faces, so its spread falls like 1 / sqrt(n P): a constant n P keeps it; 8 probes at 50k vertices chose the
-# oracle's weight on the benchmark rows, session 16)
+# oracle's weight on the benchmark rows)
 NORMAL_PROBES = 8
 NORMAL_MAX_PROBES = 64
 NORMAL_PROBE_BUDGET = 8 * 50_000

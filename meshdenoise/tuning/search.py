@@ -59,9 +59,9 @@ QUADRATURE_MIN_VERTICES = 1_000  # best_shifted(search="auto"): Lanczos quadratu
 SHIFTED_SEARCHES = ("auto", "quadrature", "factor")
 QUADRATURE_BASE_ORDER = 2  # shifted_quadrature's run on the columns L^min(p, this) X: the searches of orders 2 and 3
 # on the same coordinates and probes share it (sobolev_gls' pilot and sweep weights on the elephant: 187 steps, 0.26 s)
-QUADRATURE_TOL = 1e-6  # shifted_quadrature: each Gauss rule to this relative change over 10 steps (was 1e-10):
-# sobolev_gls' run on the elephant (its order-3 and order-2 searches) 187 -> 120 Lanczos steps; the same choices on the
-# 56 cells whose rules search these weights (default, the Sobolev filters, two_stage; session 30), weights to 1e-9
+QUADRATURE_TOL = 1e-6  # shifted_quadrature: each Gauss rule to this relative change over 10 steps; against 1e-10:
+# sobolev_gls' run on the elephant (its order-3 and order-2 searches) 120 Lanczos steps, not 187; the same choices on the
+# 56 cells whose rules search these weights (default, the Sobolev filters, two_stage), weights to 1e-9
 SHARED_RUN_MAX_BYTES = MEMO_BYTES // 8  # ... kept in the tuning memo up to this size (its columns, two basis vectors:
 # 16 MB on the elephant, 27 columns); above, a scan's whole-mesh run would sit in the memo for nothing (face000's
 # sobolev_gls searches its pilot on a region: with a bound of 64 MB its peak memory 564 -> 604 MB)

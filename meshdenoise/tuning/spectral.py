@@ -33,8 +33,8 @@ __all__ = ["Spectral", "SpectralFailed", "SpectralSearch", "StartDual", "shifted
 SPECTRAL_TOL = 1e-6  # relative change over 10 Lanczos steps (of an estimate's Cauchy-Schwarz scale) at which a search's
 # estimates are taken: its scores to about 1e-6 (tests/test_spectral.py: within 1e-5 of the filter runs'), where the
 # probes' own Monte-Carlo spread is 1/sqrt(P) and the best candidate's nearer-scoring neighbour (26 % apart) scored
-# 1.3e-4 to 9e-2 above it, median 6e-3, over the normals searches of the 8 benchmark rows x 5 filters (session 25);
-# 1e-10 (until then) chose the same on all 88 cells (benchmarks/results/filter-time.md) with more steps
+# 1.3e-4 to 9e-2 above it, median 6e-3, over the normals searches of the 8 benchmark rows x 5 filters;
+# a tolerance of 1e-10 chose the same on all 88 cells (benchmarks/results/filter-time.md) with more steps
 SPECTRAL_MAX_STEPS = 2000  # a run longer than this gives up (SpectralFailed): the caller runs the filter instead
 SPECTRAL_MIN_VERTICES = 2_000  # searches score by these Lanczos runs from this size (with Rademacher probes; the exact
 # traces of small meshes are 3n columns, and a few solves of a small factor cost less)
