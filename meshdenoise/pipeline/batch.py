@@ -56,6 +56,7 @@ def run_tasks(
             cluster = LocalCluster(n_workers=n, threads_per_worker=1, processes=True, dashboard_address=None)
         except KeyboardInterrupt:
             _abandon_starting_clusters()
+            _quiet_dask_logs()
             raise
         except Exception as exc:  # e.g. a script without an ``if __name__ == "__main__"`` guard
             import warnings
@@ -79,6 +80,9 @@ def run_tasks(
             rows[k] = _warn_again(row)
             if on_done:
                 on_done(row)
+    except KeyboardInterrupt:
+        _quiet_dask_logs()
+        raise
     finally:
         client.close()
         if cluster is not None:
@@ -133,6 +137,15 @@ def _warn_again(row: dict) -> dict:
         warnings.warn(message, category if isinstance(category, type) and issubclass(category, Warning) else UserWarning,
                       stacklevel=3)
     return row
+
+
+def _quiet_dask_logs() -> None:
+    """Ctrl-C: the workers being started or closed fail, and Dask and asyncio log that with tracebacks (a nanny's
+    "failed to start", an asyncio task's exception "never retrieved" at exit). The user asked to stop: say nothing."""
+    import logging
+
+    for name in ("asyncio", "distributed", "tornado"):
+        logging.getLogger(name).setLevel(logging.CRITICAL + 1)
 
 
 def _abandon_starting_clusters() -> None:
