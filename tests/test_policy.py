@@ -156,8 +156,8 @@ def test_flipped_faces_are_those_turned_from_their_input_and_their_neighbours_as
     for f in range(len(F)):
         around = sum(N[g] * len(set(F[f]) & set(F[g])) for g in range(len(F)) if g != f and set(F[f]) & set(F[g]))
         count += (N[f] @ N0[f] < 0) and (N[f] @ around < 0)
-    assert count > 0 and flipped_faces(Vn, X, F, ops) == count
-    assert flipped_faces(Vn, Vn, F, ops) == 0  # the input has none of its own
+    assert count > 0 and flipped_faces(Vn, X, F) == count
+    assert flipped_faces(Vn, Vn, F) == 0  # the input has none of its own
 
 
 def test_the_guard_smooths_out_a_fold_the_filter_made_and_says_so(noisy_sphere):

@@ -1,12 +1,12 @@
 """The default's policy: a few named steps, each returning a small record.
 
 1. :func:`score`: every candidate family's held-out loss along its run
-   (:mod:`meshdenoise.tuning.holdout`: vertices hidden with a hole around them, the run on the copy
-   compared with the hidden noisy positions along the normals), on the whole mesh or, above
+   (:mod:`meshdenoise.tuning.holdout`: vertices hidden with their ring of neighbours, the run on the
+   copy, its face normals there compared with the noisy mesh's), on the whole mesh or, above
    :attr:`DefaultConfig.region_vertices`, on a sampled region;
 2. :func:`pick`: the family and count of least loss;
-3. :func:`guard`: the chosen filter on the whole mesh, its flipped faces counted against the input's,
-   and fewer steps where it flips more.
+3. :func:`guard`: the chosen filter on the whole mesh, the faces it turned over smoothed out
+   (:func:`unfold`) and counted.
 
 The noise reported is what the chosen run removed: the root mean square of the vertices' moves
 along the result's vertex normals.
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from ..geometry import face_normals, vertex_normals
+from ..geometry import face_normals, vertex_face_incidence, vertex_normals
 from ..operators import Operators, get_operators
 from ..tuning.holdout import NoHoldout, holdout, path_losses, region
 from .config import DefaultConfig, Family
@@ -29,12 +29,12 @@ from .paths import family_path
 
 NONE = "none"  # the method of a choice that runs nothing
 
-__all__ = ["NONE", "Score", "DefaultChoice", "score", "pick", "flipped_faces", "choose"]
+__all__ = ["NONE", "Score", "DefaultChoice", "score", "pick", "turned_over", "flipped_faces", "unfold", "choose", "guard"]
 
 
 @dataclass(frozen=True)
 class Score:
-    """One family's held-out losses along its run (mean per centre, mesh units squared)."""
+    """One family's held-out losses along its run: the mean of ``1 - n_hat . n`` over the scored faces, per step."""
 
     family: Family
     losses: np.ndarray
@@ -160,8 +160,6 @@ def turned_over(V: np.ndarray, X: np.ndarray, F: np.ndarray) -> np.ndarray:
     vertex with it (itself left out). A noisy face that the filter turns back into line with its
     neighbours is not counted; a fold the filter makes is.
     """
-    from ..geometry import vertex_face_incidence
-
     M = vertex_face_incidence(F, len(V))
     N = face_normals(X, F)
     around = M.T @ (M @ N) - 3.0 * N  # faces sharing a vertex, each once per shared vertex; the face's own 3 left out
@@ -169,7 +167,7 @@ def turned_over(V: np.ndarray, X: np.ndarray, F: np.ndarray) -> np.ndarray:
     return turned & (np.einsum("ij,ij->i", N, around) < 0)
 
 
-def flipped_faces(V: np.ndarray, X: np.ndarray, F: np.ndarray, ops: Operators | None = None) -> int:
+def flipped_faces(V: np.ndarray, X: np.ndarray, F: np.ndarray) -> int:
     """How many faces of ``(X, F)`` are turned over (:func:`turned_over`)."""
     return int(np.count_nonzero(turned_over(V, X, F))) if F.shape[0] else 0
 
