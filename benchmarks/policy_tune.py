@@ -39,7 +39,9 @@ def variants() -> dict:
     base = DefaultConfig()
     change = dataclasses.replace
     out = {"base": base, "radius 2": change(base, radius=2), "masks 2": change(base, masks=2),
-           "masks 6": change(base, masks=6), "steps 60": change(base, steps=60),
+           "masks 6": change(base, masks=6), "masks 4": change(base, masks=4), "steps 60": change(base, steps=60),
+           "patience 8": change(base, patience=8), "centres 0": change(base, centres=0),
+           "centres 600": change(base, centres=600),
            "region 12000": change(base, region_vertices=12_000), "no fold guard": change(base, unfold_rounds=0)}
     for i, family in enumerate(FAMILIES):
         out[f"without {family.label}"] = change(base, families=FAMILIES[:i] + FAMILIES[i + 1:])

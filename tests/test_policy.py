@@ -103,12 +103,25 @@ def test_the_loss_falls_then_rises_along_a_smoothing_run(noisy_sphere):
     assert 0 < k < 399 and loss[k] < loss[0] and loss[-1] > loss[k]
 
 
+def test_a_small_mesh_gets_masks_until_enough_vertices_are_held_out(noisy_sphere):
+    _, Vn, F = noisy_sphere
+    ops = get_operators(F, len(Vn))
+    few = holdout(Vn, ops, 1, masks=1)
+    more = holdout(Vn, ops, 1, masks=1, centres=few.count + 1)
+    assert len(few.centres) == 1 and len(more.centres) >= 2 and more.count > few.count
+    capped = holdout(Vn, ops, 1, masks=1, centres=10 ** 9)
+    assert len(capped.centres) <= 4  # at most 4 x masks
+    np.testing.assert_array_equal(more.centres[0], few.centres[0])
+
+
 def test_holdout_rejects_bad_arguments(noisy_sphere):
     _, Vn, F = noisy_sphere
     ops = get_operators(F, len(Vn))
     for radius, masks in ((-1, 1), (1.5, 1), (1, 0)):
         with pytest.raises(ValueError, match="radius|masks"):
             holdout(Vn, ops, radius, masks)
+    with pytest.raises(ValueError, match="centres"):
+        holdout(Vn, ops, 1, 1, centres=-1)
 
 
 def test_a_region_is_its_mesh_when_small_and_balls_around_seeds_when_large():
@@ -135,7 +148,7 @@ def test_each_familys_run_is_the_filter_with_that_count(noisy_sphere, family):
 
 
 # ----------------------------------------------------------------------------- config and records
-@pytest.mark.parametrize("field, value", [("radius", -1), ("masks", 0), ("steps", 1.5), ("patience", True),
+@pytest.mark.parametrize("field, value", [("radius", -1), ("masks", 0), ("centres", -5), ("steps", 1.5), ("patience", True),
                                           ("families", ())])
 def test_the_config_refuses_bad_values(field, value):
     with pytest.raises(ValueError, match=field):

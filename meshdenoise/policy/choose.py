@@ -139,7 +139,7 @@ def score(V: np.ndarray, F: np.ndarray, ops: Operators, config: DefaultConfig) -
     if part.vertices.size < len(V):
         V, F = V[part.vertices], part.F
         ops = get_operators(F, len(V))
-    held = holdout(V, ops, config.radius, config.masks, allowed=part.inner)
+    held = holdout(V, ops, config.radius, config.masks, allowed=part.inner, centres=config.centres)
     scores = []
     for family in config.families:
         path = family_path(family, F, ops, config.steps)

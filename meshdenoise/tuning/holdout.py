@@ -100,8 +100,9 @@ def _keys(V: np.ndarray, ops: Operators) -> np.ndarray:
     return np.mod(offset / scale * _KEY_DIGITS, 1.0)
 
 
-def holdout(V: np.ndarray, ops: Operators, radius: int, masks: int, allowed: np.ndarray | None = None) -> Holdout:
-    """Choose ``masks`` disjoint sets of centres and fill their holes.
+def holdout(V: np.ndarray, ops: Operators, radius: int, masks: int, allowed: np.ndarray | None = None,
+            centres: int = 0) -> Holdout:
+    """Choose ``masks`` disjoint sets of centres (more on a small mesh, see ``centres``) and fill their holes.
 
     Parameters
     ----------
@@ -115,6 +116,10 @@ def holdout(V: np.ndarray, ops: Operators, radius: int, masks: int, allowed: np.
         Masks (each a filter run per candidate).
     allowed : ndarray of bool, shape (n,), optional
         Vertices that may be centres (default: all).
+    centres : int, >= 0
+        Masks are added past ``masks`` until at least this many centres are held out in all, up to
+        ``4 * masks`` masks: a small mesh has few centres per mask, and the loss's spread grows as
+        their count falls.
 
     Returns
     -------
@@ -133,6 +138,8 @@ def holdout(V: np.ndarray, ops: Operators, radius: int, masks: int, allowed: np.
         raise ValueError(f"holdout: radius must be an int >= 0, got {radius!r}")
     if not isinstance(masks, (int, np.integer)) or masks < 1:
         raise ValueError(f"holdout: masks must be an int >= 1, got {masks!r}")
+    if not isinstance(centres, (int, np.integer)) or centres < 0:
+        raise ValueError(f"holdout: centres must be an int >= 0, got {centres!r}")
     W = ops.W.tocsr()
     n = W.shape[0]
     key = _keys(V, ops)
@@ -144,12 +151,14 @@ def holdout(V: np.ndarray, ops: Operators, radius: int, masks: int, allowed: np.
         usable &= allowed
     key = np.where(usable, key, np.inf)
     L = ops.L.tocsr()
-    centres, filled = [], []
-    for c in range(masks):
+    centres_of, filled = [], []
+    for c in range(4 * masks):
+        if c >= masks and sum(len(x) for x in centres_of) >= centres:
+            break
         # another digit of the same offsets for each mask, then the centres already used left out
         k = np.full(n, np.inf)
         k[usable] = np.mod(key[usable] * (c + 1) * 7.0, 1.0) if c else key[usable]
-        for used in centres:
+        for used in centres_of:
             k[used] = np.inf
         C = np.flatnonzero(np.isfinite(k) & (k <= _ring_min(W, k, 2 * radius + 1)))
         if C.size == 0:
@@ -162,12 +171,12 @@ def holdout(V: np.ndarray, ops: Operators, radius: int, masks: int, allowed: np.
         rest = np.flatnonzero(~hole)
         Lhh = L[h][:, h].tocsc()
         Y[h] = splu(Lhh).solve(-(L[h][:, rest] @ Y[rest]))
-        centres.append(C)
+        centres_of.append(C)
         filled.append(Y)
-    if not centres:
+    if not centres_of:
         raise NoHoldout(f"no vertex can be held out: every piece of the mesh has fewer than "
                         f"{4 * (1 + 3 * radius * (radius + 1))} vertices")
-    return Holdout(centres=centres, filled=filled, radius=int(radius))
+    return Holdout(centres=centres_of, filled=filled, radius=int(radius))
 
 
 def _unit_face_normals(X: np.ndarray, F: np.ndarray) -> np.ndarray:
