@@ -152,15 +152,16 @@ def pick(scores: list[Score]) -> Score:
     return min(scores, key=lambda s: s.loss)
 
 
-def turned_over(V: np.ndarray, X: np.ndarray, F: np.ndarray) -> np.ndarray:
+def turned_over(V: np.ndarray, X: np.ndarray, F: np.ndarray, M: Any = None) -> np.ndarray:
     """Mask (m,) of the faces of ``(X, F)`` turned over: more than 90 degrees from their own normal in ``(V, F)``
     and from their neighbours' in ``(X, F)``.
 
     The neighbours' normal of a face: the sum of the unit normals of the faces of ``(X, F)`` sharing a
     vertex with it (itself left out). A noisy face that the filter turns back into line with its
-    neighbours is not counted; a fold the filter makes is.
+    neighbours is not counted; a fold the filter makes is. ``M``: the (n, m) vertex-face incidence, when
+    the caller has it.
     """
-    M = vertex_face_incidence(F, len(V))
+    M = vertex_face_incidence(F, len(V)) if M is None else M
     N = face_normals(X, F)
     around = M.T @ (M @ N) - 3.0 * N  # faces sharing a vertex, each once per shared vertex; the face's own 3 left out
     turned = np.einsum("ij,ij->i", N, face_normals(V, F)) < 0
@@ -183,8 +184,9 @@ def unfold(V: np.ndarray, X: np.ndarray, F: np.ndarray, ops: Operators, rounds: 
     W = ops.W.tocsr()
     movable = np.any(X != V, axis=1) & (ops.degree > 0)
     movable[ops.boundary_vertices] = False
+    M = vertex_face_incidence(F, len(V))
     for _ in range(rounds):
-        folded = turned_over(V, X, F)
+        folded = turned_over(V, X, F, M)
         if not folded.any():
             return X, 0
         near = np.zeros(len(X), dtype=bool)
@@ -192,7 +194,7 @@ def unfold(V: np.ndarray, X: np.ndarray, F: np.ndarray, ops: Operators, rounds: 
         near |= W @ near.astype(np.float64) > 0
         idx = np.flatnonzero(near & movable)
         X[idx] = ops.P[idx] @ X
-    return X, int(np.count_nonzero(turned_over(V, X, F)))
+    return X, int(np.count_nonzero(turned_over(V, X, F, M)))
 
 
 def choose(V: np.ndarray, F: np.ndarray, ops: Operators, config: DefaultConfig) -> DefaultChoice:

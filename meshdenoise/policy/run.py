@@ -24,6 +24,16 @@ def _normalised(V: np.ndarray) -> tuple[np.ndarray, int]:
     return np.ldexp(V, -k), k
 
 
+def _chosen(m: Any, config: DefaultConfig | None) -> tuple[np.ndarray, int, Any, DefaultChoice, DefaultConfig]:
+    """The normalised vertices, their power of two, the operators and the choice for the read mesh ``m``."""
+    config = DefaultConfig() if config is None else config
+    X, k = _normalised(m.V)
+    ops = get_operators(m.F, len(X))
+    with stage("choosing the filter"):
+        choice = choose(X, m.F, ops, config)
+    return X, k, ops, choice, config
+
+
 def choose_default(mesh: Any, config: DefaultConfig | None = None) -> DefaultChoice:
     """What :func:`run_default` would run on ``mesh``: the filter and its parameters (nothing run).
 
@@ -36,11 +46,7 @@ def choose_default(mesh: Any, config: DefaultConfig | None = None) -> DefaultCho
     -------
     DefaultChoice
     """
-    config = DefaultConfig() if config is None else config
-    m = read_mesh(mesh)
-    X, k = _normalised(m.V)
-    with stage("choosing the filter"):
-        choice = choose(X, m.F, get_operators(m.F, len(X)), config)
+    _, k, _, choice, _ = _chosen(read_mesh(mesh), config)
     return choice.rescaled(k)
 
 
@@ -50,12 +56,8 @@ def run_default(mesh: Any, config: DefaultConfig | None = None, **options: Any) 
     ``options`` are the common filter options (``boundary_motion``, ``pinned``, ``region``,
     ``preserve_volume``, ``operators``), passed to the chosen filter's runs.
     """
-    config = DefaultConfig() if config is None else config
     m = read_mesh(mesh)
-    X, k = _normalised(m.V)
-    ops = get_operators(m.F, len(X))
-    with stage("choosing the filter"):
-        choice = choose(X, m.F, ops, config)
+    X, k, ops, choice, config = _chosen(m, config)
     if choice.method == NONE:
         return m.write(np.array(m.V, dtype=np.float64)), choice.rescaled(k)
     spec = get_filter(choice.method)

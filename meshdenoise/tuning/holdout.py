@@ -62,11 +62,14 @@ class Holdout:
         Per mask, the noisy positions with every hole replaced by its harmonic interpolation.
     radius : int
         Rings around a centre hidden with it.
+    faces : list of ndarray of int64
+        Per mask, the faces scored: those with a corner at a centre.
     """
 
     centres: list
     filled: list
     radius: int
+    faces: list
 
     @property
     def count(self) -> int:
@@ -176,7 +179,9 @@ def holdout(V: np.ndarray, ops: Operators, radius: int, masks: int, allowed: np.
     if not centres_of:
         raise NoHoldout(f"no vertex can be held out: every piece of the mesh has fewer than "
                         f"{4 * (1 + 3 * radius * (radius + 1))} vertices")
-    return Holdout(centres=centres_of, filled=filled, radius=int(radius))
+    incidence = vertex_face_incidence(ops.F, n).tocsr()
+    faces = [np.unique(incidence[C].indices) for C in centres_of]
+    return Holdout(centres=centres_of, filled=filled, radius=int(radius), faces=faces)
 
 
 def _unit_face_normals(X: np.ndarray, F: np.ndarray) -> np.ndarray:
@@ -224,10 +229,8 @@ def path_losses(
     """
     total = np.zeros(steps)
     reached = steps
-    incidence = vertex_face_incidence(F, len(V)).tocsr()
-    faces = [np.unique(incidence[C].indices) for C in held.centres]
-    count = sum(f.size for f in faces)
-    for C, Y, f in zip(held.centres, held.filled, faces):
+    count = sum(f.size for f in held.faces)
+    for Y, f in zip(held.filled, held.faces):
         Ff = F[f]
         noisy = _unit_face_normals(V, Ff)
         best, at, k = np.inf, 0, 0
