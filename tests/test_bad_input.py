@@ -669,7 +669,7 @@ def test_factorisations_built_at_once_on_threads_leave_stdout_and_stderr_where_t
     import os
     import threading
 
-    from meshdenoise import solvers
+    from meshdenoise.solvers import factor as solvers
 
     before = {fd: (os.fstat(fd).st_dev, os.fstat(fd).st_ino) for fd in (1, 2)}
     inside = threading.Barrier(3, timeout=10)

@@ -1,5 +1,6 @@
-"""SPDSolver's two factorisation back ends (CHOLMOD with a reused symbolic analysis up to CHOLMOD_MAX_ROWS rows,
-METIS's ordering up to CHOLMOD_METIS_MAX_ROWS; cholespy), against dense solves."""
+"""SPDSolver's two factorisation back ends (CHOLMOD with a reused symbolic analysis up to
+SolverConfig.cholmod_max_rows rows, METIS's ordering up to SolverConfig.cholmod_metis_max_rows; cholespy), against
+dense solves; each test hands in the SolverConfig it wants."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ import pytest
 import scipy.sparse as sp
 
 import meshdenoise.solvers as solvers
+from meshdenoise.solvers import SolverConfig
+from meshdenoise.solvers.factor import _symbolic
 from meshdenoise.operators import Operators, clear_cache
 from meshdenoise.shapes import icosphere, torus
 
@@ -22,14 +25,14 @@ def _backend(solver):
 
 def test_the_project_environment_has_cholmod():
     """make installs the dev extra, which holds scikit-sparse: the CHOLMOD path is the one the suite and the
-    benchmarks run up to CHOLMOD_MAX_ROWS rows (cholespy alone is a plain pip install's, tested by switching)."""
-    assert solvers.CHOLMOD
+    benchmarks run up to cholmod_max_rows rows (cholespy alone is a plain pip install's, tested by switching)."""
+    assert solvers.CHOLMOD and SolverConfig().cholmod
 
 
 @pytest.mark.parametrize("cholmod", [True, False], ids=["cholmod", "cholespy"])
 @pytest.mark.parametrize("order, mu", [(1, 0.7), (2, 3.0), (3, 40.0)])
-def test_spd_solver_equals_a_dense_solve_with_and_without_pinned_rows(cholmod, order, mu, monkeypatch):
-    monkeypatch.setattr(solvers, "CHOLMOD", cholmod)
+def test_spd_solver_equals_a_dense_solve_with_and_without_pinned_rows(cholmod, order, mu):
+    config = SolverConfig(cholmod=cholmod)
     V, F = torus(16, 8)
     ops = Operators(F, len(V))
     A = _shifted(ops, mu, order)
@@ -38,7 +41,7 @@ def test_spd_solver_equals_a_dense_solve_with_and_without_pinned_rows(cholmod, o
     pinned = np.zeros(ops.n, dtype=bool)
     pinned[::7] = True
     free = ~pinned
-    whole, held = solvers.SPDSolver(A), solvers.SPDSolver(A, pinned)
+    whole, held = solvers.SPDSolver(A, config=config), solvers.SPDSolver(A, pinned, config=config)
     assert _backend(whole) == _backend(held) == ("cholmod" if cholmod else "cholespy")
     np.testing.assert_allclose(whole.solve(X), np.linalg.solve(Ad, X), rtol=0, atol=1e-9)
     np.testing.assert_allclose(whole.solve(X[:, 0]), np.linalg.solve(Ad, X[:, 0]), rtol=0, atol=1e-9)  # (n,)
@@ -48,7 +51,7 @@ def test_spd_solver_equals_a_dense_solve_with_and_without_pinned_rows(cholmod, o
     assert np.array_equal(Y[pinned], X[pinned])
 
 
-def test_larger_systems_go_to_cholespy_and_a_matrix_gets_the_same_bits_whatever_came_before(monkeypatch):
+def test_larger_systems_go_to_cholespy_and_a_matrix_gets_the_same_bits_whatever_came_before():
     V, F = icosphere(3)  # 642 vertices
     ops = Operators(F, len(V))
     A = _shifted(ops, 2.0, 2)
@@ -57,12 +60,11 @@ def test_larger_systems_go_to_cholespy_and_a_matrix_gets_the_same_bits_whatever_
     first = solvers.SPDSolver(A).solve(X)
     again = solvers.SPDSolver(A).solve(X)  # the analysis reused: the same ordering, the same bits
     assert np.array_equal(first, again)
-    monkeypatch.setattr(solvers, "CHOLMOD_MAX_ROWS", ops.n - 1)
-    assert _backend(solvers.SPDSolver(A)) == "cholespy"
+    assert _backend(solvers.SPDSolver(A, config=SolverConfig(cholmod_max_rows=ops.n - 1))) == "cholespy"
 
 
 def test_patterns_past_the_metis_bound_are_ordered_by_cholmods_default_and_solve_as_a_dense_solve(monkeypatch):
-    """Between CHOLMOD_METIS_MAX_ROWS and CHOLMOD_MAX_ROWS rows CHOLMOD orders the pattern by its default (AMD, METIS
+    """Between cholmod_metis_max_rows and cholmod_max_rows rows CHOLMOD orders the pattern by its default (AMD, METIS
     where AMD fills much): a cheaper analysis for the one-off factors of 50k to 200k rows."""
     import sksparse.cholmod as cholmod
 
@@ -74,13 +76,11 @@ def test_patterns_past_the_metis_bound_are_ordered_by_cholmods_default_and_solve
     A = _shifted(ops, 2.0, 2)
     X = np.random.default_rng(2).standard_normal((ops.n, 3))
     solvers.clear_symbolic()
-    monkeypatch.setattr(solvers, "CHOLMOD_METIS_MAX_ROWS", ops.n - 1)
-    solver = solvers.SPDSolver(A)
+    solver = solvers.SPDSolver(A, config=SolverConfig(cholmod_metis_max_rows=ops.n - 1))
     assert _backend(solver) == "cholmod" and orderings == ["default"]
     np.testing.assert_allclose(solver.solve(X), np.linalg.solve(A.toarray(), X), rtol=0, atol=1e-9)
-    monkeypatch.setattr(solvers, "CHOLMOD_METIS_MAX_ROWS", ops.n)
     solvers.clear_symbolic()
-    solvers.SPDSolver(A)
+    solvers.SPDSolver(A, config=SolverConfig(cholmod_metis_max_rows=ops.n))
     assert orderings == ["default", "metis"]
 
 
@@ -107,18 +107,23 @@ def test_one_symbolic_analysis_per_sparsity_pattern_and_clear(monkeypatch):
     assert len(analysed) == 4
 
 
-def test_symbolic_analyses_are_bounded(monkeypatch):
-    monkeypatch.setattr(solvers, "SYMBOLIC_MAX", 2)
+def test_symbolic_analyses_are_bounded():
     solvers.clear_symbolic()
     for n in (5, 6, 7, 8):
-        solvers.SPDSolver(sp.identity(n, format="csr") * 2.0)
-    assert len(solvers._symbolic) == 2
+        solvers.SPDSolver(sp.identity(n, format="csr") * 2.0, config=SolverConfig(symbolic_max=2))
+    assert len(_symbolic) == 2
 
 
 @pytest.mark.parametrize("cholmod", [True, False], ids=["cholmod", "cholespy"])
-def test_an_indefinite_matrix_fails_as_not_positive_definite(cholmod, monkeypatch):
+def test_an_indefinite_matrix_fails_as_not_positive_definite(cholmod):
     """CHOLMOD's simplicial L D L^T would factor it: a pivot D <= 0 is reported as cholespy reports it."""
-    monkeypatch.setattr(solvers, "CHOLMOD", cholmod)
     A = sp.csr_matrix(np.array([[2.0, -3.0, 0.0], [-3.0, 2.0, 0.0], [0.0, 0.0, 1.0]]))
     with pytest.raises(ValueError, match="not positive definite"):
-        solvers.SPDSolver(A)
+        solvers.SPDSolver(A, config=SolverConfig(cholmod=cholmod))
+
+
+def test_a_config_is_frozen_and_checked():
+    with pytest.raises(AttributeError):
+        SolverConfig().cholmod_max_rows = 1  # frozen: a caller hands in another one
+    with pytest.raises(TypeError, match="SolverConfig"):
+        solvers.SPDSolver(sp.identity(3, format="csr"), config={"cholmod": False})

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import numpy as np
 import pytest
 
@@ -10,7 +12,7 @@ import meshdenoise.solvers as solvers
 from meshdenoise.noise import add_normal_noise
 from meshdenoise.operators import get_operators
 from meshdenoise.shapes import grid, icosphere
-from meshdenoise.solvers import HeldByProduct, SPDSolver, shifted_matrix, shifted_solver
+from meshdenoise.solvers import HeldByProduct, SolverConfig, SPDSolver, shifted_matrix, shifted_solver
 
 
 def _border(F, n):
@@ -37,37 +39,38 @@ def test_held_rows_solve_as_the_dense_constrained_system(order, mu):
     np.testing.assert_allclose(Y, want, atol=1e-8 * np.abs(want).max())
 
 
-def test_past_its_steps_the_held_system_is_factorised(monkeypatch):
+def test_past_its_steps_the_held_system_is_factorised():
     V, F = grid(14, 12)
     n = len(V)
     ops = get_operators(F, n)
     held = _border(F, n)
     X = np.random.default_rng(5).standard_normal((n, 2))
-    monkeypatch.setattr(solvers, "HELD_CG_MAXITER", 2)
     H = HeldByProduct(ops, 20.0, 3, held)
-    Y = H.solve(X)
+    Y = H.solve(X, maxiter=2)
     assert H._factor is not None
     np.testing.assert_allclose(Y, SPDSolver(shifted_matrix(ops, 20.0, 3), held).solve(X), atol=1e-12)
     with pytest.raises(ValueError, match="order"):
         HeldByProduct(ops, 1.0, 2, held)
 
 
-def test_shifted_solver_takes_it_for_few_held_rows_from_its_size(monkeypatch):
+def test_shifted_solver_takes_it_for_few_held_rows_from_its_size():
     V, F = grid(14, 12)
     n = len(V)
     ops = get_operators(F, n)
     held = _border(F, n)
     assert isinstance(shifted_solver(ops, 1.0, 3, held), SPDSolver)  # a small mesh: the factor
-    monkeypatch.setattr(solvers, "HELD_BY_PRODUCT_MIN_VERTICES", 0)
-    assert isinstance(shifted_solver(ops, 1.5, 3, held), HeldByProduct)
-    assert isinstance(shifted_solver(ops, 1.5, 2, held), SPDSolver)  # no product form below p = 3
-    monkeypatch.setattr(solvers, "HELD_BY_PRODUCT_MAX_HELD", int(held.sum()) - 1)
-    assert isinstance(shifted_solver(ops, 2.5, 3, held), SPDSolver)  # too many held rows
+    any_size = SolverConfig(held_by_product_min_vertices=0)
+    assert isinstance(shifted_solver(ops, 1.5, 3, held, config=any_size), HeldByProduct)
+    assert isinstance(shifted_solver(ops, 1.5, 2, held, config=any_size), SPDSolver)  # no product form below p = 3
+    fewer = SolverConfig(held_by_product_min_vertices=0, held_by_product_max_held=int(held.sum()) - 1)
+    assert isinstance(shifted_solver(ops, 2.5, 3, held, config=fewer), SPDSolver)  # too many held rows
+    assert isinstance(shifted_solver(ops, 1.0, 3, held), SPDSolver)  # the default's solver, stored apart from them
 
 
 def test_sobolev_gls_and_axes_with_a_held_border_as_by_the_held_factor(monkeypatch):
     """The border option's second run of sobolev_gls (its isotropic pass by the held solve, its weighted CG
-    preconditioned by the free factors) and sobolev_axes past CG's bound: the same result as the held factor's."""
+    preconditioned by the free factors) and sobolev_axes past CG's bound: the same result as the held factor's (the
+    filters' shifted_solver handed a config that takes the held solver at any size)."""
     V, F = icosphere(3)
     keep = V[:, 2] < 0.6  # an open cap: a border
     idx = -np.ones(len(V), dtype=int)
@@ -76,17 +79,20 @@ def test_sobolev_gls_and_axes_with_a_held_border_as_by_the_held_factor(monkeypat
     V = V[keep]
     Vn, _ = add_normal_noise((V, F), 0.02, seed=1)
     from meshdenoise.operators import clear_cache
+    import meshdenoise.plugins.sobolev_axes as ax
     import meshdenoise.plugins.sobolev_gls as sg
 
     monkeypatch.setattr(sg, "GLS_FILTER_TOL", 1e-12)  # the held solves compared, not the weighted CG's tolerance
     built = []
     real = solvers.HeldByProduct.__init__
-    monkeypatch.setattr(solvers.HeldByProduct, "__init__", lambda self, *a: built.append(a[1:3]) or real(self, *a))
+    monkeypatch.setattr(solvers.HeldByProduct, "__init__", lambda self, *a, **k: built.append(a[1:3]) or real(self, *a, **k))
     runs = {}
     for mode in ("factor", "product"):
         clear_cache()
         if mode == "product":
-            monkeypatch.setattr(solvers, "HELD_BY_PRODUCT_MIN_VERTICES", 0)
+            any_size = functools.partial(shifted_solver, config=SolverConfig(held_by_product_min_vertices=0))
+            monkeypatch.setattr(sg, "shifted_solver", any_size)
+            monkeypatch.setattr(ax, "shifted_solver", any_size)
         runs[mode] = (md.apply_filter("sobolev_gls", (Vn, F), mu=0.5, beta=8.0, boundary_motion="normal")[0],
                       md.apply_filter("sobolev_axes", (Vn, F), mu1=0.5, mu2=2.0, mu3=40.0, boundary_motion="normal")[0])
     assert (0.5, 3) in built and (40.0, 3) in built  # gls' isotropic pass, the axis past CG's bound

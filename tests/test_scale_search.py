@@ -998,7 +998,7 @@ def test_retain_factors_keeps_more_factorisations_within_the_block_and_trims_bac
     ops = Operators(F, len(V))
     built = []
     real = solvers.shifted_factor
-    monkeypatch.setattr(solvers, "shifted_factor", lambda *a, **k: built.append(a[1]) or real(*a, **k))
+    monkeypatch.setattr(solvers.shifted, "shifted_factor", lambda *a, **k: built.append(a[1]) or real(*a, **k))
     mus = [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7]
     L3 = np.linalg.matrix_power(ops.L.toarray(), 3)
     with solvers.retain_factors(9):

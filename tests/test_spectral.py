@@ -366,22 +366,23 @@ def test_compiled_lanczos_applies_as_the_numpy_recurrence_and_its_second_pass_on
 
 
 @pytest.mark.parametrize("depth", [2, 3, 7, 1000])  # some leave a last, partial block
-def test_second_pass_for_several_functions_accumulates_by_blocks_to_the_bit(monkeypatch, depth):
+def test_second_pass_for_several_functions_accumulates_by_blocks_to_the_bit(depth):
     """apply_many with several functions keeps a ring of depth + 2 basis vectors and accumulates every depth steps
     (kernels.lanczos_next, kernels.lanczos_accumulate_steps): the same numbers as one accumulation per step (the
-    fused lanczos_regenerate, REGENERATE_RING_BYTES 0), whatever the depth against the run's length."""
+    fused lanczos_regenerate, a ring of 0 bytes), whatever the depth against the run's length: two runs alike but for
+    their SolverConfig.regenerate_ring_bytes."""
     import meshdenoise.solvers as solvers
 
     _, F, X = _noisy(3)
     L = get_operators(F, len(X)).L
     B = np.hstack([L @ X, np.random.default_rng(9).standard_normal((len(X), 5))])
     gs = [solvers.ShiftedInverse(mu, 3) for mu in (0.05, 2.0, 90.0)] + [lambda t: np.exp(-0.3 * t)]
-    run = solvers.CompiledLanczos(L, B)
-    run.apply_many(gs)  # the run extended once: both passes below read the same coefficients
-    monkeypatch.setattr(solvers, "REGENERATE_RING_BYTES", 0)
-    fused = run.apply_many(gs)
-    monkeypatch.setattr(solvers, "REGENERATE_RING_BYTES", (depth + 2) * 8 * B.size)
-    blocks = run.apply_many(gs)
+    runs = [solvers.CompiledLanczos(L, B, config=solvers.SolverConfig(regenerate_ring_bytes=ring))
+            for ring in (0, (depth + 2) * 8 * B.size)]
+    for run in runs:
+        run.apply_many(gs)  # each run extended alike: both passes below read the same coefficients
+    fused, blocks = (run.apply_many(gs) for run in runs)
+    run = runs[1]
     assert run.steps > depth or depth == 1000  # several blocks
     for a, b in zip(blocks, fused):
         np.testing.assert_array_equal(a, b)
