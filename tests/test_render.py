@@ -6,7 +6,7 @@ import matplotlib
 import numpy as np
 import pytest
 
-from meshdenoise.render import frame_camera, render_comparison, render_mesh, vertex_error
+from meshdenoise.render import RenderSettings, frame_camera, render_comparison, render_mesh, vertex_error
 from meshdenoise.shapes import grid, icosphere, torus
 
 SIZE = (96, 96)
@@ -279,50 +279,58 @@ def test_png_mode_follows_the_umask_like_other_outputs(tmp_path):
 
 @pytest.fixture
 def fresh_verdict(monkeypatch, tmp_path):
-    """The render module with no Open3D failure remembered, on a machine with a GPU device node (a file made here)."""
-    import meshdenoise.render as render
+    """No Open3D failure remembered in this process; the settings of a machine with a GPU device node (a file made here)."""
+    from meshdenoise.render import backends
 
-    monkeypatch.setattr(render, "_OPEN3D_VERDICT", None)
+    monkeypatch.setattr(backends, "_OPEN3D_VERDICT", None)  # process state, as in a fresh process
     (tmp_path / "dev" / "dri").mkdir(parents=True)
     (tmp_path / "dev" / "dri" / "renderD128").touch()
-    monkeypatch.setattr(render, "DEVICES", str(tmp_path / "dev"))
-    return render
+    return RenderSettings(devices=str(tmp_path / "dev"))
 
 
 def test_no_vulkan_falls_back_at_once_without_a_child(fresh_verdict, monkeypatch, tmp_path):
     import subprocess
     import time
 
-    render = fresh_verdict
-    monkeypatch.setattr(render, "_vulkan_missing", lambda: "no Vulkan driver is installed")
+    from meshdenoise.render import offscreen
+
+    settings = fresh_verdict
+    monkeypatch.setattr(offscreen, "_vulkan_missing", lambda: "no Vulkan driver is installed")
     monkeypatch.setattr(subprocess, "Popen", lambda *a, **k: pytest.fail("no child may start"))
     start = time.perf_counter()
     with pytest.warns(UserWarning, match="cannot start: no Vulkan driver"):
-        res = render_comparison([icosphere(1)], tmp_path / "a.png", size=(32, 32))
+        res = render_comparison([icosphere(1)], tmp_path / "a.png", size=(32, 32), settings=settings)
     assert res.backend == "matplotlib" and time.perf_counter() - start < 10
-    monkeypatch.setattr(render, "_vulkan_missing", lambda: pytest.fail("the verdict is remembered"))
+    monkeypatch.setattr(offscreen, "_vulkan_missing", lambda: pytest.fail("the verdict is remembered"))
     with pytest.warns(UserWarning, match="failed earlier in this process"):
-        assert render_comparison([icosphere(1)], tmp_path / "b.png", size=(32, 32)).backend == "matplotlib"
+        assert render_comparison([icosphere(1)], tmp_path / "b.png", size=(32, 32),
+                                 settings=settings).backend == "matplotlib"
 
 
 def test_a_stalled_frame_is_retried_once_then_falls_back_fast(fresh_verdict, monkeypatch, tmp_path):
+    import dataclasses
+    import functools
     import time
 
-    render = fresh_verdict
-    monkeypatch.setattr(render, "_vulkan_missing", lambda: None)
-    monkeypatch.setattr(render, "FRAME_SECONDS", 1.0)
+    from meshdenoise.render import backends, offscreen
+
+    settings = dataclasses.replace(fresh_verdict, frame_seconds=1.0)
+    monkeypatch.setattr(offscreen, "_vulkan_missing", lambda: None)
     # a child whose renderer starts and whose first frame never comes
-    monkeypatch.setattr(render, "_CHILD", "import time; print('MESHDENOISE_READY', flush=True); time.sleep(120)")
+    child = offscreen._Child
+    stalls = "import time; print('MESHDENOISE_READY', flush=True); time.sleep(120)"
+    monkeypatch.setattr(offscreen, "_Child", functools.partial(child, program=stalls))
     start = time.perf_counter()
     with pytest.warns(UserWarning, match=r"waited for frame 1 of 1 \(1 s allowed\); then waited for frame 1 of 1"):
-        res = render_comparison([icosphere(1)], tmp_path / "a.png", size=(32, 32))
+        res = render_comparison([icosphere(1)], tmp_path / "a.png", size=(32, 32), settings=settings)
     assert res.backend == "matplotlib" and time.perf_counter() - start < 30
     # a renderer that never starts is not tried twice
-    render._OPEN3D_VERDICT = None
+    backends._OPEN3D_VERDICT = None
     monkeypatch.setenv("MESHDENOISE_RENDER_STARTUP", "1")
-    monkeypatch.setattr(render, "_CHILD", "import time; time.sleep(120)")
+    never_starts = "import time; time.sleep(120)"
+    monkeypatch.setattr(offscreen, "_Child", functools.partial(child, program=never_starts))
     with pytest.warns(UserWarning) as caught:
-        render_comparison([icosphere(1)], tmp_path / "b.png", size=(32, 32))
+        render_comparison([icosphere(1)], tmp_path / "b.png", size=(32, 32), settings=settings)
     text = str(caught[0].message)
     assert "waited for the renderer to start (1 s allowed" in text and "then" not in text
 
@@ -330,7 +338,7 @@ def test_a_stalled_frame_is_retried_once_then_falls_back_fast(fresh_verdict, mon
 def test_software_zbuffer_keeps_the_nearest_surface_and_covers_exactly_the_pixel_centres_inside():
     from matplotlib.path import Path as MplPath
 
-    from meshdenoise.render import _draw_matplotlib
+    from meshdenoise.render.raster import _draw_matplotlib
 
     square = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
     quad = np.array([[0, 1, 2], [0, 2, 3]])
@@ -371,15 +379,18 @@ def test_show_png_without_reference_adds_the_change_of_every_later_mesh(tmp_path
     assert "5 panels" in res.output and "displacement from the first mesh" in res.output
 
 
-def test_software_zbuffer_batches_do_not_change_the_picture(monkeypatch):
-    import meshdenoise.render as render
+def test_software_zbuffer_batches_do_not_change_the_picture(tmp_path):
+    from meshdenoise.render import raster
 
     V, F = icosphere(1)  # few, large triangles: each covers hundreds of pixels
     cam = frame_camera([V], (90, 90))
-    job = render._job(V, F, cam)
-    whole = render._draw_matplotlib(job, (90, 90), cam)
-    monkeypatch.setattr(render, "ZBUFFER_CHUNK", 37)  # smaller than one triangle: cut into bands of rows
-    assert np.array_equal(render._draw_matplotlib(job, (90, 90), cam), whole)
+    job = raster._job(V, F, cam)
+    whole = raster._draw_matplotlib(job, (90, 90), cam)
+    assert np.array_equal(raster._draw_matplotlib(job, (90, 90), cam, chunk=37), whole)  # smaller than one
+    # triangle: cut into bands of rows; and through render_comparison's settings
+    batched = render_comparison([(V, F)], tmp_path / "b.png", size=(90, 90), backend="matplotlib",
+                                settings=RenderSettings(zbuffer_chunk=37))
+    assert np.array_equal(batched.panels[0], whole)
     assert 0.3 < covered(whole).mean() < 0.8
 
 
@@ -390,29 +401,32 @@ def test_without_a_gpu_auto_draws_with_matplotlib_at_once(fresh_verdict, monkeyp
     import time
     import warnings
 
-    render = fresh_verdict
-    monkeypatch.setattr(render, "DEVICES", str(tmp_path / "empty"))  # a machine without /dev/dri or /dev/nvidia*
+    from meshdenoise.render import backends, offscreen, raster
+
+    settings = RenderSettings(devices=str(tmp_path / "empty"))  # a machine without /dev/dri or /dev/nvidia*
     monkeypatch.setattr(subprocess, "Popen", lambda *a, **k: pytest.fail("no child may start"))
-    monkeypatch.setattr(render, "_draw_open3d", lambda *a, **k: pytest.fail("Open3D may not be tried"))
+    monkeypatch.setattr(offscreen, "_draw_open3d", lambda *a, **k: pytest.fail("Open3D may not be tried"))
     monkeypatch.delenv("MESHDENOISE_RENDER_BACKEND", raising=False)
     started, first_frame = time.perf_counter(), []
-    draw = render._draw_matplotlib
-    monkeypatch.setattr(render, "_draw_matplotlib",
+    draw = raster._draw_matplotlib
+    monkeypatch.setattr(raster, "_draw_matplotlib",
                         lambda *a: (first_frame.append(first_frame or time.perf_counter() - started), draw(*a))[1])
     with warnings.catch_warnings():
         warnings.simplefilter("error")  # the expected case on a server: said in backend_detail, not warned
-        res = render_comparison([icosphere(1)], tmp_path / "a.png", size=(32, 32))
+        res = render_comparison([icosphere(1)], tmp_path / "a.png", size=(32, 32), settings=settings)
     assert res.backend == "matplotlib" and "no GPU device" in res.backend_detail
     assert first_frame[0] < 0.5, first_frame  # from the call to the first matplotlib frame
-    assert render._OPEN3D_VERDICT is None  # nothing failed: a GPU showing up later is used
+    assert backends._OPEN3D_VERDICT is None  # nothing failed: a GPU showing up later is used
     start = time.perf_counter()
     for _ in range(100):
-        assert render._no_gpu()
+        assert offscreen._no_gpu(settings)
     assert (time.perf_counter() - start) / 100 < 0.01
 
 
 def test_with_a_gpu_auto_tries_open3d_and_an_explicit_backend_always_does(fresh_verdict, monkeypatch, tmp_path):
-    render = fresh_verdict
+    from meshdenoise.render import offscreen, raster
+
+    settings = fresh_verdict
     tried = []
 
     class FakeChild:  # started early by render_comparison; must be closed
@@ -422,18 +436,19 @@ def test_with_a_gpu_auto_tries_open3d_and_an_explicit_backend_always_does(fresh_
         def close(self):
             tried.append("closed")
 
-    def fake_open3d(jobs, size, camera, timeout, child=None):
+    def fake_open3d(jobs, size, camera, timeout, child=None, settings=None):
         tried.append(("draw", len(jobs)))
-        return [render._draw_matplotlib(j, size, camera) for j in jobs], "fake Open3D"
+        return [raster._draw_matplotlib(j, size, camera) for j in jobs], "fake Open3D"
 
-    monkeypatch.setattr(render, "_Child", FakeChild)
-    monkeypatch.setattr(render, "_draw_open3d", fake_open3d)
-    monkeypatch.setattr(render, "_vulkan_missing", lambda: None)
-    res = render_comparison([icosphere(1)], tmp_path / "a.png", size=(32, 32))
+    monkeypatch.setattr(offscreen, "_Child", FakeChild)
+    monkeypatch.setattr(offscreen, "_draw_open3d", fake_open3d)
+    monkeypatch.setattr(offscreen, "_vulkan_missing", lambda: None)
+    res = render_comparison([icosphere(1)], tmp_path / "a.png", size=(32, 32), settings=settings)
     assert res.backend == "open3d" and tried == [("child", (32, 32)), ("draw", 1), "closed"]
     tried.clear()
-    monkeypatch.setattr(render, "DEVICES", str(tmp_path / "empty"))  # no GPU, but Open3D asked for by name
-    assert render_comparison([icosphere(1)], tmp_path / "b.png", size=(32, 32), backend="open3d").backend == "open3d"
+    no_gpu = RenderSettings(devices=str(tmp_path / "empty"))  # no GPU, but Open3D asked for by name
+    assert render_comparison([icosphere(1)], tmp_path / "b.png", size=(32, 32), backend="open3d",
+                             settings=no_gpu).backend == "open3d"
     assert tried == [("child", (32, 32)), ("draw", 1), "closed"]
 
 

@@ -181,7 +181,7 @@ def _open_viewer(paths, reference, error_mode, vmax):
     import open3d as o3d
 
     from ..io import load_mesh
-    from ..render import _default_vmax, error_colors, vertex_error
+    from ..render.heatmaps import _default_vmax, error_colors, vertex_error
 
     geoms, offset = [], 0.0
     errors = [vertex_error(p, reference, error_mode)[0] for p in paths] if reference else None

@@ -2,7 +2,7 @@
 
 * :func:`sinkhorn` -- discrete entropic OT (scaling and log-domain solvers), same argument order and
   conventions as POT's ``ot.sinkhorn``;
-* :func:`symmetric_sinkhorn` -- the symmetric scaling :math:`u \odot G u = m` of a symmetric kernel
+* :func:`symmetric_sinkhorn` -- the symmetric scaling :math:`u \\odot G u = m` of a symmetric kernel
   operator (the plan of :func:`meshdenoise.ot.ot_denoise`).
 """
 
