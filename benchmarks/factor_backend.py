@@ -1,6 +1,6 @@
 """Sparse Cholesky back ends on the systems the filters factorise: cholespy against CHOLMOD (scikit-sparse) with
 METIS's ordering and with CHOLMOD's default (AMD, METIS tried when AMD's fill is large), the choice behind
-``solvers.CHOLMOD_MAX_ROWS`` and ``solvers.CHOLMOD_METIS_MAX_ROWS``.
+``SolverConfig.cholmod_max_rows`` and ``SolverConfig.cholmod_metis_max_rows`` (``meshdenoise/solvers/config.py``).
 
 For each mesh: the one-ring matrix ``L + 0.3 I`` and the two-ring ``L^2 + 0.5 L + 0.3 I`` (the shapes of the
 factors of ``I + mu L^p``), ``L = D - W``. Per back end: the symbolic analysis, the numeric factor and a solve of

@@ -407,7 +407,7 @@ def test_relabelled_fast_path_gives_the_same_result(monkeypatch, method):
     V, F = _noisy(torus(14, 9))
     pinned = np.zeros(len(V), bool)
     pinned[[3, 40, 77]] = True
-    monkeypatch.setattr(filtering_module, "LOCALITY_MIN_VERTICES", 10**9)
+    assert not filtering_module.use_locality_order(Operators(F, len(V)), 20)  # a small mesh: the plain path
     ref_heat, _ = heat((V, F), time=6.0, method=method, pinned=pinned)
     ref_filt, _ = filtering((V, F), iterations=20, lam=0.6, weights="meshlab", pinned=pinned)
     monkeypatch.setattr(filtering_module, "LOCALITY_MIN_VERTICES", 0)
