@@ -26,7 +26,7 @@ FLOORS: dict[int, tuple[str, ...]] = {
     2: ("registry", "noise", "scanner", "tuning.*"),
     3: ("plugins.*",),
     4: ("policy.*", "default", "auto"),
-    5: ("pipeline.*", "commands.*", "cli", "demo", "warmup", "render.*", "report", "reproduce.*", ""),
+    5: ("pipeline.*", "commands.*", "cli", "demo", "warmup", "render.*", "report.*", "reproduce.*", ""),
 }
 FLOOR_NAMES = {
     0: "arrays, files and kernels",

@@ -494,7 +494,7 @@ def test_chart_axis_labels_are_mathtext_drawn_and_names_are_plain_text(tmp_path)
     as text, and a `$` in a name stays a dollar sign. Read from an SVG of the chart with its text as text."""
     import matplotlib
 
-    from meshdenoise.report import _chart_figure
+    from meshdenoise.report.charts import _chart_figure
 
     rows = [{"input": f"/s/{name}", "status": "ok", "mu": mu, "snr": 30 + mu}
             for name in ("a$b$.ply", "c.ply") for mu in (0.001, 0.01, 0.1, 1.0)]
