@@ -33,7 +33,8 @@ os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
 import numba  # noqa: E402
 import numpy as np  # noqa: E402
 from numba import njit as _numba_njit  # noqa: E402
-from numba import prange  # noqa: E402
+from numba import prange, types  # noqa: E402
+from numba.extending import intrinsic  # noqa: E402
 
 # OpenMP first: numba would otherwise try an old TBB (Open3D's) first and warn about its version.
 # Both are safe to call from several threads at once, unlike the workqueue fallback.
@@ -121,6 +122,7 @@ __all__ = [
     "patch_scores",
     "pick_guidance",
     "bilateral_pass",
+    "bilateral_spatial_pass",
     "csr_matmat",
     "csr_matmat3",
     "cg_product",
@@ -251,45 +253,66 @@ def unit_into(out, i, s0, s1, s2):  # pragma: no cover - compiled
 
 
 # exp on a block of non-positive arguments: libm's exp, called per pair, was 60 % of a guided normal-filtering pass
-# (face000, 2.1M face pairs: 13.7 ms a pass against 5.4 ms with no exp); this loop has no call and no branch, so it
-# runs as vector instructions (0.74 ns an argument against 3.9), within 1 ulp of numpy's exp (tests/test_two_stage_kernel.py)
+# (face000, 2.1M face pairs: 13.7 ms a pass against 5.4 ms with no exp); this loop has no call, no branch and no
+# float-to-int64 conversion (which AVX2 lacks: with one the loop ran one argument at a time), so it runs as vector
+# instructions, within 1 ulp of numpy's exp (tests/test_two_stage_kernel.py)
 EXP_LOG2E = 1.4426950408889634
 EXP_LN2_HI = 6.93147180369123816490e-01  # ln 2 in two parts (fdlibm's): k * EXP_LN2_HI is exact for |k| < 2^11
 EXP_LN2_LO = 1.90821492927058770002e-10
 EXP_FLOOR = -700.0  # below this exp is under 1e-304: 0
+EXP_SHIFT = 6755399441055744.0  # 1.5 * 2^52: y + EXP_SHIFT - EXP_SHIFT is y rounded to an integer, for |y| < 2^51
 EXP_BLOCK = 256  # rows of face pairs whose arguments are gathered, then exponentiated, at a time
 
 
+@intrinsic
+def _as_double(typingctx, bits):
+    """The float64 whose bits are the int64 ``bits`` (a bit cast, which numba's scalars lack)."""
+    if bits != types.int64:
+        return None
+
+    def codegen(context, builder, signature, args):
+        return builder.bitcast(args[0], context.get_value_type(types.float64))
+
+    return types.float64(types.int64), codegen
+
+
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def exp_nonpositive(buf, bits, count):  # pragma: no cover - compiled
-    r"""``buf[t] = exp(buf[t])`` for ``t < count`` and ``buf[t] <= 0`` (0 below :data:`EXP_FLOOR`); ``bits`` is ``buf.view(int64)``.
+def exp_one(x):  # pragma: no cover - compiled
+    r"""``exp(x)`` for ``x <= 0``, 0 below :data:`EXP_FLOOR`: vector code when inlined into a loop.
 
     :math:`e^x = 2^k e^r` with :math:`k = \mathrm{round}(x / \ln 2)`, :math:`|r| \le \ln 2 / 2`
     (Cody and Waite's reduction), :math:`e^r` by its Taylor polynomial of degree 13 (truncation
-    under 5e-18 relative), and :math:`2^k` added to the result's exponent field.
+    under 5e-18 relative, Horner's scheme), times :math:`2^k` made from its bits (exact: the
+    result is normal, :math:`k \ge -1010`).
     """
+    small = x < EXP_FLOOR
+    x = 0.0 if small else x
+    shifted = x * EXP_LOG2E + EXP_SHIFT
+    k = shifted - EXP_SHIFT
+    r = (x - k * EXP_LN2_HI) - k * EXP_LN2_LO
+    p = 1.0 / 6227020800.0  # 1/13!
+    p = p * r + 1.0 / 479001600.0
+    p = p * r + 1.0 / 39916800.0
+    p = p * r + 1.0 / 3628800.0
+    p = p * r + 1.0 / 362880.0
+    p = p * r + 1.0 / 40320.0
+    p = p * r + 1.0 / 5040.0
+    p = p * r + 1.0 / 720.0
+    p = p * r + 1.0 / 120.0
+    p = p * r + 1.0 / 24.0
+    p = p * r + 1.0 / 6.0
+    p = p * r + 0.5
+    p = p * r + 1.0
+    p = p * r + 1.0
+    two_k = _as_double((np.int64(np.int32(k)) + 1023) << 52)  # int32 first: AVX2 converts doubles to int32 only
+    return 0.0 if small else p * two_k
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def exp_nonpositive(buf, count):  # pragma: no cover - compiled
+    """``buf[t] = exp(buf[t])`` for ``t < count`` and ``buf[t] <= 0`` (:func:`exp_one`; 0 below :data:`EXP_FLOOR`)."""
     for t in range(count):
-        x = buf[t]
-        small = x < EXP_FLOOR
-        x = 0.0 if small else x
-        k = np.floor(x * EXP_LOG2E + 0.5)
-        r = (x - k * EXP_LN2_HI) - k * EXP_LN2_LO
-        p = 1.0 / 6227020800.0  # 1/13!
-        p = p * r + 1.0 / 479001600.0
-        p = p * r + 1.0 / 39916800.0
-        p = p * r + 1.0 / 3628800.0
-        p = p * r + 1.0 / 362880.0
-        p = p * r + 1.0 / 40320.0
-        p = p * r + 1.0 / 5040.0
-        p = p * r + 1.0 / 720.0
-        p = p * r + 1.0 / 120.0
-        p = p * r + 1.0 / 24.0
-        p = p * r + 1.0 / 6.0
-        p = p * r + 0.5
-        p = p * r + 1.0
-        p = p * r + 1.0
-        buf[t] = 0.0 if small else p
-        bits[t] += np.int64(k) << 52  # times 2^k: the result is normal (k >= -1010)
+        buf[t] = exp_one(buf[t])
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -398,58 +421,76 @@ def normal_turns_adjoint_many(W, F, e1, e2, n, inv, out):  # pragma: no cover - 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def centroid_spacing_sums(C, indptr, indices, out):  # pragma: no cover - compiled
-    """Per face ``i``: the sum of ``|c_i - c_j|`` over its neighbours ``j != i`` into ``out`` (m,); returns their count."""
+    """Per face ``i``: the sum of ``|c_i - c_j|`` over its neighbours ``j != i`` into ``out`` (m,); returns their count.
+
+    The pair ``(i, i)`` adds ``sqrt(0) = 0`` to a non-negative sum, which leaves it unchanged: no branch on
+    ``j == i`` in the loop (the same sums), and the count is the pairs ``j != i``.
+    """
     m = C.shape[0]
     count = 0
     for i in prange(m):
         s = 0.0
-        k_off = 0
+        c0 = C[i, 0]
+        c1 = C[i, 1]
+        c2 = C[i, 2]
+        self_pairs = 0
         for k in range(indptr[i], indptr[i + 1]):
             j = indices[k]
-            if j == i:
-                continue
-            d0 = C[i, 0] - C[j, 0]
-            d1 = C[i, 1] - C[j, 1]
-            d2 = C[i, 2] - C[j, 2]
+            d0 = c0 - C[j, 0]
+            d1 = c1 - C[j, 1]
+            d2 = c2 - C[j, 2]
             s += np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            k_off += 1
+            self_pairs += j == i
         out[i] = s
-        count += k_off
+        count += indptr[i + 1] - indptr[i] - self_pairs
     return count
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def gaussian_block(X, indptr, indices, denom, lo, hi, out, bits):  # pragma: no cover - compiled
+def gaussian_block(X, indptr, indices, denom, lo, hi, out):  # pragma: no cover - compiled
     """``out[k - indptr[lo]] = exp(-|x_i - x_j|^2 / denom)`` for the pairs ``k = (i, j)`` of rows ``lo`` to ``hi - 1``
-    of the CSR pattern, ``X`` (m, 3); ``bits`` is ``out.view(int64)``. The exponents first, then their exponentials
-    at once (:func:`exp_nonpositive`; exp(-0) is 1 exactly)."""
+    of the CSR pattern, ``X`` (m, 3). The exponents first, then their exponentials at once
+    (:func:`exp_nonpositive`; exp(-0) is 1 exactly)."""
     base = indptr[lo]
     for i in range(lo, hi):
+        x0 = X[i, 0]
+        x1 = X[i, 1]
+        x2 = X[i, 2]
         for k in range(indptr[i], indptr[i + 1]):
             j = indices[k]
-            d0 = X[i, 0] - X[j, 0]
-            d1 = X[i, 1] - X[j, 1]
-            d2 = X[i, 2] - X[j, 2]
+            d0 = x0 - X[j, 0]
+            d1 = x1 - X[j, 1]
+            d2 = x2 - X[j, 2]
             out[k - base] = -(d0 * d0 + d1 * d1 + d2 * d2) / denom
-    exp_nonpositive(out, bits, indptr[hi] - base)
+    exp_nonpositive(out, indptr[hi] - base)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _block_pairs(indptr, blocks):  # pragma: no cover - compiled
+    """The most face pairs in any :data:`EXP_BLOCK` rows: the size of a block's scratch."""
+    m = indptr.shape[0] - 1
+    most = 0
+    for b in range(blocks):
+        lo = b * EXP_BLOCK
+        most = max(most, indptr[min(m, lo + EXP_BLOCK)] - indptr[lo])
+    return most
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def spatial_weights(C, A, indptr, indices, denom, S):  # pragma: no cover - compiled
     """``S[k] = A_j exp(-|c_i - c_j|^2 / denom)`` for every pair ``k = (i, j)`` of the CSR pattern.
 
-    The exponentials by blocks of :data:`EXP_BLOCK` rows, in ``S`` itself (:func:`exp_nonpositive`).
+    The exponentials by blocks of :data:`EXP_BLOCK` rows, in ``S`` itself (:func:`gaussian_block`), each
+    then times ``A_j`` while the block is in cache.
     """
     m = C.shape[0]
-    bits = S.view(np.int64)
     for b in prange((m + EXP_BLOCK - 1) // EXP_BLOCK):
         lo = b * EXP_BLOCK
         hi = min(m, lo + EXP_BLOCK)
         start, stop = indptr[lo], indptr[hi]
-        gaussian_block(C, indptr, indices, denom, lo, hi, S[start:stop], bits[start:stop])
-        for i in range(lo, hi):
-            for k in range(indptr[i], indptr[i + 1]):
-                S[k] *= A[indices[k]]
+        gaussian_block(C, indptr, indices, denom, lo, hi, S[start:stop])
+        for k in range(start, stop):
+            S[k] *= A[indices[k]]
 
 
 # --------------------------------------------------------------------------- sparse products
@@ -807,6 +848,9 @@ def pick_guidance(H, factor, g, indptr, indices, label, shift, key, G):  # pragm
         G[i, 2] = g[best, 2]
 
 
+EXP_CHUNK = 8  # blocks of EXP_BLOCK rows per thread's task: one scratch allocation serves them all
+
+
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def bilateral_pass(N, G, S, indptr, indices, denom, out):  # pragma: no cover - compiled
     """One Jacobi pass ``out_i = unit(sum_j S_ij exp(-|G_i - G_j|^2 / denom) n_j)``.
@@ -815,24 +859,78 @@ def bilateral_pass(N, G, S, indptr, indices, denom, out):  # pragma: no cover - 
     (:func:`exp_nonpositive`), then the sums (each row's in the pattern's order, as before).
     """
     m = N.shape[0]
-    for b in prange((m + EXP_BLOCK - 1) // EXP_BLOCK):
-        lo = b * EXP_BLOCK
-        hi = min(m, lo + EXP_BLOCK)
-        base = indptr[lo]
-        count = indptr[hi] - base
-        w = np.empty(count)
-        gaussian_block(G, indptr, indices, denom, lo, hi, w, w.view(np.int64))
-        for i in range(lo, hi):
-            s0 = 0.0
-            s1 = 0.0
-            s2 = 0.0
-            for k in range(indptr[i], indptr[i + 1]):
-                j = indices[k]
-                wk = S[k] * w[k - base]
-                s0 += wk * N[j, 0]
-                s1 += wk * N[j, 1]
-                s2 += wk * N[j, 2]
-            unit_into(out, i, s0, s1, s2)
+    blocks = (m + EXP_BLOCK - 1) // EXP_BLOCK
+    size = _block_pairs(indptr, blocks)
+    for chunk in prange((blocks + EXP_CHUNK - 1) // EXP_CHUNK):
+        w = np.empty(size)
+        for b in range(chunk * EXP_CHUNK, min(blocks, (chunk + 1) * EXP_CHUNK)):
+            lo = b * EXP_BLOCK
+            hi = min(m, lo + EXP_BLOCK)
+            base = indptr[lo]
+            gaussian_block(G, indptr, indices, denom, lo, hi, w)
+            for i in range(lo, hi):
+                s0 = 0.0
+                s1 = 0.0
+                s2 = 0.0
+                for k in range(indptr[i], indptr[i + 1]):
+                    j = indices[k]
+                    wk = S[k] * w[k - base]
+                    s0 += wk * N[j, 0]
+                    s1 += wk * N[j, 1]
+                    s2 += wk * N[j, 2]
+                unit_into(out, i, s0, s1, s2)
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def bilateral_spatial_pass(N, G, C, A, indptr, indices, denom_s, denom_r, out):  # pragma: no cover - compiled
+    """:func:`spatial_weights` and :func:`bilateral_pass` in one sweep of the face pairs, the weights never stored.
+
+    ``out_i = unit(sum_j (A_j exp(-|c_i - c_j|^2 / denom_s)) exp(-|G_i - G_j|^2 / denom_r) n_j)``: the same
+    products in the same order as the two kernels, so the same bits, without writing and reading back
+    ``S`` (8 bytes a pair) or reading the pattern twice. For a run of one normal-filtering pass per
+    outer iteration (the default's), where ``S`` is used once.
+    """
+    m = N.shape[0]
+    blocks = (m + EXP_BLOCK - 1) // EXP_BLOCK
+    size = _block_pairs(indptr, blocks)
+    for chunk in prange((blocks + EXP_CHUNK - 1) // EXP_CHUNK):
+        ws = np.empty(size)
+        wr = np.empty(size)
+        for b in range(chunk * EXP_CHUNK, min(blocks, (chunk + 1) * EXP_CHUNK)):
+            lo = b * EXP_BLOCK
+            hi = min(m, lo + EXP_BLOCK)
+            base = indptr[lo]
+            for i in range(lo, hi):  # both exponents of the block's pairs, in one sweep of their indices
+                c0 = C[i, 0]
+                c1 = C[i, 1]
+                c2 = C[i, 2]
+                g0 = G[i, 0]
+                g1 = G[i, 1]
+                g2 = G[i, 2]
+                for k in range(indptr[i], indptr[i + 1]):
+                    j = indices[k]
+                    d0 = c0 - C[j, 0]
+                    d1 = c1 - C[j, 1]
+                    d2 = c2 - C[j, 2]
+                    ws[k - base] = -(d0 * d0 + d1 * d1 + d2 * d2) / denom_s
+                    e0 = g0 - G[j, 0]
+                    e1 = g1 - G[j, 1]
+                    e2 = g2 - G[j, 2]
+                    wr[k - base] = -(e0 * e0 + e1 * e1 + e2 * e2) / denom_r
+            count = indptr[hi] - base
+            exp_nonpositive(ws, count)
+            exp_nonpositive(wr, count)
+            for i in range(lo, hi):
+                s0 = 0.0
+                s1 = 0.0
+                s2 = 0.0
+                for k in range(indptr[i], indptr[i + 1]):
+                    j = indices[k]
+                    wk = (ws[k - base] * A[j]) * wr[k - base]
+                    s0 += wk * N[j, 0]
+                    s1 += wk * N[j, 1]
+                    s2 += wk * N[j, 2]
+                unit_into(out, i, s0, s1, s2)
 
 
 # --------------------------------------------------------------------------- vertex update

@@ -1144,11 +1144,13 @@ def outer_iterates(
     Y = X.copy() if keep_tangential else None
     m = F.shape[0]
     guided = guidance == "guided"
+    # one normal-filtering pass of the bilateral filter: the spatial weights are made inside it, never stored
+    fused = normal_iterations == 1 and not guided
     # per run, reused by every outer iteration: three (m, 3) arrays in all. C holds the centroids,
     # then (dead once S is made) the guidance normals of the passes, then fit_vertices' centroids;
     # out holds each pass's output and, before it, the guided filter's patch means
     N, areas, C, out = np.empty((m, 3)), np.empty(m), np.empty((m, 3)), np.empty((m, 3))
-    S = np.empty(nb.indices.size)  # spatial weights of the face pairs, per outer iteration
+    S = None if fused else np.empty(nb.indices.size)  # spatial weights of the face pairs, per outer iteration
     buffers = _GuidanceBuffers(nb, g=out) if guided and normal_iterations > 0 else None
     sums = buffers.H if buffers is not None else np.empty(m)  # H is written by the passes, after the sums are used
     scale = _fit_scale(topo.corner_ptr, None if pinned is None else pinned[topo.vertex_order])
@@ -1166,8 +1168,13 @@ def outer_iterates(
         if spacing == 0.0:
             break
         done += 1
-        kernels.spatial_weights(C, areas, nb.indptr, nb.indices, 2.0 * (sigma_s * spacing) ** 2, S)
-        Nf = _bilateral_passes(N, areas, nb, S, sigma_r, normal_iterations, guided, out=out, G=C, buffers=buffers)
+        denom_s = 2.0 * (sigma_s * spacing) ** 2
+        if fused:
+            kernels.bilateral_spatial_pass(N, N, C, areas, nb.indptr, nb.indices, denom_s, 2.0 * sigma_r**2, out)
+            Nf = out
+        else:
+            kernels.spatial_weights(C, areas, nb.indptr, nb.indices, denom_s, S)
+            Nf = _bilateral_passes(N, areas, nb, S, sigma_r, normal_iterations, guided, out=out, G=C, buffers=buffers)
         spare = out if Nf is N else N
         kernels.fit_vertices(X, F, Nf, topo.corner_ptr, topo.corners, scale, int(vertex_iterations), C)
         N, out = Nf, spare  # the next iteration's face normals overwrite the filtered ones (used up)
