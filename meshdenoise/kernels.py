@@ -316,6 +316,21 @@ def exp_nonpositive(buf, count):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def exp_nonpositive2(a, b, count):  # pragma: no cover - compiled
+    """:func:`exp_nonpositive` of two buffers in one loop: two independent chains of the polynomial per step.
+
+    Horner's polynomial is a chain of 26 dependent operations; a core whose scheduler holds about one
+    step of the vector loop waits on it (Zen 1: 7 ns an argument, against 4 for a shallower scheme).
+    Two chains per step overlap, with the same arithmetic per argument, so the same bits.
+    """
+    for t in range(count):
+        x = exp_one(a[t])
+        y = exp_one(b[t])
+        a[t] = x
+        b[t] = y
+
+
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def face_cross(X, a, b, c):  # pragma: no cover - compiled
     """``cross(X[b] - X[a], X[c] - X[a])`` as three floats, numpy's ``cross`` arithmetic."""
     u0 = X[b, 0] - X[a, 0]
@@ -917,9 +932,7 @@ def bilateral_spatial_pass(N, G, C, A, indptr, indices, denom_s, denom_r, out): 
                     e1 = g1 - G[j, 1]
                     e2 = g2 - G[j, 2]
                     wr[k - base] = -(e0 * e0 + e1 * e1 + e2 * e2) / denom_r
-            count = indptr[hi] - base
-            exp_nonpositive(ws, count)
-            exp_nonpositive(wr, count)
+            exp_nonpositive2(ws, wr, indptr[hi] - base)
             for i in range(lo, hi):
                 s0 = 0.0
                 s1 = 0.0
