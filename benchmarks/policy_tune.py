@@ -38,11 +38,13 @@ def variants() -> dict:
 
     base = DefaultConfig()
     change = dataclasses.replace
-    out = {"base": base, "radius 2": change(base, radius=2), "masks 2": change(base, masks=2),
-           "masks 6": change(base, masks=6), "masks 4": change(base, masks=4), "steps 60": change(base, steps=60),
-           "patience 8": change(base, patience=8), "centres 0": change(base, centres=0),
-           "centres 600": change(base, centres=600),
-           "region 12000": change(base, region_vertices=12_000), "no fold guard": change(base, unfold_rounds=0)}
+    def held(**kw):
+        return change(base, holdout=change(base.holdout, **kw))
+
+    out = {"base": base, "radius 2": held(radius=2), "masks 2": held(masks=2), "masks 6": held(masks=6),
+           "masks 4": held(masks=4), "steps 60": change(base, steps=60), "patience 8": held(patience=8),
+           "centres 0": held(centres=0), "centres 600": held(centres=600), "region 6000": held(region_vertices=6_000),
+           "no fold guard": change(base, unfold_rounds=0)}
     for i, family in enumerate(FAMILIES):
         out[f"without {family.label}"] = change(base, families=FAMILIES[:i] + FAMILIES[i + 1:])
     for family in OTHER_FAMILIES:

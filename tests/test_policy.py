@@ -18,14 +18,14 @@ from scipy.spatial.transform import Rotation
 import meshdenoise as md
 from meshdenoise.geometry import face_normals
 from meshdenoise.operators import get_operators
-from meshdenoise.policy import FAMILIES, OTHER_FAMILIES, DefaultConfig, Family, choose, flipped_faces, guard
+from meshdenoise.policy import FAMILIES, OTHER_FAMILIES, DefaultConfig, Family, HoldoutConfig, choose, flipped_faces, guard
 from meshdenoise.policy.choose import DefaultChoice, Score
 from meshdenoise.policy.paths import family_path
 from meshdenoise.registry import get_filter
 from meshdenoise.shapes import box, grid, icosphere
 from meshdenoise.tuning.holdout import holdout, path_losses, region
 
-FAST = DefaultConfig(masks=2, steps=12, patience=4)
+FAST = DefaultConfig(holdout=HoldoutConfig(masks=2, patience=4), steps=12)
 
 
 @pytest.fixture(scope="module")
@@ -148,16 +148,20 @@ def test_each_familys_run_is_the_filter_with_that_count(noisy_sphere, family):
 
 
 # ----------------------------------------------------------------------------- config and records
-@pytest.mark.parametrize("field, value", [("radius", -1), ("masks", 0), ("centres", -5), ("steps", 1.5), ("patience", True),
-                                          ("families", ())])
-def test_the_config_refuses_bad_values(field, value):
+@pytest.mark.parametrize("cls, field, value", [
+    (HoldoutConfig, "radius", -1), (HoldoutConfig, "masks", 0), (HoldoutConfig, "centres", -5),
+    (HoldoutConfig, "patience", True), (HoldoutConfig, "region_vertices", 0), (DefaultConfig, "steps", 1.5),
+    (DefaultConfig, "unfold_rounds", -1), (DefaultConfig, "families", ()), (DefaultConfig, "holdout", {"masks": 2})])
+def test_the_configs_refuse_bad_values(cls, field, value):
     with pytest.raises(ValueError, match=field):
-        DefaultConfig(**{field: value})
+        cls(**{field: value})
 
 
-def test_the_config_is_frozen():
+def test_the_configs_are_frozen():
     with pytest.raises(dataclasses.FrozenInstanceError):
-        DefaultConfig().radius = 3
+        DefaultConfig().steps = 3
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        HoldoutConfig().radius = 3
 
 
 def test_flipped_faces_are_those_turned_from_their_input_and_their_neighbours_as_a_loop_counts(noisy_sphere):

@@ -22,8 +22,9 @@ from typing import Any
 import numpy as np
 
 from ..geometry import face_normals, vertex_face_incidence, vertex_normals
-from ..operators import Operators, get_operators
-from ..tuning.holdout import NoHoldout, holdout, path_losses, region
+from ..operators import Operators
+from ..tuning.holdout import NoHoldout
+from ..tuning.sweep import held_out_losses
 from .config import DefaultConfig, Family
 from .paths import family_path
 
@@ -135,16 +136,9 @@ class DefaultChoice:
 
 def score(V: np.ndarray, F: np.ndarray, ops: Operators, config: DefaultConfig) -> tuple[list[Score], int, int]:
     """Step 1: the held-out losses of every family; also the vertices scored on and the centres."""
-    part = region(V, F, ops, config.region_vertices, config.region_patches, margin=2 * config.radius + 4)
-    if part.vertices.size < len(V):
-        V, F = V[part.vertices], part.F
-        ops = get_operators(F, len(V))
-    held = holdout(V, ops, config.radius, config.masks, allowed=part.inner, centres=config.centres)
-    scores = []
-    for family in config.families:
-        path = family_path(family, F, ops, config.steps)
-        scores.append(Score(family, path_losses(path, V, F, held, config.steps, config.patience)))
-    return scores, len(V), held.count
+    paths = [lambda F, ops, f=f: family_path(f, F, ops, config.steps) for f in config.families]
+    found = held_out_losses(V, F, ops, paths, [config.steps] * len(paths), config.holdout)
+    return [Score(f, losses) for f, losses in zip(config.families, found.losses)], found.vertices, found.centres
 
 
 def pick(scores: list[Score]) -> Score:

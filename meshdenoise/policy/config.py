@@ -10,7 +10,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-__all__ = ["Family", "DefaultConfig", "FAMILIES", "OTHER_FAMILIES"]
+from ..tuning.sweep import HoldoutConfig
+
+__all__ = ["Family", "DefaultConfig", "HoldoutConfig", "FAMILIES", "OTHER_FAMILIES"]
 
 
 @dataclass(frozen=True)
@@ -72,46 +74,31 @@ class DefaultConfig:
     ----------
     families : tuple of Family
         The candidates; each is scored along one run per mask.
-    radius : int
-        Rings hidden around each held-out vertex (:func:`meshdenoise.tuning.holdout.holdout`); must
-        exceed the noise's correlation length (a scanner's: a few samples).
-    masks : int
-        Masks of held-out vertices (each costs one run per family).
-    centres : int
-        On a small mesh, masks are added until at least this many vertices are held out (up to
-        ``4 * masks``). The corpus has no mesh under 2,800 vertices and its tune half reads the same
-        with or without it (1.387 and 1.388); a 400-vertex noisy plane needs it (with 3 masks alone,
-        about 40 hidden vertices, one iteration was chosen: tests/test_policy.py).
+    holdout : HoldoutConfig
+        How the held-out losses are read (:class:`meshdenoise.tuning.sweep.HoldoutConfig`: rings hidden
+        around each held-out vertex, masks, the centres wanted on a small mesh, patience, the sampled
+        region above 12,000 vertices). On a small mesh masks are added until 300 vertices are held out:
+        the corpus has no mesh under 2,800 vertices and its tune half reads the same with or without it
+        (1.387 and 1.388); a 400-vertex noisy plane needs it (with 3 masks alone, about 40 hidden
+        vertices, one iteration was chosen: tests/test_policy.py).
     steps : int
         Most steps read along a run.
-    patience : int
-        A run's scoring stops this many steps after its least loss.
-    region_vertices : int
-        Above this many vertices the losses are read on a sampled region of about this many
-        vertices (balls around seeds), so that choosing costs the same at any size.
-    region_patches : int
-        Balls of the region.
     unfold_rounds : int
         Most rounds of averaging the corners of faces the chosen run turned over
         (:func:`meshdenoise.policy.choose.unfold`); 0 leaves folds as they are.
     """
 
     families: tuple = field(default=FAMILIES)
-    radius: int = 1
-    masks: int = 3
-    centres: int = 300
+    holdout: HoldoutConfig = field(default_factory=HoldoutConfig)
     steps: int = 40
-    patience: int = 4
-    region_vertices: int = 12_000
-    region_patches: int = 24
     unfold_rounds: int = 10
 
     def __post_init__(self):
-        for name in ("radius", "masks", "centres", "steps", "patience", "region_vertices", "region_patches",
-                     "unfold_rounds"):
+        for name, low in (("steps", 1), ("unfold_rounds", 0)):
             value = getattr(self, name)
-            low = 0 if name in ("radius", "unfold_rounds", "centres") else 1
             if not isinstance(value, int) or isinstance(value, bool) or value < low:
                 raise ValueError(f"DefaultConfig: {name} must be an int >= {low}, got {value!r}")
+        if not isinstance(self.holdout, HoldoutConfig):
+            raise ValueError(f"DefaultConfig: holdout must be a HoldoutConfig, got {self.holdout!r}")
         if not self.families or not all(isinstance(f, Family) for f in self.families):
             raise ValueError(f"DefaultConfig: families must be a non-empty tuple of Family, got {self.families!r}")
