@@ -10,7 +10,7 @@ import scipy.sparse as sp
 from ..gpu import BACKENDS, Backend, get_backend
 from ..locality import LOCALITY_MIN_VERTICES
 from ..operators import Operators, gather_rows
-from ..registry import MAX_ITERATIONS, AutoRule, Param, register
+from ..registry import MAX_ITERATIONS, AutoRule, Param, ParameterError, register
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import averaging_step, best_on_curve, best_on_path, iterative_path, path_curve
@@ -507,13 +507,13 @@ def filtering(V, F, *, ops, pinned, iterations, weights, lam, boundary, backend)
     array([0.33333333, 0.33333333, 0.33333333])
     """
     if not boundary and weights not in MESHLAB_WEIGHTS:
-        raise ValueError(
+        raise ParameterError(
             f"parameter 'boundary' = False applies only to weights='meshlab' or 'meshlab_cotangent', "
             f"not weights={weights!r}"
         )
     if weights not in LINEAR_WEIGHTS:
         if backend != "cpu":
-            raise ValueError(
+            raise ParameterError(
                 f"parameter 'backend' = {backend!r} is not available with weights={weights!r} "
                 "(its weights change every step); use backend='cpu' or a linear weights rule"
             )

@@ -10,7 +10,7 @@ from scipy.special import ive
 
 from ..gpu import BACKENDS, Backend, get_backend
 from ..operators import Operators, mask_key
-from ..registry import MAX_ITERATIONS, AutoRule, Param, register
+from ..registry import MAX_ITERATIONS, AutoRule, Param, ParameterError, register
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import averaging_step, best_on_curve, best_on_path, iterative_path, path_curve
@@ -32,7 +32,7 @@ def heat_steps(tau: float, time: float) -> int:
     # the tolerance keeps time = k * tau from becoming k + 1 steps through rounding
     ratio = time / tau
     if not ratio <= MAX_ITERATIONS:  # also inf (tau = 1e-300) and nan
-        raise ValueError(
+        raise ParameterError(
             f"parameters 'time' = {time!r} and 'tau' = {tau!r} give ceil(time / tau) = {ratio:.3g} Euler steps, "
             f"more than the limit {MAX_ITERATIONS}: use a larger tau, a shorter time or method: chebyshev"
         )
@@ -45,7 +45,7 @@ def _check_tau(ops: Operators, tau: float) -> None:
         return
     limit = stable_tau(ops)
     if tau > limit * (1 + 1e-9):
-        raise ValueError(
+        raise ParameterError(
             f"parameter 'tau' = {tau!r} is out of the stable range 0 < tau <= 2 / lambda_max = {limit:.6g} "
             f"for this mesh (lambda_max(I - D^-1 W) = {ops.lambda_max():.6g}): explicit Euler would diverge. "
             "Use a smaller tau; the same time T needs only ceil(T / tau) steps."
@@ -85,7 +85,7 @@ def chebyshev_coefficients(time: float, tol: float, upper: float = 2.0) -> np.nd
     if t == 0:
         return np.ones(1)
     if not t <= MAX_ITERATIONS:  # the series needs about t terms
-        raise ValueError(
+        raise ParameterError(
             f"parameter 'time' = {time!r} needs about {t:.3g} Chebyshev terms, more than the limit {MAX_ITERATIONS}"
         )
     kmax = int(math.ceil(t + 12.0 * math.sqrt(t) + 30))

@@ -11,7 +11,7 @@ import scipy.sparse as sp
 
 from ..geometry import face_normals, vertex_normals
 from ..operators import Operators, gather_rows, get_operators
-from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
+from ..registry import MAX_ITERATIONS, AutoRule, Param, ParameterError, get_filter, register
 from ..tuning.context import TuningContext
 from ..tuning.noise_level import MAD
 from ..tuning.risk import MC_SURE_STEP_CORRELATED, Point, mc_sure_step, sure
@@ -1096,7 +1096,7 @@ def two_stage(
     """
     passes = iterations * (normal_iterations + vertex_iterations)
     if passes > MAX_ITERATIONS:  # each count is bounded, their product too
-        raise ValueError(
+        raise ParameterError(
             f"parameters 'iterations' = {iterations} x ('normal_iterations' = {normal_iterations} + 'vertex_iterations' = "
             f"{vertex_iterations}) = {passes} passes, more than the limit {MAX_ITERATIONS}"
         )
