@@ -12,7 +12,7 @@ from typing import Any
 
 from .policy import DefaultChoice, DefaultConfig, choose_default, run_default
 from .progress import stage
-from .registry import COMMON_OPTIONS, apply_filter, get_filter
+from .registry import KEYWORD_OPTIONS, apply_filter, get_filter
 from .tuning.choose import choose_parameters, rule_criterion
 from .tuning.memo import release_before_filter
 
@@ -75,7 +75,7 @@ def denoise(
     >>> bool(normal_error_deg((V, F), Vd) < 0.5 * normal_error_deg((V, F), Vn))
     True
     """
-    options = {k: params.pop(k) for k in list(params) if k in COMMON_OPTIONS}
+    options = {k: params.pop(k) for k in list(params) if k in KEYWORD_OPTIONS}
     options["boundary_motion"] = boundary_motion
     if method is None:
         if params:

@@ -26,13 +26,19 @@ import numpy as np
 
 __all__ = [
     "Param", "AutoRule", "FilterSpec", "register", "get_filter", "list_filters", "apply_filter", "REGISTRY",
-    "parse_number", "MAX_ITERATIONS", "ParameterError", "UnknownFilterError",
+    "parse_number", "MAX_ITERATIONS", "ParameterError", "UnknownFilterError", "FilterOption", "COMMON_OPTIONS",
+    "KEYWORD_OPTIONS", "STEP_OPTIONS",
 ]
 
 
 class ParameterError(ValueError):
     """Parameters each in their range that fail together on this mesh (a singular system, an overflow,
-    non-finite output); the message names the filter and its parameters."""
+    non-finite output); the message names the filter or its parameters.
+
+    A filter's core raises it (rather than a plain ``ValueError``) when its message already names the
+    parameters and their values (``heat``'s ``tau`` out of its stable range on this mesh): the registry
+    passes it on as it is, and words any other failure of the core itself (:func:`_run_filter`).
+    """
 
 #: Upper bound of every iteration or step count (``iterations``, heat's ``ceil(time / tau)``...):
 #: a count above it would run for hours and is refused before anything is allocated.
@@ -274,15 +280,90 @@ class FilterSpec:
         prefix = f"{where}: " if where else f"filter '{self.name}': "
         for key in given:
             if key not in known:
-                hint = difflib.get_close_matches(key, sorted(known | COMMON_OPTIONS), n=1)
+                hint = difflib.get_close_matches(key, sorted(known | KEYWORD_OPTIONS), n=1)
                 extra = f" (did you mean '{hint[0]}'?)" if hint else ""
                 allowed = ", ".join(sorted(known)) or "none"
                 raise TypeError(f"{prefix}unknown parameter '{key}'{extra}; its parameters are: {allowed}")
         return {p.name: p.check(given.get(p.name, p.default), prefix.rstrip(": ")) for p in self.params}
 
 
-COMMON_OPTIONS = {"pinned", "region", "preserve_volume", "operators", "boundary_motion"}
+@dataclass(frozen=True)
+class FilterOption:
+    """An option every registered filter takes besides its own parameters: one record of :data:`COMMON_OPTIONS`.
+
+    Parameters
+    ----------
+    name : str
+    type : str
+        Its type in words, for ``meshdenoise filters --json`` and ``meshdenoise steps`` (``"str|list"``).
+    default : object
+        Its value when not given (to a filter's function, or a pipeline's filter step).
+    help : str
+        One line for the listings.
+    choices : tuple of str, optional
+        The words it takes; with ``indices`` a list of vertex indices too.
+    indices : bool
+        Also takes a list of vertex indices (``pinned``, ``region``).
+    range : str
+        The allowed values in words when ``choices`` does not say them (``noise``).
+    keyword : bool
+        A keyword of every filter's function (``apply_filter``, ``meshdenoise.sobolev(...)``).
+    step : bool
+        A key of a pipeline's filter step (``operators`` is Python's only; ``parameters``, ``noise`` and
+        ``criterion`` choose parameters, which a filter's function never does).
+    """
+
+    name: str
+    type: str
+    default: Any
+    help: str
+    choices: tuple[str, ...] | None = None
+    indices: bool = False
+    range: str = ""
+    keyword: bool = True
+    step: bool = True
+
+    def range_text(self) -> str:
+        """The allowed values in words, e.g. ``boundary, selection or vertex indices``."""
+        if self.choices is None:
+            return self.range
+        words = list(self.choices) + (["vertex indices"] if self.indices else [])
+        return words[0] if len(words) == 1 else ", ".join(words[:-1]) + " or " + words[-1]
+
+    def describe(self) -> dict:
+        """``{"name", "type", "default", "range", "help"}`` (``meshdenoise filters --json``'s ``filter_options``)."""
+        return {"name": self.name, "type": self.type, "default": self.default, "range": self.range_text(),
+                "help": self.help}
+
+
 BOUNDARY_MOTIONS = ("free", "normal")  # the ``boundary_motion`` option: see boundary_along_normals
+
+#: The options every filter takes besides its own parameters, declared once: the filters' signatures
+#: (:func:`register`), the registry's run (:func:`_run_filter`), the pipeline's filter steps (their keys and
+#: checks, ``meshdenoise steps``) and ``meshdenoise filters --json`` read them from here.
+COMMON_OPTIONS: tuple[FilterOption, ...] = (
+    FilterOption("pinned", "str|list", None, "vertices kept exactly fixed", choices=("boundary", "selection"),
+                 indices=True),
+    FilterOption("region", "str|list", None, "only these vertices move", choices=("selection",), indices=True),
+    FilterOption("preserve_volume", "bool", False, "rescale so the enclosed volume equals the input's",
+                 range="True or False"),
+    FilterOption("operators", "Operators", None, "the mesh's cached operators (meshdenoise.get_operators), built "
+                 "when not given", range="Operators of this mesh's faces", step=False),
+    FilterOption("boundary_motion", "str", "free", "normal: vertices on open borders move along their normals only "
+                 "(no inward shrinking); free: as the filter moves them", choices=BOUNDARY_MOTIONS),
+    FilterOption("parameters", "str", None, "choose the parameters not given from the mesh, by the filter's own rule "
+                 "(recorded in the results as auto.<filter>.<param>)", choices=("auto",), keyword=False),
+    FilterOption("noise", "str|float", None, "with parameters: auto, the noise level to choose for instead of the "
+                 "estimate: RHO in mesh units or in mean edge lengths with h (0.4h), L the correlation length in "
+                 "mean edge lengths (0.4h,2)", range="RHO[h][,L], RHO >= 0, L >= 0", keyword=False),
+    FilterOption("criterion", "str", "sure", "with parameters: auto, what the choice minimises: sure, the estimated "
+                 "position error (SNR); normals (linear filters), the face-normal error: what a rendering shows, "
+                 "smoothing and shrinking more", choices=("sure", "normals"), keyword=False),
+)
+#: Keywords of every filter's function besides its parameters.
+KEYWORD_OPTIONS = frozenset(o.name for o in COMMON_OPTIONS if o.keyword)
+#: Keys of a pipeline's filter step besides the filter's parameters.
+STEP_OPTIONS = frozenset(o.name for o in COMMON_OPTIONS if o.step)
 REGISTRY: dict[str, FilterSpec] = {}
 
 
@@ -351,13 +432,8 @@ def register(
 
         sig = [inspect.Parameter("mesh", inspect.Parameter.POSITIONAL_OR_KEYWORD)]
         sig += [inspect.Parameter(p.name, inspect.Parameter.KEYWORD_ONLY, default=p.default) for p in params]
-        sig += [
-            inspect.Parameter("pinned", inspect.Parameter.KEYWORD_ONLY, default=None),
-            inspect.Parameter("region", inspect.Parameter.KEYWORD_ONLY, default=None),
-            inspect.Parameter("preserve_volume", inspect.Parameter.KEYWORD_ONLY, default=False),
-            inspect.Parameter("operators", inspect.Parameter.KEYWORD_ONLY, default=None),
-            inspect.Parameter("boundary_motion", inspect.Parameter.KEYWORD_ONLY, default="free"),
-        ]
+        sig += [inspect.Parameter(o.name, inspect.Parameter.KEYWORD_ONLY, default=o.default)
+                for o in COMMON_OPTIONS if o.keyword]
         public.__signature__ = inspect.Signature(sig)  # takes precedence over the core's (__wrapped__)
         object.__setattr__(spec, "public", public)
         REGISTRY[name] = spec
@@ -374,7 +450,7 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
     from .locality import relabelling
     from .operators import Operators, get_operators
 
-    options = {k: kwargs.pop(k) for k in list(kwargs) if k in COMMON_OPTIONS}
+    options = {k: kwargs.pop(k) for k in list(kwargs) if k in KEYWORD_OPTIONS}
     values = spec.resolve(kwargs)
     preserve_volume = options.get("preserve_volume", False)
     if not isinstance(preserve_volume, (bool, np.bool_)):
@@ -408,12 +484,10 @@ def _run_filter(spec: FilterSpec, mesh: Any, kwargs: dict) -> Any:
         else:
             V_out = relabel.restore(run_core(spec, relabel.vertices(V), get_operators(relabel.faces, V.shape[0]),
                                              values, pinned=relabel.mask(pinned), boundary_motion=boundary_motion))
-    except MeshValidationError:
+    except (MeshValidationError, ParameterError):  # the mesh's fault, or a core's message naming its parameters
         raise
     except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
         text = str(exc) or type(exc).__name__
-        if f"'{spec.name}'" in text or "parameter" in text:  # already names the filter or the parameter
-            raise ParameterError(text) from exc
         raise ParameterError(
             f"filter '{spec.name}' with {_settings_text(values)} failed on this mesh: {text} "
             "(a parameter is too large or too small for it)"
