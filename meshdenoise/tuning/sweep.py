@@ -150,19 +150,20 @@ class HeldOutLosses:
 
 def held_out_losses(V: np.ndarray, F: np.ndarray, ops: Operators,
                     paths: Sequence[Callable[[np.ndarray, Operators], Path]], steps: Sequence[int],
-                    config: HoldoutConfig) -> HeldOutLosses:
+                    config: HoldoutConfig, loss: str = "normals") -> HeldOutLosses:
     """The held-out loss along each path, on ``(V, F)`` or, above ``config.region_vertices``, a sampled region.
 
     ``paths[i](F, ops)`` gives the path (``path(Y)`` yields states) on the mesh scored (the
     region's faces and operators when one is sampled); ``steps[i]`` is the most states read along
-    it. Raises :class:`~meshdenoise.tuning.holdout.NoHoldout` when no vertex can be held out.
+    it; ``loss``: :func:`~meshdenoise.tuning.holdout.path_losses`'. Raises
+    :class:`~meshdenoise.tuning.holdout.NoHoldout` when no vertex can be held out.
     """
     part = region(V, F, ops, config.region_vertices, config.region_patches, margin=2 * config.radius + 4)
     if part.vertices.size < len(V):
         V, F = V[part.vertices], part.F
         ops = get_operators(F, len(V))
     held = holdout(V, ops, config.radius, config.masks, allowed=part.inner, centres=config.centres)
-    losses = [path_losses(make(F, ops), V, F, held, count, config.patience) for make, count in zip(paths, steps)]
+    losses = [path_losses(make(F, ops), V, F, held, count, config.patience, loss) for make, count in zip(paths, steps)]
     return HeldOutLosses(losses, len(V), held.count)
 
 
@@ -190,13 +191,39 @@ class HeldOutRule:
             names.update((k, None) for k, _ in s.fixed)
         return tuple(names)
 
-    def choose(self, V: np.ndarray, F: np.ndarray, ops: Operators, run: Runner, given: dict) -> tuple[dict, float]:
-        """``(parameters, least loss)`` for the mesh ``(V, F)``; ``run(Y, F, ops, params)`` runs the filter."""
+    def choose(self, V: np.ndarray, F: np.ndarray, ops: Operators, run: Runner, given: dict, loss: str = "normals",
+               reference: np.ndarray | None = None) -> tuple[dict, float]:
+        """``(parameters, least loss)`` for the mesh ``(V, F)``; ``run(Y, F, ops, params)`` runs the filter.
+
+        ``loss``: what is estimated, the face normals' error or the positions'
+        (:func:`~meshdenoise.tuning.holdout.path_losses`). With ``reference`` (n, 3), the clean
+        positions, the sweeps are scored by their true squared position error on the whole mesh
+        instead (the oracle of the same search, for benchmarks).
+        """
         sweeps = [s.with_given(given) for s in self.sweeps if s.parameter not in given]
         if not sweeps:
             return dict(given), float("nan")
-        found = held_out_losses(V, F, ops, [lambda F, ops, s=s: sweep_path(s, run, F, ops) for s in sweeps],
-                                [len(s.values) for s in sweeps], self.config)
-        best = min(range(len(sweeps)), key=lambda i: float(np.min(found.losses[i])))
-        k = int(np.argmin(found.losses[best]))
-        return {**sweeps[best].params(k), **given}, float(found.losses[best][k])
+        paths = [lambda F, ops, s=s: sweep_path(s, run, F, ops) for s in sweeps]
+        if reference is None:
+            losses = held_out_losses(V, F, ops, paths, [len(s.values) for s in sweeps], self.config, loss).losses
+        else:
+            losses = [_true_losses(make(F, ops)(V), reference, len(s.values), self.config.patience)
+                      for make, s in zip(paths, sweeps)]
+        best = min(range(len(sweeps)), key=lambda i: float(np.min(losses[i])))
+        k = int(np.argmin(losses[best]))
+        return {**sweeps[best].params(k), **given}, float(losses[best][k])
+
+
+def _true_losses(states: Iterator[np.ndarray], reference: np.ndarray, steps: int, patience: int) -> np.ndarray:
+    """Squared position errors along a run against the clean positions (``inf`` past where it stopped)."""
+    out = np.full(steps, np.inf)
+    best, at = np.inf, 0
+    for k, X in enumerate(states):
+        if k >= steps:
+            break
+        out[k] = float(np.sum((X - reference) ** 2))
+        if out[k] < best:
+            best, at = out[k], k
+        elif k - at >= patience:
+            break
+    return out
