@@ -20,7 +20,7 @@ PACKAGE = "meshdenoise"
 # floor -> the modules on it, bottom up: a module imports only modules of its own floor or of floors below.
 # "x" is meshdenoise/x.py (or the package x/__init__.py alone); "x.*" is the package x and every module under it.
 FLOORS: dict[int, tuple[str, ...]] = {
-    0: ("_launch", "arrays", "adapters", "cache", "constraints", "data", "geometry", "io", "kernels", "meshinfo",
+    0: ("_launch", "arrays", "adapters", "cache", "constraints", "data", "geometry", "io.*", "kernels.*", "meshinfo",
         "metrics", "multishift", "progress", "quality_metrics", "shapes"),
     1: ("operators", "solvers.*", "locality", "gpu", "ot.*"),
     2: ("registry", "noise", "scanner", "tuning.*"),
