@@ -150,7 +150,7 @@ def test_unreadable_file(tmp_path, monkeypatch):
     def denied(*args, **kwargs):
         raise PermissionError(13, "Permission denied")
 
-    monkeypatch.setattr("meshdenoise.io.open", denied, raising=False)  # chmod 0 does not stop root
+    monkeypatch.setattr("meshdenoise.io.load.open", denied, raising=False)  # chmod 0 does not stop root
     with pytest.raises(MeshFileError, match=r"locked\.ply: cannot be read \(Permission denied\)"):
         load_mesh(p)
 
@@ -431,7 +431,7 @@ def test_no_colours_in_no_colours_out(tmp_path, ext, binary):
 def test_fast_number_stream_readers_agree_with_the_line_readers_on_the_corpus(tmp_path, case, monkeypatch):
     """OBJ and OFF files of the plain layout are parsed as one number stream; every file of the corpus
     gives the same arrays, notes and errors with that path switched off."""
-    import meshdenoise.io as mio
+    from meshdenoise.io import obj, off
 
     p = tmp_path / case.name
     p.write_bytes(case.data)
@@ -444,8 +444,8 @@ def test_fast_number_stream_readers_agree_with_the_line_readers_on_the_corpus(tm
             return str(exc)
 
     fast = outcome()
-    monkeypatch.setattr(mio, "_read_obj_fast", lambda data, notes: None)
-    monkeypatch.setattr(mio, "_read_off_fast", lambda data, notes: None)
+    monkeypatch.setattr(obj, "_read_obj_fast", lambda data, notes: None)
+    monkeypatch.setattr(off, "_read_off_fast", lambda data, notes: None)
     assert outcome() == fast
 
 
@@ -454,6 +454,7 @@ def test_fast_number_stream_readers_agree_with_the_line_readers_on_the_corpus(tm
        scale=st.sampled_from([1e-300, 1e-3, 1.0, 1e5, 1e300]))
 def test_fast_readers_take_plain_files_and_give_up_on_anything_ragged(tmp_path, level, quads, ragged, ext, scale):
     import meshdenoise.io as mio
+    from meshdenoise.io import obj, off
 
     V, F = icosphere(level)
     V = V * scale
@@ -467,13 +468,13 @@ def test_fast_readers_take_plain_files_and_give_up_on_anything_ragged(tmp_path, 
     if 0 <= ragged < len(lines) - 2:  # one number more on one line (a legal OFF face colour, or an error)
         lines[ragged + 2] += " 0"
     p.write_text("\n".join(lines) + "\n")
-    reader = mio._read_obj_fast if ext == ".obj" else mio._read_off_fast
+    reader = obj._read_obj_fast if ext == ".obj" else off._read_off_fast
     fast = reader(p.read_bytes(), [])
     assert (fast is None) == (ragged >= 0 and ragged < len(lines) - 2)
-    slow_reader = mio._read_obj if ext == ".obj" else mio._read_off
+    slow_reader = obj._read_obj if ext == ".obj" else off._read_off
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(mio, "_read_obj_fast", lambda data, notes: None)
-        mp.setattr(mio, "_read_off_fast", lambda data, notes: None)
+        mp.setattr(obj, "_read_obj_fast", lambda data, notes: None)
+        mp.setattr(off, "_read_off_fast", lambda data, notes: None)
         try:
             slow = slow_reader(p.read_bytes(), [])
         except mio._Malformed:
