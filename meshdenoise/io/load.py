@@ -14,7 +14,7 @@ from .errors import _check_extension, _Malformed, MeshFileError
 from .meshfile import MeshFile
 from .obj import _OBJ_IGNORED, _read_obj
 from .off import _OFF_HEADER, _read_off
-from .ply_read import _read_ply
+from .ply_read import _read_ply, _read_ply_file, _streamable
 from .stl import _read_stl, _STL_ASCII_START
 from .tables import _BLANK
 from .topology import topology_notes
@@ -125,7 +125,10 @@ def load_mesh(path: str | os.PathLike) -> MeshFile:
                         raise _Malformed("the PLY header has no 'end_header' line in its first MiB (not a PLY file)")
             except _Malformed as exc:
                 raise MeshFileError(f"{path}: {exc}") from None
-            if rest:
+            streamed = bool(rest) and ext == ".ply" and not bom and _streamable(head)
+            if streamed:  # binary PLY: read into the arrays from the file, no copy of it in memory
+                out = _parse(lambda: _read_ply_file(fh, os.fstat(fh.fileno()).st_size, notes), path, ext)
+            elif rest:
                 fh.seek(0)
                 data = fh.read()
             else:
@@ -133,20 +136,9 @@ def load_mesh(path: str | os.PathLike) -> MeshFile:
             del head, rest
     except OSError as exc:
         raise MeshFileError(f"{path}: cannot be read ({exc.strerror or exc})") from None
-    if not data or _BLANK.fullmatch(data):
-        raise MeshFileError(f"{path}: the file is empty" + (" (whitespace only)" if data else ""))
-    if bom:
-        data = data[len(_UTF8_BOM):]
-        notes.append("UTF-8 byte-order mark at the start of the file skipped")
-    reader = _READERS[ext]
-    try:
-        out = reader(data, notes)
-    except _Malformed as exc:
-        raise MeshFileError(f"{path}: {exc}") from None
-    except (ValueError, IndexError, struct.error, OverflowError, MemoryError) as exc:
-        # Any other parse failure is still a malformed file: say so with the file name.
-        raise MeshFileError(f"{path}: cannot be read as {ext[1:].upper()} ({exc})") from None
-    del data
+    if not streamed:
+        out = _read_bytes(data, bom, path, ext, notes)
+        del data
     V, F, colors = out[:3]
     selection = out[3] if len(out) > 3 else None
     extras = out[4] if len(out) > 4 else None
@@ -162,6 +154,27 @@ def load_mesh(path: str | os.PathLike) -> MeshFile:
         raise MeshFileError(f"{path}: {exc}") from None
     notes += topology_notes(V, F)
     return MeshFile(V, F, colors, notes, path, selection, extras)
+
+
+def _read_bytes(data: bytes, bom: bool, path: Path, ext: str, notes: list[str]):
+    """The reader of ``ext`` on the file's bytes ``data``: what it returns, or :class:`MeshFileError` naming ``path``."""
+    if not data or _BLANK.fullmatch(data):
+        raise MeshFileError(f"{path}: the file is empty" + (" (whitespace only)" if data else ""))
+    if bom:
+        data = data[len(_UTF8_BOM):]
+        notes.append("UTF-8 byte-order mark at the start of the file skipped")
+    return _parse(lambda: _READERS[ext](data, notes), path, ext)
+
+
+def _parse(read, path: Path, ext: str):
+    """``read()``, a reader's result; its failures as :class:`MeshFileError` naming ``path``."""
+    try:
+        return read()
+    except _Malformed as exc:
+        raise MeshFileError(f"{path}: {exc}") from None
+    except (ValueError, IndexError, struct.error, OverflowError, MemoryError) as exc:
+        # Any other parse failure is still a malformed file: say so with the file name.
+        raise MeshFileError(f"{path}: cannot be read as {ext[1:].upper()} ({exc})") from None
 
 
 def load_arrays(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:

@@ -84,6 +84,113 @@ def _read_ply(data: bytes, notes: list[str]):
     return _ply_mesh(elements, values, notes)
 
 
+# Records per piece when a binary PLY is read from its file: one reused buffer of a few MB between the file
+# and the arrays, instead of the whole file as bytes (80 MB for the 1.6M-vertex scale mesh) beside them.
+_CHUNK_RECORDS = 1 << 16
+_BINARY_PLY = re.compile(rb"ply\r?\n(?:(?:comment|obj_info)[^\n]*\n)*format[ \t]+binary_")
+
+
+def _streamable(head: bytes) -> bool:
+    """Whether a file starting with ``head`` is a binary PLY (read from the file by :func:`_read_ply_file`)."""
+    return _BINARY_PLY.match(head) is not None
+
+
+def _read_ply_file(fh, size: int, notes: list[str]):
+    """A binary PLY read from the open file ``fh`` (``size`` bytes) element by element into its arrays:
+    the coordinates straight into ``V`` (n, 3) float64, the triangles into ``F`` (m, 3) int64, each
+    other property into its own array, through a buffer of :data:`_CHUNK_RECORDS` records.
+
+    What :func:`_read_ply` gives for the file's bytes: the same arrays, notes and errors. A file whose
+    lists vary in length (polygons of several sizes) is read through that function.
+    """
+    fh.seek(0)
+    fmt, elements, offset = _ply_header(fh.read(min(size, 1 << 20)))
+    if fmt == "ascii":
+        fh.seek(0)
+        return _read_ply(fh.read(), notes)
+    endian = "<" if fmt == "binary_little_endian" else ">"
+    values = {}
+    for name, count, props in elements:
+        got = _ply_binary_element_file(fh, size, offset, count, props, name, endian)
+        if got is None:  # lists of varying length: the bytes reader, record by record
+            fh.seek(0)
+            return _read_ply(fh.read(), notes)
+        values[name], offset = got
+    if size > offset:
+        notes.append(
+            f"{size - offset} bytes after the last declared element ('{elements[-1][0]}', "
+            f"{elements[-1][1]} records) ignored: the header's count may be wrong"
+        )
+    return _ply_mesh(elements, values, notes)
+
+
+def _ply_binary_element_file(fh, size, offset, count, props, name, endian):
+    """:func:`_ply_binary_element` reading from the file: ``(values, next offset)``, or None when the
+    records' lists vary in length. Vertex ``x y z`` come as columns of one (count, 3) float64 array,
+    kept under ``"#xyz"``; a list of 3 integer indices as one (count, 3) int64 array."""
+    least = sum(np.dtype(t).itemsize if isinstance(t, str) else np.dtype(t[0]).itemsize for _, t in props)
+    if count * least > size - offset:
+        raise _Malformed(
+            f"truncated: element '{name}' declares {count} records of at least {least} bytes, "
+            f"but only {size - offset} bytes are left"
+        )
+    if count == 0:
+        return {p: (np.zeros(0, t) if isinstance(t, str) else np.zeros((0, 3), t[1])) for p, t in props}, offset
+    fields, pos = [], offset
+    for pname, t in props:
+        if isinstance(t, str):
+            fields.append((pname, endian + t))
+            pos += np.dtype(t).itemsize
+        else:
+            width = np.dtype(t[0]).itemsize
+            if pos + width > size:
+                raise _Malformed(f"truncated inside element '{name}'")
+            fh.seek(pos)
+            k = int(np.frombuffer(fh.read(width), endian + t[0], 1)[0])
+            fields.append((pname + "#count", endian + t[0]))
+            fields.append((pname, endian + t[1], (k,)))
+            pos += width + k * np.dtype(t[1]).itemsize
+    dt = np.dtype(fields)
+    lists = [p for p, t in props if not isinstance(t, str)]
+    if count * dt.itemsize > size - offset:
+        if lists:
+            return None
+        raise _Malformed(f"truncated: element '{name}' needs {count * dt.itemsize} bytes, {size - offset} left")
+    names = [p for p, _ in props]
+    xyz = name == "vertex" and all(c in names for c in "xyz") and all(isinstance(dict(props)[c], str) for c in "xyz")
+    out = {}
+    if xyz:
+        V = np.empty((count, 3))
+        out.update({"#xyz": V, "x": V[:, 0], "y": V[:, 1], "z": V[:, 2]})
+    for pname, t in props:
+        if pname in out:
+            continue
+        if isinstance(t, str):
+            out[pname] = np.empty(count, endian + t)
+        else:
+            k = dt[pname].shape[0]
+            integer = np.dtype(t[1]).kind in "iu"
+            out[pname] = np.empty((count, k), np.int64 if integer and k == 3 else endian + t[1])
+    fh.seek(offset)
+    if xyz and len(props) == 3 and dt == np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8")]) \
+            and np.little_endian:  # the file's records are V's rows: read straight into it
+        if fh.readinto(out["#xyz"].view(np.uint8).reshape(-1)) != count * 24:
+            raise _Malformed(f"truncated: the file ends inside element '{name}'")
+        return out, offset + count * dt.itemsize
+    buf = np.empty(min(count, _CHUNK_RECORDS), dt)
+    raw = buf.view(np.uint8)
+    for a in range(0, count, _CHUNK_RECORDS):
+        k = min(_CHUNK_RECORDS, count - a)
+        if fh.readinto(raw[:k * dt.itemsize]) != k * dt.itemsize:
+            raise _Malformed(f"truncated: the file ends inside element '{name}'")
+        rec = buf[:k]
+        if not all((rec[p + "#count"] == dt[p].shape[0]).all() for p in lists):
+            return None
+        for pname in names:
+            out[pname][a:a + k] = rec[pname]
+    return {p: out[p] for p in ["#xyz"] * xyz + names}, offset + count * dt.itemsize
+
+
 def _ply_ascii_values(data: bytes, offset: int, elements, notes: list[str]) -> dict:
     """ASCII PLY read as one stream of numbers (records may span or share lines, as the format allows),
     parsed by numpy's C tokenizer into a float64 array: no Python object per line or number."""
@@ -303,9 +410,12 @@ def _ply_arrays(elements, values, notes):
     for c in "xyz":
         if not isinstance(vx[c], np.ndarray) or vx[c].ndim != 1:
             raise _Malformed(f"the 'vertex' property {c} is a list; coordinates must be numbers")
-    V = np.empty((len(vx["x"]), 3))
-    for j, c in enumerate("xyz"):
-        V[:, j] = vx[c]
+    if "#xyz" in vx:  # read from the file into one array already (_read_ply_file)
+        V = vx["#xyz"]
+    else:
+        V = np.empty((len(vx["x"]), 3))
+        for j, c in enumerate("xyz"):
+            V[:, j] = vx[c]
     types = dict(next(e for e in elements if e[0] == "vertex")[2])
     colors = _ply_colours(vx, types, len(V))
     selection = None

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import sys
+
 import numpy as np
 
 from .meshfile import PlyExtras
@@ -11,6 +13,9 @@ from .tables import _colour_bytes
 _PLY_TYPE_NAMES = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int", "u4": "uint",
                    "f4": "float", "f8": "double"}
 _ASCII_FORMAT = {"f4": "%.9g", "f8": "%.17g"}  # enough digits to read the same float back; integers: %d
+# Records per piece of a vertex or face table: written through one reused buffer (a few MB), so that
+# writing a 5M-vertex mesh holds no second copy of its arrays (the whole table as bytes took 250 MB there).
+_CHUNK_RECORDS = 1 << 16
 
 
 def _ply_columns(columns) -> tuple[list[str], np.dtype]:
@@ -49,6 +54,35 @@ def _ply_table_bytes(columns, data: dict, count: int, binary: bool) -> bytes:
         return b""
     table = np.hstack(parts)
     return (((" ".join(fmts) + "\n") * count) % tuple(table.ravel().tolist())).encode()
+
+
+def _write_ply_table(fh, columns, data: dict, count: int, binary: bool, xyz: np.ndarray | None = None) -> None:
+    """Write the records of :func:`_ply_table_bytes` to ``fh`` piece by piece, never the whole table at once.
+
+    ``xyz``: the (count, 3) array whose columns are ``x y z``, written as its own bytes (no copy at all)
+    when the table is exactly those three little-endian doubles and the array is C-contiguous float64.
+    """
+    if (binary and xyz is not None and [(c[0], c[1], c[2]) for c in columns] == [("x", "f8", None), ("y", "f8", None),
+                                                                                 ("z", "f8", None)]
+            and xyz.dtype == np.float64 and xyz.flags.c_contiguous and sys.byteorder == "little"):
+        fh.write(memoryview(xyz).cast("B"))
+        return
+    if not binary:
+        for a in range(0, count, _CHUNK_RECORDS):
+            k = min(_CHUNK_RECORDS, count - a)
+            fh.write(_ply_table_bytes(columns, {name: data[name][a:a + k] for name, _, _ in columns}, k, binary=False))
+        return
+    _, dt = _ply_columns(columns)
+    buf = np.zeros(min(count, _CHUNK_RECORDS), dt)
+    for name, _, width in columns:
+        if width is not None:
+            buf[name + "#count"] = width
+    for a in range(0, count, _CHUNK_RECORDS):
+        k = min(_CHUNK_RECORDS, count - a)
+        rec = buf[:k]
+        for name, _, _ in columns:
+            rec[name] = data[name][a:a + k]
+        fh.write(rec.view(np.uint8))
 
 
 def _ply_element_bytes(count: int, props, values: dict, binary: bool) -> tuple[list[str], bytes]:
@@ -126,14 +160,14 @@ def _write_ply(fh, V, F, C, binary, extras: PlyExtras | None = None, normals=Non
     if not any(name == "face" for name, *_ in layout):
         layout = layout + [("face", 0, [], {})]
     head = ["ply", f"format {'binary_little_endian' if binary else 'ascii'} 1.0", "comment written by meshdenoise"]
-    blocks = []
+    blocks = []  # what to write after the header: the vertex and face tables by name, other elements as bytes (small)
     for name, count, props, values in layout:
         if name == "vertex":
             head += [f"element vertex {len(V)}"] + _ply_columns(vcols)[0]
-            blocks.append(_ply_table_bytes(vcols, vdata, len(V), binary))
+            blocks.append("vertex")
         elif name == "face":
             head += [f"element face {len(F)}"] + _ply_columns(fcols)[0]
-            blocks.append(_ply_table_bytes(fcols, fdata, len(F), binary))
+            blocks.append("face")
         else:
             lines, data = _ply_element_bytes(count, props, values, binary)
             head += [f"element {name} {count}"] + lines
@@ -141,4 +175,9 @@ def _write_ply(fh, V, F, C, binary, extras: PlyExtras | None = None, normals=Non
     head.append("end_header")
     fh.write(("\n".join(head) + "\n").encode())
     for block in blocks:
-        fh.write(block)
+        if isinstance(block, str) and block == "vertex":
+            _write_ply_table(fh, vcols, vdata, len(V), binary, xyz=V)
+        elif isinstance(block, str):  # "face"
+            _write_ply_table(fh, fcols, fdata, len(F), binary)
+        else:
+            fh.write(block)
