@@ -174,7 +174,7 @@ def demo(out_dir: str, mesh_path: str | None, noise: float, seed: int) -> None:
 
 def _auto_json(spec) -> dict | None:
     """A filter's automatic rule for ``filters --json``: what it chooses, the criteria it takes and its default
-    (``denoise --method M --auto``); ``None`` for a filter without one."""
+    (``denoise --method M``); ``None`` for a filter without one."""
     from .tuning.choose import normal_filters, rule_criterion
 
     if spec.auto is None:
@@ -189,36 +189,17 @@ def filters_json() -> dict:
 
     ``{"filters": [{"name", "summary", "params": [...], "auto"}], "steps": [{"name", "kind", "params": [...]}]}``
     (``auto``: ``{"tunes", "criteria", "default_criterion"}`` or ``None``);
-    the pipeline-only options of our filters (``pinned``, ``region``, ``preserve_volume``, ``parameters``,
-    ``boundary_motion``)
-    are listed once under ``"filter_options"``. pymeshlab's own filters are not listed (``pymeshlab.filter_list()``).
+    the options a pipeline's step of one of our filters takes besides the filter's parameters
+    (:data:`meshdenoise.registry.COMMON_OPTIONS`: ``pinned``, ``region``, ``preserve_volume``, ``boundary_motion``,
+    ``parameters``, ``noise``, ``criterion``) are listed once under ``"filter_options"``. pymeshlab's own filters
+    are not listed (``pymeshlab.filter_list()``).
     """
-    from .pipeline.steps import BUILTIN_STEPS, OPEN3D_OPS, RENDER_PARAMS
+    from .pipeline.steps import BUILTIN_STEPS, OPEN3D_OPS, RENDER_PARAMS, denoise_options_doc
+    from .registry import COMMON_OPTIONS
 
     steps = [{"name": name, "kind": "builtin", "params": [p.describe() for p in params]}
              for name, params in BUILTIN_STEPS.items() if params]
-    options = [
-        {"name": "pinned", "type": "str|list", "default": None, "range": "boundary, selection or vertex indices",
-         "help": "vertices kept exactly fixed"},
-        {"name": "region", "type": "str|list", "default": None, "range": "selection or vertex indices",
-         "help": "only these vertices move"},
-        {"name": "preserve_volume", "type": "bool", "default": False, "range": "True or False",
-         "help": "rescale so the enclosed volume equals the input's"},
-        {"name": "parameters", "type": "str", "default": None, "range": "auto",
-         "help": "choose the filter's parameters from the mesh"},
-        {"name": "boundary_motion", "type": "str", "default": "free", "range": "free or normal",
-         "help": "normal: vertices on open borders move along their normals only (no inward shrinking)"},
-        {"name": "noise", "type": "str|float", "default": None, "range": "RHO[h][,L], RHO >= 0, L >= 0",
-         "help": "the noise level to choose parameters for instead of the estimate (with parameters: auto): RHO in "
-                 "mesh units or in mean edge lengths with h, L the correlation length in mean edge lengths"},
-        {"name": "criterion", "type": "str", "default": "sure", "range": "sure or normals",
-         "help": "with parameters: auto, what the choice minimises: the position error (sure) or, for the linear "
-                 "filters, the face-normal error (normals)"},
-    ]
-    # the denoise step (the default) takes our filters' options but `parameters` and `criterion`, borders along normals
-    denoise_options = [{**o, "default": "normal"} if o["name"] == "boundary_motion" else o
-                       for o in options if o["name"] not in ("parameters", "criterion")]
-    steps.append({"name": "denoise", "kind": "builtin", "params": denoise_options})
+    steps.append({"name": "denoise", "kind": "builtin", "params": denoise_options_doc()})
     steps.append({"name": "metrics", "kind": "builtin", "params": [
         {"name": "reference", "type": "str", "default": "input", "range": "input, a mesh file or {before: LABEL}",
          "help": "the mesh the metrics compare with"},
@@ -231,7 +212,7 @@ def filters_json() -> dict:
     return {
         "filters": [{"name": f.name, "summary": f.summary, "params": [p.describe() for p in f.params],
                      "auto": _auto_json(f)} for f in list_filters()],
-        "filter_options": options,
+        "filter_options": [o.describe() for o in COMMON_OPTIONS if o.step],
         "steps": steps,
     }
 
@@ -251,8 +232,8 @@ def filters(as_json: bool) -> None:
             console.print(f"    {p.name} ({p.kind.__name__}, default {p.default!r}, {p.range_text()}): {p.help}")
         auto = _auto_json(spec)
         if auto is not None:
-            console.print(f"    --auto chooses {', '.join(auto['tunes'])} (criterion {auto['default_criterion']}; "
-                          f"takes {' or '.join(auto['criteria'])})")
+            console.print(f"    denoise --method {spec.name} chooses {', '.join(auto['tunes'])} when not given "
+                          f"(criterion {auto['default_criterion']}; takes {' or '.join(auto['criteria'])})")
 
 
 def _add_commands() -> None:

@@ -353,10 +353,10 @@ COMMON_OPTIONS: tuple[FilterOption, ...] = (
                  "(no inward shrinking); free: as the filter moves them", choices=BOUNDARY_MOTIONS),
     FilterOption("parameters", "str", None, "choose the parameters not given from the mesh, by the filter's own rule "
                  "(recorded in the results as auto.<filter>.<param>)", choices=("auto",), keyword=False),
-    FilterOption("noise", "str|float", None, "with parameters: auto, the noise level to choose for instead of the "
-                 "estimate: RHO in mesh units or in mean edge lengths with h (0.4h), L the correlation length in "
-                 "mean edge lengths (0.4h,2)", range="RHO[h][,L], RHO >= 0, L >= 0", keyword=False),
-    FilterOption("criterion", "str", "sure", "with parameters: auto, what the choice minimises: sure, the estimated "
+    FilterOption("noise", "str|float", None, "the noise level to choose the parameters for instead of the estimate: "
+                 "RHO in mesh units or in mean edge lengths with h (0.4h), L the correlation length in mean edge "
+                 "lengths (0.4h,2)", range="RHO[h][,L], RHO >= 0, L >= 0", keyword=False),
+    FilterOption("criterion", "str", "sure", "what the choice of the parameters minimises: sure, the estimated "
                  "position error (SNR); normals (linear filters), the face-normal error: what a rendering shows, "
                  "smoothing and shrinking more", choices=("sure", "normals"), keyword=False),
 )

@@ -228,7 +228,7 @@ def test_billion_laughs_and_deep_nesting_are_refused(tmp_path, mesh_file):
 )
 def test_step_counts_above_the_limit_are_refused_at_once(tmp_path, mesh_file, method, param, match):
     t0 = time.perf_counter()
-    r = _cli("denoise", mesh_file, tmp_path / "o.ply", "--method", method, "--param", param)
+    r = _cli("denoise", mesh_file, tmp_path / "o.ply", "--method", method, "--defaults", "--param", param)
     _one_line_error(r, match)
     assert time.perf_counter() - t0 < 10 and not (tmp_path / "o.ply").exists()
 
@@ -293,10 +293,10 @@ def test_a_step_with_non_finite_output_is_blamed_with_its_parameters(tmp_path, m
 
 # item 7: write failures, encodings, scheduler, demo, report --------------------------------------------
 def test_denoise_into_an_unwritable_place_exits_2_with_the_message(tmp_path, mesh_file):
-    _one_line_error(_cli("denoise", mesh_file, "/proc/x.ply", "--method", "sobolev"), "/proc/x.ply")
+    _one_line_error(_cli("denoise", mesh_file, "/proc/x.ply", "--method", "sobolev", "--defaults"), "/proc/x.ply")
     blocker = tmp_path / "file"
     blocker.write_text("a file where a folder should be")
-    _one_line_error(_cli("denoise", mesh_file, blocker / "o.ply", "--method", "sobolev"), str(blocker))
+    _one_line_error(_cli("denoise", mesh_file, blocker / "o.ply", "--method", "sobolev", "--defaults"), str(blocker))
 
 
 def test_run_with_an_unwritable_output_folder_reports_every_task_and_the_table(tmp_path, mesh_file):
@@ -472,7 +472,7 @@ def _bracket_roundtrip(root, name: str) -> None:
     r = _cli("info", src)
     assert r.exit_code == 0 and flat(str(src)) in flat(r.output), r.output
     dst = root / "out" / f"{name}.ply"
-    r = _cli("denoise", src, dst, "--method", "sobolev")
+    r = _cli("denoise", src, dst, "--method", "sobolev", "--defaults")
     assert r.exit_code == 0, r.stderr
     assert f"{dst}: {len(V)} vertices" in r.output and dst.is_file()
     out = root / "run"
@@ -515,7 +515,7 @@ def test_bracketed_text_in_messages_and_failures_is_shown_and_the_batch_goes_on(
     rows = json.loads((out / "results.json").read_text())
     assert [row["status"] for row in rows] == ["ok", "failed", "ok"]
     assert all((out / f"good [{k}].ply").is_file() for k in range(2))
-    r = _cli("denoise", bad, tmp_path / "x.ply", "--method", "sobolev")
+    r = _cli("denoise", bad, tmp_path / "x.ply", "--method", "sobolev", "--defaults")
     _one_line_error(r, str(bad), "[/x]")
     r = _cli("info", bad)
     _one_line_error(r, str(bad), "[/x]")
@@ -566,7 +566,7 @@ def test_a_full_disk_while_writing_is_exit_2_with_the_message(tmp_path, mesh_fil
         raise OSError(errno.ENOSPC, "No space left on device")
 
     monkeypatch.setattr(meshdenoise.io, "save_mesh", full)
-    _one_line_error(_cli("denoise", mesh_file, tmp_path / "o.ply", "--method", "sobolev"), "No space left on device")
+    _one_line_error(_cli("denoise", mesh_file, tmp_path / "o.ply", "--method", "sobolev", "--defaults"), "No space left on device")
     monkeypatch.setattr(meshdenoise.pipeline.sweep, "atomic_path", full)
     body = f"inputs: {mesh_file}\noutput_dir: {tmp_path / 'out'}\nsteps: [sobolev, {{save: {{path: o.ply}}}}]\nsweep: {{s: [0]}}\n"
     r = _cli("run", _pipeline(tmp_path, body), "--serial")
@@ -622,7 +622,7 @@ def test_every_refused_corpus_file_under_a_bracketed_name_is_named_whole(tmp_pat
         src.write_bytes(case.data)
         out = tmp_path / f"out{k}"
         out.mkdir()
-        for args in (["info", src], ["denoise", src, out / "o [/x].ply", "--method", "sobolev"]):
+        for args in (["info", src], ["denoise", src, out / "o [/x].ply", "--method", "sobolev", "--defaults"]):
             r = _cli(*args)
             flat = re.sub(r"\s", "", r.stderr)
             if r.exit_code != 2 or re.sub(r"\s", "", str(src)) not in flat or "Traceback" in r.stderr:

@@ -179,7 +179,7 @@ def test_coloured_input_keeps_its_colours_exactly(tmp_path):
     src = tmp_path / case.name
     src.write_bytes(case.data)
     dst = tmp_path / "out.ply"
-    result = CliRunner().invoke(cli, ["denoise", str(src), str(dst), "--method", "sobolev"])
+    result = CliRunner().invoke(cli, ["denoise", str(src), str(dst), "--method", "sobolev", "--defaults"])
     assert result.exit_code == 0, result.stderr
     np.testing.assert_array_equal(np.rint(load_mesh(dst).vertex_colors[:, :3] * 255), np.rint(case.colors * 255))
 
@@ -243,7 +243,7 @@ def test_region_from_selection_on_a_broken_or_selectionless_file_names_the_real_
     src.write_bytes(case.data)
     dst = tmp_path / "out" / "o.ply"
     proc = subprocess.run([sys.executable, "-c", "from meshdenoise.cli import main; main()", "denoise", str(src),
-                           str(dst), "--method", "sobolev", "--region-from-selection"],
+                           str(dst), "--method", "sobolev", "--defaults", "--region-from-selection"],
                           capture_output=True, text=True, timeout=120, env={**_env(), "COLUMNS": "500"})
     assert proc.returncode == 2, (proc.returncode, proc.stderr)
     message = _flat(proc.stderr)
@@ -270,7 +270,7 @@ def test_output_path_equal_to_input_is_refused_and_input_kept(tmp_path):
     src = tmp_path / "plain.off"
     src.write_bytes(next(c for c in CASES if c.name == "plain.off").data)
     digest = _sha(src)
-    result = CliRunner().invoke(cli, ["denoise", str(src), str(src), "--method", "sobolev"])
+    result = CliRunner().invoke(cli, ["denoise", str(src), str(src), "--method", "sobolev", "--defaults"])
     assert result.exit_code == 2 and "neveroverwritten" in re.sub(r"\s", "", result.stderr)
     assert _sha(src) == digest
 
@@ -283,7 +283,7 @@ def test_real_process_on_a_truncated_file_exits_cleanly(tmp_path, command):
     src.write_bytes(case.data)
     out_dir = tmp_path / "out"
     args = {"info": ["info", str(src)],
-            "denoise": ["denoise", str(src), str(out_dir / "o.ply"), "--method", "sobolev"],
+            "denoise": ["denoise", str(src), str(out_dir / "o.ply"), "--method", "sobolev", "--defaults"],
             "run": ["run", str(tmp_path / "p.yaml")]}[command]
     (tmp_path / "p.yaml").write_text(PIPELINE.format(input=src, out=out_dir))
     proc = subprocess.run([sys.executable, "-c", "from meshdenoise.cli import main; main()", *args],

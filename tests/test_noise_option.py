@@ -80,17 +80,17 @@ def noisy_sphere_file(tmp_path):
 def test_cli_dry_run_uses_the_given_level_in_edge_lengths(noisy_sphere_file):
     src, Vn, F = noisy_sphere_file
     h = edge_length_by_hand(Vn, F)
-    result = CliRunner().invoke(cli, ["denoise", str(src), "--dry-run", "--method", "sobolev", "--auto",
+    result = CliRunner().invoke(cli, ["denoise", str(src), "--dry-run", "--method", "sobolev_bilaplacian",
                                       "--noise", "0.5h"])
     assert result.exit_code == 0, result.output
-    mu = choose_parameters((Vn, F), "sobolev", noise=0.5 * h, criterion="normals")["mu"]  # as denoise(method=)
+    mu = choose_parameters((Vn, F), "sobolev_bilaplacian", noise=0.5 * h, criterion="normals")["mu"]  # as denoise(method=)
     assert f"mu={mu!r}" in result.output and "given by --noise" in result.output
 
 
 def test_a_larger_given_level_smooths_more():
     V, F = icosphere(3)
     Vn = md.add_normal_noise((V, F), 0.02, seed=2)[0]
-    mus = [choose_parameters((Vn, F), "sobolev", noise=parse_noise_option(t).model(Vn, F))["mu"]
+    mus = [choose_parameters((Vn, F), "sobolev_bilaplacian", noise=parse_noise_option(t).model(Vn, F))["mu"]
            for t in ("0.1h", "0.3h", "1h")]
     assert mus[0] < mus[1] < mus[2]
 
@@ -98,7 +98,8 @@ def test_a_larger_given_level_smooths_more():
 @pytest.mark.parametrize("args, message", [
     (["--noise", "0.3x"], "error: --noise: '0.3x' is not understood; give RHO[h][,L]"),
     (["--noise", "-1"], "error: --noise: '-1': the level must be a finite number >= 0"),
-    (["--noise", "0.3h", "--method", "sobolev"], "error: --noise 0.3h: the noise level is used only by a filter's own rule"),
+    (["--noise", "0.3h", "--method", "sobolev", "--defaults"],
+     "error: --noise 0.3h: the noise level is used only by a filter's own rule, and --defaults chooses none"),
     (["--noise", "0.3h"], "error: --noise 0.3h: the noise level is used only by a filter's own rule"),
     (["--dry-run", "--noise", "0.3h"], "with no method the default reads the noise from held-out vertices"),
 ])
@@ -115,17 +116,19 @@ def test_pipeline_noise_option_for_automatic_parameters(noisy_sphere_file, tmp_p
     out = tmp_path / "out"
     p = tmp_path / "p.yaml"
     p.write_text(f"inputs: '{src.name}'\noutput_dir: {out}\nsteps:\n"
-                 "  - sobolev: {parameters: auto, noise: '0.5h'}\n  - save: {path: a.ply}\n")
+                 "  - sobolev_bilaplacian: {parameters: auto, noise: '0.5h'}\n  - save: {path: a.ply}\n")
     result = CliRunner().invoke(cli, ["run", str(p), "--serial"])
     assert result.exit_code == 0, result.output
-    mu = choose_parameters((Vn, F), "sobolev", noise=0.5 * edge_length_by_hand(Vn, F))["mu"]
-    np.testing.assert_allclose(load_mesh(out / "a.ply").V, md.apply_filter("sobolev", (Vn, F), mu=mu)[0], atol=1e-9)
+    mu = choose_parameters((Vn, F), "sobolev_bilaplacian", noise=0.5 * edge_length_by_hand(Vn, F))["mu"]
+    np.testing.assert_allclose(load_mesh(out / "a.ply").V, md.apply_filter("sobolev_bilaplacian", (Vn, F), mu=mu)[0], atol=1e-9)
 
 
 @pytest.mark.parametrize("step, expected", [
     ("  - sobolev: {noise: 0.01}\n", "step 1 'sobolev': noise: the noise level is used only to choose parameters"),
     ("  - sobolev: {parameters: auto, noise: 'lots'}\n", "noise: 'lots' is not understood"),
-    ("  - denoise: {noise: 0.01}\n", "unknown parameter 'noise': the default reads the noise from held-out vertices"),
+    ("  - denoise: {noise: 0.01}\n", "'noise' needs method: the default reads the noise from held-out vertices"),
+    ("  - denoise: {method: sobolev, defaults: true, noise: 0.01}\n", "noise says how the parameters are chosen and "
+     "defaults: true chooses none"),
 ])
 def test_pipeline_bad_noise_option_names_file_line_step(noisy_sphere_file, tmp_path, step, expected):
     src, _, _ = noisy_sphere_file

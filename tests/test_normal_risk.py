@@ -357,14 +357,14 @@ def test_command_line_and_pipeline_criterion(tmp_path):
     src = save_mesh(tmp_path / "n [1].ply", X, F)
     for extra, criterion in (([], "normals"), (["--criterion", "sure"], "sure")):
         out = tmp_path / f"o-{criterion}.ply"
-        result = CliRunner().invoke(cli, ["denoise", str(src), str(out), "--method", "sobolev", "--auto", *extra])
+        result = CliRunner().invoke(cli, ["denoise", str(src), str(out), "--method", "sobolev", *extra])
         assert result.exit_code == 0, result.output
         assert f"(criterion {criterion})" in result.output  # the user is told what the choice minimised
         mu = choose_parameters((X, F), "sobolev", criterion=criterion)["mu"]
         np.testing.assert_allclose(load_mesh(out).V, md.apply_filter("sobolev", (X, F), mu=mu)[0], atol=1e-9)
     result = CliRunner().invoke(cli, ["denoise", str(src), str(tmp_path / "x.ply"), "--criterion", "sure"])
-    assert result.exit_code == 2 and "--criterion sure: it says how --auto chooses" in result.output
-    result = CliRunner().invoke(cli, ["denoise", str(src), str(tmp_path / "x.ply"), "--method", "two_stage", "--auto",
+    assert result.exit_code == 2 and "--criterion sure: it says how --method M chooses" in result.output
+    result = CliRunner().invoke(cli, ["denoise", str(src), str(tmp_path / "x.ply"), "--method", "two_stage",
                                       "--criterion", "normals"])
     assert result.exit_code == 2 and "criterion 'normals' is for the linear filters" in result.output
     assert not (tmp_path / "x.ply").exists()

@@ -105,7 +105,7 @@ def test_a_conversion_never_writes_onto_its_input(tmp_path, command, how):
 @pytest.mark.parametrize("how", ["dotdot", "symlink", "hardlink"])
 def test_denoise_never_writes_onto_its_input(tmp_path, mesh_file, how):
     before = _sha(mesh_file)
-    _one_line_error(_cli("denoise", "--method", "sobolev", mesh_file, _spell(mesh_file, how)), "never overwritten")
+    _one_line_error(_cli("denoise", "--method", "sobolev", "--defaults", mesh_file, _spell(mesh_file, how)), "never overwritten")
     assert _sha(mesh_file) == before
 
 
@@ -129,7 +129,7 @@ def _non_file(tmp_path: Path, kind: str, name: str) -> Path:
 @pytest.mark.parametrize("kind", ["device", "fifo", "folder", "no_extension"])
 def test_an_out_that_is_no_mesh_file_is_one_line(tmp_path, mesh_file, kind):
     out = _non_file(tmp_path, kind, "o.ply")
-    _one_line_error(_cli("denoise", "--method", "sobolev", mesh_file, out), "o.ply")
+    _one_line_error(_cli("denoise", "--method", "sobolev", "--defaults", mesh_file, out), "o.ply")
     assert out.is_symlink() and not (tmp_path / "no_extension").exists()
     assert kind != "fifo" or (tmp_path / "fifo.ply").is_fifo()
 
@@ -229,7 +229,7 @@ def test_binary_stl_warns_exactly_when_float32_moves_a_vertex_noticeably(tmp_pat
 def test_the_command_line_says_the_stl_precision_in_one_line(tmp_path):
     V, F = icosphere(2)
     save_mesh(tmp_path / "geo.ply", V * 0.02 + np.array([1e6, 2e6, 10.0]), F)
-    r = _cli("denoise", "--method", "sobolev", tmp_path / "geo.ply", tmp_path / "geo.stl")
+    r = _cli("denoise", "--method", "sobolev", "--defaults", tmp_path / "geo.ply", tmp_path / "geo.stl")
     assert r.exit_code == 0, r.output
     lines = [line for line in r.stderr.splitlines() if "float32" in line]
     assert len(lines) == 1 and lines[0].startswith(f"warning: {tmp_path / 'geo.stl'}: binary STL"), r.stderr
@@ -317,7 +317,7 @@ def test_set_of_a_name_the_pipeline_does_not_have_is_refused(tmp_path, mesh_file
 # --- vertex options ---------------------------------------------------------------------------------------
 @pytest.mark.parametrize("args", [["--pinned", "selection"], ["--region-from-selection"]])
 def test_selection_options_on_a_file_without_selection_are_refused(tmp_path, mesh_file, args):
-    _one_line_error(_cli("denoise", "--method", "sobolev", *args, mesh_file, tmp_path / "o.ply"), "sphere.ply", "selection")
+    _one_line_error(_cli("denoise", "--method", "sobolev", "--defaults", *args, mesh_file, tmp_path / "o.ply"), "sphere.ply", "selection")
     assert not (tmp_path / "o.ply").exists()
 
 
@@ -361,7 +361,7 @@ def test_a_pinned_index_outside_the_mesh_in_a_pipeline_is_bad_input(tmp_path, me
 
 def test_preserve_volume_on_a_flat_mesh_is_bad_input(tmp_path):
     save_mesh(tmp_path / "flat.ply", *grid(6, 6))
-    _one_line_error(_cli("denoise", "--method", "sobolev", "--preserve-volume", tmp_path / "flat.ply", tmp_path / "o.ply"),
+    _one_line_error(_cli("denoise", "--method", "sobolev", "--defaults", "--preserve-volume", tmp_path / "flat.ply", tmp_path / "o.ply"),
                     "flat.ply", "preserve_volume", "encloses no volume")
     with pytest.raises(ParameterError, match="preserve_volume"):
         md.sobolev(grid(6, 6), preserve_volume=True)
@@ -394,7 +394,7 @@ def test_every_warning_on_the_command_line_is_one_plain_line(tmp_path, mesh_file
     monkeypatch.setattr(runner, "run_step", warning_step)
     p = tmp_path / "p.yaml"
     p.write_text(f"inputs: {mesh_file}\noutput_dir: {tmp_path / 'out'}\nsteps:\n  - sobolev: {{mu: 1}}\n")
-    for args in (["denoise", "--method", "sobolev", mesh_file, tmp_path / "o.ply"], ["run", p, "--serial"]):
+    for args in (["denoise", "--method", "sobolev", "--defaults", mesh_file, tmp_path / "o.ply"], ["run", p, "--serial"]):
         r = _cli(*args)
         assert r.exit_code == 0, r.output
         assert "warning: a step said [bold]this[/bold] on two lines" in r.stderr.splitlines(), r.stderr
@@ -440,7 +440,7 @@ def test_an_interrupted_command_exits_130_without_aborted(tmp_path, mesh_file, m
     monkeypatch.setattr(runner, "run_step", interrupted)
     p = tmp_path / "p.yaml"
     p.write_text(f"inputs: {mesh_file}\noutput_dir: {tmp_path / 'out'}\nsteps:\n  - sobolev: {{mu: 1}}\n")
-    args = ["denoise", "--method", "sobolev", mesh_file, tmp_path / "o.ply"] if command == "denoise" else ["run", p, "--serial"]
+    args = ["denoise", "--method", "sobolev", "--defaults", mesh_file, tmp_path / "o.ply"] if command == "denoise" else ["run", p, "--serial"]
     r = _cli(*args)
     assert r.exit_code == 130 and "Aborted" not in r.output + r.stderr and "Traceback" not in r.stderr, r.output
 
@@ -468,7 +468,7 @@ def test_sigint_mid_write_exits_130_and_leaves_nothing(tmp_path, mesh_file, comm
     out = tmp_path / "out"
     p = tmp_path / "p.yaml"
     p.write_text(f"inputs: {mesh_file}\noutput_dir: {out}\nsteps:\n  - sobolev: {{mu: 1}}\n  - save: {{path: r.ply}}\n")
-    args = ["denoise", "--method", "sobolev", str(mesh_file), str(out / "r.ply")] if command == "denoise" else ["run", str(p), "--serial"]
+    args = ["denoise", "--method", "sobolev", "--defaults", str(mesh_file), str(out / "r.ply")] if command == "denoise" else ["run", str(p), "--serial"]
     proc = subprocess.Popen([sys.executable, "-c", _SLOW_RUN, "-", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env=_env())
     try:
@@ -587,7 +587,7 @@ def _without_a_cache_place(tmp_path, compile_, *args, **env):
 
 def test_a_read_only_installation_caches_its_kernels_in_a_private_temporary_folder(tmp_path, mesh_file):
     (tmp_path / "tmp").mkdir()
-    first = _without_a_cache_place(tmp_path, "no", "denoise", "--method", "sobolev", mesh_file, tmp_path / "a.ply")
+    first = _without_a_cache_place(tmp_path, "no", "denoise", "--method", "sobolev", "--defaults", mesh_file, tmp_path / "a.ply")
     assert first.returncode == 0, first.stderr
     assert "numba alone: cannot cache function 'kernel': no locator available" in first.stdout  # the simulation is real
     place = tmp_path / "tmp" / f"meshdenoise-numba-{os.getuid()}"
@@ -596,7 +596,7 @@ def test_a_read_only_installation_caches_its_kernels_in_a_private_temporary_fold
     second = _without_a_cache_place(tmp_path, "compile", "filters")
     assert second.returncode == 0 and "RESULT [[0.6, 0.8, 0.0]]" in second.stdout, second.stderr
     assert place.stat().st_mode & 0o777 == 0o700 and any(place.rglob("*.nbi"))
-    third = _without_a_cache_place(tmp_path, "no", "denoise", "--method", "sobolev", mesh_file, tmp_path / "b.ply")
+    third = _without_a_cache_place(tmp_path, "no", "denoise", "--method", "sobolev", "--defaults", mesh_file, tmp_path / "b.ply")
     assert third.returncode == 0 and f"CACHE True DIR {place} COMPILED True" in third.stdout, third.stderr
     assert "first run of this installation" not in third.stderr
 

@@ -177,72 +177,76 @@ def _print_rows(rows: list[dict]) -> None:
     console.print(table)
 
 
-@click.command("denoise")
+class _OneLineUsage(click.Command):
+    """A command whose usage errors (an unknown option, a bad choice, a missing argument) are one ``error: ...``
+    line and exit code 2, as its other bad input (:func:`meshdenoise.cli.usage_error`)."""
+
+    def make_context(self, info_name, args, parent=None, **extra):
+        try:
+            return super().make_context(info_name, args, parent=parent, **extra)
+        except click.NoSuchOption as exc:
+            if exc.option_name == "--auto":  # the flag of earlier versions: say what replaced it
+                _fail("no such option --auto: --method M chooses the parameters not given with --param by the "
+                      "filter's own rule (--defaults runs the filter's defaults instead)", 2)
+            raise self._one_line(exc, info_name, parent) from None
+        except click.UsageError as exc:
+            raise self._one_line(exc, info_name, parent) from None
+
+    @staticmethod
+    def _one_line(exc, info_name, parent):
+        from ..cli import usage_error
+
+        return usage_error(exc, f"{parent.command_path} {info_name}" if parent is not None else info_name)
+
+
+@click.command("denoise", cls=_OneLineUsage)
 @click.argument("input_path", metavar="IN", type=click.Path(dir_okay=False))
 @click.argument("output_path", metavar="OUT", type=click.Path(dir_okay=False), required=False)
-@click.option("--method", default=None,
-              help="A filter of ours (see `meshdenoise filters`), run with the parameters given (--param) or, with --auto, "
-                   "chosen by its own rule (else its defaults). Default: the filter and its parameters chosen for the "
+@click.option("--method", default=None, metavar="FILTER",
+              help="Run this filter of ours (see `meshdenoise filters`): the parameters given with --param are held, "
+                   "every other parameter its own rule tunes is chosen for the mesh by that rule (printed), as "
+                   "meshdenoise.denoise(mesh, method=M) does. Default: the filter and its parameters chosen for the "
                    "mesh by held-out vertices; three lines printed (--explain: why).")
 @click.option("--param", "params", multiple=True, metavar="NAME=VALUE", help="A filter parameter (repeatable; needs --method).")
+@click.option("--defaults", is_flag=True,
+              help="With --method: choose nothing, run the filter's own defaults for the parameters not given "
+                   "(denoise(mesh, method=M, defaults=True)).")
 @click.option("--pinned", type=click.Choice(["boundary", "selection"]), default=None, help="Keep these vertices exactly fixed.")
 @click.option("--region-from-selection", is_flag=True, help="Move only the vertices selected in IN (PLY vertex flags).")
 @click.option("--preserve-volume", is_flag=True, help="Rescale so the enclosed volume equals the input's.")
-@click.option("--auto", "auto", is_flag=True, help="With --method: choose the filter's parameters automatically (printed).")
 @click.option("--boundary-motion", type=click.Choice(["normal", "free"]), default="normal", show_default=True,
               help="normal: vertices on open borders move along their normals only, so borders do not shrink inward; "
                    "free: as the filter moves them.")
 @click.option("--noise", "noise", default=None, metavar="RHO[h][,L]",
-              help="The noise level to choose for, instead of the estimate: RHO in mesh units, or in mean edge lengths "
-                   "with h (0.4h); L its correlation length in mean edge lengths (0.4h,2). With --method and --auto.")
+              help="The noise level to choose the parameters for, instead of the estimate: RHO in mesh units, or in "
+                   "mean edge lengths with h (0.4h); L its correlation length in mean edge lengths (0.4h,2). "
+                   "With --method (not --defaults).")
 @click.option("--criterion", type=click.Choice(["normals", "sure"]), default=None,
-              help="With --method and --auto: what the choice minimises. normals (default where the filter has it: "
-                   "filtering, heat, taubin, sinkhorn, sobolev, sobolev_bilaplacian, sobolev_axes): the face-normal error, what a rendering "
-                   "shows; it smooths and shrinks more. sure: the position error (SNR), a pipeline's default.")
+              help="With --method (not --defaults): what the choice of its parameters minimises. normals (default "
+                   "where the filter has it: filtering, heat, taubin, sinkhorn, sobolev, sobolev_bilaplacian, "
+                   "sobolev_axes, sobolev_gls): the face-normal error, what a rendering shows; it smooths and shrinks "
+                   "more. sure: the position error (SNR), the default of the other filters.")
 @click.option("--explain", is_flag=True, help="With no --method: also print why (every candidate's held-out error).")
 @click.option("--dry-run", is_flag=True, help="Only print what would be chosen; write nothing.")
-def denoise_command(input_path, output_path, method, params, pinned, region_from_selection, preserve_volume, auto,
+def denoise_command(input_path, output_path, method, params, defaults, pinned, region_from_selection, preserve_volume,
                     boundary_motion, noise, criterion, explain, dry_run):
     """Denoise the mesh IN and write OUT (PLY, OBJ, OFF or STL; colours kept).
 
     With no --method the filter and its parameters are chosen from the mesh alone (the default
     for scans) and three lines are printed: the noise removed, the filter with its parameters, and
     how far the vertices moved with the faces flipped; --explain adds why.
+
+    With --method M, M runs: the parameters given with --param as given, every other parameter
+    its own rule tunes chosen for the mesh by that rule (--noise, --criterion: how), as
+    meshdenoise.denoise(mesh, method=M) does; with --defaults, M's own defaults instead (nothing
+    chosen). A pipeline's denoise step means the same (method: M, defaults: true).
     """
-    from ..pipeline.schema import Task
-    from ..pipeline.errors import PipelineValidationError
+    from ..pipeline.errors import InputError, PipelineValidationError, StepFailure
     from ..pipeline.runner import run_task
-    from ..pipeline.steps import parse_step
-    from ..pipeline.errors import InputError, StepFailure
+    from ..pipeline.schema import Task
+    from ..pipeline.steps import denoise_step
 
     given = _assignments(params, "--param")
-    if method is None and given:
-        _fail(f"--param {next(iter(given))}: a filter parameter needs --method (with no method the filter and its "
-              "parameters are chosen for the mesh)", 2)
-    if pinned:
-        given["pinned"] = pinned
-    if region_from_selection:
-        given["region"] = _selected_vertices(input_path)
-    if preserve_volume:
-        given["preserve_volume"] = True
-    if criterion is not None and not (auto and method is not None):
-        _fail(f"--criterion {criterion}: it says how --auto chooses a filter's parameters: give --method and --auto "
-              "(with no method the default chooses by its own estimates)", 2)
-    if auto and method is not None:
-        from ..registry import get_filter
-        from ..tuning.choose import rule_criterion
-
-        given["parameters"] = "auto"
-        try:
-            get_filter(method)  # an unknown name is said below, as --method's
-            given["criterion"] = rule_criterion(method, criterion)
-        except KeyError:
-            pass
-    given["boundary_motion"] = boundary_motion
-    if explain:
-        if method is not None:
-            _fail("--explain: it says why the default chose its filter: drop --method", 2)
-        given["explain"] = True
     if noise is not None:
         from ..pipeline.noise_option import parse_noise_option
 
@@ -250,15 +254,58 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
             parse_noise_option(noise, "--noise")  # said here with the option's name; the step reads it again
         except ValueError as exc:
             _fail(str(exc), 2)
-        if method is None or not auto:
-            _fail(f"--noise {noise}: the noise level is used only by a filter's own rule: give --method M --auto "
+    if method is None:  # each says what it needs, and what happens with no method
+        if given:
+            _fail(f"--param {next(iter(given))}: a filter parameter needs --method (with no method the filter and "
+                  "its parameters are chosen for the mesh)", 2)
+        if defaults:
+            _fail("--defaults: it runs a filter's own defaults: give --method M (with no method the filter and its "
+                  "parameters are chosen for the mesh)", 2)
+        if criterion is not None:
+            _fail(f"--criterion {criterion}: it says how --method M chooses the filter's parameters: give --method "
+                  "(with no method the default chooses by its own estimates)", 2)
+        if noise is not None:
+            _fail(f"--noise {noise}: the noise level is used only by a filter's own rule: give --method M "
                   "(with no method the default reads the noise from held-out vertices)", 2)
+    else:
+        from ..registry import get_filter
+
+        try:
+            get_filter(method)  # the registry says an unknown name (with the closest) before anything else
+        except KeyError as exc:
+            _fail(f"--method: {exc}", 2)
+        given["method"] = method
+    if defaults:
+        for flag, value in (("--criterion", criterion), ("--noise", noise)):
+            if value is not None:
+                what = "the noise level is used only by a filter's own rule" if flag == "--noise" else \
+                    "it says how --method M chooses the filter's parameters"
+                _fail(f"{flag} {value}: {what}, and --defaults chooses none: leave out one of them", 2)
+        given["defaults"] = True
+    if pinned:
+        given["pinned"] = pinned
+    if region_from_selection:
+        given["region"] = _selected_vertices(input_path)
+    if preserve_volume:
+        given["preserve_volume"] = True
+    if criterion is not None:
+        given["criterion"] = criterion
+    given["boundary_motion"] = boundary_motion
+    if explain:
+        if method is not None:
+            _fail("--explain: it says why the default chose its filter: drop --method", 2)
+        given["explain"] = True
+    if noise is not None:
         given["noise"] = noise
+    try:
+        step = denoise_step(given, None, None, "--method" if method else "denoise")
+    except PipelineValidationError as exc:
+        _fail(str(exc), 2)
     src = Path(input_path)
     if not src.is_file():
         _fail(f"{src}: no such file", 2)
     if dry_run:
-        _dry_run(src, method, given)
+        _dry_run(src, step)
         return
     if output_path is None:
         _fail("OUT is missing: give the output file (or --dry-run to only see the choice)", 2)
@@ -271,16 +318,10 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
         if path.suffix.lower() not in SUPPORTED_EXTENSIONS:
             shown = str(dst) if path == dst else f"{dst} (a link to {path})"
             _fail(f"{shown}: unsupported extension {path.suffix!r}; use one of {', '.join(SUPPORTED_EXTENSIONS)}", 2)
-    name = method or "denoise"
-    try:
-        if method is not None:
-            from ..registry import get_filter
+    from ..pipeline.steps import parse_step
 
-            get_filter(method)
-        step = parse_step({name: given}, None, "--method" if method else "denoise", None)
+    try:
         save = parse_step({"save": {"path": str(target)}}, 2, "denoise", None)
-    except KeyError as exc:
-        _fail(f"--method: {exc.args[0]}", 2)
     except PipelineValidationError as exc:
         _fail(str(exc), 2)
     task = Task(0, src.resolve(), {}, "", [step, save], {str(target): target})
@@ -300,7 +341,8 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
                           "(about 15 s; later runs load them)")
 
     # stages: (the default's choice,) parameters, filter; a bar on a terminal after 2 s, else a line per stage over 2 s
-    total = None if method is None else 2 if auto else 1  # the default's stages depend on the mesh
+    total = None if method is None else 1 if defaults else 2  # the default's stages depend on the mesh; a
+    # method's: its parameters chosen (unless --defaults), then the filter
     listener = (RichProgress(src.name, err_console, total) if err_console.is_terminal
                 else LogProgress(src.name, lambda line: err_console.print(line)))
     try:
@@ -314,8 +356,8 @@ def denoise_command(input_path, output_path, method, params, pinned, region_from
     console.print(f"{dst}: {row['vertices']} vertices, {row['faces']} faces, {used} in {row['seconds']:.2f} s")
 
 
-def _dry_run(src: Path, method: str | None, given: dict) -> None:
-    """``denoise --dry-run``: the noise estimate and the choice, nothing written."""
+def _dry_run(src: Path, step) -> None:
+    """``denoise --dry-run``: the noise estimate and the choice the checked ``denoise`` step would make, nothing written."""
     from ..io import MeshFileError, load_mesh
 
     try:
@@ -323,36 +365,35 @@ def _dry_run(src: Path, method: str | None, given: dict) -> None:
     except MeshFileError as exc:
         _fail(str(exc), 2)
     arrays = (mesh.V, mesh.F)
+    options = step.options
+    method = options.get("method")
     try:
-        from ..pipeline.noise_option import parse_noise_option
-
-        known = parse_noise_option(given["noise"]).model(mesh.V, mesh.F) if "noise" in given else None
         if method is None:
             from ..policy import choose_default
 
             choice = choose_default(arrays)
-            lines = choice.lines()[1:2] + (choice.explain() if given.get("explain") else [])
+            lines = choice.lines()[1:2] + (choice.explain() if options.get("explain") else [])
         else:
+            from ..default import method_parameters
             from ..operators import get_operators
-            from ..pipeline.steps import COMMON
             from ..registry import get_filter
-            from ..tuning import choose_parameters, estimate_noise_model
+            from ..tuning import estimate_noise_model
             from ..tuning.noise_level import mean_edge_length
 
+            known = options["noise"].model(mesh.V, mesh.F) if "noise" in options else None
             spec = get_filter(method)
             h = mean_edge_length(mesh.V, get_operators(mesh.F, mesh.V.shape[0]))
             model = known if known is not None else estimate_noise_model(arrays)
             rho = model.rho
-            own = {k: v for k, v in given.items() if k not in COMMON}
-            if given.get("parameters") == "auto" and spec.auto is not None:
-                own = choose_parameters(arrays, method, noise=model, criterion=given.get("criterion", "sure"), **own)
-            settings = spec.resolve(own, f"--method '{method}'")
+            params, criterion = method_parameters(arrays, method, noise=model, criterion=options.get("criterion"),
+                                                  defaults=options.get("defaults", False), **step.params)
+            settings = spec.resolve(params, f"--method '{method}'")
             spread = (f"correlated over {model.correlation_length:.3g} edge lengths" if model.correlated
                       else "independent") + ("; given by --noise" if known is not None else "")
+            how = (f"chosen for criterion {criterion}" if criterion is not None
+                   else "its defaults" if options.get("defaults") else "as given")
             lines = [f"noise: {rho:.4g} ({rho / h:.3g} mean edge lengths; mean edge {h:.4g}; {spread})",
-                     f"method: {method} ({', '.join(f'{k}={v!r}' for k, v in settings.items())})"]
-    except KeyError as exc:
-        _fail(f"--method: {exc.args[0]}", 2)
+                     f"method: {method} ({', '.join(f'{k}={v!r}' for k, v in settings.items())}; {how})"]
     except (TypeError, ValueError) as exc:
         _fail(f"{src}: {exc}", 2)
     for line in lines:

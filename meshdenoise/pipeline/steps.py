@@ -20,13 +20,13 @@ from typing import Any
 import numpy as np
 
 from ..progress import stage
-from ..registry import MAX_ITERATIONS, FilterSpec, Param, get_filter, list_filters
+from ..registry import COMMON_OPTIONS, MAX_ITERATIONS, STEP_OPTIONS, FilterSpec, Param, get_filter, list_filters
 from . import pymeshlab_steps
 from .errors import PipelineValidationError, where
 from .noise_option import parse_noise_option
 from .state import MeshState
 
-__all__ = ["Step", "parse_step", "run_step", "RunContext", "BUILTIN_STEPS", "OPEN3D_OPS", "step_names", "describe_steps", "describe_pymeshlab_step"]
+__all__ = ["Step", "parse_step", "denoise_step", "run_step", "RunContext", "BUILTIN_STEPS", "OPEN3D_OPS", "step_names", "describe_steps", "describe_pymeshlab_step"]
 
 # Open3D's clean-up and smoothing operations, under "open3d.<method name>", with their parameters.
 OPEN3D_OPS: dict[str, list[Param]] = {
@@ -64,11 +64,16 @@ BUILTIN_STEPS: dict[str, list[Param]] = {
         Param("precision", str, "float64", choices=("float64", "float32"),
               help="PLY coordinates and normals: double, or float (half the size; warns when it moves vertices)"),
     ],
-    "denoise": [],  # the default: its options are our filters' (_filter_options), described in describe_steps
+    "denoise": [],  # the goal: its keys are DENOISE_KEYS and, with method, the filter's; described in describe_steps
     "metrics": [],  # checked by _check_metrics, described by METRICS_DOC
     "render": [],  # checked by _check_render, described by RENDER_DOC
 }
-COMMON = {"pinned", "region", "preserve_volume", "parameters", "boundary_motion", "noise", "criterion"}
+#: The keys a step of one of our filters takes besides the filter's parameters (registry.COMMON_OPTIONS).
+COMMON = STEP_OPTIONS
+_STEP_OPTION = {o.name: o for o in COMMON_OPTIONS if o.step}
+#: The keys of the ``denoise`` step besides a method's parameters: the filter options but ``parameters`` (a
+#: denoise step with a method chooses what is not given; ``defaults: true`` runs the filter's defaults instead).
+DENOISE_KEYS = ("method", "defaults", "explain") + tuple(n for n in _STEP_OPTION if n != "parameters")
 RESERVED = {"label"}
 
 
@@ -88,7 +93,9 @@ class Step:
 
     @property
     def where(self) -> str:
-        return _step_at(self.source, self.line, self.index, self.name)
+        # `meshdenoise denoise --method M` (a step in no file) is said as its option: --method 'M'
+        name = self.options.get("method", self.name) if self.index is None else self.name
+        return _step_at(self.source, self.line, self.index, name)
 
 
 def _step_at(source: str, line: int | None, index: int | None, name: str) -> str:
@@ -140,38 +147,48 @@ def _check_vertex_spec(key: str, value: Any, at: str, keywords: tuple[str, ...])
 
 
 def _filter_options(given: dict, at: str, allowed: tuple[str, ...] = tuple(sorted(COMMON))) -> tuple[dict, dict]:
-    """Split a filter step's keys into the common options (checked) and the filter's own parameters."""
+    """Split a filter step's keys into the common options (checked as registry.COMMON_OPTIONS declares them)
+    and the filter's own parameters."""
     options = {}
     rest = {}
     for key, value in given.items():
-        if key not in allowed:
+        if key not in allowed or key not in _STEP_OPTION:
             rest[key] = value
-        elif key == "pinned":
-            options[key] = _check_vertex_spec(key, value, at, ("boundary", "selection"))
-        elif key == "region":
-            options[key] = _check_vertex_spec(key, value, at, ("selection",))
-        elif key == "preserve_volume":
+            continue
+        option = _STEP_OPTION[key]
+        if option.indices:  # pinned, region: a keyword or vertex indices
+            options[key] = _check_vertex_spec(key, value, at, option.choices)
+        elif option.type == "bool":
             if not isinstance(value, bool):
-                raise PipelineValidationError(f"{at}: preserve_volume must be true or false, got {value!r}")
-            options[key] = value
-        elif key == "boundary_motion":
-            if value not in ("free", "normal"):
-                raise PipelineValidationError(f"{at}: boundary_motion must be 'free' or 'normal', got {value!r}")
-            options[key] = value
-        elif key == "parameters":
-            if value != "auto":
-                raise PipelineValidationError(f"{at}: parameters: only 'auto' is understood, got {value!r}")
+                raise PipelineValidationError(f"{at}: {key} must be true or false, got {value!r}")
             options[key] = value
         elif key == "noise":
             try:
                 options[key] = parse_noise_option(value, f"{at}: noise")
             except ValueError as exc:
                 raise PipelineValidationError(str(exc)) from None
-        elif key == "criterion":
-            if value not in STEP_CRITERIA:
-                raise PipelineValidationError(f"{at}: criterion must be one of {', '.join(STEP_CRITERIA)}, got {value!r}")
+        else:
+            if value not in option.choices:
+                hint = difflib.get_close_matches(str(value), option.choices, n=1)
+                extra = f" (did you mean '{hint[0]}'?)" if hint else ""
+                raise PipelineValidationError(f"{at}: {key} must be {_in_words(option.choices)}, got {value!r}{extra}")
             options[key] = value
     return options, rest
+
+
+def _in_words(choices: tuple[str, ...]) -> str:
+    """``'auto'``, ``'free' or 'normal'``, ``one of 'a', 'b', 'c'``."""
+    quoted = [repr(c) for c in choices]
+    return quoted[0] if len(quoted) == 1 else " or ".join(quoted) if len(quoted) == 2 else "one of " + ", ".join(quoted)
+
+
+def _check_criterion(name: str, criterion: str, at: str) -> None:
+    """``criterion: normals`` only for the filters that have it."""
+    from ..tuning.choose import normal_filters
+
+    if criterion == "normals" and name not in normal_filters():
+        raise PipelineValidationError(f"{at}: criterion 'normals' is for the linear filters "
+                                      f"({', '.join(normal_filters())}), not '{name}'")
 
 
 def _our_filter(index, name, given, label, source, line) -> Step:
@@ -180,16 +197,12 @@ def _our_filter(index, name, given, label, source, line) -> Step:
     options, rest = _filter_options(given, at)
     if "noise" in options and options.get("parameters") != "auto":
         raise PipelineValidationError(f"{at}: noise: the noise level is used only to choose parameters: add "
-                                      "'parameters: auto' (--auto), or leave noise out")
+                                      "'parameters: auto', or leave noise out")
     if "criterion" in options:
-        from ..tuning.choose import normal_filters
-
         if options.get("parameters") != "auto":
-            raise PipelineValidationError(f"{at}: criterion: it says how parameters are chosen: add 'parameters: auto' "
-                                          "(--auto), or leave criterion out")
-        if options["criterion"] == "normals" and name not in normal_filters():
-            raise PipelineValidationError(f"{at}: criterion 'normals' is for the linear filters "
-                                          f"({', '.join(normal_filters())}), not '{name}'")
+            raise PipelineValidationError(f"{at}: criterion: it says how parameters are chosen: add 'parameters: auto', "
+                                          "or leave criterion out")
+        _check_criterion(name, options["criterion"], at)
     try:
         if options.get("parameters") == "auto":
             spec.resolve(rest, at)  # explicit values are still checked; auto fills the others
@@ -222,19 +235,39 @@ METRICS_DOC = (
      "or {before: LABEL} (the mesh before the step labelled LABEL)"),
     ("metrics", "list of str", "all", "metric names (meshdenoise.metrics.METRICS)"),
 )
-OURS_OPTIONS_DOC = (
-    ("pinned", "boundary | selection | list of int", None, "vertices that never move"),
-    ("region", "selection | list of int", None, "only these vertices may move"),
-    ("preserve_volume", "bool", False, "rescale so the enclosed volume equals the input's"),
-    ("parameters", "auto", None, "choose the parameters not written automatically (recorded in the results as auto.*)"),
-    ("boundary_motion", "free | normal", "free", "normal: open borders move along their normals only (no inward shrinking)"),
-    ("noise", "RHO[h][,L]", None, "the noise level to choose parameters for, instead of the estimate: RHO in mesh units "
-     "or in mean edge lengths with h (0.4h), L its correlation length in mean edge lengths (with parameters: auto)"),
-    ("criterion", "sure | normals", "sure", "with parameters: auto, what the choice minimises: sure, the estimated "
-     "position error (SNR); normals (linear filters), the face-normal error: what a rendering shows, smoothing and "
-     "shrinking more (the command line's --method M --auto uses it)"),
-)
-STEP_CRITERIA = ("sure", "normals")
+# what `meshdenoise steps` says of the options of our filters' steps: (name, type, default, help)
+OURS_OPTIONS_DOC = tuple((o.name, o.type, o.default, f"{o.help} ({o.range_text()}"
+                          + (", with parameters: auto)" if o.name in ("noise", "criterion") else ")"))
+                         for o in COMMON_OPTIONS if o.step)
+
+
+def denoise_options_doc() -> list[dict]:
+    """The keys of the ``denoise`` step, ``{"name", "type", "default", "range", "help"}`` (``meshdenoise steps``,
+    ``meshdenoise filters --json``): ``method``, ``defaults``, ``explain`` and the filter options but ``parameters``
+    (registry.COMMON_OPTIONS), borders along normals by default; with a method, that filter's parameters too."""
+    out = [
+        {"name": "method", "type": "str", "default": None, "range": "one of our filters (meshdenoise filters)",
+         "help": "run this filter, every parameter its own rule tunes and the step does not give chosen by that rule "
+                 "(its parameters are keys of the step too); without: the default chooses the filter and its "
+                 "parameters"},
+        {"name": "defaults", "type": "bool", "default": False, "range": "True or False",
+         "help": "with method: the filter's own defaults for the parameters not given (nothing chosen)"},
+        {"name": "explain", "type": "bool", "default": False, "range": "True or False",
+         "help": "without method: print why (every candidate's held-out error)"},
+    ]
+    for o in COMMON_OPTIONS:
+        if o.step and o.name != "parameters":
+            d = o.describe()
+            if o.name == "boundary_motion":
+                d["default"] = "normal"
+            elif o.name in ("noise", "criterion"):  # said by the filter's rule when not given
+                d["help"] = "with method (not defaults): " + d["help"]
+                d["default"] = None if o.name == "criterion" else d["default"]
+                if o.name == "criterion":
+                    d["help"] += " (default: normals where the filter has it, else sure)"
+            out.append(d)
+    return out
+STEP_CRITERIA = _STEP_OPTION["criterion"].choices
 
 
 def describe_pymeshlab_step(name: str) -> dict:
@@ -290,11 +323,11 @@ def describe_steps() -> list[dict]:
         return out
 
     out = [
-        entry("denoise", "the default for scans: chooses the filter and its parameters from the mesh alone (candidates "
-              "scored on held-out vertices), runs it with a flipped-face guard, records the choice (denoise.* columns)",
-              [(n, t, "normal" if n == "boundary_motion" else d, h) for n, t, d, h in OURS_OPTIONS_DOC
-               if n not in ("parameters", "criterion", "noise")]
-              + [("explain", "bool", False, "print why: every candidate's held-out error")]),
+        entry("denoise", "the goal, as meshdenoise.denoise(): without method the default for scans chooses the filter "
+              "and its parameters from the mesh alone (candidates scored on held-out vertices) and runs it with a "
+              "flipped-face guard; with method that filter, its parameters not given chosen by its own rule (defaults: "
+              "true: its defaults); the choice is recorded (denoise.* and auto.* columns)",
+              [(d["name"], d["type"], d["default"], f"{d['help']} ({d['range']})") for d in denoise_options_doc()]),
         entry("add_noise", "displace every vertex along its normal by Gaussian noise", from_params(BUILTIN_STEPS["add_noise"])),
         entry("save", "write the current mesh (PLY, OBJ, OFF, STL) once every step succeeded", from_params(BUILTIN_STEPS["save"])),
         entry("metrics", "measure the current mesh against a reference; values go to the results table", METRICS_DOC),
@@ -456,22 +489,7 @@ def _parse(name, given, index, label, source, line, at_param) -> Step:
             raise _unknown_step(name, at)
         return Step(index, name, "open3d", _check_params(OPEN3D_OPS[op], given, at), label, source, line)
     if name == "denoise":
-        explain = given.get("explain", False)
-        if not isinstance(explain, bool):
-            raise PipelineValidationError(f"{at_param('explain')}: explain must be true or false, got {explain!r}")
-        given = {k: v for k, v in given.items() if k != "explain"}
-        options, rest = _filter_options(given, at, ("pinned", "region", "preserve_volume", "boundary_motion"))
-        if rest:
-            key = next(iter(rest))
-            why = ("the default reads the noise from held-out vertices; to choose a filter's parameters for a known "
-                   "level use the filter as the step with parameters: auto and noise" if key == "noise" else
-                   "denoise chooses the filter and its parameters (its options: pinned, region, preserve_volume, "
-                   "boundary_motion, explain); to set a filter's parameters, use the filter as the step")
-            raise PipelineValidationError(f"{at_param(key)}: unknown parameter '{key}': {why}")
-        if explain:
-            options["explain"] = True
-        options.setdefault("boundary_motion", "normal")
-        return Step(index, name, "default", {}, label, source, line, options)
+        return denoise_step(given, index, label, source, line, at_param)
     if name in ("add_noise", "save"):
         params = _check_params(BUILTIN_STEPS[name], given, at)
         if name == "save" and not params["path"]:
@@ -505,6 +523,78 @@ def _parse(name, given, index, label, source, line, at_param) -> Step:
         return Step(index, canonical, "pymeshlab", params, label, source, line, notes=[f"{at}: {n}" for n in renamed])
     _ = bad_key
     raise _unknown_step(name, at)
+
+
+def denoise_step(given: dict, index: int | None = None, label: str | None = None, source: str = "denoise",
+                 line: int | None = None, at_param=None) -> Step:
+    """The ``denoise`` step, checked: what ``meshdenoise.denoise(mesh, ...)`` and the command's ``denoise`` do.
+
+    Without ``method`` the default for scans chooses the filter and its parameters (``explain: true``
+    prints why). With ``method: M`` (one of our filters, looked up in the registry) the filter runs,
+    every parameter its own rule tunes and the step does not give chosen by that rule (``noise``,
+    ``criterion``: how), or with ``defaults: true`` its own defaults for them. Both take ``pinned``,
+    ``region``, ``preserve_volume`` and ``boundary_motion`` (default ``normal``). ``index`` ``None``: a step
+    given another way than a file (the command line: messages read ``--method 'sobolev': ...``).
+    """
+    given = dict(given)
+    method = given.pop("method", None)
+    # a step in no file is said as the option that gave it: --method 'sobolev' (Step.where alike)
+    at = _step_at(source, line, index, method if index is None and isinstance(method, str) else "denoise")
+    at_param = at_param or (lambda key: at)
+    flags = {}
+    for key in ("explain", "defaults"):
+        value = given.pop(key, False)
+        if not isinstance(value, bool):
+            raise PipelineValidationError(f"{at_param(key)}: {key} must be true or false, got {value!r}")
+        if value:
+            flags[key] = True
+    if method is None:
+        options, rest = _filter_options(given, at, ("pinned", "region", "preserve_volume", "boundary_motion"))
+        if rest or "defaults" in flags:
+            key = next(iter(rest), "defaults")
+            if key == "noise":
+                why = ("the default reads the noise from held-out vertices; to choose a filter's parameters for a "
+                       "known level add method: M")
+            else:
+                why = ("the default chooses the filter and its parameters (without method its keys are pinned, region, "
+                       "preserve_volume, boundary_motion, explain); to choose or set a filter's parameters, add method: M")
+            what = f"'{key}' needs method" if key in DENOISE_KEYS else f"unknown parameter '{key}'"
+            raise PipelineValidationError(f"{at_param(key)}: {what}: {why}")
+        options.update(flags)
+        options.setdefault("boundary_motion", "normal")
+        return Step(index, "denoise", "default", {}, label, source, line, options)
+    if not isinstance(method, str):
+        raise PipelineValidationError(f"{at_param('method')}: method must be the name of one of our filters "
+                                      f"(meshdenoise filters), got {method!r}")
+    try:
+        spec = get_filter(method)
+    except KeyError as exc:
+        raise PipelineValidationError(f"{at_param('method')}: {exc}") from None
+    if "explain" in flags:
+        raise PipelineValidationError(f"{at_param('explain')}: explain says why the default chose its filter: "
+                                      "leave out method, or explain")
+    if "parameters" in given:
+        raise PipelineValidationError(f"{at_param('parameters')}: a denoise step with a method chooses the "
+                                      "parameters not given by itself (defaults: true runs the filter's defaults "
+                                      "instead); leave out parameters")
+    options, rest = _filter_options(given, at, tuple(k for k in DENOISE_KEYS if k in _STEP_OPTION))
+    chooses = "defaults" not in flags and spec.auto is not None
+    for key in ("noise", "criterion"):
+        if key in options and not chooses:
+            why = "defaults: true chooses none" if "defaults" in flags else f"'{method}' has no automatic rule"
+            raise PipelineValidationError(f"{at_param(key)}: {key} says how the parameters are chosen and {why}; "
+                                          f"leave out {key}")
+    if "criterion" in options:
+        _check_criterion(method, options["criterion"], at_param("criterion"))
+    try:
+        checked = spec.resolve(rest, at)  # the values given, checked; the rule (or the defaults) fills the others
+    except (TypeError, ValueError) as exc:
+        key = _named_key(str(exc), rest)
+        raise PipelineValidationError(str(exc) if key is None else str(exc).replace(at, at_param(key), 1)) from None
+    options.update(flags)
+    options["method"] = method
+    options.setdefault("boundary_motion", "normal")
+    return Step(index, "denoise", "default", {k: checked[k] for k in rest}, label, source, line, options)
 
 
 def _named_key(message: str, given: dict) -> str | None:
@@ -644,7 +734,7 @@ def _run_ours(step: Step, ctx: RunContext) -> None:
         if key in options:
             options[key] = _vertex_option(options[key], state, key)
     if step.options.get("parameters") == "auto":
-        from ..auto import choose_parameters  # written separately; imported only when used
+        from ..tuning import choose_parameters  # imported only when used
         from ..tuning.memo import release_before_filter
 
         given_noise = step.options.get("noise")
@@ -666,14 +756,23 @@ def _run_ours(step: Step, ctx: RunContext) -> None:
 
 
 def _run_default(step: Step, ctx: RunContext) -> None:
-    """The ``denoise`` step: :func:`meshdenoise.policy.run_default` (what ``denoise()`` runs); the decision is recorded."""
-    from ..policy import run_default
+    """The ``denoise`` step: what ``meshdenoise.denoise()`` runs, the decision recorded.
 
+    Without a method :func:`meshdenoise.policy.run_default`; with one, the parameters
+    :func:`meshdenoise.default.method_parameters` gives (chosen by the filter's rule where not given, unless
+    ``defaults``), then the filter.
+    """
     state = ctx.state
     options = dict(step.options)
     for key in ("pinned", "region"):
         if key in options:
             options[key] = _vertex_option(options[key], state, key)
+    method = options.pop("method", None)
+    if method is not None:
+        _run_method(step, ctx, method, options)
+        return
+    from ..policy import run_default
+
     options.pop("noise", None)  # the default reads the noise from held-out vertices
     explain = bool(options.pop("explain", False))
     (V, _), choice = run_default(state.arrays(), **options)
@@ -688,6 +787,30 @@ def _run_default(step: Step, ctx: RunContext) -> None:
     row["denoise.moved_rms_edges"] = choice.moved_rms
     for k, v in choice.params.items():
         row[f"auto.{choice.method}.{k}"] = v
+    ctx.state = state.with_vertices(V)
+
+
+def _run_method(step: Step, ctx: RunContext, method: str, options: dict) -> None:
+    """``denoise`` with ``method``: the filter, its parameters not given chosen by its rule (``defaults``: its own)."""
+    from ..default import method_parameters
+
+    state = ctx.state
+    spec = get_filter(method)
+    given_noise = options.pop("noise", None)
+    noise = given_noise.model(state.V, state.F) if given_noise is not None else None
+    params, criterion = method_parameters(state.arrays(), method, noise=noise, criterion=options.pop("criterion", None),
+                                          defaults=options.pop("defaults", False), **step.params)
+    params = spec.resolve(params, step.where)
+    ctx.row["denoise.method"] = method
+    if criterion is not None:  # chosen: recorded as a filter step's parameters: auto records them
+        for k, v in params.items():
+            ctx.row[f"auto.{method}.{k}"] = v
+        if ctx.echo:
+            what = "the face-normal error" if criterion == "normals" else "the position error"
+            ctx.echo(f"{ctx.input_path.name}: {method} parameters chosen automatically for {what} "
+                     f"(criterion {criterion}): {params}")
+    with stage(f"running {method}"):
+        V, _ = spec.public(state.arrays(), **params, **options)
     ctx.state = state.with_vertices(V)
 
 
