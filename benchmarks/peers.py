@@ -577,7 +577,7 @@ def installed(library: str) -> bool:
 # ----------------------------------------------------------------------------- measuring
 def _quality(V0: np.ndarray, F: np.ndarray, X: np.ndarray, distance: bool = False) -> dict:
     from meshdenoise.metrics import snr
-    from meshdenoise.quality_metrics import mean_distance, normal_error_deg
+    from meshdenoise.metrics import mean_distance, normal_error_deg
 
     out = {"normal_error_deg": normal_error_deg((V0, F), X), "snr_db": snr(V0, X)}
     if distance:

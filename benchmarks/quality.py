@@ -55,7 +55,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent))
 
-from meshdenoise import auto  # noqa: E402
+from meshdenoise import tuning as auto  # noqa: E402  (estimate_noise, choose_parameters, auto_filters)
 from meshdenoise.data import data_file, sample_mesh  # noqa: E402
 from meshdenoise.io import atomic_path, load_arrays  # noqa: E402
 from meshdenoise.metrics import METRICS, snr  # noqa: E402

@@ -23,7 +23,7 @@ try:  # Ctrl-C while the command line loads these: exit 130, no traceback (meshd
 
     from .adapters import to_arrays
     from .arrays import MeshValidationError
-    from .metrics import snr
+    from .metrics import max_distance, mean_distance, normal_error_deg, snr, volume_change
     from .noise import add_normal_noise, add_scanner_noise
     from .scanner import RangeScan, ScannerSettings, simulate_scan
     from .operators import Operators, get_operators
@@ -37,7 +37,6 @@ try:  # Ctrl-C while the command line loads these: exit 130, no traceback (meshd
     from .plugins.sobolev_gls import sobolev_gls
     from .plugins.sobolev_bilaplacian import sobolev_bilaplacian
     from .plugins.taubin import taubin
-    from .quality_metrics import max_distance, mean_distance, normal_error_deg, volume_change
     from .tuning import auto_filters, choose_parameters, estimate_noise
     from .default import DefaultChoice, DefaultConfig, choose_default, denoise
     from .cache import clear_caches

@@ -7,12 +7,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .auto import choose_parameters
 from .data import sample_mesh
 from .io import load_arrays, save_arrays
 from .metrics import snr
 from .noise import add_normal_noise
 from .registry import apply_filter
+from .tuning import choose_parameters
 
 DEMO_METHODS = ("filtering", "heat", "sobolev")
 SHOWN = ("iterations", "tau", "time", "mu")  # the parameters that matter, in the table
@@ -21,7 +21,7 @@ SHOWN = ("iterations", "tau", "time", "mu")  # the parameters that matter, in th
 def run_demo(out_dir: str | Path, mesh_path: str | Path | None = None, noise: float = 0.01, seed: int = 0) -> list[dict]:
     """Add normal noise (``noise`` x bounding-box diagonal) to a mesh, run each filter, write the results.
 
-    Each filter's parameters are chosen from the noisy mesh alone (:func:`meshdenoise.auto.choose_parameters`),
+    Each filter's parameters are chosen from the noisy mesh alone (:func:`meshdenoise.choose_parameters`),
     as for a scan with no clean version to tune against; the clean mesh only scores the result.
     Returns one row per mesh written: method, parameters, SNR (dB), time (ms), file.
     """

@@ -13,7 +13,6 @@ name in the API, the YAML ``metrics`` step and the results tables:
 
 The reference of the last four must be a mesh (its faces are used); the candidate may be a
 mesh with the same faces or a bare ``(n, 3)`` array of its vertices in the reference's order.
-(``meshdenoise.quality_metrics`` is an alias of this module, kept for old imports.)
 """
 
 from __future__ import annotations

@@ -9,7 +9,8 @@ import pytest
 import scipy.sparse as sp
 
 from meshdenoise import add_normal_noise, snr
-from meshdenoise.auto import auto_filters, choose_parameters, denoise, estimate_noise, gcv, probe_block, sure
+from meshdenoise.default import denoise
+from meshdenoise.tuning import auto_filters, choose_parameters, estimate_noise, gcv, probe_block, sure
 from meshdenoise.plugins.taubin import TAUBIN_LAMBDAS, taubin_mu_for
 from meshdenoise.tuning.noise_level import _gauss_winsor_moments
 from meshdenoise.tuning.search import averaging_step, iterative_path, solve_point

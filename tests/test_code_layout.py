@@ -170,7 +170,7 @@ def test_denoise_and_the_denoise_step_empty_the_tuning_memo_before_their_filter(
     meshdenoise.denoise((Vn, F))  # the default: its choice, then its filter
     assert seen and seen[-1] == 0  # the filter, after the choice (which may run filters itself)
     save_mesh(tmp_path / "in.ply", Vn, F)
-    for how in ([], ["--method", "heat", "--auto"]):  # the pipeline's two steps: the default, a filter's own rule
+    for how in ([], ["--method", "heat"]):  # the denoise step's two ways: the default, a filter's own rule
         seen.clear()
         result = CliRunner().invoke(cli, ["denoise", *how, str(tmp_path / "in.ply"), str(tmp_path / "out.ply")])
         assert result.exit_code == 0, result.output

@@ -12,7 +12,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 import filter_oracle as fo  # noqa: E402
 
-from meshdenoise.quality_metrics import normal_error_deg  # noqa: E402
+from meshdenoise.metrics import normal_error_deg  # noqa: E402
 from meshdenoise.registry import apply_filter  # noqa: E402
 
 

@@ -21,11 +21,11 @@ PACKAGE = "meshdenoise"
 # "x" is meshdenoise/x.py (or the package x/__init__.py alone); "x.*" is the package x and every module under it.
 FLOORS: dict[int, tuple[str, ...]] = {
     0: ("_launch", "arrays", "adapters", "cache", "constraints", "data", "geometry", "io.*", "kernels.*", "meshinfo",
-        "metrics", "multishift", "progress", "quality_metrics", "shapes"),
+        "metrics", "multishift", "progress", "shapes"),
     1: ("operators", "solvers.*", "locality", "gpu", "ot.*"),
     2: ("registry", "noise", "scanner", "tuning.*"),
     3: ("plugins.*",),
-    4: ("policy.*", "default", "auto"),
+    4: ("policy.*", "default"),
     5: ("pipeline.*", "commands.*", "cli", "demo", "warmup", "render.*", "report.*", "reproduce.*", ""),
 }
 FLOOR_NAMES = {

@@ -15,7 +15,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 import peers  # noqa: E402
 
 from meshdenoise.metrics import snr  # noqa: E402
-from meshdenoise.quality_metrics import normal_error_deg  # noqa: E402
+from meshdenoise.metrics import normal_error_deg  # noqa: E402
 
 
 @pytest.fixture(scope="module")

@@ -5,7 +5,7 @@ import pytest
 
 import meshdenoise as md
 from meshdenoise.metrics import METRICS, compute_metrics
-from meshdenoise.quality_metrics import max_distance, mean_distance, normal_error_deg, volume_change
+from meshdenoise.metrics import max_distance, mean_distance, normal_error_deg, volume_change
 from meshdenoise.shapes import icosphere
 
 from .conftest import make_mesh, noisy_sphere

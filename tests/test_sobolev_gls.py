@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from meshdenoise import add_normal_noise, snr
-from meshdenoise.auto import choose_parameters
+from meshdenoise.tuning import choose_parameters
 from meshdenoise.plugins.sobolev_gls import SOBOLEV_GLS_BETAS, SOBOLEV_GLS_SPREAD_SAMPLES, choose_sobolev_gls
 from meshdenoise.tuning import TuningContext
 from meshdenoise.tuning.noise_level import normal_spread

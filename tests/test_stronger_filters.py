@@ -209,7 +209,7 @@ def test_two_stage_defaults_reach_the_feature_targets(name, noisy_deg, target_de
     """Issue 5's target: <= 4 degrees on Fandisk0.3; on Block0.4 under half of the best MeshLab/Open3D
     filter (10.46 degrees, MeshLab Taubin with oracle iterations; see benchmarks/features.py)."""
     from meshdenoise.io import load_arrays
-    from meshdenoise.quality_metrics import normal_error_deg
+    from meshdenoise.metrics import normal_error_deg
 
     Vn, F = load_arrays(data_mesh_path(f"benchmark/{name}/Noisy.obj"))
     V0, F0 = load_arrays(data_mesh_path(f"benchmark/{name}/Original.obj"))

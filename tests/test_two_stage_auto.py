@@ -156,7 +156,7 @@ def test_rule_on_a_noisy_box_chooses_registered_values_and_beats_the_defaults():
     assert params["normal_iterations"] in ts.TWO_STAGE_NORMAL_ITERATIONS
     assert params["vertex_iterations"] in ts.TWO_STAGE_VERTEX_ITERATIONS
     assert 1 <= params["iterations"] <= ts.TWO_STAGE_MAX_ITERATIONS
-    from meshdenoise.quality_metrics import normal_error_deg
+    from meshdenoise.metrics import normal_error_deg
 
     got = apply_filter("two_stage", (Vn, F), **params)[0]
     default = apply_filter("two_stage", (Vn, F))[0]
@@ -278,7 +278,7 @@ def test_guard_with_more_probes_on_a_small_mesh_cuts_to_the_lower_true_error(nef
     errors exceed every drop of SURE and it keeps 3 outer iterations (21.95 degrees); with guard_probes'
     48 it cuts them, to a lower error against the clean mesh in normals and in positions (18.66 degrees;
     the filter's oracle 17.75)."""
-    from meshdenoise.quality_metrics import normal_error_deg
+    from meshdenoise.metrics import normal_error_deg
 
     V, F = nefertiti
     Vn = add_normal_noise((V, F), 0.2, seed=0)[0]
@@ -303,7 +303,7 @@ def test_sure_guard_cuts_the_iterations_of_a_detailed_smooth_mesh_to_a_lower_tru
     """Bunny0.2 (a scan, fine detail, Gaussian noise): the consistency criterion asks for 3 outer
     iterations, the positions (and the normals) want 1; the guard cuts to a lower true squared error."""
     from meshdenoise.io import load_arrays
-    from meshdenoise.quality_metrics import normal_error_deg
+    from meshdenoise.metrics import normal_error_deg
 
     from .conftest import data_mesh_path
 
@@ -327,7 +327,7 @@ def test_guard_takes_the_lighter_run_of_least_sure_among_several_and_it_beats_th
     clean mesh it is better than the first lighter run alone on both measures (docs/peers.md:
     5.31 degrees / 54.76 dB against 5.60 / 53.27 with the rule before it)."""
     from meshdenoise.io import load_arrays
-    from meshdenoise.quality_metrics import normal_error_deg
+    from meshdenoise.metrics import normal_error_deg
 
     from .conftest import data_mesh_path
 
@@ -365,7 +365,7 @@ def test_guard_lighter_run_is_taken_on_a_detailed_smooth_scan_and_lowers_the_tru
     from meshdenoise.data import sample_mesh
     from meshdenoise.io import load_arrays
     from meshdenoise.noise import add_scanner_noise, mean_edge_length
-    from meshdenoise.quality_metrics import normal_error_deg
+    from meshdenoise.metrics import normal_error_deg
 
     V, F = load_arrays(sample_mesh("bunny.obj"))
     Vn = add_scanner_noise((V, F), 0.3 * mean_edge_length(V, F), correlation_length=0, seed=0)[0]

@@ -332,7 +332,7 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=
     noise energy along :math:`e_d` is :math:`\\rho^2 \\sum_i (n_i \\cdot e_d)^2`, small
     on :math:`e_1` and large on :math:`e_3` (a flat region has all of its noise on one
     axis), while the shape's own energy is spread differently: the best strength
-    differs per axis. ``meshdenoise.auto.choose_parameters`` picks the three weights by
+    differs per axis. ``meshdenoise.choose_parameters`` picks the three weights by
     SURE, one axis at a time (the risk is a sum over axes). ``p = 3`` (a transfer
     function :math:`1/(1 + \\mu k^3)` on the Laplacian eigenvalue ``k``) is flatter on
     the shape and steeper on the noise than the bi-Laplacian's; ``p = 1, 2`` are the

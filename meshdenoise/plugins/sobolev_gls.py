@@ -652,7 +652,7 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, draft=None, rough=False):
     :math:`\\hat X` from it: one correction solve with the border as Dirichlet data (:func:`_held_from_draft`),
     where a held isotropic pass came first (face000: 8.392 -> 8.386 degrees, 70.603 -> 70.606 dB, the held run
     2.8 -> about 1.1 s with the one-ring preconditioner's factor alone).
-    ``meshdenoise.auto.choose_parameters`` picks ``mu`` and ``beta`` by SURE; ``denoise(mesh,
+    ``meshdenoise.choose_parameters`` picks ``mu`` and ``beta`` by SURE; ``denoise(mesh,
     method="sobolev_gls")`` then moves ``mu`` to the least estimated face-normal error (criterion
     ``"normals"``, scored at ``beta`` 1: :func:`sobolev_gls_map`).
 

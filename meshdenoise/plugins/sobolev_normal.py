@@ -351,7 +351,7 @@ def sobolev_normal(V, F, *, ops, pinned, mu, order, tangential):
     The normals are those of ``Y`` (:func:`area_normals`: a face that smoothing
     collapsed has no vote), a smooth surface: under noise larger than the edge
     length no normal survives and ``t = 1`` (plain ``(I + mu L^p)^{-1}``) is the safe
-    choice; ``meshdenoise.auto`` sets ``t`` from the estimated noise per edge length and
+    choice; ``meshdenoise.choose_parameters`` sets ``t`` from the estimated noise per edge length and
     chooses ``mu`` (and ``order`` in {2, 3}) by Monte-Carlo SURE. Not linear (the
     normals depend on the input); translation and rotation equivariant. The factors of
     :math:`I + \\mu L^p` are cached per (topology, p, mu, pinned mask) as for
