@@ -16,7 +16,7 @@ seconds (recorded as ``> T s``; what finished before is kept):
   scored against the clean mesh (the automatic value included, so oracle >= auto). The
   grid: iterative methods (``filtering``, ``taubin``, ``two_stage``) walk one run past
   the chosen count; the others try the chosen value times 1/3 and 3.
-- *end to end*: ``meshdenoise denoise --method M --auto IN.ply OUT.ply`` (read, choose,
+- *end to end*: ``meshdenoise denoise --method M IN.ply OUT.ply`` (read, choose,
   filter, write) as a subprocess: wall seconds and its peak resident memory
   (``ru_maxrss`` of that child, from ``os.wait4``; Linux starts it at the parent's peak,
   so this process stays small and makes the meshes in a child), also per vertex.
@@ -297,7 +297,7 @@ def run_size(mesh: dict, methods: list[str], timeout: float, pairs: bool, e2e: b
         if e2e:
             out = workdir / f"out-{mesh['label']}-{method}.ply"
             cli = "import sys; from meshdenoise.cli import main; sys.argv[0] = 'meshdenoise'; main()"
-            how = [] if method == DEFAULT else ["--method", method, "--auto"]
+            how = [] if method == DEFAULT else ["--method", method]
             if criterion is not None and method != DEFAULT:
                 how += ["--criterion", criterion]
             cmd = [sys.executable, "-c", cli, "denoise", *how, mesh["ply"], str(out)]
