@@ -27,8 +27,6 @@ from .noise_level import mean_edge_length
 from .normal_risk import NORMAL_FIRST, NORMAL_SCALES, NORMAL_WIDE_BELOW, NORMAL_WIDE_SCALES, NormalChoice, refine_for_normals
 from .risk import Criterion, Point, noise_colouring
 from .search import REGION_MAX_MARGIN, REGION_MIN_VERTICES, region_rule, sure_smoothed
-from .holdout import NoHoldout
-from .sweep import HeldOutRule
 
 __all__ = ["choose_parameters", "auto_filters", "normal_filters", "rule_criterion", "CRITERIA"]
 
@@ -60,8 +58,7 @@ def normal_filters() -> list[str]:
     >>> normal_filters()
     ['filtering', 'heat', 'sinkhorn', 'sobolev', 'sobolev_axes', 'sobolev_bilaplacian', 'sobolev_gls', 'taubin']
     """
-    return [spec.name for spec in list_filters()
-            if isinstance(spec.auto, HeldOutRule) or (spec.auto is not None and spec.auto.normals is not None)]
+    return [spec.name for spec in list_filters() if spec.auto is not None and spec.auto.normals is not None]
 
 
 def rule_criterion(method: str, criterion: str | None = None) -> str:
@@ -294,9 +291,6 @@ def choose_parameters(
     if (criterion == "oracle") != (reference is not None):
         raise ValueError("choose_parameters: reference= (the clean mesh) goes with criterion='oracle', and only with it")
     spec.resolve(given, where=f"choose_parameters(method='{method}')")  # names/types/ranges of held values
-    if isinstance(spec.auto, HeldOutRule):
-        params, score = _held_out(spec, mesh, noise, correlation_length, criterion, reference, given)
-        return (params, score) if return_risk else params
     data = read_mesh(mesh)
     V, F = data.V, data.F
     relabel = relabelling(F, V.shape[0])  # a large mesh in a cache-hostile order: choose on relabelled vertices
@@ -358,42 +352,6 @@ def choose_parameters(
     log.info("choose_parameters(%s): %s (rho=%s, correlation length %s, %s score %.6g)", method, params, rho,
              ctx.correlation_length, criterion, point.score)
     return (params, float(point.score)) if return_risk else params
-
-
-def _held_out(spec: Any, mesh: Any, noise: Any, correlation_length: Any, criterion: str, reference: Any,
-              given: dict) -> tuple[dict, float]:
-    """:func:`choose_parameters` for a filter whose rule is a :class:`~meshdenoise.tuning.sweep.HeldOutRule`."""
-    method = spec.name
-    if noise is not None or correlation_length is not None:
-        raise ValueError(f"choose_parameters: {method}'s parameters are chosen by held-out vertices, which read no "
-                         "noise level: leave noise= and correlation_length= out")
-    if criterion == "gcv":
-        raise ValueError(f"choose_parameters: {method}'s rule scores held-out vertices; criterion 'gcv' is for the "
-                         "rules by SURE; use 'normals' (face normals) or 'sure' (positions)")
-    data = read_mesh(mesh)
-    V, F = data.V, data.F
-    ops = get_operators(F, V.shape[0])
-    Y = None
-    if criterion == "oracle":
-        from ..metrics import coordinates
-
-        Y = coordinates(reference)
-        if Y.shape != V.shape:
-            raise ValueError(f"choose_parameters: reference has {Y.shape[0]} vertices, the mesh {V.shape[0]}")
-
-    def run(X: np.ndarray, F: np.ndarray, ops: Any, params: dict) -> np.ndarray:
-        return spec.public((X, F), **params, operators=ops)[0]
-
-    with stage(f"choosing {method}'s parameters"):
-        try:
-            chosen, score = spec.auto.choose(V, F, ops, run, dict(given),
-                                             loss="normals" if criterion == "normals" else "positions", reference=Y)
-        except NoHoldout as exc:
-            warnings.warn(f"choose_parameters({method}): {exc}; the filter's defaults are kept", UserWarning,
-                          stacklevel=3)
-            chosen, score = spec.resolve(dict(given)), math.nan
-    log.info("choose_parameters(%s): %s by held-out vertices (%s, loss %.6g)", method, chosen, criterion, score)
-    return chosen, score
 
 
 def given_noise_model(mesh: Any, rho: float, correlation_length: float = 0.0) -> NoiseModel:

@@ -4,22 +4,20 @@ A filter run on the noisy mesh cannot be scored against the noisy positions it w
 would be rewarded for keeping the noise. Hide some vertices first (Batson and Royer's
 Noise2Self): each hidden *centre* and the vertices within ``radius`` rings of it (its *hole*)
 take harmonic values interpolated from the vertices around the hole, the filter runs on that
-copy, and its result there is compared with what the noisy mesh has there (:func:`path_losses`):
-the face normals around each centre (the default's loss, what a rendering shows)
+copy, and its face normals around each centre are compared with the noisy mesh's there
+(:func:`path_losses`):
 
 .. math:: L = \frac{1}{|T|} \sum_{f \in T} \big(1 - \hat n_f \cdot n_f\big)
 
-or the centre's own position, :math:`\|f(\tilde y)_i - y_i\|^2` (the position error's), where
-:math:`\tilde y` is the copy with the holes filled, :math:`\hat n_f` the run's face normal and
+where :math:`\hat n_f` is the run's normal of face ``f`` on the copy with the holes filled and
 :math:`n_f` the noisy one. When the noise in a hole is independent of the noise outside it (zero
-mean), the run is blind to it and the loss's expectation is the filter's error plus a constant (the
-normals': up to a factor, the proof in :func:`path_losses`): its least value over candidates picks the
+mean), the run is blind to it and, up to a factor, the loss's expectation is the run's mean angle
+error plus a constant (the proof in :func:`path_losses`): its least value over candidates picks the
 least error, whatever the noise's distribution (Gaussian, along random directions, impulsive).
 Scanner noise is correlated over a few samples; a hole of ``radius`` rings keeps the centre's noise
 out of what the filter sees as long as the correlation is shorter than the hole. At little smoothing
-the run on the copy keeps the harmonic fill, itself a smoother: the loss there reads the fill's
-error, not the filter's, and a filter whose light settings do worse than the fill (the bilaplacian's
-wide stencil) is seen to prefer none (benchmarks/results/filter-auto.md).
+the run on the copy keeps the harmonic fill, itself a smoother: the loss there reads the fill's error
+rather than the filter's.
 
 Centres are spread over the mesh: a vertex is a centre of a mask when its key is the least within
 ``2 radius + 1`` rings, so holes of one mask neither overlap nor touch. Keys are read from the
@@ -202,7 +200,6 @@ def path_losses(
     held: Holdout,
     steps: int,
     patience: int,
-    loss: str = "normals",
 ) -> np.ndarray:
     """The held-out loss of the face normals after each step of a filter's run, over the masks.
 
@@ -226,37 +223,26 @@ def path_losses(
         Most steps read.
     patience : int
         A mask's run stops this many steps after its least loss.
-    loss : {"normals", "positions"}
-        ``"normals"``: the face normals' loss above; ``"positions"``: the squared distance of each
-        centre's result on the copy to its own noisy position, :math:`\|f(\tilde y)_i - y_i\|^2`, whose
-        expectation is the squared position error plus the noise variance when the centre's noise is
-        independent of what the run saw (Noise2Self's loss).
 
     Returns
     -------
     ndarray, shape (steps,)
         Mean loss per scored face after each step; ``inf`` past the steps every mask reached.
     """
-    if loss not in ("normals", "positions"):
-        raise ValueError(f"path_losses: loss must be 'normals' or 'positions', got {loss!r}")
     total = np.zeros(steps)
     reached = steps
-    count = sum(f.size for f in held.faces) if loss == "normals" else held.count
-    for Y, f, C in zip(held.filled, held.faces, held.centres):
+    count = sum(f.size for f in held.faces)
+    for Y, f in zip(held.filled, held.faces):
         Ff = F[f]
-        noisy = _unit_face_normals(V, Ff) if loss == "normals" else V[C]
+        noisy = _unit_face_normals(V, Ff)
         best, at, k = np.inf, 0, 0
         for k, X in enumerate(path(Y)):
             if k >= steps:
                 break
-            if loss == "normals":
-                value = float(f.size - np.einsum("ij,ij->", _unit_face_normals(X, Ff), noisy)) / count
-            else:
-                value = float(np.sum((X[C] - noisy) ** 2)) / count
-            loss_k = value
-            total[k] += loss_k
-            if loss_k < best:
-                best, at = loss_k, k
+            loss = float(f.size - np.einsum("ij,ij->", _unit_face_normals(X, Ff), noisy)) / count
+            total[k] += loss
+            if loss < best:
+                best, at = loss, k
             elif k - at >= patience:
                 break
         reached = min(reached, k + 1)
