@@ -327,7 +327,8 @@ def describe_steps() -> list[dict]:
               "and its parameters from the mesh alone (candidates scored on held-out vertices) and runs it with a "
               "flipped-face guard; with method that filter, its parameters not given chosen by its own rule (defaults: "
               "true: its defaults); the choice is recorded (denoise.* and auto.* columns)",
-              [(d["name"], d["type"], d["default"], f"{d['help']} ({d['range']})") for d in denoise_options_doc()]),
+              [(d["name"], d["type"], d["default"], d["help"] if d["type"] == "bool" else f"{d['help']} ({d['range']})")
+               for d in denoise_options_doc()]),
         entry("add_noise", "displace every vertex along its normal by Gaussian noise", from_params(BUILTIN_STEPS["add_noise"])),
         entry("save", "write the current mesh (PLY, OBJ, OFF, STL) once every step succeeded", from_params(BUILTIN_STEPS["save"])),
         entry("metrics", "measure the current mesh against a reference; values go to the results table", METRICS_DOC),
