@@ -71,6 +71,11 @@ def far_side_fraction(F: np.ndarray, far: int = FAR_ROWS) -> float:
     return far_sides / (3 * len(F))
 
 
+def _index_dtype(n: int) -> type:
+    """int32 for vertex indices below 2^31 - 1, else int64."""
+    return np.int32 if n < 2**31 - 1 else np.int64
+
+
 def topology_key(F: np.ndarray, n: int) -> tuple:
     """A hashable key identifying the topology ``(n, F)`` by content."""
     F = np.ascontiguousarray(F, dtype=np.int64)
@@ -147,17 +152,27 @@ class Operators:
     # --- edges -----------------------------------------------------------------------
     @cached_property
     def _undirected_edges(self) -> tuple[np.ndarray, np.ndarray]:
-        """Unique undirected edges (i < j) and how many face sides each one has."""
+        """Unique undirected edges (i < j) and how many face sides each one has.
+
+        int32 when the vertex count allows (int64 beyond 2^31 vertices), the counts int32: 12 bytes per edge
+        held instead of 24 (about 36 bytes per vertex of a closed mesh).
+        """
         keys = self._side_keys()
         keys.sort()  # in place; one sort instead of np.unique's sort plus inverse bookkeeping
+        index = _index_dtype(self.n)
         if keys.size == 0:
-            return np.zeros((0, 2), dtype=np.int64), np.zeros(0, dtype=np.int64)
-        starts = np.flatnonzero(np.concatenate([[True], keys[1:] != keys[:-1]]))
-        counts = np.diff(np.append(starts, keys.size))
+            return np.zeros((0, 2), dtype=index), np.zeros(0, dtype=np.int32)
+        first = np.empty(keys.size, dtype=bool)  # keys[i] starts a run of equal keys
+        first[0] = True
+        np.not_equal(keys[1:], keys[:-1], out=first[1:])
+        starts = np.flatnonzero(first)
+        del first
+        counts = np.diff(starts, append=keys.size).astype(np.int32)
         ukeys = keys[starts]
-        del keys
-        lo = ukeys // self.n
-        edges = np.stack([lo, ukeys - lo * self.n], axis=1)
+        del keys, starts
+        edges = np.empty((ukeys.size, 2), dtype=index)
+        np.floor_divide(ukeys, self.n, out=edges[:, 0], casting="unsafe")
+        edges[:, 1] = ukeys - edges[:, 0].astype(np.int64) * self.n
         return edges, counts
 
     def _side_keys(self) -> np.ndarray:
@@ -175,7 +190,7 @@ class Operators:
 
     @property
     def edges(self) -> np.ndarray:
-        """Unique undirected edges, shape (e, 2), with ``edges[:, 0] < edges[:, 1]``."""
+        """Unique undirected edges, shape (e, 2), with ``edges[:, 0] < edges[:, 1]``; int32 below 2^31 vertices."""
         return self._undirected_edges[0]
 
     @cached_property
@@ -204,7 +219,9 @@ class Operators:
         e = self.edges
         n = self.n
         # CSR straight from sorted directed keys row * n + col: no COO, no duplicate summing
-        directed = np.concatenate([e[:, 0] * n + e[:, 1], e[:, 1] * n + e[:, 0]])
+        a, b = e[:, 0].astype(np.int64), e[:, 1].astype(np.int64)
+        directed = np.concatenate([a * n + b, b * n + a])
+        del a, b
         directed.sort()
         index_dtype = np.int32 if max(n, directed.size) < 2**31 - 1 else np.int64
         indices = (directed % n).astype(index_dtype) if n else directed.astype(index_dtype)
