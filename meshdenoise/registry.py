@@ -418,8 +418,10 @@ def register(
             raise TypeError(f"register({name!r}): {flag}= must be True or False, got {value!r}")
     if auto is not None:
         unknown = set(auto.tunes) - {p.name for p in params}
-        if not isinstance(auto, AutoRule) or unknown:
-            raise ValueError(f"register({name!r}): auto= must be an AutoRule tuning the filter's parameters, got {auto!r}")
+        # an AutoRule, or a held-out rule (meshdenoise.tuning.sweep.HeldOutRule: it has `sweeps`)
+        if not (isinstance(auto, AutoRule) or hasattr(auto, "sweeps")) or unknown:
+            raise ValueError(f"register({name!r}): auto= must be an AutoRule or a HeldOutRule tuning the filter's "
+                             f"parameters, got {auto!r}")
 
     def decorate(core: Callable) -> Callable:
         spec = FilterSpec(name, summary, tuple(params), core, linear, translation_equivariant, auto, scale_free,

@@ -1,22 +1,24 @@
-"""Held-out losses of candidate runs on a mesh or a sampled region of it (knows no filter).
+"""Held-out losses of candidate runs on a mesh or a sampled region of it, and rules made of them (knows no filter).
 
 :func:`held_out_losses` reads each candidate path's held-out loss
 (:func:`meshdenoise.tuning.holdout.path_losses`) on the mesh or, above
 :attr:`HoldoutConfig.region_vertices`, on a sampled region: the default for scans
-(:mod:`meshdenoise.policy`) scores its candidates with it.
+(:mod:`meshdenoise.policy`) scores its candidates with it. A :class:`Sweep` names the parameter a
+filter's rule moves and the values it tries, in order of increasing smoothing; :class:`HeldOutRule`
+is a filter's automatic rule built from its sweeps: the value of least held-out loss.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable, Iterator, Sequence
+from typing import Any, Callable, Iterator, Sequence
 
 import numpy as np
 
 from ..operators import Operators, get_operators
 from .holdout import holdout, path_losses, region
 
-__all__ = ["HoldoutConfig", "HeldOutLosses", "held_out_losses"]
+__all__ = ["HoldoutConfig", "HeldOutLosses", "HeldOutRule", "Sweep", "geometric", "held_out_losses", "sweep_path"]
 
 Path = Callable[[np.ndarray], Iterator[np.ndarray]]
 
@@ -83,3 +85,147 @@ def held_out_losses(V: np.ndarray, F: np.ndarray, ops: Operators,
     held = holdout(V, ops, config.radius, config.masks, allowed=part.inner, centres=config.centres)
     losses = [path_losses(make(F, ops), V, F, held, count, config.patience) for make, count in zip(paths, steps)]
     return HeldOutLosses(losses, len(V), held.count)
+
+
+def geometric(low: float, high: float, ratio: float, integer: bool = False) -> tuple:
+    """Values ``low, low r, low r^2, ...`` up to ``high`` (rounded and deduplicated with ``integer``).
+
+    Examples
+    --------
+    >>> geometric(1, 10, 1.5, integer=True)
+    (1, 2, 3, 5, 8, 11)
+    >>> len(geometric(0.01, 100.0, 10 ** 0.5))
+    9
+    """
+    if not (0 < low <= high and ratio > 1):
+        raise ValueError(f"geometric: need 0 < low <= high and ratio > 1, got {low!r}, {high!r}, {ratio!r}")
+    count = int(np.ceil(np.log(high / low) / np.log(ratio) - 1e-9)) + 1
+    values = low * ratio ** np.arange(count)
+    if integer:
+        return tuple(int(v) for v in np.unique(np.round(values).astype(np.int64)))
+    return tuple(float(v) for v in values)
+
+
+@dataclass(frozen=True)
+class Sweep:
+    """One parameter of a filter tried at ``values`` (least smoothing first), the others ``fixed``.
+
+    Attributes
+    ----------
+    parameter : str
+        The parameter swept.
+    values : tuple
+        Its values, in order of increasing smoothing.
+    fixed : tuple of (name, value)
+        The filter's other parameters held.
+    additive : bool
+        Running the filter at ``a`` then at ``b`` is running it at ``a + b`` (counts of one run): the
+        states are read along one run instead of one run per value.
+    """
+
+    parameter: str
+    values: tuple
+    fixed: tuple = ()
+    additive: bool = False
+
+    def __post_init__(self):
+        if not self.values:
+            raise ValueError(f"Sweep: values of {self.parameter!r} must not be empty")
+
+    def params(self, k: int) -> dict[str, Any]:
+        """The filter's parameters at the ``k``-th value (0-based)."""
+        return {**dict(self.fixed), self.parameter: self.values[k]}
+
+    def with_given(self, given: dict) -> "Sweep":
+        """The sweep with the caller's parameters held instead of its own fixed ones."""
+        fixed = {**dict(self.fixed), **{k: v for k, v in given.items() if k != self.parameter}}
+        return Sweep(self.parameter, self.values, tuple(fixed.items()), self.additive)
+
+
+# run(Y, F, ops, params) -> the filter's positions (n, 3) on the mesh (Y, F) with its operators
+Runner = Callable[[np.ndarray, np.ndarray, Operators, dict], np.ndarray]
+
+
+def sweep_path(sweep: Sweep, run: Runner, F: np.ndarray, ops: Operators) -> Path:
+    """``path(Y)``: the filter's positions at each of the sweep's values, from ``Y`` (n, 3)."""
+    fixed = dict(sweep.fixed)
+
+    def path(Y: np.ndarray) -> Iterator[np.ndarray]:
+        if sweep.additive:  # one run, read at each count: the step from the previous count only
+            X, done = Y, 0
+            for v in sweep.values:
+                X = run(X, F, ops, {**fixed, sweep.parameter: v - done})
+                done = v
+                yield X
+        else:
+            for v in sweep.values:
+                yield run(Y, F, ops, {**fixed, sweep.parameter: v})
+    return path
+
+
+def _angle_errors(states: Iterator[np.ndarray], F: np.ndarray, reference: np.ndarray, steps: int,
+                  patience: int) -> np.ndarray:
+    """The mean face-normal loss ``1 - n . n*`` along a run against the clean mesh (``inf`` past where it stopped)."""
+    clean = _unit_normals(reference, F)
+    out = np.full(steps, np.inf)
+    best, at = np.inf, 0
+    for k, X in enumerate(states):
+        if k >= steps:
+            break
+        out[k] = 1.0 - float(np.einsum("ij,ij->", _unit_normals(X, F), clean)) / max(len(F), 1)
+        if out[k] < best:
+            best, at = out[k], k
+        elif k - at >= patience:
+            break
+    return out
+
+
+def _unit_normals(X: np.ndarray, F: np.ndarray) -> np.ndarray:
+    n = np.cross(X[F[:, 1]] - X[F[:, 0]], X[F[:, 2]] - X[F[:, 0]])
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
+@dataclass(frozen=True)
+class HeldOutRule:
+    """A filter's automatic rule: the value of least held-out face-normal loss over its sweeps.
+
+    Attributes
+    ----------
+    sweeps : tuple of Sweep
+        The candidates; a parameter the caller gives is held (:meth:`Sweep.with_given`), and a sweep
+        whose own parameter is given is not run.
+    config : HoldoutConfig
+    """
+
+    sweeps: tuple
+    config: HoldoutConfig = HoldoutConfig()
+
+    @property
+    def tunes(self) -> tuple[str, ...]:
+        """The parameters the rule sets: each sweep's swept and fixed ones."""
+        names: dict[str, None] = {}
+        for s in self.sweeps:
+            names[s.parameter] = None
+            names.update((k, None) for k, _ in s.fixed)
+        return tuple(names)
+
+    def choose(self, V: np.ndarray, F: np.ndarray, ops: Operators, run: Runner, given: dict,
+               reference: np.ndarray | None = None) -> tuple[dict, float]:
+        """``(parameters, least loss)`` for the mesh ``(V, F)``; ``run(Y, F, ops, params)`` runs the filter.
+
+        With ``reference`` (n, 3), the clean positions, the sweeps are scored by their true face-normal
+        loss on the whole mesh instead (the oracle of the same search, for benchmarks).
+        """
+        sweeps = [s.with_given(given) for s in self.sweeps if s.parameter not in given]
+        if not sweeps:
+            return dict(given), float("nan")
+        paths = [lambda F, ops, s=s: sweep_path(s, run, F, ops) for s in sweeps]
+        if reference is None:
+            losses = held_out_losses(V, F, ops, paths, [len(s.values) for s in sweeps], self.config).losses
+        else:
+            losses = [_angle_errors(make(F, ops)(V), F, reference, len(s.values), self.config.patience)
+                      for make, s in zip(paths, sweeps)]
+        best = min(range(len(sweeps)), key=lambda i: float(np.min(losses[i])))
+        k = int(np.argmin(losses[best]))
+        return {**sweeps[best].params(k), **given}, float(losses[best][k])
