@@ -1,8 +1,10 @@
-"""Scan-sized meshes: automatic parameters, filters and the command line at 100k to 1.6M vertices.
+"""Scan-sized meshes: automatic parameters, filters, the command line and the peers at 100k to 5M vertices.
 
 Meshes: the elephant (24,955 vertices, ``MESHDENOISE_DATA``) Loop-subdivided by Open3D's
-``subdivide_loop`` 1, 2 and 3 times (99,832, 399,340 and 1,597,372 vertices), with
-Gaussian noise of 0.5 mean edge length along the vertex normals
+``subdivide_loop`` 1, 2 and 3 times (99,832, 399,340 and 1,597,372 vertices); for 5M, the
+elephant first decimated by Open3D's ``simplify_quadric_decimation`` to 39,060 triangles, then
+Loop-subdivided 4 times (4,999,676 vertices, 9,999,360 faces: level 4 of the whole elephant
+would be 6.4M). Gaussian noise of 0.5 mean edge length along the vertex normals
 (:func:`meshdenoise.add_normal_noise`, seed 0). Made once and cached under
 ``~/.cache/meshdenoise/scale`` (``--cache-dir``): clean and noisy ``.npz`` and the noisy
 mesh as binary PLY for the command line.
@@ -10,16 +12,26 @@ mesh as binary PLY for the command line.
 Per size and method, two cells, each a fresh subprocess killed after ``--timeout``
 seconds (recorded as ``> T s``; what finished before is kept):
 
-- *in process*: ``choose_parameters(mesh, method)`` (seconds), the filter at those
-  parameters on a cold operator cache (seconds), the SNR of its result against the clean
-  mesh, and the oracle's SNR: the best over a small grid of the method's main parameter
+- *in process* (``--no-inproc`` skips it): ``choose_parameters(mesh, method)`` (seconds), the
+  filter at those parameters on a cold operator cache (seconds), the SNR of its result against the
+  clean mesh, and the oracle's SNR: the best over a small grid of the method's main parameter
   scored against the clean mesh (the automatic value included, so oracle >= auto). The
   grid: iterative methods (``filtering``, ``taubin``, ``two_stage``) walk one run past
   the chosen count; the others try the chosen value times 1/3 and 3.
-- *end to end*: ``meshdenoise denoise --method M IN.ply OUT.ply`` (read, choose,
-  filter, write) as a subprocess: wall seconds and its peak resident memory
-  (``ru_maxrss`` of that child, from ``os.wait4``; Linux starts it at the parent's peak,
-  so this process stays small and makes the meshes in a child), also per vertex.
+- *end to end*: ``meshdenoise denoise --method M IN.ply OUT.ply`` (``meshdenoise denoise
+  IN.ply OUT.ply`` for ``default``: read, choose, filter, guard, write) as a subprocess: wall
+  seconds and its peak resident memory (``ru_maxrss`` of that child, from ``os.wait4``; Linux
+  starts it at the parent's peak, so this process stays small and makes the meshes in a child),
+  also per vertex.
+
+The peers (``--peers``, each in its own subprocess with the same timeout, at their default
+settings, on the noisy mesh's arrays): MeshLib's ``meshDenoiseViaNormals`` (default
+``DenoiseViaNormalsSettings``; when ``meshlib`` is installed), MeshLab's two-step smoothing
+(``apply_coord_two_steps_smoothing()``: 3 steps, 60 degrees, 20 normal and 20 fitting steps) and
+Taubin (``apply_coord_taubin_smoothing()``: lambda 0.5, mu -0.53, 10 steps) through pymeshlab, and
+Open3D's ``filter_smooth_taubin(10, 0.5, -0.53)``. Per peer: the call's seconds, the child's wall
+seconds (imports, the mesh given to the library and taken back included; no file read or written),
+its peak resident memory and the SNR against the clean mesh.
 
 And two pairs, each timed in one process with its peer (cold caches, wall and CPU
 seconds, growth of the resident high-water mark per vertex):
@@ -36,12 +48,15 @@ it (CPU seconds are given for the pairs).
 Usage::
 
     python benchmarks/scale.py --sizes 400k,1.6M --timeout 900 --out benchmarks/results/scale   # OUT.txt and OUT.json
+    python benchmarks/scale.py --sizes 400k,1.6M,5M --methods default --no-inproc --no-pairs --peers \
+        --timeout 900 --peer-timeout 300 --out benchmarks/results/scale   # the table of docs/scale.md
     python benchmarks/scale.py --sizes 1.6M --pairs-only
 """
 
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import os
 import platform
@@ -57,7 +72,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-SIZES = {"100k": 1, "400k": 2, "1.6M": 3}  # label -> Loop subdivision levels
+SIZES = {"100k": 1, "400k": 2, "1.6M": 3, "5M": 4}  # label -> Loop subdivision levels
+DECIMATED = {"5M": 39_060}  # label -> the elephant's triangles after quadric decimation, before subdividing
+PEERS = ("MeshLib denoise", "MeshLab two-step", "MeshLab Taubin", "Open3D Taubin")
 DEFAULT = "default"  # the row of `meshdenoise denoise IN OUT` with no method: choose_default, then its filter
 METHODS = ("filtering", "heat", "taubin", "sobolev", "sobolev_bilaplacian", "sobolev_normal", "sobolev_gls", "two_stage",
            DEFAULT, "sobolev_axes", "sinkhorn")
@@ -86,7 +103,8 @@ def prepare(label: str, folder: Path) -> dict:
     """Clean and noisy meshes of ``label`` (cached): paths and sizes."""
     levels = SIZES[label]
     folder.mkdir(parents=True, exist_ok=True)
-    npz, ply = folder / f"elephant-o3dloop{levels}.npz", folder / f"elephant-o3dloop{levels}-noisy.ply"
+    stem = f"elephant-o3dloop{levels}" + (f"-dec{DECIMATED[label]}" if label in DECIMATED else "")
+    npz, ply = folder / f"{stem}.npz", folder / f"{stem}-noisy.ply"
     if not (npz.is_file() and ply.is_file()):
         import open3d as o3d
 
@@ -97,6 +115,8 @@ def prepare(label: str, folder: Path) -> dict:
 
         V, F = load_arrays(data_file("elephant-50kv.off"))
         mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(V), o3d.utility.Vector3iVector(F.astype(np.int32)))
+        if label in DECIMATED:
+            mesh = mesh.simplify_quadric_decimation(target_number_of_triangles=DECIMATED[label])
         if levels:
             mesh = mesh.subdivide_loop(number_of_iterations=levels)
         V, F = np.asarray(mesh.vertices).copy(), np.asarray(mesh.triangles).astype(np.int64)
@@ -249,6 +269,37 @@ def child_pair(npz: str, which: str) -> None:
         emit(stage="difference", max_abs=float(np.abs(np.asarray(out.vertices) - ours).max()), scale=float(np.abs(Vn).max()))
 
 
+def child_peer(npz: str, name: str) -> None:
+    """One peer at its default settings on the noisy mesh: the call's seconds and the SNR of its result."""
+    import meshdenoise as md
+
+    V, F, Vn = load(npz)
+    if name == "MeshLib denoise":
+        from meshlib import mrmeshnumpy as mn
+        from meshlib import mrmeshpy as mr
+
+        mesh = mn.meshFromFacesVerts(np.ascontiguousarray(F, dtype=np.int32), np.ascontiguousarray(Vn))
+        settings = mr.DenoiseViaNormalsSettings()
+        _, wall, cpu = timed(lambda: mr.meshDenoiseViaNormals(mesh, settings))
+        X = np.asarray(mn.getNumpyVerts(mesh), dtype=np.float64)
+    elif name.startswith("MeshLab"):
+        import pymeshlab
+
+        ms = pymeshlab.MeshSet()
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=Vn, face_matrix=F.astype(np.int32)))
+        call = ms.apply_coord_two_steps_smoothing if name == "MeshLab two-step" else ms.apply_coord_taubin_smoothing
+        _, wall, cpu = timed(call)
+        X = np.asarray(ms.current_mesh().vertex_matrix(), dtype=np.float64)
+    else:
+        import open3d as o3d
+
+        mesh = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(Vn), o3d.utility.Vector3iVector(F.astype(np.int32)))
+        k, lam, mu = TAUBIN_ARGS
+        out, wall, cpu = timed(lambda: mesh.filter_smooth_taubin(k, lambda_filter=lam, mu=mu))
+        X = np.asarray(out.vertices, dtype=np.float64)
+    emit(stage="call", seconds=wall, cpu=cpu, snr=md.snr(V, X) if X.shape == V.shape else None)
+
+
 # --- running cells with a time limit --------------------------------------------------------------
 def run_limited(cmd: list[str], timeout: float) -> dict:
     """Run ``cmd`` in its own session; kill it after ``timeout`` s. Wall time, peak RSS (``wait4``), stdout lines."""
@@ -288,8 +339,13 @@ def me(*args: str) -> list[str]:
 
 
 def run_size(mesh: dict, methods: list[str], timeout: float, pairs: bool, e2e: bool, cells: bool, workdir: Path,
-             criterion: str | None = None) -> dict:
-    result = {"mesh": mesh, "methods": {}, "pairs": {}}
+             criterion: str | None = None, peers: bool = False, peer_timeout: float | None = None,
+             over: dict | None = None) -> dict:
+    """The cells of one mesh. ``over``: peer -> the smaller size it ran out of time on (then not run here, and
+    recorded as over the time limit: it would take longer on a larger mesh); updated."""
+    over = {} if over is None else over
+    peer_timeout = timeout if peer_timeout is None else peer_timeout
+    result = {"mesh": mesh, "methods": {}, "pairs": {}, "peers": {}}
     for method in methods if cells or e2e else []:
         row = {"load_before": os.getloadavg()[0]}
         if cells:
@@ -307,6 +363,20 @@ def run_size(mesh: dict, methods: list[str], timeout: float, pairs: bool, e2e: b
         row["load_after"] = os.getloadavg()[0]
         result["methods"][method] = row
         print(format_row(mesh, method, row), flush=True)
+    for name in PEERS if peers else ():
+        library = "meshlib" if name.startswith("MeshLib") else "pymeshlab" if name.startswith("MeshLab") else "open3d"
+        if importlib.util.find_spec(library) is None:
+            cell = {"missing": library, "load": os.getloadavg()[0]}
+        elif name in over:
+            cell = {"skipped": over[name], "load": os.getloadavg()[0]}
+        else:
+            load_before = os.getloadavg()[0]
+            cell = run_limited(me("--child", "peer", mesh["npz"], name), peer_timeout)
+            cell["load"] = load_before
+            if cell["timed_out"]:
+                over[name] = mesh["label"]
+        result["peers"][name] = cell
+        print(format_peer(mesh, name, cell, peer_timeout), flush=True)
     if pairs:
         for which in ("two_stage", "taubin"):
             cell = run_limited(me("--child", "pair", mesh["npz"], which), max(timeout, 600.0))
@@ -368,6 +438,34 @@ def format_pair(mesh: dict, which: str, cell: dict) -> str:
     )
 
 
+def format_peer(mesh: dict, name: str, cell: dict, timeout: float) -> str:
+    if "missing" in cell:
+        return f"| {mesh['label']} | {name} | not installed ({cell['missing']}) | | | | | | {cell['load']:.1f} |"
+    if "skipped" in cell:
+        return (f"| {mesh['label']} | {name} | > {timeout:.0f} (not run: over {timeout:.0f} s at {cell['skipped']}) "
+                f"| | | | | {PEER_CALLS[name]} | {cell['load']:.1f} |")
+    rec = cell["records"].get("call")
+    if cell["timed_out"]:
+        call = f"{rec['seconds']:.1f}" if rec else f"> {timeout:.0f}"
+        return f"| {mesh['label']} | {name} | {call} | > {timeout:.0f} | - | - | - | - | {cell['load']:.1f} |"
+    if rec is None or cell["exit"] != 0:
+        return f"| {mesh['label']} | {name} | fail | | | | | {' '.join(cell['stderr_tail'])[:80]} | {cell['load']:.1f} |"
+    snr = f"{rec['snr']:.2f}" if rec.get("snr") is not None else "-"
+    return (f"| {mesh['label']} | {name} | {rec['seconds']:.1f} ({rec['cpu']:.1f}) | {cell['wall']:.1f} "
+            f"| {cell['maxrss'] / 2**20:.0f} | {cell['maxrss'] / mesh['n']:.0f} | {snr} | {PEER_CALLS[name]} "
+            f"| {cell['load']:.1f} |")
+
+
+PEER_CALLS = {
+    "MeshLib denoise": "mrmeshpy.meshDenoiseViaNormals(mesh, DenoiseViaNormalsSettings())",
+    "MeshLab two-step": "pymeshlab apply_coord_two_steps_smoothing() (3, 60 deg, 20, 20)",
+    "MeshLab Taubin": "pymeshlab apply_coord_taubin_smoothing() (0.5, -0.53, 10 steps)",
+    "Open3D Taubin": "open3d filter_smooth_taubin(10, 0.5, -0.53)",
+}
+PEER_HEADER = (
+    "| size | peer | call s (CPU s) | child wall s | peak MB | peak B/vertex | SNR | call | load |\n"
+    "|---|---|---|---|---|---|---|---|---|"
+)
 ROW_HEADER = (
     "| size | method | choose s | filter s | end-to-end s | peak MB | peak B/vertex | SNR noisy | SNR auto "
     "| SNR oracle | chosen | load |\n|---|---|---|---|---|---|---|---|---|---|---|---|"
@@ -387,7 +485,7 @@ def main(argv: list[str] | None = None) -> None:
         if kind == "prepare":
             emit(stage="mesh", **prepare(a, Path(b)))
         else:
-            {"inproc": child_inproc, "pair": child_pair}[kind](a, b)
+            {"inproc": child_inproc, "pair": child_pair, "peer": child_peer}[kind](a, b)
         return
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="100k,400k", help="comma-separated, of " + ", ".join(SIZES))
@@ -398,6 +496,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--no-pairs", action="store_true", help="skip the same-process comparisons with MeshLab / Open3D")
     ap.add_argument("--pairs-only", action="store_true", help="only the same-process comparisons")
     ap.add_argument("--no-e2e", action="store_true", help="skip the command-line cells")
+    ap.add_argument("--peer-timeout", type=float, default=None,
+                    help="seconds per peer (default: --timeout); a peer over it is not run on the larger sizes")
+    ap.add_argument("--no-inproc", action="store_true", help="skip the in-process cells (choose, filter, oracle)")
+    ap.add_argument("--peers", action="store_true",
+                    help="time the peers at their default settings, each in its own subprocess: " + ", ".join(PEERS))
     ap.add_argument("--criterion", choices=("sure", "normals"), default=None,
                     help="the command-line cells' --criterion (default: each filter's own; the in-process cells "
                          "always time the SURE rule)")
@@ -418,6 +521,7 @@ def main(argv: list[str] | None = None) -> None:
     print(f"{started}; commit {commit}; {uptime_before}", flush=True)
     print(ROW_HEADER, flush=True)
     results = []
+    over: dict = {}  # peer -> the size it ran out of time on
     with tempfile.TemporaryDirectory() as work:
         for label in sizes:
             # in a child, so that this process stays small: Linux starts a child's ru_maxrss at its parent's peak
@@ -428,7 +532,8 @@ def main(argv: list[str] | None = None) -> None:
             print(f"<!-- {label}: n={mesh['n']} m={mesh['m']} rho={mesh['rho']:.4g} (mean edge {mesh['h']:.4g}) -->", flush=True)
             results.append(
                 run_size(mesh, methods, args.timeout, not args.no_pairs, not (args.no_e2e or args.pairs_only),
-                         not args.pairs_only, Path(work), args.criterion)
+                         not (args.pairs_only or args.no_inproc), Path(work), args.criterion, args.peers,
+                         args.peer_timeout, over)
             )
     uptime_after = subprocess.run(["uptime"], capture_output=True, text=True).stdout.strip()
     meta = {
@@ -437,6 +542,7 @@ def main(argv: list[str] | None = None) -> None:
         "uptime_after": uptime_after,
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(), "python": platform.python_version()},
         "timeout": args.timeout,
+        "peer_timeout": args.peer_timeout,
         "criterion": args.criterion,
         "commit": commit,
         "command": "python benchmarks/scale.py " + " ".join(argv),
@@ -446,11 +552,16 @@ def main(argv: list[str] | None = None) -> None:
         f"command: {meta['command']}",
         f"commit: {commit}",
         f"machine: {os.cpu_count()} cores, shared with other jobs; uptime before: {uptime_before}; after: {uptime_after}",
-        f"noise: {NOISE_EDGES} mean edge length along the normals, seed 0; timeout per cell: {args.timeout:.0f} s",
+        f"noise: {NOISE_EDGES} mean edge length along the normals, seed 0; timeout per cell: {args.timeout:.0f} s"
+        + (f", per peer: {args.peer_timeout:.0f} s" if args.peers and args.peer_timeout is not None else ""),
         "",
     ]
     if not args.pairs_only:
         text += [ROW_HEADER] + [format_row(r["mesh"], m, row) for r in results for m, row in r["methods"].items()] + [""]
+    if args.peers:
+        peer_timeout = args.timeout if args.peer_timeout is None else args.peer_timeout
+        text += [PEER_HEADER] + [format_peer(r["mesh"], n, c, peer_timeout) for r in results
+                                 for n, c in r["peers"].items()] + [""]
     if not args.no_pairs:
         text += [PAIR_HEADER] + [format_pair(r["mesh"], w, c) for r in results for w, c in r["pairs"].items()] + [""]
     print("\n".join(text[6:]))
