@@ -270,6 +270,15 @@ def child_pair(npz: str, which: str) -> None:
         emit(stage="difference", max_abs=float(np.abs(np.asarray(out.vertices) - ours).max()), scale=float(np.abs(Vn).max()))
 
 
+def child_snr(npz: str, out: str) -> None:
+    """The SNR of the command line's output file against the clean mesh."""
+    import meshdenoise as md
+    from meshdenoise.io import load_arrays
+
+    V, _, Vn = load(npz)
+    emit(stage="snr", snr=md.snr(V, load_arrays(out)[0]), noisy=md.snr(V, Vn))
+
+
 def child_peer(npz: str, name: str) -> None:
     """One peer at its default settings on the noisy mesh: the call's seconds and the SNR of its result."""
     import meshdenoise as md
@@ -323,7 +332,11 @@ def run_limited(cmd: list[str], timeout: float) -> dict:
         proc.returncode = 0  # reaped by wait4
         out.seek(0)
         err.seek(0)
-        records = [json.loads(line) for line in out.read().splitlines() if line.startswith("{")]
+        printed = out.read().splitlines()
+        records = [json.loads(line) for line in printed if line.startswith("{")]
+        # the default's choice as the command prints it: "IN.ply: filter: two_stage (k=v, ...), chosen in 5.7 s"
+        chosen = next((line.split(": filter: ", 1)[1].rsplit(", chosen in", 1)[0] for line in printed
+                       if ": filter: " in line), None)
         lines = err.read().strip().splitlines()
         tail = lines[-3:]
         # the command line's stage lines (a stage over 2 s): "IN.ply: choosing the filter: 24.5 s", "...: running M: 9.1 s"
@@ -336,6 +349,7 @@ def run_limited(cmd: list[str], timeout: float) -> dict:
         "records": {r.pop("stage"): r for r in records},
         "stderr_tail": tail,
         "stages": stages,
+        "chosen": chosen,
     }
 
 
@@ -367,6 +381,10 @@ def run_size(mesh: dict, methods: list[str], timeout: float, pairs: bool, e2e: b
             cmd = [sys.executable, "-c", cli, "denoise", *how, mesh["ply"], str(out)]
             row["e2e"] = run_limited(cmd, timeout)
             if out.exists():
+                if not cells:  # the result's SNR, read back in a child (this process stays small)
+                    got = run_limited(me("--child", "snr", mesh["npz"], str(out)), 600.0)["records"].get("snr")
+                    row["e2e"]["snr"] = got["snr"] if got else None
+                    row["e2e"]["snr_noisy"] = got["noisy"] if got else None
                 out.unlink()
         row["load_after"] = os.getloadavg()[0]
         result["methods"][method] = row
@@ -422,16 +440,24 @@ def format_row(mesh: dict, method: str, row: dict, timeout: float | None = None)
     if method == DEFAULT and params is not None and rec.get("choose", {}).get("method"):
         params = {"method": rec["choose"]["method"], **params}
     ptext = ", ".join(f"{k}={v:.3g}" if isinstance(v, float) else f"{k}={v}" for k, v in (params or {}).items())
+    if not ptext and (e2e or {}).get("chosen"):
+        ptext = e2e["chosen"] + "*"
     choose_s = _s(rec.get("choose"), "seconds", inproc, timeout)
     filter_s = _s(rec.get("filter"), "seconds", inproc, timeout, "{:.2f}")
     stages = (e2e or {}).get("stages") or {}
+    auto_snr = _s(rec.get("filter"), "snr", inproc, timeout, "{:.2f}")
+    noisy_snr = _s(rec.get("noisy"), "snr", inproc, timeout, "{:.2f}")
+    if inproc is None and (e2e or {}).get("snr_noisy") is not None:
+        noisy_snr = f"{e2e['snr_noisy']:.2f}"
     if inproc is None and stages:  # the command's own stage times (marked *): the choice, then the filter with its guard
         choose_s = next((f"{v:.1f}*" for k, v in stages.items() if k == "choosing the filter"), choose_s)
         filter_s = next((f"{v:.1f}*" for k, v in stages.items() if k.startswith("running")), filter_s)
+    if inproc is None and (e2e or {}).get("snr") is not None:  # the command's output read back (marked *)
+        auto_snr = f"{e2e['snr']:.2f}*"
     return (
         f"| {mesh['label']} | {method} | {choose_s} "
         f"| {filter_s} | {e2e_s} | {peak_s} | {bpv} "
-        f"| {_s(rec.get('noisy'), 'snr', inproc, timeout, '{:.2f}')} | {_s(rec.get('filter'), 'snr', inproc, timeout, '{:.2f}')} "
+        f"| {noisy_snr} | {auto_snr} "
         f"| {_s(rec.get('oracle'), 'snr', inproc, timeout, '{:.2f}')} | {ptext} | {row['load_before']:.1f} |"
     )
 
@@ -499,7 +525,7 @@ def main(argv: list[str] | None = None) -> None:
         if kind == "prepare":
             emit(stage="mesh", **prepare(a, Path(b)))
         else:
-            {"inproc": child_inproc, "pair": child_pair, "peer": child_peer}[kind](a, b)
+            {"inproc": child_inproc, "pair": child_pair, "peer": child_peer, "snr": child_snr}[kind](a, b)
         return
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sizes", default="100k,400k", help="comma-separated, of " + ", ".join(SIZES))
@@ -568,7 +594,8 @@ def main(argv: list[str] | None = None) -> None:
         f"machine: {os.cpu_count()} cores, shared with other jobs; uptime before: {uptime_before}; after: {uptime_after}",
         f"noise: {NOISE_EDGES} mean edge length along the normals, seed 0; timeout per cell: {args.timeout:.0f} s"
         + (f", per peer: {args.peer_timeout:.0f} s" if args.peers and args.peer_timeout is not None else ""),
-        "choose s, filter s: in process, or with * the command's own stages (the filter with the default's fold guard); "
+        "choose s, filter s, SNR auto: in process, or with * the command's own stages (the filter with the default's fold "
+        "guard) and its output file read back; "
         "end-to-end s and peak: the command `meshdenoise denoise [--method M --auto] IN.ply OUT.ply` in a fresh process",
         "",
     ]
