@@ -3,9 +3,11 @@
 from __future__ import annotations
 
 import numpy as np
-from .arrays import check_mesh_arrays
 
-__all__ = ["mesh_info"]
+from .arrays import check_mesh_arrays
+from .kernels import njit
+
+__all__ = ["mesh_info", "undirected_edges", "repeated_faces"]
 
 
 _CHUNK = 1 << 20  # faces per chunk of the per-face float work (bounded temporaries)
@@ -47,6 +49,141 @@ def _components(N: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
                 break
             label = nxt
             del nxt
+
+
+# --------------------------------------------------------------------------- edges by buckets, no global sort
+@njit(cache=True, nogil=True)
+def _bucket_sides(F, n, start):  # pragma: no cover - compiled
+    """``start[v + 1]`` = the face sides ``(a, b)``, ``a != b``, whose smaller vertex is ``v``; then its running sum."""
+    for f in range(F.shape[0]):
+        for k in range(3):
+            a, b = F[f, k], F[f, (k + 1) % 3]
+            if a != b:
+                start[min(a, b) + 1] += 1
+    for v in range(n):
+        start[v + 1] += start[v]
+
+
+@njit(cache=True, nogil=True)
+def _fill_buckets(F, start, other):  # pragma: no cover - compiled
+    """Each side's larger vertex into its smaller vertex's bucket, each bucket sorted; returns the distinct count."""
+    n = start.size - 1
+    cursor = start[:-1].copy()
+    for f in range(F.shape[0]):
+        for k in range(3):
+            a, b = F[f, k], F[f, (k + 1) % 3]
+            if a != b:
+                lo = min(a, b)
+                other[cursor[lo]] = max(a, b)
+                cursor[lo] += 1
+    distinct = 0
+    for v in range(n):
+        s, e = start[v], start[v + 1]
+        if e - s > 24:
+            other[s:e].sort()
+        else:  # a vertex has a handful of sides: insertion sort
+            for i in range(s + 1, e):
+                x = other[i]
+                j = i - 1
+                while j >= s and other[j] > x:
+                    other[j + 1] = other[j]
+                    j -= 1
+                other[j + 1] = x
+        for i in range(s, e):
+            if i == s or other[i] != other[i - 1]:
+                distinct += 1
+    return distinct
+
+
+@njit(cache=True, nogil=True)
+def _bucket_edges(start, other, edges, counts):  # pragma: no cover - compiled
+    """The distinct ``(v, other)`` pairs of the sorted buckets in order, and how many sides each has."""
+    k = -1
+    for v in range(start.size - 1):
+        for i in range(start[v], start[v + 1]):
+            if i == start[v] or other[i] != other[i - 1]:
+                k += 1
+                edges[k, 0] = v
+                edges[k, 1] = other[i]
+                counts[k] = 1
+            else:
+                counts[k] += 1
+
+
+def undirected_edges(F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The unique undirected edges ``(e, 2)`` of the faces ``F`` on ``n`` vertices, ``edges[:, 0] < edges[:, 1]``,
+    sorted by their first then second vertex, and how many face sides each has ``(e,) int32``.
+
+    Sides ``(i, i)`` of degenerate faces are no edge. Edges int32 below 2^31 vertices. Built by putting each
+    side into the bucket of its smaller vertex and sorting the buckets (a few entries each): O(m), with 4 or 8
+    bytes per side, where sorting every side's key ``min * n + max`` took 2 s at 5M vertices and 16 bytes per side.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> e, c = undirected_edges(np.array([[0, 1, 2], [0, 2, 3], [3, 3, 1]]), 4)
+    >>> e.tolist(), c.tolist()
+    ([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], [1, 2, 1, 1, 2, 1])
+    """
+    index = np.int32 if n < 2**31 - 1 else np.int64
+    F = np.ascontiguousarray(F)
+    if F.dtype not in (np.int32, np.int64):
+        F = F.astype(np.int64)
+    if F.size and (F.min() < 0 or F.max() >= n):
+        raise IndexError(f"undirected_edges: face indices must lie in 0 .. {n - 1}, got {F.min()} .. {F.max()}")
+    start = np.zeros(n + 1, dtype=np.int64)
+    if F.shape[0] == 0 or n == 0:
+        return np.zeros((0, 2), dtype=index), np.zeros(0, dtype=np.int32)
+    _bucket_sides(F, n, start)
+    other = np.empty(int(start[n]), dtype=index)
+    distinct = _fill_buckets(F, start, other)
+    edges = np.empty((distinct, 2), dtype=index)
+    counts = np.empty(distinct, dtype=np.int32)
+    _bucket_edges(start, other, edges, counts)
+    return edges, counts
+
+
+@njit(cache=True, nogil=True)
+def _repeated_in_buckets(S, start, pair):  # pragma: no cover - compiled
+    """Rows of ``S`` (each row sorted) equal to another: bucket rows by their first vertex, sort the buckets'
+    ``(second, third)`` keys, count the repeats."""
+    n = start.size - 1
+    for f in range(S.shape[0]):
+        start[S[f, 0] + 1] += 1
+    for v in range(n):
+        start[v + 1] += start[v]
+    cursor = start[:-1].copy()
+    for f in range(S.shape[0]):
+        a = S[f, 0]
+        pair[cursor[a]] = S[f, 1] * n + S[f, 2]
+        cursor[a] += 1
+    repeated = 0
+    for v in range(n):
+        s, e = start[v], start[v + 1]
+        if e - s > 1:
+            pair[s:e].sort()
+            for i in range(s + 1, e):
+                if pair[i] == pair[i - 1]:
+                    repeated += 1
+    return repeated
+
+
+def repeated_faces(S: np.ndarray, n: int) -> int:
+    """How many rows of ``S`` (m, 3), each sorted, values in ``0 .. n-1``, equal an earlier row (duplicate faces).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> repeated_faces(np.array([[0, 1, 2], [0, 1, 2], [1, 2, 3], [0, 1, 2]]), 4)
+    2
+    """
+    if S.shape[0] < 2:
+        return 0
+    if float(n) ** 2 >= 2.0**62:  # the (second, third) key would not fit an int64: rows sorted as they are
+        R = S[np.lexsort((S[:, 2], S[:, 1], S[:, 0]))]
+        return int((R[1:] == R[:-1]).all(axis=1).sum())
+    return int(_repeated_in_buckets(np.ascontiguousarray(S), np.zeros(n + 1, dtype=np.int64),
+                                    np.empty(S.shape[0], dtype=np.int64)))
 
 
 def _side_keys(F: np.ndarray, n: int) -> np.ndarray:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..meshinfo import repeated_faces, undirected_edges
+
 
 def topology_notes(V: np.ndarray, F: np.ndarray) -> list[str]:
     """Legal oddities of a mesh, in words: no faces, unreferenced vertices, degenerate,
@@ -30,33 +32,12 @@ def topology_notes(V: np.ndarray, F: np.ndarray) -> list[str]:
     degenerate = int(((S[:, 0] == S[:, 1]) | (S[:, 1] == S[:, 2])).sum())
     if degenerate:
         notes.append(f"{degenerate} degenerate faces (a vertex repeated)")
-    duplicates = _repeated_rows(S, n)
+    duplicates = repeated_faces(S, n)
+    del S
     if duplicates:
         notes.append(f"{duplicates} duplicate faces (same vertices as an earlier face)")
-    # sorted edge keys (one int64 per side, degenerate sides left out); an edge on 3+ faces is a run of 3+
-    keys = np.concatenate([S[:, 0].astype(np.int64) * n + S[:, 1], S[:, 1].astype(np.int64) * n + S[:, 2],
-                           S[:, 0].astype(np.int64) * n + S[:, 2]])
-    keep = np.concatenate([S[:, 0] != S[:, 1], S[:, 1] != S[:, 2], S[:, 0] != S[:, 2]])
-    del S
-    keys = keys[keep]
-    del keep
-    keys.sort()
-    if keys.size > 2:
-        first = np.empty(keys.size - 2, dtype=bool)  # k[i] starts a run ...
-        first[0] = True
-        np.not_equal(keys[1:-2], keys[:-3], out=first[1:])
-        nonmanifold = int((first & (keys[2:] == keys[:-2])).sum())  # ... of length 3 or more
-        if nonmanifold:
-            notes.append(f"{nonmanifold} non-manifold edges (shared by more than two faces)")
+    # an edge on 3+ face sides (degenerate sides left out), from the edges bucketed by their smaller vertex
+    nonmanifold = int(np.count_nonzero(undirected_edges(F, n)[1] > 2))
+    if nonmanifold:
+        notes.append(f"{nonmanifold} non-manifold edges (shared by more than two faces)")
     return notes
-
-
-def _repeated_rows(S: np.ndarray, n: int) -> int:
-    """Rows of ``S`` (m, 3) (values in 0..n-1) equal to an earlier row."""
-    if float(n) ** 3 < 2.0**62:
-        key = (S[:, 0].astype(np.int64) * n + S[:, 1]) * n + S[:, 2]
-        key.sort()
-        return int((key[1:] == key[:-1]).sum())
-    order = np.lexsort((S[:, 2], S[:, 1], S[:, 0]))
-    R = S[order]
-    return int((R[1:] == R[:-1]).all(axis=1).sum())
