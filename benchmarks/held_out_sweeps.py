@@ -1,7 +1,8 @@
 """Each filter's own automatic rule against held-out vertices sweeping its main parameter, both against the sweep's best.
 
 For every corpus case of a split (``benchmarks/corpus.py``) and every filter named: the mean face-normal
-error (degrees) of ``denoise(noisy, method=M)`` (the filter's rule today), of the value of least held-out
+error (degrees) of ``denoise(noisy, method=M)`` with the filter's rule by SURE and the estimated normal risk
+(``AutoRule.held_out`` set aside: the rule the held-out choice replaced where it has one), of the value of least held-out
 face-normal loss along a sweep of its main parameter (:func:`meshdenoise.tuning.holdout.path_losses`: 3 masks,
 radius 1, patience 4; the other parameters at their defaults), and of the sweep's best value by the true
 error (the 1-D oracle). Writes the rows as JSON (``--out``); the table is benchmarks/results/held-out-sweeps.md.
@@ -48,13 +49,30 @@ PATHS = {
 }
 
 
+def _without_held_out(name, call):
+    """``call()`` with the filter's criterion-normals choice by SURE and the estimated normal risk (its rule without
+    ``AutoRule.held_out``): the rule the held-out sweep replaced, measured in the same run."""
+    import dataclasses
+
+    from meshdenoise import registry
+
+    spec = registry.REGISTRY[name]
+    if spec.auto is None or spec.auto.held_out is None:
+        return call()
+    registry.REGISTRY[name] = dataclasses.replace(spec, auto=dataclasses.replace(spec.auto, held_out=None))
+    try:
+        return call()
+    finally:
+        registry.REGISTRY[name] = spec
+
+
 def run(spec, V, F, ops, p):
     if spec.name == "sobolev_axes" and "mu" in p:
         mu = p.pop("mu"); p.update(mu1=mu, mu2=mu, mu3=mu)
     return spec.public((V, F), **p, operators=ops)[0]
 
 
-def main(cases, filters, out):
+def main(cases, filters, out, patience=4, rule=True):
     rows = []
     for name in cases:
         c = corpus.load_case(name)
@@ -68,7 +86,10 @@ def main(cases, filters, out):
             # today's rule
             t0 = time.perf_counter()
             try:
-                Y, chosen = md.denoise((Vn, F), method=f, return_params=True, boundary_motion="free")
+                if not rule:
+                    raise RuntimeError("not measured (--no-rule)")
+                Y, chosen = _without_held_out(f, lambda: md.denoise((Vn, F), method=f, return_params=True,
+                                                                     boundary_motion="free"))
                 e_auto = normal_error_deg((V0, F), Y[0])
             except Exception as exc:  # noqa
                 e_auto, chosen = float("nan"), str(exc)[:80]
@@ -79,7 +100,7 @@ def main(cases, filters, out):
             def path(Y):
                 for v in values:
                     yield run(spec, Y, F, ops, {**fixed, pname: v})
-            losses = path_losses(path, Vn, F, held, len(values), 4)
+            losses = path_losses(path, Vn, F, held, len(values), patience)
             k = int(np.argmin(losses))
             Yh = run(spec, Vn, F, ops, {**fixed, pname: values[k]})
             t_hold = time.perf_counter() - t0
@@ -106,7 +127,9 @@ if __name__ == "__main__":
     ap.add_argument("--split", default="tune")
     ap.add_argument("--filters", default="filtering,taubin,heat,sobolev,sobolev_bilaplacian")
     ap.add_argument("--limit", type=int, default=100)
+    ap.add_argument("--patience", type=int, default=4, help="steps of the sweep read past its least held-out loss")
+    ap.add_argument("--no-rule", action="store_true", help="do not run the filter's own rule")
     ap.add_argument("--out", default="held-out-sweeps.json")
     a = ap.parse_args()
     names = [n for n in corpus.CASES if corpus.split(n) == a.split][: a.limit]
-    main(names, a.filters.split(","), a.out)
+    main(names, a.filters.split(","), a.out, a.patience, not a.no_rule)

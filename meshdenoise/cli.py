@@ -175,13 +175,13 @@ def demo(out_dir: str, mesh_path: str | None, noise: float, seed: int) -> None:
 def _auto_json(spec) -> dict | None:
     """A filter's automatic rule for ``filters --json``: what it chooses, the criteria it takes and its default
     (``denoise --method M``); ``None`` for a filter without one."""
-    from .tuning.choose import held_out_filters, normal_filters, rule_criterion
+    from .tuning.choose import normal_filters, rule_criterion
 
     if spec.auto is None:
         return None
-    criteria = (["normals"] if spec.name in held_out_filters() else
-                ["sure", "normals"] if spec.name in normal_filters() else ["sure"])
-    return {"tunes": list(spec.auto.tunes), "criteria": criteria, "default_criterion": rule_criterion(spec.name)}
+    normals = spec.name in normal_filters()
+    return {"tunes": list(spec.auto.tunes), "criteria": ["sure", "normals"] if normals else ["sure"],
+            "default_criterion": rule_criterion(spec.name)}
 
 
 def filters_json() -> dict:

@@ -235,7 +235,10 @@ class AutoRule:
     the mesh taken from ``V``, as for ``linear_map``) as functions of one symmetric matrix
     (:class:`~meshdenoise.tuning.spectral.Spectral`), or ``None`` for a configuration that is not: the
     normals search then scores its candidates by Lanczos runs, with no filter run per candidate
-    (``refine_for_normals(spectral=...)``).
+    (``refine_for_normals(spectral=...)``). ``held_out``: a
+    :class:`~meshdenoise.tuning.sweep.HeldOutRule`: with ``criterion="normals"`` the parameters are
+    chosen by it instead (the least held-out face-normal loss along its sweeps; no noise level, no SURE
+    choice first), and ``normals`` and the fields after it serve only ``criterion="sure"``'s rule.
     """
 
     tunes: tuple[str, ...]
@@ -248,6 +251,7 @@ class AutoRule:
     normals_held: tuple[tuple[str, Any], ...] = ()
     normals_step: str | None = None
     spectral: Callable[..., Any] | None = None
+    held_out: Any = None
 
 
 @dataclass(frozen=True)
@@ -418,10 +422,8 @@ def register(
             raise TypeError(f"register({name!r}): {flag}= must be True or False, got {value!r}")
     if auto is not None:
         unknown = set(auto.tunes) - {p.name for p in params}
-        # an AutoRule, or a held-out rule (meshdenoise.tuning.sweep.HeldOutRule: it has `sweeps`)
-        if not (isinstance(auto, AutoRule) or hasattr(auto, "sweeps")) or unknown:
-            raise ValueError(f"register({name!r}): auto= must be an AutoRule or a HeldOutRule tuning the filter's "
-                             f"parameters, got {auto!r}")
+        if not isinstance(auto, AutoRule) or unknown:
+            raise ValueError(f"register({name!r}): auto= must be an AutoRule tuning the filter's parameters, got {auto!r}")
 
     def decorate(core: Callable) -> Callable:
         spec = FilterSpec(name, summary, tuple(params), core, linear, translation_equivariant, auto, scale_free,

@@ -499,38 +499,6 @@ def test_sobolev_gls_region_mode_choice_and_refinement_against_the_whole_rule(mo
     assert abs(np.log10(c3["mu"] / c0["mu"])) < 0.06
 
 
-def test_before_the_normals_search_the_beta_sweep_runs_on_a_region_with_mu_held(monkeypatch):
-    """Under criterion normals, from GLS_SWEEP_REGION_FROM vertices: a region is cut, the rule runs on it loose with
-    mu held at the isotropic filter's SURE weight (the normals search's start) and chooses beta only (under SURE a
-    mesh below REGION_MIN_VERTICES is searched whole: test_scale_search.py::test_region_rule_is_not_used_below_its_size)."""
-    import meshdenoise.plugins.sobolev_gls as gls
-
-    V, F = torus(60, 40)
-    Vn, _ = add_normal_noise((V, F), 0.03, seed=0)
-    monkeypatch.setattr(gls, "GLS_SWEEP_REGION_FROM", 1000)
-    monkeypatch.setattr(gls, "SOBOLEV_GLS_REGION", 1200)
-    monkeypatch.setattr(gls, "SOBOLEV_GLS_PATCHES", 4)
-    monkeypatch.setattr(gls, "SOBOLEV_GLS_MARGIN", 4)
-    runs = []
-    real = gls.choose_sobolev_gls_whole
-
-    def spy(ctx, scored=None, previous=None, loose=False):
-        runs.append((ctx.n, dict(ctx.given), scored is not None, loose))
-        return real(ctx, scored, previous, loose=loose)
-
-    monkeypatch.setattr(gls, "choose_sobolev_gls_whole", spy)
-    chosen = choose_parameters((Vn, F), "sobolev_gls", criterion="normals", noise=0.03)
-    ops = get_operators(F, len(Vn))
-    from meshdenoise.tuning.search import mu_guess
-
-    center = mu_guess(Vn, ops, 0.03, "sure", None, 3)
-    start = gls.best_shifted(Vn, ops, 3, 0.03, "sure", None, center=center, coordinates=False).value
-    assert runs[0][0] < len(Vn) and runs[0][2]  # cut (a re-cut for a longer reach may grow it to the whole mesh)
-    assert all(loose for *_, loose in runs)
-    assert all(given == {"mu": pytest.approx(start, rel=1e-12)} for _, given, _, _ in runs)
-    assert chosen["beta"] in SOBOLEV_GLS_BETAS and chosen["mu"] != start  # the normals search moved mu on
-
-
 def test_a_loose_sweep_over_beta_alone_stops_at_the_sweep_tolerance_and_chooses_the_tight_sweeps_beta(monkeypatch):
     """With mu held (the sweep before the normals search) a loose sweep's CG stops at SOBOLEV_GLS_SWEEP_TOL, a loose
     mu search at SOBOLEV_GLS_LOOSE_TOL; the loose sweep chooses the beta of the sweep to 1e-9 (CG_TOL), every

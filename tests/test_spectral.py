@@ -305,7 +305,7 @@ def test_refine_for_normals_runs_the_filter_where_a_lanczos_run_does_not_converg
 
 
 @pytest.mark.filterwarnings("ignore:choose_parameters.*shrinks the mesh:UserWarning")
-@pytest.mark.parametrize("method", ["sobolev_bilaplacian", "taubin", "sinkhorn", "sobolev_gls", "sobolev_axes"])
+@pytest.mark.parametrize("method", ["sobolev_bilaplacian", "sobolev_axes"])  # the others' normals: held-out vertices
 def test_normals_criterion_chooses_the_same_with_and_without_the_spectral_search(method, monkeypatch):
     V0, F, X = _sphere(seed=5)
     runs = []

@@ -183,15 +183,12 @@ def _in_words(choices: tuple[str, ...]) -> str:
 
 
 def _check_criterion(name: str, criterion: str, at: str) -> None:
-    """``criterion: normals`` only for the filters that have it, ``sure`` only for the rules by SURE."""
-    from ..tuning.choose import held_out_filters, normal_filters
+    """``criterion: normals`` only for the filters that have it."""
+    from ..tuning.choose import normal_filters
 
     if criterion == "normals" and name not in normal_filters():
         raise PipelineValidationError(f"{at}: criterion 'normals' is for the linear filters "
                                       f"({', '.join(normal_filters())}), not '{name}'")
-    if criterion == "sure" and name in held_out_filters():
-        raise PipelineValidationError(f"{at}: criterion 'sure': {name}'s rule minimises the face-normal error on "
-                                      "held-out vertices; leave criterion out (or 'normals')")
 
 
 def _our_filter(index, name, given, label, source, line) -> Step:
@@ -743,11 +740,7 @@ def _run_ours(step: Step, ctx: RunContext) -> None:
 
         given_noise = step.options.get("noise")
         noise = given_noise.model(state.V, state.F) if given_noise is not None else None
-        criterion = step.options.get("criterion")
-        if criterion is None:  # the rule's own: the position error by SURE, the face normals' on held-out vertices
-            from ..tuning.choose import held_out_filters
-
-            criterion = "normals" if step.name in held_out_filters() else "sure"
+        criterion = step.options.get("criterion", "sure")
         chosen = choose_parameters(state.arrays(), method=step.name, noise=noise, criterion=criterion)
         chosen = {**chosen, **params}  # values written in the pipeline win
         params = spec.resolve(chosen, step.where)

@@ -10,7 +10,10 @@ import scipy.sparse as sp
 from ..gpu import BACKENDS, Backend, get_backend
 from ..locality import LOCALITY_MIN_VERTICES
 from ..operators import Operators, gather_rows
-from ..registry import MAX_ITERATIONS, Param, ParameterError, register
+from ..registry import MAX_ITERATIONS, AutoRule, Param, ParameterError, register
+from ..tuning.context import TuningContext
+from ..tuning.risk import Point
+from ..tuning.search import averaging_step, best_on_curve, best_on_path, iterative_path, path_curve
 from ..tuning.sweep import HeldOutRule, Sweep, geometric
 
 __all__ = ["filtering", "averaging_operator", "smoothing_steps", "step_matrix", "run_linear_steps", "WEIGHTS"]
@@ -378,15 +381,41 @@ def smoothing_steps(
 
 
 # ----------------------------------------------------------------------------- automatic rule
-# iterations from 1 to 400 in steps of 15 % (every count up to 7) along one run, the least held-out face-normal loss:
-# on the corpus's tune half its error is 1.10 times the sweep's best (geometric mean), against 1.37 for SURE along the
-# run with its normals step (benchmarks/results/held-out-sweeps.md)
-FILTERING_RULE = HeldOutRule((Sweep("iterations", geometric(1, 400, 1.15, integer=True), additive=True),))
+def _check_linear_weights(ctx: TuningContext, method: str) -> None:
+    w = ctx.given.get("weights", "uniform")
+    if w not in LINEAR_WEIGHTS:
+        raise ValueError(
+            f"choose_parameters: method '{method}' with weights={w!r} is not a linear smoother (its weights "
+            "follow the coordinates); automatic parameters need weights 'uniform', 'meshlab' or 'open3d'"
+        )
+
+
+def choose_filtering(ctx: TuningContext) -> tuple[dict, Point]:
+    """``iterations`` of ``X <- X + lam (A X - X)``: SURE along one run (``H_k = (I + lam(A - I))^k``)."""
+    _check_linear_weights(ctx, "filtering")
+    lam = float(ctx.given.get("lam", 1.0))
+    weights = ctx.given.get("weights", "uniform")
+    boundary = ctx.given.get("boundary", True)
+    A = averaging_operator(ctx.ops, weights, None, boundary)
+    if ctx.oracle:
+        p = best_on_path(iterative_path(ctx.V, ctx.ops, averaging_step(A, lam), ctx.exact), ctx.ops.n, ctx.rho, ctx.criterion)
+    else:  # the memoised curve: uniform weights share the run of estimate_noise and mu_guess
+        name = ("P", lam) if weights == "uniform" else (weights, boundary, lam)
+        curve = path_curve(ctx.V, ctx.ops, averaging_step(A, lam), name, ctx.exact)
+        p = best_on_curve(curve, ctx.ops.n, ctx.rho, ctx.criterion, coordinates=False)
+    return {"iterations": int(p.value)}, p
+
+
+# criterion "normals": iterations from 1 to 400 in steps of 15 % (every count up to 7) along one run, the least
+# held-out face-normal loss: on the corpus's tune half 1.10 times the sweep's best error (geometric mean) against 1.37
+# for SURE's choice moved by the estimated normal risk (benchmarks/results/held-out-sweeps.md)
+FILTERING_NORMALS = HeldOutRule((Sweep("iterations", geometric(1, 400, 1.15, integer=True), additive=True),))
 
 
 @register(
     "filtering",
-    auto=FILTERING_RULE,
+    auto=AutoRule(("iterations",), choose_filtering, normals="iterations", additive=True, integer=True,
+                  held_out=FILTERING_NORMALS),
     summary="Linear filtering: average each vertex with its neighbours, k times (X <- D^-1 W X)",
     params=[
         Param("iterations", int, 10, low=0, high=MAX_ITERATIONS, help="number of averaging steps k"),

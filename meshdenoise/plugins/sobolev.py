@@ -7,11 +7,14 @@ import math
 import numpy as np
 
 from ..operators import Operators
-from ..registry import Param, register
+from ..registry import AutoRule, Param, register
+from ..tuning.context import TuningContext
+from ..tuning.risk import Point
+from ..tuning.search import best_shifted
 from ..tuning.sweep import HeldOutRule, Sweep, geometric
 from ..solvers import SPDSolver, shifted_matrix, shifted_solver
 
-__all__ = ["sobolev", "SobolevSolver", "choose_solver", "SOLVERS", "SOBOLEV_RULE"]
+__all__ = ["sobolev", "SobolevSolver", "choose_sobolev", "choose_solver", "SOLVERS"]
 
 SOLVERS = ("auto", "cholesky", "cg")
 AUTO_CG_MIN_VERTICES = 200_000  # "auto": below this a factorisation costs under a few seconds and is kept for reuse
@@ -83,14 +86,26 @@ def cg_iteration_cap(ops: Operators, mu: float, tol: float) -> int:
 
 
 # ----------------------------------------------------------------------------- automatic rule
-# mu from 0.01 to 10,000 in steps of 2^(1/3), the least held-out face-normal loss: on the corpus's tune half 1.28 times
-# the sweep's best (geometric mean), against 1.48 for SURE with its normals step (benchmarks/results/held-out-sweeps.md)
-SOBOLEV_RULE = HeldOutRule((Sweep("mu", geometric(0.01, 1e4, 2 ** (1 / 3))),))
+def choose_sobolev(ctx: TuningContext) -> tuple[dict, Point]:
+    """``mu`` of :math:`(I + \\mu L) Y = X`: SURE over log mu (grid, then golden section).
+
+    The search starts at :math:`\\mu_0 = k / \\bar d`, with ``k`` the SURE-best number of
+    averaging steps: both filters damp the eigenmode of :math:`I - D^{-1}W` with
+    eigenvalue :math:`\\lambda` by about half when :math:`k\\lambda \\approx \\mu \\bar d \\lambda \\approx 1`.
+    """
+    p = best_shifted(ctx.V, ctx.ops, 1, ctx.rho, ctx.criterion, ctx.exact, center=ctx.mu_guess(1), coordinates=False)
+    return {"mu": float(p.value)}, p
+
+
+# criterion "normals": mu from 0.01 to 10,000 in steps of 2^(1/3), the least held-out face-normal loss: on the
+# corpus's tune half 1.28 times the sweep's best error (geometric mean) against 1.48 for SURE's choice moved by the
+# estimated normal risk (benchmarks/results/held-out-sweeps.md)
+SOBOLEV_NORMALS = HeldOutRule((Sweep("mu", geometric(0.01, 1e4, 2 ** (1 / 3))),))
 
 
 @register(
     "sobolev",
-    auto=SOBOLEV_RULE,
+    auto=AutoRule(("mu",), choose_sobolev, normals="mu", held_out=SOBOLEV_NORMALS),
     summary="Sobolev regularisation: solve (I + mu L) Y = X, L = D - W, by cached sparse Cholesky or block CG",
     params=[
         Param("mu", float, 1.0, low=0.0, help="regularisation weight (0 returns the input)"),

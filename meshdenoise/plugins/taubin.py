@@ -6,7 +6,11 @@ import numpy as np
 import scipy.sparse as sp
 
 from ..operators import Operators, spmm
-from ..registry import MAX_ITERATIONS, Param, register
+from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
+from ..tuning.context import TuningContext
+from ..tuning.risk import Point
+from ..tuning.search import averaging_step, best_on_curve, best_on_path, iterative_path, path_curve
+from ..tuning.spectral import Spectral, averaging_spectral
 from ..tuning.sweep import HeldOutRule, Sweep, geometric
 from .filtering import has_repeated_index, vcglib_sum_matrix
 
@@ -50,6 +54,9 @@ def meshlab_taubin_operator(ops: Operators) -> sp.csr_matrix:
 
 
 # ----------------------------------------------------------------------------- automatic rule
+TAUBIN_LAMBDAS = (0.5, 0.25, 0.125)  # candidate shrinking steps of the automatic taubin rule
+TAUBIN_FINE_MIN_VERTICES = 10_000  # from this size a finer lambda is tried only while ...
+TAUBIN_FINE_MAX_ITERATIONS = 8  # ... the coarser one's best count is below this
 
 
 def taubin_mu_for(lam: float, pass_band: float) -> float:
@@ -76,16 +83,77 @@ def taubin_mu_for(lam: float, pass_band: float) -> float:
     return 1.0 / (pass_band - 1.0 / lam)
 
 
-# iterations from 1 to 2,000 in steps of 15 % along one run, lam and mu the defaults, the least held-out face-normal
-# loss: on the corpus's tune half 1.20 times the sweep's best (geometric mean), against 1.39 for SURE over three
-# lambdas with its normals step (benchmarks/results/held-out-sweeps.md)
-TAUBIN_RULE = HeldOutRule((Sweep("iterations", geometric(1, 2000, 1.15, integer=True), (("lam", 0.5), ("mu", -0.53)),
-                                 additive=True),))
+def choose_taubin(ctx: TuningContext) -> tuple[dict, Point]:
+    """``iterations`` (and ``lam``, ``mu`` unless given) of Taubin lambda/mu smoothing.
+
+    With ``weights`` "uniform" or "meshlab" one iteration is the linear map
+    :math:`H_1 = (I + \\mu(A - I))(I + \\lambda(A - I))`, so SURE is read along one run
+    exactly as for ``filtering``. Unless ``lam`` or ``mu`` is given, the run is repeated for
+    :math:`\\lambda \\in` ``TAUBIN_LAMBDAS`` (0.5, 0.25, 0.125) with :math:`\\mu` from
+    :func:`taubin_mu_for` keeping the pass band :math:`k_{PB} = 1/\\lambda + 1/\\mu` of the
+    defaults (0.5, -0.53): the same low-pass shape, finer steps (one default iteration
+    can already be too much on weak noise: Nefertiti at rho = 0.015), and the smallest
+    SURE wins, as ``tau`` for ``heat``. From ``TAUBIN_FINE_MIN_VERTICES`` (10,000) vertices a
+    finer lambda is tried only while the best count so far is below ``TAUBIN_FINE_MAX_ITERATIONS``
+    (8): the finer steps are there for weak noise, where one default iteration is already too
+    much; with more iterations the count itself resolves the time, and each halving of lambda
+    doubles a walk that is already long (the 400k scale mesh: 80 iterations at lambda 0.5,
+    docs/scale.md). Open3D's weights depend on the coordinates: not
+    linear, not supported here.
+    """
+    weights = ctx.given.get("weights", "uniform")
+    if weights == "open3d":
+        raise ValueError(
+            "choose_parameters: taubin with weights='open3d' (inverse-distance, recomputed each pass) is not a "
+            "linear smoother; automatic parameters need weights 'uniform' or 'meshlab'"
+        )
+    spec = get_filter("taubin")
+    lam0, mu0 = float(spec.param("lam").default), float(spec.param("mu").default)
+    if "lam" in ctx.given or "mu" in ctx.given:
+        pairs = [(float(ctx.given.get("lam", lam0)), float(ctx.given.get("mu", mu0)))]
+    else:
+        pass_band = 1.0 / lam0 + 1.0 / mu0
+        pairs = [(lam, taubin_mu_for(lam, pass_band)) for lam in TAUBIN_LAMBDAS]
+    A = ctx.ops.P if weights == "uniform" else meshlab_taubin_operator(ctx.ops)
+    best, best_pair = None, None
+    for lam, mu in pairs:
+        if best is not None and ctx.n >= TAUBIN_FINE_MIN_VERTICES and best.value >= TAUBIN_FINE_MAX_ITERATIONS:
+            break  # the run's own count already resolves the time; a finer step costs twice the walk
+        shrink, inflate = averaging_step(A, lam), averaging_step(A, mu)
+        step = lambda Y, s=shrink, f=inflate: f(s(Y))  # noqa: E731
+        if ctx.oracle:
+            p = best_on_path(iterative_path(ctx.V, ctx.ops, step, ctx.exact), ctx.ops.n, ctx.rho, ctx.criterion)
+        else:
+            curve = path_curve(ctx.V, ctx.ops, step, ("taubin", weights, lam, mu), ctx.exact)
+            p = best_on_curve(curve, ctx.ops.n, ctx.rho, ctx.criterion, coordinates=False)
+        if best is None or p.score < best.score:
+            best, best_pair = p, (lam, mu)
+    out = {"iterations": int(best.value)}
+    if len(pairs) > 1:
+        out.update(lam=best_pair[0], mu=best_pair[1])
+    return out, best
+
+
+def taubin_spectral(ops: Operators, params: dict) -> Spectral | None:
+    """The filter at ``params`` as :math:`S^{-1} g(M) S` (:func:`~meshdenoise.tuning.spectral.averaging_spectral`), with
+    the uniform weights :math:`D^{-1} W` (``AutoRule.spectral``); ``None`` with the others, not symmetric in any scale."""
+    if params["weights"] != "uniform":
+        return None
+    return averaging_spectral(ops, (float(params["lam"]), float(params["mu"])), int(params["iterations"]))
+
+
+# criterion "normals": iterations from 1 to 2,000 in steps of 15 % along one run, lam and mu the defaults, the least
+# held-out face-normal loss: on the corpus's tune half 1.20 times the sweep's best error (geometric mean) against 1.39
+# for SURE over three lambdas moved by the estimated normal risk (benchmarks/results/held-out-sweeps.md)
+TAUBIN_NORMALS = HeldOutRule((Sweep("iterations", geometric(1, 2000, 1.15, integer=True), (("lam", 0.5), ("mu", -0.53)),
+                                    additive=True),))
 
 
 @register(
     "taubin",
-    auto=TAUBIN_RULE,
+    auto=AutoRule(("iterations", "lam", "mu"), choose_taubin, normals="iterations", additive=True, integer=True,
+                  held_out=TAUBIN_NORMALS,
+                  spectral=lambda V, F, ops, p: taubin_spectral(ops, p)),
     summary="Taubin lambda/mu smoothing: per iteration X += lam (AX - X), then X += mu (AX - X), mu < 0",
     params=[
         Param("iterations", int, 10, low=0, high=MAX_ITERATIONS, help="number of (lambda pass + mu pass) pairs"),

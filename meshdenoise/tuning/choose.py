@@ -26,9 +26,8 @@ from .covariance import NoiseModel, estimate_noise_model
 from .noise_level import mean_edge_length
 from .normal_risk import NORMAL_FIRST, NORMAL_SCALES, NORMAL_WIDE_BELOW, NORMAL_WIDE_SCALES, NormalChoice, refine_for_normals
 from .risk import Criterion, Point, noise_colouring
-from .search import REGION_MAX_MARGIN, REGION_MIN_VERTICES, region_rule, sure_smoothed
 from .holdout import NoHoldout
-from .sweep import HeldOutRule
+from .search import REGION_MAX_MARGIN, REGION_MIN_VERTICES, region_rule, sure_smoothed
 
 __all__ = ["choose_parameters", "auto_filters", "normal_filters", "rule_criterion", "CRITERIA"]
 
@@ -60,20 +59,7 @@ def normal_filters() -> list[str]:
     >>> normal_filters()
     ['filtering', 'heat', 'sinkhorn', 'sobolev', 'sobolev_axes', 'sobolev_bilaplacian', 'sobolev_gls', 'taubin']
     """
-    return [spec.name for spec in list_filters()
-            if isinstance(spec.auto, HeldOutRule) or (spec.auto is not None and spec.auto.normals is not None)]
-
-
-def held_out_filters() -> list[str]:
-    """Names of the registered filters whose rule reads held-out vertices (:class:`~meshdenoise.tuning.sweep.HeldOutRule`):
-    they minimise the face-normal error and read no noise level.
-
-    Examples
-    --------
-    >>> {"filtering", "taubin"} <= set(held_out_filters())
-    True
-    """
-    return [spec.name for spec in list_filters() if isinstance(spec.auto, HeldOutRule)]
+    return [spec.name for spec in list_filters() if spec.auto is not None and spec.auto.normals is not None]
 
 
 def rule_criterion(method: str, criterion: str | None = None) -> str:
@@ -224,7 +210,7 @@ def choose_parameters(
     *,
     noise: float | NoiseModel | None = None,
     correlation_length: float | None = None,
-    criterion: str | None = None,
+    criterion: str = "sure",
     exact_trace: bool | None = None,
     reference: Any = None,
     return_risk: bool = False,
@@ -255,17 +241,15 @@ def choose_parameters(
         The noise's correlation length in mean edge lengths, if known (with ``noise``:
         0 when not given, the independent noise of the paper; without it: estimated
         when not given). SURE then counts the noise that passes the smoother, :math:`\\mathrm{tr}(H\\Sigma)`.
-    criterion : {"sure", "gcv", "oracle", "normals"}, optional
-        ``None`` (default): ``"sure"``, or for a filter whose rule reads held-out vertices
-        (:func:`held_out_filters`: the value of least held-out face-normal loss along a sweep of its main
-        parameter, :class:`~meshdenoise.tuning.sweep.HeldOutRule`) that rule, which takes ``"normals"``
-        (the same) and ``"oracle"`` (the sweep's value of least true face-normal error) only.
+    criterion : {"sure", "gcv", "oracle", "normals"}
         ``"oracle"`` needs ``reference`` (the clean mesh) and minimises the true error
         over the same search space: the best parameters in hindsight, for benchmarks.
-        ``"normals"`` (linear filters, :func:`normal_filters`): the rule's SURE choice, then its
-        smoothing amount moved to the least estimated error of the face normals
-        (:func:`~meshdenoise.tuning.normal_risk.refine_for_normals`): what a rendering shows,
-        at some position error (the result shrinks more); what ``denoise(mesh, method=M)`` uses.
+        ``"normals"`` (linear filters, :func:`normal_filters`): the least error of the face normals,
+        what a rendering shows, at some position error (the result shrinks more); what
+        ``denoise(mesh, method=M)`` uses. For the filters of :func:`held_out_filters` the value of least
+        held-out face-normal loss along the rule's sweep (:class:`~meshdenoise.tuning.sweep.HeldOutRule`,
+        no noise level read); for the others the rule's SURE choice, its smoothing amount then moved to
+        the least estimated normal error (:func:`~meshdenoise.tuning.normal_risk.refine_for_normals`).
     exact_trace : bool, optional
         Force exact traces (identity probes) or Hutchinson ones.
     reference : mesh or (n, 3) array, optional
@@ -302,10 +286,6 @@ def choose_parameters(
             f"choose_parameters: no automatic rule for filter '{method}'; "
             f"automatic parameters exist for: {', '.join(auto_filters())}"
         )
-    if isinstance(spec.auto, HeldOutRule):
-        params, score = _held_out(spec, mesh, noise, correlation_length, criterion, reference, given)
-        return (params, score) if return_risk else params
-    criterion = "sure" if criterion is None else criterion
     if criterion not in CRITERIA:
         raise ValueError(f"choose_parameters: criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
     if criterion == "normals" and method not in normal_filters():
@@ -314,6 +294,9 @@ def choose_parameters(
     if (criterion == "oracle") != (reference is not None):
         raise ValueError("choose_parameters: reference= (the clean mesh) goes with criterion='oracle', and only with it")
     spec.resolve(given, where=f"choose_parameters(method='{method}')")  # names/types/ranges of held values
+    if criterion == "normals" and spec.auto.held_out is not None:
+        params, score = _held_out(spec, mesh, noise, correlation_length, given)
+        return (params, score) if return_risk else params
     data = read_mesh(mesh)
     V, F = data.V, data.F
     relabel = relabelling(F, V.shape[0])  # a large mesh in a cache-hostile order: choose on relabelled vertices
@@ -377,41 +360,40 @@ def choose_parameters(
     return (params, float(point.score)) if return_risk else params
 
 
-def _held_out(spec: Any, mesh: Any, noise: Any, correlation_length: Any, criterion: str | None, reference: Any,
-              given: dict) -> tuple[dict, float]:
-    """:func:`choose_parameters` for a filter whose rule is a :class:`~meshdenoise.tuning.sweep.HeldOutRule`."""
+def held_out_filters() -> list[str]:
+    """Names of the registered filters whose ``criterion="normals"`` choice reads held-out vertices
+    (``AutoRule.held_out``, a :class:`~meshdenoise.tuning.sweep.HeldOutRule`).
+
+    Examples
+    --------
+    >>> {"filtering", "taubin", "sobolev"} <= set(held_out_filters())
+    True
+    """
+    return [spec.name for spec in list_filters() if spec.auto is not None and spec.auto.held_out is not None]
+
+
+def _held_out(spec: Any, mesh: Any, noise: Any, correlation_length: Any, given: dict) -> tuple[dict, float]:
+    """:func:`choose_parameters` with ``criterion="normals"`` for a filter whose rule has a held-out sweep."""
     method = spec.name
-    spec.resolve(given, where=f"choose_parameters(method='{method}')")  # names/types/ranges of held values
-    if criterion not in (None, "normals", "oracle"):
-        others = sorted(set(auto_filters()) - set(held_out_filters()))
-        raise ValueError(f"choose_parameters: {method}'s rule minimises the face-normal error on held-out vertices: "
-                         f"criterion {criterion!r} is for the rules by SURE ({', '.join(others)}); leave it out")
     if noise is not None or correlation_length is not None:
-        raise ValueError(f"choose_parameters: {method}'s parameters are chosen by held-out vertices, which read no "
-                         "noise level: leave noise= and correlation_length= out")
-    if (criterion == "oracle") != (reference is not None):
-        raise ValueError("choose_parameters: reference= (the clean mesh) goes with criterion='oracle', and only with it")
+        raise ValueError(f"choose_parameters: with criterion 'normals' {method}'s parameters are chosen by held-out "
+                         "vertices, which read no noise level: leave noise= and correlation_length= out, or choose "
+                         "by criterion 'sure' for that level")
     data = read_mesh(mesh)
     V, F = data.V, data.F
     ops = get_operators(F, V.shape[0])
-    Y = None
-    if criterion == "oracle":
-        from ..metrics import coordinates
-
-        Y = coordinates(reference)
-        if Y.shape != V.shape:
-            raise ValueError(f"choose_parameters: reference has {Y.shape[0]} vertices, the mesh {V.shape[0]}")
 
     def run(X: np.ndarray, F: np.ndarray, ops: Any, params: dict) -> np.ndarray:
         return spec.public((X, F), **params, operators=ops)[0]
 
     with stage(f"choosing {method}'s parameters"):
         try:
-            chosen, score = spec.auto.choose(V, F, ops, run, dict(given), reference=Y)
+            chosen, score = spec.auto.held_out.choose(V, F, ops, run, dict(given))
         except NoHoldout as exc:
             warnings.warn(f"choose_parameters({method}): {exc}; the filter's defaults are kept", UserWarning,
                           stacklevel=3)
-            chosen, score = spec.resolve(dict(given)), math.nan
+            chosen = {**{k: spec.param(k).default for k in spec.auto.tunes}, **given}
+            score = math.nan
     log.info("choose_parameters(%s): %s by held-out vertices (loss %.6g)", method, chosen, score)
     return chosen, score
 

@@ -7,9 +7,9 @@ take harmonic values interpolated from the vertices around the hole, the filter 
 copy, and its face normals around each centre are compared with the noisy mesh's there
 (:func:`path_losses`):
 
-.. math:: L = \frac{1}{|T|} \sum_{f \in T} \big(1 - \hat n_f \cdot n_f\big)
+.. math:: L = \\frac{1}{|T|} \\sum_{f \\in T} \\big(1 - \\hat n_f \\cdot n_f\\big)
 
-where :math:`\hat n_f` is the run's normal of face ``f`` on the copy with the holes filled and
+where :math:`\\hat n_f` is the run's normal of face ``f`` on the copy with the holes filled and
 :math:`n_f` the noisy one. When the noise in a hole is independent of the noise outside it (zero
 mean), the run is blind to it and, up to a factor, the loss's expectation is the run's mean angle
 error plus a constant (the proof in :func:`path_losses`): its least value over candidates picks the
