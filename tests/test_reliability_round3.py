@@ -525,13 +525,15 @@ def test_a_real_ctrl_c_while_the_program_loads_is_130_and_silent(delay):
 
 @pytest.mark.skipif(not SCRIPT.is_file(), reason="no meshdenoise console script beside this Python")
 def test_ctrl_c_during_a_dask_batch_exits_130_without_traceback(tmp_path):
-    V, F = icosphere(5)  # four 10k-vertex meshes: the batch outlasts the cluster's start and the signal's delay
-    for k in range(4):
+    # six 41k-vertex meshes (the default takes seconds on each): the batch outlasts the cluster's start and the
+    # signal's delay however fast the filters get (four 10k-vertex meshes once finished before it)
+    V, F = icosphere(6)
+    for k in range(6):
         save_mesh(tmp_path / f"s{k}.ply", md.add_normal_noise((V, F), 0.01, seed=k)[0], F)
     out = tmp_path / "out"
     p = tmp_path / "p.yaml"
-    p.write_text(f"inputs: [s0.ply, s1.ply, s2.ply, s3.ply]\noutput_dir: {out}\nsteps:\n  - denoise\n"
-                 "  - save: {path: '{stem}.ply'}\n")
+    names = ", ".join(f"s{k}.ply" for k in range(6))
+    p.write_text(f"inputs: [{names}]\noutput_dir: {out}\nsteps:\n  - denoise\n  - save: {{path: '{{stem}}.ply'}}\n")
     proc = subprocess.Popen([str(SCRIPT), "run", str(p), "--workers", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                             text=True, env=_env())
     try:

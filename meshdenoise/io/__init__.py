@@ -34,6 +34,10 @@ from .meshfile import MeshFile, PlyExtras
 from .save import _WRITERS, float32_move, save_arrays, save_mesh
 from .topology import topology_notes
 
+# the public exceptions name the module they are imported from (tracebacks and doctests read
+# meshdenoise.io.MeshFileError, not the submodule that defines it)
+MeshFileError.__module__ = PrecisionWarning.__module__ = __name__
+
 __all__ = [
     "MeshFile",
     "load_mesh",
