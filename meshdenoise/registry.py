@@ -206,52 +206,38 @@ class AutoRule:
 
     ``choose(ctx)`` takes a :class:`~meshdenoise.tuning.context.TuningContext` and returns
     ``(chosen parameters, best point)`` (a :class:`~meshdenoise.tuning.risk.Point`); it
-    chooses the parameters in ``tunes`` that ``ctx.given`` does not hold.
+    chooses the parameters in ``tunes`` that ``ctx.given`` does not hold: the rule by SURE
+    (``criterion="sure"``, also ``"gcv"`` and ``"oracle"``).
 
-    ``normals`` names the parameter that sets how much a filter smooths (a weight,
-    an iteration count, a diffusion time): with ``criterion="normals"``
-    (:func:`~meshdenoise.tuning.choose.choose_parameters`) it is rescaled from the rule's choice
-    to the least estimated face-normal error
-    (:func:`~meshdenoise.tuning.normal_risk.refine_for_normals`). ``additive``: running the
-    filter at ``a`` then at ``b`` is running it at ``a + b``; ``integer``: the parameter is a count.
-    A tuple of names is scaled together by one factor (``sobolev_axes``' three weights).
-    Declaring ``normals`` promises that the filter is linear in the coordinates, the same on each
-    axis, for every parameter value its rule accepts (``taubin`` with its three weightings is,
-    though not registered ``linear``), or gives ``linear_map``: ``linear_map(V, F, ops, params)``
-    returns the filter's map with what it reads of the mesh (a frame, normals) taken from ``V``
-    and held, as a function of an ``(n, 3k)`` block of ``k`` coordinate triples, each mapped as
-    the filter maps positions (``sinkhorn``, whose core takes ``(n, 3)`` only; ``sobolev_axes``,
-    whose axes come from the mesh). ``normals_region``: the size of the sampled region the
-    normals search runs on (default :data:`~meshdenoise.tuning.choose.NORMAL_REGION`), from twice
-    that many vertices, for a filter whose candidates are costly (a factorisation of
-    :math:`I + \\mu L^3` per weight). ``normals_held``: ``(name, value)`` pairs the normals search
-    scores the filter at, whatever the rule chose (``sobolev_gls``: ``beta`` 1, the isotropic
-    filter, whose face normals follow the filter's at every weight for a thirtieth of the cost).
-    ``normals_step``: the parameter that is one step of ``normals`` (``heat``'s ``tau`` for its
-    ``time``), a promise that running ``j`` steps then ``k`` is running ``j + k``: the normals
-    search compares whole numbers of steps (what ``heat`` runs, ``time`` rounded up to steps) and
-    its descent runs each count on from a smaller one it has (``refine_for_normals(resume=True)``).
-    ``spectral``: ``spectral(V, F, ops, params)`` gives the filter's map at ``params`` (what it reads of
-    the mesh taken from ``V``, as for ``linear_map``) as functions of one symmetric matrix
-    (:class:`~meshdenoise.tuning.spectral.Spectral`), or ``None`` for a configuration that is not: the
-    normals search then scores its candidates by Lanczos runs, with no filter run per candidate
-    (``refine_for_normals(spectral=...)``). ``held_out``: a
-    :class:`~meshdenoise.tuning.sweep.HeldOutRule`: with ``criterion="normals"`` the parameters are
-    chosen by it instead (the least held-out face-normal loss along its sweeps; no noise level, no SURE
-    choice first), and ``normals`` and the fields after it serve only ``criterion="sure"``'s rule.
+    ``normals`` names the parameter that sets how much a filter smooths (a weight, an iteration
+    count, a diffusion time): the filter takes ``criterion="normals"``
+    (:func:`~meshdenoise.tuning.choose.choose_parameters`), the least error of the face normals.
+    ``held_out``: a :class:`~meshdenoise.tuning.sweep.HeldOutRule` choosing for that criterion by
+    held-out vertices (the least held-out face-normal loss along a sweep of the parameter). Without
+    one the rule's SURE choice is moved to the least estimated face-normal error
+    (:func:`~meshdenoise.tuning.normal_risk.refine_for_normals`), which reads the fields below. A
+    tuple of names is scaled together by one factor (``sobolev_axes``' three weights). Declaring
+    ``normals`` without ``held_out`` promises that the filter is linear in the coordinates, the same
+    on each axis, for every parameter value its rule accepts, or gives ``linear_map``:
+    ``linear_map(V, F, ops, params)`` returns the filter's map with what it reads of the mesh (a
+    frame) taken from ``V`` and held, as a function of an ``(n, 3k)`` block of ``k`` coordinate
+    triples, each mapped as the filter maps positions (``sobolev_axes``, whose axes come from the
+    mesh). ``normals_region``: the size of the sampled region the normals search runs on (default
+    :data:`~meshdenoise.tuning.choose.NORMAL_REGION`), from twice that many vertices, for a filter
+    whose candidates are costly. ``spectral``: ``spectral(V, F, ops, params)`` gives the filter's map
+    at ``params`` (what it reads of the mesh taken from ``V``, as for ``linear_map``) as functions of
+    one symmetric matrix (:class:`~meshdenoise.tuning.spectral.Spectral`), or ``None`` for a
+    configuration that is not: the normals search then scores its candidates by Lanczos runs, with
+    no filter run per candidate (``refine_for_normals(spectral=...)``).
     """
 
     tunes: tuple[str, ...]
     choose: Callable[[Any], tuple[dict, Any]]
     normals: str | tuple[str, ...] | None = None
-    additive: bool = False
-    integer: bool = False
+    held_out: Any = None
     linear_map: Callable[..., Callable[[Any], Any]] | None = None
     normals_region: int | None = None
-    normals_held: tuple[tuple[str, Any], ...] = ()
-    normals_step: str | None = None
     spectral: Callable[..., Any] | None = None
-    held_out: Any = None
 
 
 @dataclass(frozen=True)

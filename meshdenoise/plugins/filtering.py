@@ -414,8 +414,7 @@ FILTERING_NORMALS = HeldOutRule((Sweep("iterations", geometric(1, 400, 1.15, int
 
 @register(
     "filtering",
-    auto=AutoRule(("iterations",), choose_filtering, normals="iterations", additive=True, integer=True,
-                  held_out=FILTERING_NORMALS),
+    auto=AutoRule(("iterations",), choose_filtering, normals="iterations", held_out=FILTERING_NORMALS),
     summary="Linear filtering: average each vertex with its neighbours, k times (X <- D^-1 W X)",
     params=[
         Param("iterations", int, 10, low=0, high=MAX_ITERATIONS, help="number of averaging steps k"),

@@ -218,7 +218,7 @@ HEAT_NORMALS = HeldOutRule((Sweep("time", tuple(round(0.1 * k, 6) for k in geome
 
 @register(
     "heat",
-    auto=AutoRule(("tau", "time"), choose_heat, normals="time", normals_step="tau", held_out=HEAT_NORMALS),
+    auto=AutoRule(("tau", "time"), choose_heat, normals="time", held_out=HEAT_NORMALS),
     summary="Heat diffusion to time T: Euler X <- X - tau (I - D^-1 W) X, ceil(T/tau) steps, or exp(-T (I - D^-1 W)) X by Chebyshev",
     params=[
         Param("tau", float, 0.5, low=0.0, high=2.0, low_open=True, help="Euler step (stable up to 2/lambda_max)"),

@@ -13,10 +13,10 @@ from ..tuning import search
 from ..solvers import shifted_cg_bound
 from ..tuning.search import region_rule, search_log, shifted_reach
 from ..tuning import spectral as spectral_module
-from ..tuning.spectral import Spectral, SpectralFailed, SpectralSearch, heat_kernel_spectral
+from ..tuning.spectral import SpectralFailed, SpectralSearch, heat_kernel_spectral
 from ..tuning.sweep import HeldOutRule, Sweep, geometric
 
-__all__ = ["sinkhorn", "sinkhorn_map"]
+__all__ = ["sinkhorn"]
 
 
 # ----------------------------------------------------------------------------- automatic rule
@@ -128,7 +128,7 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
                 break
         return out
 
-    # the map is g(L) (sinkhorn_spectral): every (t, k) from two Lanczos runs, the probes' one shared by the whole
+    # the map is g(L) (heat_kernel_spectral): every (t, k) from two Lanczos runs, the probes' one shared by the whole
     # search (tuning/spectral.py), no factorisation; the same terms to about 1e-10, the same early stop
     lanczos = (not ctx.oracle and Z.shape[1] < n and n >= spectral_module.SPECTRAL_MIN_VERTICES
                and max(ks) <= SINKHORN_SPECTRAL_MAX_ITERATIONS)
@@ -169,35 +169,6 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
     return {"t": float(p.value), "iterations": int(best_k[p.value])}, p
 
 
-def sinkhorn_map(V: np.ndarray, F: np.ndarray, ops: object, params: dict):
-    """The filter in its rule's configuration as a map of ``(n, 3k)`` blocks: :math:`(2G - G^2)^k`.
-
-    :math:`G = (I + \\tfrac{t}{s} L)^{-s}`, the graph Laplacian's heat kernel in ``steps`` substeps.
-
-    The core checks for ``(n, 3)`` positions; this map is the same filter (graph Laplacian,
-    uniform measure, twicing: linear, the same on each column) for the probes of
-    :func:`~meshdenoise.tuning.normal_risk.refine_for_normals` (``AutoRule.linear_map``).
-    """
-    from ..ot import MeshHeatKernel
-
-    K = MeshHeatKernel(V, F, float(params["t"]), laplacian="graph", mass="uniform", steps=int(params["steps"]))
-
-    def apply(block: np.ndarray) -> np.ndarray:
-        Y = np.array(block, dtype=np.float64)
-        for _ in range(int(params["iterations"])):
-            GY = K.solve(Y)
-            Y = 2.0 * GY - K.solve(GY)
-        return Y
-
-    return apply
-
-
-def sinkhorn_spectral(ops: object, params: dict) -> Spectral:
-    """:func:`sinkhorn_map` as :math:`g(L)`, :math:`g = (2\\gamma - \\gamma^2)^k`, :math:`\\gamma(y) = (1 + \\tfrac{t}{s} y)^{-s}`
-    (:func:`~meshdenoise.tuning.spectral.heat_kernel_spectral`; ``AutoRule.spectral``)."""
-    return heat_kernel_spectral(ops, float(params["t"]), int(params["steps"]), int(params["iterations"]))
-
-
 # criterion "normals": t from 0.05 to 200 in steps of 2^(1/3), 3 projections, the least held-out face-normal loss: on
 # the corpus's tune half (13 cases) 1.15 times the sweep's best error (geometric mean) against 1.59 for SURE's choice
 # moved by the estimated normal risk (benchmarks/results/held-out-sweeps.md)
@@ -206,8 +177,7 @@ SINKHORN_NORMALS = HeldOutRule((Sweep("t", geometric(0.05, 200.0, 2 ** (1 / 3)),
 
 @register(
     "sinkhorn",
-    auto=AutoRule(("t", "iterations"), choose_sinkhorn, normals="t", linear_map=sinkhorn_map, spectral=
-                  lambda V, F, ops, p: sinkhorn_spectral(ops, p), held_out=SINKHORN_NORMALS),
+    auto=AutoRule(("t", "iterations"), choose_sinkhorn, normals="t", held_out=SINKHORN_NORMALS),
     summary="OT: move each vertex to its barycentric projection under the Sinkhorn-scaled heat-kernel plan",
     params=[
         Param("t", float, 10.0, low=0.0, low_open=True, help="diffusion time of the heat kernel (I + tL)^-1"),

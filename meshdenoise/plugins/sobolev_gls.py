@@ -5,7 +5,6 @@ from __future__ import annotations
 import logging
 import math
 import warnings
-from dataclasses import replace
 from typing import Any, Callable
 
 import numpy as np
@@ -22,12 +21,11 @@ from ..tuning.context import TuningContext
 from ..tuning.noise_level import mean_edge_length, normal_spread, normal_trust
 from ..tuning.risk import Point, gcv
 from ..tuning.search import best_shifted, probe_count, region_rule, search_log, shifted_reach, solve_shifted
-from ..tuning.spectral import Spectral, shifted_spectral
 from ..tuning.sweep import HeldOutRule, Sweep, geometric
 
 log = logging.getLogger("meshdenoise.auto")
 
-__all__ = ["sobolev_gls", "normal_weighted_solve", "coherent_normals", "sobolev_gls_map"]
+__all__ = ["sobolev_gls", "normal_weighted_solve", "coherent_normals"]
 
 CG_TOL = 1e-9  # relative residual of the preconditioned conjugate gradient
 GLS_FILTER_TOL = 1e-4  # ... in the filter, every path: A >= I, so the correction's error is at most tol ||b|| <=
@@ -328,30 +326,16 @@ def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
     """:func:`choose_sobolev_gls_whole` on a sampled region of ``SOBOLEV_GLS_REGION`` vertices from
     :data:`~meshdenoise.tuning.search.REGION_MIN_VERTICES` vertices (:func:`~meshdenoise.tuning.search.region_rule`),
     on the whole mesh below (docs/scale.md: the same choice at 100k and 400k, a bounded cost).
-
-    When the normals criterion follows (``ctx.normals_next``) it moves ``mu`` on, scoring the filter at
-    ``beta = 1`` (``AutoRule.normals_held``), so ``mu`` is not searched here: it is held at the isotropic
-    filter's SURE weight (:func:`~meshdenoise.tuning.search.best_shifted`, :math:`(I + \\mu L^p)^{-1}`, the
-    normals search's start) and only ``beta`` is chosen, by the SURE sweep at that ``mu`` (CG to
-    ``SOBOLEV_GLS_SWEEP_TOL``; on the sampled region from ``GLS_SWEEP_REGION_FROM`` vertices).
-    Fandisk0.3: 44 s -> 10 s, the same beta and 9.52 degrees against 9.56 (docs/automatic-parameters.md).
     """
     order = int(get_filter("sobolev_gls").resolve(ctx.given, where="choose_parameters(method='sobolev_gls')")["order"])
-    sweep_only = ctx.normals_next and "mu" not in ctx.given and ctx.reference is None and bool(ctx.rho)
-    if sweep_only:
-        mu = best_shifted(ctx.V, ctx.ops, order, ctx.rho, "sure", ctx.exact, center=ctx.mu_guess(order),
-                          coordinates=False).value
-        ctx = replace(ctx, given={**ctx.given, "mu": float(mu)})
 
     def on_region(sub: TuningContext, scored: np.ndarray | None, previous: dict | None = None) -> tuple[dict, Point]:
-        return choose_sobolev_gls_whole(sub, scored, previous, loose=scored is not None or sweep_only)
+        return choose_sobolev_gls_whole(sub, scored, previous, loose=scored is not None)
 
     # a region grown for a strong weight refines only mu, beta held at the smaller region's choice
     # (choose_sobolev_gls_whole's previous): with mu held here too it would change nothing (the bunny scanner: 1.9 s)
     return region_rule(ctx, on_region, SOBOLEV_GLS_REGION, SOBOLEV_GLS_PATCHES, SOBOLEV_GLS_MARGIN,
-                       min_vertices=GLS_SWEEP_REGION_FROM if sweep_only else None,
-                       reach=None if sweep_only else
-                       (lambda chosen: shifted_reach(chosen["mu"], order) if chosen.get("mu") else 0), restart=True)
+                       reach=lambda chosen: shifted_reach(chosen["mu"], order) if chosen.get("mu") else 0, restart=True)
 
 
 def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = None,
@@ -557,52 +541,6 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
     return {"mu": float(mu), "beta": float(beta)}, best
 
 
-GLS_MAP_TOL = 1e-6  # CG's relative residual in sobolev_gls_map (the normals search's probes)
-GLS_NORMAL_REGION = 8_000  # the normals criterion's search on a region of this size from twice as many vertices: each
-# candidate is a factorisation of I + mu L^3 and a block CG over the probes' triples
-
-
-def sobolev_gls_map(V: np.ndarray, F: np.ndarray, ops: Operators, params: dict):
-    """The filter with its normals taken from ``V`` and held, as a map of ``(n, 3k)`` blocks of coordinate triples.
-
-    For each triple ``B`` (n, 3):
-
-    .. math:: Y = B_0 + A^{-1} (\\beta - 1)(I - \\hat N \\hat N^T)(B - B_0), \\qquad B_0 = (I + \\mu L^p)^{-1} B,
-
-    :math:`A = W + \\mu L^p \\otimes I_3`, with :math:`\\hat N` the normals of :math:`(I + \\mu L^p)^{-1} V` held:
-    linear in ``B``, and :func:`sobolev_gls` itself on ``V`` (``AutoRule.linear_map``, for the probes of
-    :func:`~meshdenoise.tuning.normal_risk.refine_for_normals`). The triples are solved together, one block
-    conjugate-gradient run (:func:`normal_weighted_solve`) to a relative residual of ``GLS_MAP_TOL`` each.
-    """
-    mu, beta, order = float(params["mu"]), float(params["beta"]), int(params["order"])
-    V = np.asarray(V, dtype=np.float64)
-    S = shifted_solver(ops, mu, order) if mu > 0 else None
-    N = coherent_normals(S.solve(V), F) if S is not None and beta != 1.0 else None
-
-    def apply(block: np.ndarray) -> np.ndarray:
-        B = np.asarray(block, dtype=np.float64)
-        if S is None:
-            return B.copy()
-        B0 = S.solve(B)
-        if N is None:
-            return B0
-        n, k = B.shape[0], B.shape[1] // 3
-        triples = lambda A: A.reshape(n, k, 3).transpose(0, 2, 1)  # noqa: E731  (n, 3, k): triple p in [:, :, p]
-        rhs = _correction_rhs(N, beta, triples(B), triples(B0))
-        D = normal_weighted_solve(ops, N, beta, mu, order, rhs, tol=GLS_MAP_TOL)
-        return B0 + D.transpose(0, 2, 1).reshape(n, 3 * k)
-
-    return apply
-
-
-def sobolev_gls_spectral(ops: Operators, params: dict) -> Spectral | None:
-    """:func:`sobolev_gls_map` at ``beta`` 1 (what the normals search scores, ``AutoRule.normals_held``):
-    :math:`(I + \\mu L^p)^{-1}` (:func:`~meshdenoise.tuning.spectral.shifted_spectral`); ``None`` at another ``beta``."""
-    if float(params["beta"]) != 1.0:
-        return None
-    return shifted_spectral(ops, float(params["mu"]), int(params["order"]))
-
-
 # criterion "normals": mu from 0.01 to 10^6 in steps of 2^(1/3), beta 3, the least held-out face-normal loss: on the
 # corpus's tune half (12 cases) 1.09 times the sweep's best error (geometric mean) against 1.49 for SURE's choice moved
 # by the estimated normal risk (benchmarks/results/held-out-sweeps.md)
@@ -612,9 +550,7 @@ GLS_NORMALS = HeldOutRule((Sweep("mu", geometric(0.01, 1e6, 2 ** (1 / 3)), (("be
 @register(
     "sobolev_gls",
     scale_free=True,
-    auto=AutoRule(("mu", "beta"), choose_sobolev_gls, normals="mu", linear_map=sobolev_gls_map,
-                  normals_region=GLS_NORMAL_REGION, normals_held=(("beta", 1.0),), spectral=
-                  lambda V, F, ops, p: sobolev_gls_spectral(ops, p), held_out=GLS_NORMALS),
+    auto=AutoRule(("mu", "beta"), choose_sobolev_gls, normals="mu", held_out=GLS_NORMALS),
     summary="Polyharmonic Sobolev with the data term weighted beta times more across the estimated normals",
     params=[
         Param("mu", float, 1000.0, low=0.0, help="weight of the penalty ||L^{p/2} Y||^2 (0 returns the input)"),
@@ -660,8 +596,8 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, draft=None, rough=False):
     where a held isotropic pass came first (face000: 8.392 -> 8.386 degrees, 70.603 -> 70.606 dB, the held run
     2.8 -> about 1.1 s with the one-ring preconditioner's factor alone).
     ``meshdenoise.choose_parameters`` picks ``mu`` and ``beta`` by SURE; ``denoise(mesh,
-    method="sobolev_gls")`` then moves ``mu`` to the least estimated face-normal error (criterion
-    ``"normals"``, scored at ``beta`` 1: :func:`sobolev_gls_map`).
+    method="sobolev_gls")`` chooses ``mu`` for the face normals instead (criterion ``"normals"``: the least
+    held-out face-normal loss over ``mu``, ``beta`` 3, :data:`GLS_NORMALS`).
 
     Choosing ``mu`` for a scan: the oracle's ``mu`` for noise of 0.1, 0.3 and 1 mean edge lengths
     was 0.10, 1.2 and 16 on a sphere and 4.3, 11 and 28 on a torus (``benchmarks/results/parameter-scale.md``), and

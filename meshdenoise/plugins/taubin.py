@@ -10,7 +10,6 @@ from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import averaging_step, best_on_curve, best_on_path, iterative_path, path_curve
-from ..tuning.spectral import Spectral, averaging_spectral
 from ..tuning.sweep import HeldOutRule, Sweep, geometric
 from .filtering import has_repeated_index, vcglib_sum_matrix
 
@@ -134,14 +133,6 @@ def choose_taubin(ctx: TuningContext) -> tuple[dict, Point]:
     return out, best
 
 
-def taubin_spectral(ops: Operators, params: dict) -> Spectral | None:
-    """The filter at ``params`` as :math:`S^{-1} g(M) S` (:func:`~meshdenoise.tuning.spectral.averaging_spectral`), with
-    the uniform weights :math:`D^{-1} W` (``AutoRule.spectral``); ``None`` with the others, not symmetric in any scale."""
-    if params["weights"] != "uniform":
-        return None
-    return averaging_spectral(ops, (float(params["lam"]), float(params["mu"])), int(params["iterations"]))
-
-
 # criterion "normals": iterations from 1 to 2,000 in steps of 15 % along one run, lam and mu the defaults, the least
 # held-out face-normal loss: on the corpus's tune half 1.20 times the sweep's best error (geometric mean) against 1.39
 # for SURE over three lambdas moved by the estimated normal risk (benchmarks/results/held-out-sweeps.md)
@@ -151,9 +142,7 @@ TAUBIN_NORMALS = HeldOutRule((Sweep("iterations", geometric(1, 2000, 1.15, integ
 
 @register(
     "taubin",
-    auto=AutoRule(("iterations", "lam", "mu"), choose_taubin, normals="iterations", additive=True, integer=True,
-                  held_out=TAUBIN_NORMALS,
-                  spectral=lambda V, F, ops, p: taubin_spectral(ops, p)),
+    auto=AutoRule(("iterations", "lam", "mu"), choose_taubin, normals="iterations", held_out=TAUBIN_NORMALS),
     summary="Taubin lambda/mu smoothing: per iteration X += lam (AX - X), then X += mu (AX - X), mu < 0",
     params=[
         Param("iterations", int, 10, low=0, high=MAX_ITERATIONS, help="number of (lambda pass + mu pass) pairs"),

@@ -141,22 +141,12 @@ def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, Nor
     if len(names) == 1:
         name = names[0]
         start = float(params[name])
-        # heat's time in whole steps of tau: the counts it runs (time rounded up to steps), run on from one to the next
-        unit = float(params[rule.normals_step]) if rule.normals_step else None
-        counts = rule.integer or unit is not None
-        if rule.integer:
-            start = max(start, 1.0)  # a rule that chose no step: the normals may still want some
-        elif start <= 0:
+        if start <= 0:
             return chosen, None
-        high = spec.param(name).high
-        if unit is not None:
-            start, high = start / unit, None if high is None else high / unit
-        candidates = normal_candidates(start, counts, high, scales)
+        candidates = normal_candidates(start, False, spec.param(name).high, scales)
 
         def values(value: float) -> dict:
-            if unit is not None:
-                return {name: float(value) * unit}
-            return {name: int(value) if rule.integer else float(value)}
+            return {name: float(value)}
     else:  # one factor on the named weights (those the rule set to 0 stay 0)
         base = {name: float(params[name]) for name in names}
         if not any(v > 0 for v in base.values()):
@@ -171,7 +161,7 @@ def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, Nor
         last: dict = {}  # the last value's linear map: a pass applies it to V, then to V with the probes
 
         def apply(value: float, block: np.ndarray) -> np.ndarray:
-            at = {**params, **values(value), **dict(rule.normals_held)}
+            at = {**params, **values(value)}
             if rule.linear_map is None:
                 return spec.core(block, sub.F, ops=sub.ops, pinned=None, **at)
             if last.get("value") != value:  # the filter's map with what it reads of the mesh taken from sub.V
@@ -181,13 +171,11 @@ def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, Nor
 
         correlated = sub.noise is not None and sub.noise.correlated
         family = None
-        if rule.spectral is not None and rule.spectral(sub.V, sub.F, sub.ops,
-                                                       {**params, **values(start), **dict(rule.normals_held)}):
+        if rule.spectral is not None and rule.spectral(sub.V, sub.F, sub.ops, {**params, **values(start)}):
             def family(value: float):
-                return rule.spectral(sub.V, sub.F, sub.ops, {**params, **values(value), **dict(rule.normals_held)})
+                return rule.spectral(sub.V, sub.F, sub.ops, {**params, **values(value)})
         found.append(refine_for_normals(sub.V, sub.F, apply, start, candidates, sub.rho, spectral=family,
-                                        colour=sub.colour if correlated else None, additive=rule.additive,
-                                        resume=rule.normals_step is not None and not rule.additive, edge_length=h,
+                                        colour=sub.colour if correlated else None, edge_length=h,
                                         first=start * NORMAL_FIRST, rows=scored,
                                         guard_above=start * NORMAL_SCALES[-1] * 1.001))
         return values(found[-1].value), Point(found[-1].value, math.nan, math.nan, None, found[-1].risk)
@@ -341,7 +329,7 @@ def choose_parameters(
         if relabel is not None:
             Y = relabel.vertices(Y)
     ctx = TuningContext(V, F, ops, rho, Criterion("sure" if criterion == "normals" else criterion, Y), exact_trace,
-                        dict(given), model, normals_next=criterion == "normals")
+                        dict(given), model)
     with stage(f"choosing {method}'s parameters"), noise_colouring(model):
         chosen, point = spec.auto.choose(ctx)
         if criterion == "normals":

@@ -37,11 +37,6 @@ class TuningContext:
         The noise covariance (:class:`~meshdenoise.tuning.covariance.NoiseModel`): its
         ``rho`` is ``rho``; a correlated one colours the trace probes while the rule runs
         (:func:`~meshdenoise.tuning.risk.noise_colouring`). ``None``: independent noise.
-    normals_next : bool
-        ``criterion="normals"`` follows the rule: the smoothing amount it chooses
-        (``AutoRule.normals``) will be moved to the least estimated face-normal error, so the
-        rule may leave it unsearched (``sobolev_gls`` holds ``mu`` at the isotropic filter's SURE weight and
-        chooses ``beta`` only).
     """
 
     V: np.ndarray
@@ -52,7 +47,6 @@ class TuningContext:
     exact: bool | None
     given: dict[str, Any] = field(default_factory=dict)
     noise: Any = None
-    normals_next: bool = False
 
     def __post_init__(self) -> None:
         self.criterion = as_criterion(self.criterion)
