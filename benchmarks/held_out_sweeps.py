@@ -121,6 +121,24 @@ def main(cases, filters, out, patience=4, rule=True):
             Path(out).write_text(json.dumps(rows, indent=1))
 
 
+def table(paths: list) -> str:
+    """Markdown: per filter and split, the geometric mean of each choice's error over its sweep's best and the share
+    within 10 % (a row's rule column over the cases where it was measured)."""
+    rows = [r for p in paths for r in json.loads(Path(p).read_text())]
+    out = ["| filter | split | cases | its rule | within 10 % | held-out sweep | within 10 % | worst |",
+           "|---|---|---|---|---|---|---|---|"]
+    keys = sorted({(r["filter"], r["split"]) for r in rows}, key=lambda k: (k[1] != "tune", k[0]))
+    for f, split in keys:
+        sel = [r for r in rows if (r["filter"], r["split"]) == (f, split)]
+        hold = np.array([r["hold"] / r["oracle"] for r in sel])
+        rule = np.array([r["auto"] / r["oracle"] for r in sel if np.isfinite(r["auto"])])
+        ruled = (f"{np.exp(np.mean(np.log(rule))):.3f} ({rule.size}) | {100 * np.mean(rule <= 1.1):.0f} %"
+                 if rule.size else "- | -")
+        out.append(f"| {f} | {split} | {len(sel)} | {ruled} | {np.exp(np.mean(np.log(hold))):.3f} | "
+                   f"{100 * np.mean(hold <= 1.1):.0f} % | {hold.max():.2f} |")
+    return "\n".join(out) + "\n"
+
+
 if __name__ == "__main__":
     import argparse
     ap = argparse.ArgumentParser()
@@ -129,7 +147,11 @@ if __name__ == "__main__":
     ap.add_argument("--limit", type=int, default=100)
     ap.add_argument("--patience", type=int, default=4, help="steps of the sweep read past its least held-out loss")
     ap.add_argument("--no-rule", action="store_true", help="do not run the filter's own rule")
+    ap.add_argument("--table", nargs="+", metavar="JSON", help="write the markdown table of these runs' rows to --out")
     ap.add_argument("--out", default="held-out-sweeps.json")
     a = ap.parse_args()
+    if a.table:
+        Path(a.out).write_text(table(a.table))
+        raise SystemExit(0)
     names = [n for n in corpus.CASES if corpus.split(n) == a.split][: a.limit]
     main(names, a.filters.split(","), a.out, a.patience, not a.no_rule)

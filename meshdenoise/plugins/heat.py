@@ -210,8 +210,8 @@ def choose_heat(ctx: TuningContext) -> tuple[dict, Point]:
 
 
 # criterion "normals": steps of tau = 0.1, from 1 to 5,000 of them in steps of 15 % along one run, the least held-out
-# face-normal loss: on the corpus's tune half (13 cases) 1.13 times the sweep's best error (geometric mean) against 1.66
-# for SURE's choice moved by the estimated normal risk (benchmarks/results/held-out-sweeps.md)
+# face-normal loss: on the corpus's tune half 1.22 times the sweep's best error (geometric mean; 1.13 on the 13 cases
+# where the normal-risk search it replaced read 1.66) (benchmarks/results/held-out-sweeps.md)
 HEAT_NORMALS = HeldOutRule((Sweep("time", tuple(round(0.1 * k, 6) for k in geometric(1, 5000, 1.15, integer=True)),
                                   (("tau", 0.1),), additive=True),))
 
