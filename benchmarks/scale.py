@@ -596,7 +596,7 @@ def main(argv: list[str] | None = None) -> None:
         + (f", per peer: {args.peer_timeout:.0f} s" if args.peers and args.peer_timeout is not None else ""),
         "choose s, filter s, SNR auto: in process, or with * the command's own stages (the filter with the default's fold "
         "guard) and its output file read back; "
-        "end-to-end s and peak: the command `meshdenoise denoise [--method M --auto] IN.ply OUT.ply` in a fresh process",
+        "end-to-end s and peak: the command `meshdenoise denoise [--method M] IN.ply OUT.ply` in a fresh process",
         "",
     ]
     if not args.pairs_only:
