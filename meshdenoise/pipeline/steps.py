@@ -744,16 +744,26 @@ def _run_ours(step: Step, ctx: RunContext) -> None:
         chosen = choose_parameters(state.arrays(), method=step.name, noise=noise, criterion=criterion)
         chosen = {**chosen, **params}  # values written in the pipeline win
         params = spec.resolve(chosen, step.where)
-        for k, v in params.items():
-            ctx.row[f"auto.{step.name}.{k}"] = v
-        if ctx.echo:
-            what = "the face-normal error" if criterion == "normals" else "the position error"
-            ctx.echo(f"{ctx.input_path.name}: {step.name} parameters chosen automatically for {what} "
-                     f"(criterion {criterion}): {params}")
+        _record_choice(ctx, step.name, params, criterion)
         release_before_filter()
-    with stage(f"running {step.name}"):
-        V, _ = spec.public(state.arrays(), **params, **options)
-    ctx.state = state.with_vertices(V)
+    _filter_state(ctx, spec, params, options)
+
+
+def _record_choice(ctx: RunContext, method: str, params: dict, criterion: str) -> None:
+    """The chosen parameters as the row's ``auto.<filter>.<param>`` columns, and the line said about them."""
+    for k, v in params.items():
+        ctx.row[f"auto.{method}.{k}"] = v
+    if ctx.echo:
+        what = "the face-normal error" if criterion == "normals" else "the position error"
+        ctx.echo(f"{ctx.input_path.name}: {method} parameters chosen automatically for {what} "
+                 f"(criterion {criterion}): {params}")
+
+
+def _filter_state(ctx: RunContext, spec: Any, params: dict, options: dict) -> None:
+    """Our filter ``spec`` on the state's mesh with ``params`` and the common ``options``; the state moves on."""
+    with stage(f"running {spec.name}"):
+        V, _ = spec.public(ctx.state.arrays(), **params, **options)
+    ctx.state = ctx.state.with_vertices(V)
 
 
 def _run_default(step: Step, ctx: RunContext) -> None:
@@ -804,15 +814,8 @@ def _run_method(step: Step, ctx: RunContext, method: str, options: dict) -> None
     params = spec.resolve(params, step.where)
     ctx.row["denoise.method"] = method
     if criterion is not None:  # chosen: recorded as a filter step's parameters: auto records them
-        for k, v in params.items():
-            ctx.row[f"auto.{method}.{k}"] = v
-        if ctx.echo:
-            what = "the face-normal error" if criterion == "normals" else "the position error"
-            ctx.echo(f"{ctx.input_path.name}: {method} parameters chosen automatically for {what} "
-                     f"(criterion {criterion}): {params}")
-    with stage(f"running {method}"):
-        V, _ = spec.public(state.arrays(), **params, **options)
-    ctx.state = state.with_vertices(V)
+        _record_choice(ctx, method, params, criterion)
+    _filter_state(ctx, spec, params, options)
 
 
 def _run_open3d(step: Step, ctx: RunContext) -> None:
