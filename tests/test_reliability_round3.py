@@ -65,6 +65,12 @@ def mesh_file(tmp_path):
     return save_mesh(tmp_path / "sphere.ply", *icosphere(1))
 
 
+def _default_sigint() -> None:
+    """In the child before exec: Ctrl-C's default action, as a terminal starts a program. A suite run in the
+    background of a non-interactive shell (``make test &``) has SIGINT ignored, and an ignored signal is inherited."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def _env(**extra) -> dict:
     env = {k: v for k, v in os.environ.items() if not k.startswith("NUMBA_CACHE")}
     env.update(extra)
@@ -470,7 +476,7 @@ def test_sigint_mid_write_exits_130_and_leaves_nothing(tmp_path, mesh_file, comm
     p.write_text(f"inputs: {mesh_file}\noutput_dir: {out}\nsteps:\n  - sobolev: {{mu: 1}}\n  - save: {{path: r.ply}}\n")
     args = ["denoise", "--method", "sobolev", "--defaults", str(mesh_file), str(out / "r.ply")] if command == "denoise" else ["run", str(p), "--serial"]
     proc = subprocess.Popen([sys.executable, "-c", _SLOW_RUN, "-", *args], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=_env())
+                            text=True, env=_env(), preexec_fn=_default_sigint)
     try:
         while True:
             line = proc.stdout.readline()
@@ -514,7 +520,8 @@ def test_ctrl_c_while_loading_is_130_in_the_command_and_a_keyboard_interrupt_els
 @pytest.mark.skipif(not SCRIPT.is_file(), reason="no meshdenoise console script beside this Python")
 @pytest.mark.parametrize("delay", [0.15, 0.5])
 def test_a_real_ctrl_c_while_the_program_loads_is_130_and_silent(delay):
-    proc = subprocess.Popen([str(SCRIPT), "filters"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env())
+    proc = subprocess.Popen([str(SCRIPT), "filters"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=_env(),
+                            preexec_fn=_default_sigint)
     time.sleep(delay)
     proc.send_signal(signal.SIGINT)
     out, err = proc.communicate(timeout=120)
@@ -535,7 +542,7 @@ def test_ctrl_c_during_a_dask_batch_exits_130_without_traceback(tmp_path):
     names = ", ".join(f"s{k}.ply" for k in range(6))
     p.write_text(f"inputs: [{names}]\noutput_dir: {out}\nsteps:\n  - denoise\n  - save: {{path: '{{stem}}.ply'}}\n")
     proc = subprocess.Popen([str(SCRIPT), "run", str(p), "--workers", "2"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=_env())
+                            text=True, env=_env(), preexec_fn=_default_sigint)
     try:
         assert "task(s)" in proc.stdout.readline()  # the plan is checked: the cluster starts now
         time.sleep(3.0)
