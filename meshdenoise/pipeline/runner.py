@@ -19,7 +19,7 @@ from ..registry import ParameterError
 from .errors import InputError, OutputError, ParameterFailure, StepFailure
 from .schema import Task
 from .state import MeshState
-from .steps import RunContext, run_step
+from .execute import RunContext, run_step
 
 __all__ = ["run_task", "run_task_safely", "WARNINGS_KEY"]
 
