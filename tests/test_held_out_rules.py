@@ -72,6 +72,25 @@ def test_an_additive_sweep_read_along_one_run_is_each_count_run_alone(sphere):
         np.testing.assert_allclose(X, apply_filter("filtering", (Vn, F), iterations=v)[0], rtol=0, atol=1e-12)
 
 
+def test_a_fixed_value_the_caller_changes_makes_the_sweep_run_each_value_alone(sphere):
+    """heat's times are whole steps of its fixed tau = 0.1: with tau = 0.5 given, a time of 0.1 is one step of 0.5,
+    so the states may no longer be read along one run."""
+    (sweep,) = get_filter("heat").auto.held_out.sweeps
+    assert sweep.additive and sweep.with_given({}).additive
+    assert not sweep.with_given({"tau": 0.5}).additive
+    assert get_filter("filtering").auto.held_out.sweeps[0].with_given({"weights": "meshlab"}).additive  # not fixed
+    _, Vn, F = sphere
+    ops = get_operators(F, len(Vn))
+    held = sweep.with_given({"tau": 0.5})
+    short = Sweep(held.parameter, held.values[:6], held.fixed, held.additive)
+
+    def run(X, F, ops, params):
+        return apply_filter("heat", (X, F), **params, operators=ops)[0]
+
+    for k, X in enumerate(sweep_path(short, run, F, ops)(Vn)):
+        np.testing.assert_allclose(X, apply_filter("heat", (Vn, F), **short.params(k))[0], rtol=0, atol=1e-12)
+
+
 def test_given_parameters_are_held_and_a_given_swept_one_leaves_nothing_to_choose(sphere):
     _, Vn, F = sphere
     assert choose_parameters((Vn, F), "sobolev", criterion="normals", mu=2.0) == {"mu": 2.0}

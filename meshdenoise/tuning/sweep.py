@@ -137,9 +137,15 @@ class Sweep:
         return {**dict(self.fixed), self.parameter: self.values[k]}
 
     def with_given(self, given: dict) -> "Sweep":
-        """The sweep with the caller's parameters held instead of its own fixed ones."""
-        fixed = {**dict(self.fixed), **{k: v for k, v in given.items() if k != self.parameter}}
-        return Sweep(self.parameter, self.values, tuple(fixed.items()), self.additive)
+        """The sweep with the caller's parameters held instead of its own fixed ones.
+
+        A fixed value the caller changes may be what made the values additive (``heat``'s times are whole
+        steps of its fixed ``tau``): the sweep then runs each value from the input.
+        """
+        own = dict(self.fixed)
+        fixed = {**own, **{k: v for k, v in given.items() if k != self.parameter}}
+        additive = self.additive and all(fixed[k] == v for k, v in own.items())
+        return Sweep(self.parameter, self.values, tuple(fixed.items()), additive)
 
 
 # run(Y, F, ops, params) -> the filter's positions (n, 3) on the mesh (Y, F) with its operators
