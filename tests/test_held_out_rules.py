@@ -126,3 +126,23 @@ def test_sinkhorn_with_no_projection_given_keeps_its_default_t():
     V, F = icosphere(3)
     Vn, _ = md.add_normal_noise((V, F), 0.02, seed=3)
     assert choose_parameters((Vn, F), "sinkhorn", iterations=0) == {"t": 10.0, "iterations": 0}
+
+
+def test_the_command_refuses_a_noise_level_for_a_held_out_choice_and_dry_runs_without_one(tmp_path):
+    from click.testing import CliRunner
+
+    from meshdenoise.cli import cli
+    from meshdenoise.io import save_mesh
+
+    V, F = icosphere(3)
+    src = tmp_path / "s.ply"
+    save_mesh(src, md.add_normal_noise((V, F), 0.02, seed=0)[0], F)
+    out = tmp_path / "o.ply"
+    refused = CliRunner().invoke(cli, ["denoise", str(src), str(out), "--method", "sobolev", "--noise", "0.3h"])
+    assert refused.exit_code == 2 and "held-out" in refused.output and "--criterion sure" in refused.output
+    assert not out.exists()
+    by_sure = CliRunner().invoke(cli, ["denoise", str(src), str(out), "--method", "sobolev", "--noise", "0.3h",
+                                       "--criterion", "sure", "--dry-run"])
+    assert by_sure.exit_code == 0, by_sure.output
+    dry = CliRunner().invoke(cli, ["denoise", str(src), str(out), "--method", "heat", "--param", "tau=0.5", "--dry-run"])
+    assert dry.exit_code == 0 and "chosen for criterion normals" in dry.output, dry.output

@@ -385,7 +385,10 @@ def _dry_run(src: Path, step) -> None:
             h = mean_edge_length(mesh.V, get_operators(mesh.F, mesh.V.shape[0]))
             model = known if known is not None else estimate_noise_model(arrays)
             rho = model.rho
-            params, criterion = method_parameters(arrays, method, noise=model, criterion=options.get("criterion"),
+            # the estimate is shown; a choice by held-out vertices reads none (only a given level, refused there)
+            held_out = spec.auto is not None and spec.auto.held_out is not None and options.get("criterion") != "sure"
+            params, criterion = method_parameters(arrays, method, noise=known if held_out else model,
+                                                  criterion=options.get("criterion"),
                                                   defaults=options.get("defaults", False), **step.params)
             settings = spec.resolve(params, f"--method '{method}'")
             spread = (f"correlated over {model.correlation_length:.3g} edge lengths" if model.correlated

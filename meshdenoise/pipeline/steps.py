@@ -580,6 +580,10 @@ def denoise_step(given: dict, index: int | None = None, label: str | None = None
                                           f"leave out {key}")
     if "criterion" in options:
         _check_criterion(method, options["criterion"], at_param("criterion"))
+    if "noise" in options and chooses and spec.auto.held_out is not None and options.get("criterion") != "sure":
+        raise PipelineValidationError(f"{at_param('noise')}: '{method}' chooses for the face normals by held-out "
+                                      "vertices, which read no noise level; add criterion: sure (--criterion sure) to "
+                                      "choose by SURE for this level, or leave noise out")
     try:
         checked = spec.resolve(rest, at)  # the values given, checked; the rule (or the defaults) fills the others
     except (TypeError, ValueError) as exc:
