@@ -128,14 +128,9 @@ def _ply_binary_element_file(fh, size, offset, count, props, name, endian):
     """:func:`_ply_binary_element` reading from the file: ``(values, next offset)``, or None when the
     records' lists vary in length. Vertex ``x y z`` come as columns of one (count, 3) float64 array,
     kept under ``"#xyz"``; a list of 3 integer indices as one (count, 3) int64 array."""
-    least = sum(np.dtype(t).itemsize if isinstance(t, str) else np.dtype(t[0]).itemsize for _, t in props)
-    if count * least > size - offset:
-        raise _Malformed(
-            f"truncated: element '{name}' declares {count} records of at least {least} bytes, "
-            f"but only {size - offset} bytes are left"
-        )
-    if count == 0:
-        return {p: (np.zeros(0, t) if isinstance(t, str) else np.zeros((0, 3), t[1])) for p, t in props}, offset
+    empty = _sized_element(props, count, size - offset, name)
+    if empty is not None:
+        return empty, offset
     fields, pos = [], offset
     for pname, t in props:
         if isinstance(t, str):
@@ -290,16 +285,25 @@ def _ply_ascii_element(T: np.ndarray, pos: int, count: int, props, name: str):
     return {p: (out[p] if isinstance(t, tuple) else np.array(out[p])) for p, t in props}, pos
 
 
-def _ply_binary_element(data, offset, count, props, name, endian):
-    # Sizes are checked before reading, so a count of 10^10 fails here instead of allocating.
+def _sized_element(props, count: int, left: int, name: str) -> dict | None:
+    """Refuse an element whose ``count`` records cannot fit in the ``left`` bytes (before anything is allocated);
+    the empty columns of an element of no record, else None."""
     least = sum(np.dtype(t).itemsize if isinstance(t, str) else np.dtype(t[0]).itemsize for _, t in props)
-    if count * least > len(data) - offset:
+    if count * least > left:
         raise _Malformed(
             f"truncated: element '{name}' declares {count} records of at least {least} bytes, "
-            f"but only {len(data) - offset} bytes are left"
+            f"but only {left} bytes are left"
         )
     if count == 0:
-        return {p: (np.zeros(0, t) if isinstance(t, str) else np.zeros((0, 3), t[1])) for p, t in props}, offset
+        return {p: (np.zeros(0, t) if isinstance(t, str) else np.zeros((0, 3), t[1])) for p, t in props}
+    return None
+
+
+def _ply_binary_element(data, offset, count, props, name, endian):
+    # Sizes are checked before reading, so a count of 10^10 fails here instead of allocating.
+    empty = _sized_element(props, count, len(data) - offset, name)
+    if empty is not None:
+        return empty, offset
     # Fast path: every list has the length of the first record's (all triangles, say): one structured
     # dtype over the bytes (np.frombuffer, no copy), the fields taken as views.
     fields, pos = [], offset
