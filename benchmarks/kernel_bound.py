@@ -128,19 +128,19 @@ def mesh_state(label: str, folder: Path):
     """Topology, relabelled and scaled noisy positions and the run's buffers at the state of a first outer iteration."""
     from meshdenoise import kernels
     from meshdenoise.operators import gather_rows, get_operators
-    from meshdenoise.plugins import two_stage as ts
+    from meshdenoise import normal_filter as ts
     from scale import load, prepare
 
     info = prepare(label, folder)
     _, F, Vn = load(info["npz"])
     ops = get_operators(F, len(Vn))
-    topo = ts._two_stage_topology(ops)
+    topo = ts.two_stage_topology(ops)
     X = gather_rows(np.asarray(Vn, dtype=np.float64), topo.vertex_order)
-    np.ldexp(X, -ts._power_of_two_scale(X), out=X)
+    np.ldexp(X, -ts.power_of_two_scale(X), out=X)
     m = topo.F.shape[0]
     st = {"ops": ops, "topo": topo, "X": X, "n": X.shape[0], "m": m, "nnz": topo.nb.indices.size,
           "N": np.empty((m, 3)), "A": np.empty(m), "C": np.empty((m, 3)), "out": np.empty((m, 3)),
-          "S": np.empty(topo.nb.indices.size), "sums": np.empty(m), "scale": ts._fit_scale(topo.corner_ptr, None)}
+          "S": np.empty(topo.nb.indices.size), "sums": np.empty(m), "scale": ts.fit_scale(topo.corner_ptr, None)}
     kernels.set_threads()
     kernels.face_geometry(X, topo.F, st["N"], st["A"], st["C"])
     count = kernels.centroid_spacing_sums(st["C"], topo.nb.indptr, topo.nb.indices, st["sums"])

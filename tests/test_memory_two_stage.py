@@ -6,7 +6,7 @@ import tracemalloc
 
 import meshdenoise as md
 from meshdenoise.operators import get_operators
-from meshdenoise.plugins.two_stage import _two_stage_topology
+from meshdenoise.normal_filter import two_stage_topology as _two_stage_topology
 from meshdenoise.registry import get_filter
 from meshdenoise.shapes import icosphere
 

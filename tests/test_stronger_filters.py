@@ -121,13 +121,13 @@ def test_taubin_pinned_vertices_stay_and_bad_mu_is_refused():
 
 # --- two-stage normal filtering ---------------------------------------------------------------
 from meshdenoise.geometry import face_areas, face_normals  # noqa: E402
-from meshdenoise.plugins.two_stage import (  # noqa: E402
+from meshdenoise.normal_filter import (  # noqa: E402
     bilateral_normals,
     face_neighbourhood,
     fit_vertices_to_normals,
     guidance_normals,
-    two_stage,
 )
+from meshdenoise.plugins.two_stage import two_stage  # noqa: E402
 
 from .conftest import data_mesh_path  # noqa: E402
 

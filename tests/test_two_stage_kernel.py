@@ -16,14 +16,14 @@ import scipy.sparse as sp
 from meshdenoise import add_normal_noise
 from meshdenoise.geometry import face_areas, face_normals
 from meshdenoise.operators import Operators, get_operators
-from meshdenoise.plugins.two_stage import (
+from meshdenoise.normal_filter import (
     FaceNeighbourhood,
     bilateral_normals,
     face_neighbourhood,
     fit_vertices_to_normals,
     guidance_normals,
-    two_stage,
 )
+from meshdenoise.plugins.two_stage import two_stage
 from meshdenoise.plugins.taubin import taubin
 from meshdenoise.shapes import box, grid, icosphere
 
