@@ -7,14 +7,16 @@ kernel's best time per pass and the bytes it must move per pass: every array it 
 counted once (index arrays at their stored width; gathered rows counted once, as if the caches
 held the neighbours). ``bound = bytes / bandwidth``; ``ratio = measured / bound``. The kernels
 of ``--baseline`` (the commit before the pair kernels were vectorised and fused) are loaded from
-that commit's ``meshdenoise/kernels.py`` and timed in the same process, alternating with the
-current ones. Then the whole ``two_stage(iterations=19, normal_iterations=1, vertex_iterations=5,
-sigma_r=2.0, keep_tangential=False)`` at 400k, in subprocesses alternating between the
-baseline's tree (``git archive``) and this one.
+that commit's ``meshdenoise/kernels/`` package (``meshdenoise/kernels.py`` before it was one) and timed
+in the same process, alternating with the current ones. Then the whole ``two_stage(iterations=19,
+normal_iterations=1, vertex_iterations=5, sigma_r=2.0, keep_tangential=False)`` at each of
+``--whole-sizes``, in subprocesses alternating between the baseline's package and ``--current``'s
+(each unpacked with ``git archive``, so uncommitted edits elsewhere in the checkout play no part),
+and the largest difference of the two results relative to the mesh's extent.
 
 Usage::
 
-    python benchmarks/kernel_bound.py --sizes 400k,1.6M --out benchmarks/results/kernel-bound.md
+    python benchmarks/kernel_bound.py --sizes 400k,1.6M --whole-sizes 400k,1.6M --out benchmarks/results/kernel-bound.md
 """
 
 from __future__ import annotations
@@ -36,10 +38,11 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-BASELINE = "8851440"  # the last commit with the scalar exponential and separate spatial weights
+BASELINE = "6339954"  # the last commit with two exponentials a pair in the fused pass and every spacing twice
 WHOLE = dict(iterations=19, normal_iterations=1, vertex_iterations=5, sigma_r=2.0, sigma_s=1.0, guidance="bilateral",
              keep_tangential=False)
-COMMAND = "python benchmarks/kernel_bound.py --sizes 400k,1.6M --out benchmarks/results/kernel-bound.md"
+COMMAND = ("python benchmarks/kernel_bound.py --sizes 400k,1.6M --whole-sizes 400k,1.6M "
+           "--out benchmarks/results/kernel-bound.md")
 
 
 def best_of(fn, repeat: int) -> float:
@@ -79,12 +82,13 @@ def bandwidth(repeat: int) -> dict:
 
 
 def exp_rate(kernels, repeat: int) -> float:
-    """Seconds per argument of the pair kernels' exponential on every thread (arguments in cache)."""
+    """Seconds per argument of the pair kernels' exponential on every thread (arguments in cache), compiled with
+    the pair kernels' math flags (``PAIR_MATH``: FMA contraction, where the module has it)."""
     from meshdenoise.kernels import njit, prange
 
     exp_one = kernels.exp_one
 
-    @njit(parallel=True)
+    @njit(parallel=True, fastmath=getattr(kernels, "PAIR_MATH", False))
     def many(buf, reps):  # pragma: no cover - compiled
         for b in prange(buf.shape[0]):
             for _ in range(reps):
@@ -98,22 +102,38 @@ def exp_rate(kernels, repeat: int) -> float:
 
 
 def load_baseline_kernels(commit: str, folder: Path):
-    """The baseline's ``meshdenoise/kernels.py`` as a module of its own (its numba cache beside it in ``folder``)."""
+    """The baseline's kernels as a module of their own (its numba cache beside it in ``folder``): its
+    ``meshdenoise/kernels/`` package, or its ``meshdenoise/kernels.py`` from before the package."""
     folder.mkdir(parents=True, exist_ok=True)
-    path = folder / f"kernels_{commit}.py"
-    if not path.is_file():
-        text = subprocess.run(["git", "show", f"{commit}:meshdenoise/kernels.py"], cwd=ROOT, check=True,
-                              capture_output=True, text=True).stdout
-        path.write_text(text)
-    spec = importlib.util.spec_from_file_location(f"kernels_{commit}", path)
+    name = f"kernels_{commit}"
+    listed = subprocess.run(["git", "ls-tree", "--name-only", commit, "meshdenoise/kernels/"], cwd=ROOT, check=True,
+                            capture_output=True, text=True).stdout.split()
+    if listed:
+        package = folder / name
+        if not (package / "__init__.py").is_file():
+            package.mkdir(parents=True, exist_ok=True)
+            for path in listed:
+                if path.endswith(".py"):
+                    text = subprocess.run(["git", "show", f"{commit}:{path}"], cwd=ROOT, check=True,
+                                          capture_output=True, text=True).stdout
+                    (package / Path(path).name).write_text(text)
+        spec = importlib.util.spec_from_file_location(name, package / "__init__.py",
+                                                      submodule_search_locations=[str(package)])
+    else:
+        path = folder / f"{name}.py"
+        if not path.is_file():
+            text = subprocess.run(["git", "show", f"{commit}:meshdenoise/kernels.py"], cwd=ROOT, check=True,
+                                  capture_output=True, text=True).stdout
+            path.write_text(text)
+        spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
     sys.modules[spec.name] = module  # numba's cache finds a kernel's module by name
     spec.loader.exec_module(module)
     return module
 
 
-def baseline_tree(commit: str, folder: Path) -> Path:
-    """The baseline's package, unpacked once into ``folder`` (its numba cache kept there between runs)."""
+def commit_tree(commit: str, folder: Path) -> Path:
+    """The package at ``commit``, unpacked once into ``folder`` (its numba cache kept there between runs)."""
     tree = folder / f"tree_{commit}"
     if not (tree / "meshdenoise" / "__init__.py").is_file():
         data = subprocess.run(["git", "archive", "--format=tar", commit, "meshdenoise"], cwd=ROOT, check=True,
@@ -201,12 +221,13 @@ def kernel_rows(st: dict, new, old, repeat: int) -> list[dict]:
     return result
 
 
-def whole_call(tree: Path | None, label: str, folder: Path) -> float:
-    """Wall seconds of the whole two_stage call (:data:`WHOLE`) in a fresh process on ``tree`` (None: this checkout),
-    after a warm-up call on a small mesh (the kernels loaded from numba's cache) and the topology built."""
+def whole_call(tree: Path, label: str, folder: Path, result: Path) -> float:
+    """Wall seconds of the whole two_stage call (:data:`WHOLE`) in a fresh process on the package unpacked in
+    ``tree``, after a warm-up call on a small mesh (the kernels loaded from numba's cache) and the topology built;
+    the result is saved to ``result`` (``.npy``)."""
     code = f"""
 import sys, time, json
-sys.path.insert(0, {str(tree or ROOT)!r})
+sys.path.insert(0, {str(tree)!r})
 import numpy as np
 import meshdenoise as md
 from meshdenoise.operators import get_operators
@@ -217,8 +238,10 @@ with np.load({str(folder / ('elephant-o3dloop%d.npz' % {'400k': 2, '1.6M': 3}[la
 ops = get_operators(F, len(Vn))
 md.two_stage((Vn, F), operators=ops, **{dict(WHOLE, iterations=1)!r})  # the topology cached
 t = time.perf_counter()
-md.two_stage((Vn, F), operators=ops, **{WHOLE!r})
-print(json.dumps({{"seconds": time.perf_counter() - t, "module": md.__file__}}))
+Y = md.two_stage((Vn, F), operators=ops, **{WHOLE!r})[0]
+seconds = time.perf_counter() - t
+np.save({str(result)!r}, Y)
+print(json.dumps({{"seconds": seconds, "module": md.__file__}}))
 """
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
     env.pop("PYTHONPATH", None)
@@ -226,24 +249,34 @@ print(json.dumps({{"seconds": time.perf_counter() - t, "module": md.__file__}}))
     if proc.returncode:
         raise RuntimeError(proc.stderr[-2000:])
     record = json.loads(proc.stdout.strip().splitlines()[-1])
-    expected = str((tree or ROOT) / "meshdenoise")
+    expected = str(tree / "meshdenoise")
     if not record["module"].startswith(expected):
         raise RuntimeError(f"the call imported {record['module']}, not {expected}")
     return record["seconds"]
 
 
-def markdown(bw: dict, exp_s: float, threads: int, sizes: dict, whole: dict, baseline: str, load: tuple) -> str:
+def relative_difference(a: Path, b: Path, label: str, folder: Path) -> float:
+    """The largest coordinate difference of two saved results over the noisy mesh's extent (its largest side)."""
+    with np.load(folder / ("elephant-o3dloop%d.npz" % {"400k": 2, "1.6M": 3}[label])) as z:
+        Vn = z["Vn"]
+    extent = float(np.max(Vn.max(axis=0) - Vn.min(axis=0)))
+    return float(np.abs(np.load(a) - np.load(b)).max()) / extent
+
+
+def markdown(bw: dict, exp_s: float, threads: int, sizes: dict, whole: dict, baseline: str, current: str,
+             load: tuple) -> str:
     gb = bw["best"]
     lines = [
         "# two_stage's pass kernels against the memory-bandwidth bound",
         "",
-        f"Made by `{COMMAND}` (baseline {baseline}: the kernels before the exponential was vectorised and the spatial "
-        "weights fused into the bilateral pass).",
+        f"Made by `{COMMAND}` (baseline {baseline}: two exponentials a pair in the fused pass, each spacing summed "
+        f"twice; current {current}).",
         "",
         f"Bandwidth, best of 5 on 256 MB arrays: numpy copy {bw['copy'] / 1e9:.1f} GB/s, numpy two-step triad "
         f"{bw['numpy_triad'] / 1e9:.1f} GB/s, threaded triad ({threads} threads) {bw['threaded_triad'] / 1e9:.1f} GB/s; "
         f"the bound uses the best, {gb / 1e9:.1f} GB/s. The pair kernels' exponential: {exp_s * 1e9:.2f} ns an "
-        f"argument on {threads} threads (arguments in cache): the *exp floor* column is pairs x exponentials x that.",
+        f"argument on {threads} threads (arguments in cache): the *exp floor* column is pairs x the current "
+        "kernel's exponentials a pair x that.",
         "",
         "Bytes per pass: every array the kernel reads or writes, counted once at its stored width (gathered rows "
         "once, as if the caches held the neighbours). Times: best of several calls, alternating baseline and "
@@ -258,7 +291,7 @@ def markdown(bw: dict, exp_s: float, threads: int, sizes: dict, whole: dict, bas
                   "|---|---:|---:|---:|---:|---:|---:|---:|---|"]
         for r in rows:
             bound = r["bytes"] / gb * 1e3
-            exps = {"spatial_weights": 1, "bilateral_pass": 1, "bilateral_spatial_pass": 2}.get(r["kernel"], 0)
+            exps = {"spatial_weights": 1, "bilateral_pass": 1, "bilateral_spatial_pass": 1}.get(r["kernel"], 0)
             floor = f"{exps * nnz * exp_s * 1e3:.1f}" if exps else ""
             cells = []
             for tag in ("before", "after"):
@@ -268,12 +301,15 @@ def markdown(bw: dict, exp_s: float, threads: int, sizes: dict, whole: dict, bas
                          + f" | {r['note']} |")
         lines.append("")
     if whole:
-        lines += ["## The whole call at 400k", "",
-                  f"`two_stage(iterations=19, normal_iterations=1, vertex_iterations=5, sigma_r=2.0, "
-                  f"keep_tangential=False)`, topology cached, kernels loaded, each in a fresh process, alternating:", "",
-                  "| tree | seconds (each run) | best |", "|---|---|---:|"]
-        for tag, runs in whole.items():
-            lines.append(f"| {tag} | {', '.join(f'{s:.2f}' for s in runs)} | {min(runs):.2f} |")
+        lines += ["## The whole call", "",
+                  "`two_stage(iterations=19, normal_iterations=1, vertex_iterations=5, sigma_r=2.0, "
+                  "keep_tangential=False)`, topology cached, kernels loaded, each in a fresh process, alternating; "
+                  "*difference*: the largest coordinate difference of the two results over the noisy mesh's extent:",
+                  "", "| mesh | tree | seconds (each run) | best | difference |", "|---|---|---|---:|---:|"]
+        for label, (runs, diff) in whole.items():
+            for i, (tag, times) in enumerate(runs.items()):
+                cell = f"{diff:.1e}" if i == len(runs) - 1 else ""
+                lines.append(f"| {label} | {tag} | {', '.join(f'{s:.2f}' for s in times)} | {min(times):.2f} | {cell} |")
         lines.append("")
     return "\n".join(lines)
 
@@ -282,8 +318,10 @@ def main(argv: list[str] | None = None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--sizes", default="400k,1.6M")
     ap.add_argument("--baseline", default=BASELINE)
+    ap.add_argument("--current", default="HEAD", help="the commit whose package the whole calls run as 'current'")
     ap.add_argument("--repeat", type=int, default=5)
-    ap.add_argument("--whole-runs", type=int, default=2, help="runs of the whole call per tree (0: none)")
+    ap.add_argument("--whole-sizes", default="400k", help="meshes of the whole call, comma-separated ('': none)")
+    ap.add_argument("--whole-runs", type=int, default=2, help="runs of the whole call per tree and mesh (0: none)")
     ap.add_argument("--cache-dir", default=None)
     ap.add_argument("--out", default=None, help="markdown file to write")
     args = ap.parse_args(argv)
@@ -291,7 +329,7 @@ def main(argv: list[str] | None = None) -> None:
     import numba
 
     from meshdenoise import kernels
-    from scale import cache_dir
+    from scale import cache_dir, prepare
 
     folder = cache_dir(args.cache_dir)
     work = folder.parent / "kernel-bound"
@@ -303,23 +341,31 @@ def main(argv: list[str] | None = None) -> None:
           f"(numba {numba.get_num_threads()})", flush=True)
     old = load_baseline_kernels(args.baseline, work)
     sizes = {}
-    for label in args.sizes.split(","):
+    for label in [s for s in args.sizes.split(",") if s]:
         st = mesh_state(label, folder)
         rows = kernel_rows(st, kernels, old, args.repeat)
         sizes[label] = ((st["n"], st["m"], st["nnz"]), rows)
         for r in rows:
             print(label, r["kernel"], {k: round(v * 1e3, 2) for k, v in r.items() if k in ("before", "after")}, flush=True)
         del st
+    current = subprocess.run(["git", "rev-parse", "--short", args.current], cwd=ROOT, check=True, capture_output=True,
+                             text=True).stdout.strip()
     whole = {}
     if args.whole_runs:
-        tree = baseline_tree(args.baseline, work)
-        for _ in range(args.whole_runs):
-            for tag, t in ((f"baseline {args.baseline}", tree), ("current", None)):
-                s = whole_call(t, "400k", folder)
-                whole.setdefault(tag, []).append(s)
-                print("whole", tag, round(s, 2), flush=True)
+        trees = {f"baseline {args.baseline}": commit_tree(args.baseline, work), f"current {current}": commit_tree(current, work)}
+        for label in [s for s in args.whole_sizes.split(",") if s]:
+            prepare(label, folder)
+            runs, results = {}, {}
+            for _ in range(args.whole_runs):
+                for tag, tree in trees.items():
+                    results[tag] = work / f"whole_{tag.split()[-1]}_{label}.npy"
+                    s = whole_call(tree, label, folder, results[tag])
+                    runs.setdefault(tag, []).append(s)
+                    print("whole", label, tag, round(s, 2), flush=True)
+            diff = relative_difference(*results.values(), label, folder)
+            whole[label] = (runs, diff)
     load1 = os.getloadavg()
-    text = markdown(bw, exp_s, threads, sizes, whole, args.baseline, (load0[0], load1[0]))
+    text = markdown(bw, exp_s, threads, sizes, whole, args.baseline, current, (load0[0], load1[0]))
     print(text)
     if args.out:
         Path(args.out).write_text(text)

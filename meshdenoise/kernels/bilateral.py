@@ -5,42 +5,53 @@ from __future__ import annotations
 import numpy as np
 from numba import prange
 
-from .elementary import EXP_BLOCK, exp_nonpositive, exp_nonpositive2, unit_into
+from .elementary import EXP_BLOCK, exp_nonpositive, unit_into
 from .threads import njit
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def centroid_spacing_sums(C, indptr, indices, out):  # pragma: no cover - compiled
-    """Per face ``i``: the sum of ``|c_i - c_j|`` over its neighbours ``j != i`` into ``out`` (m,); returns their count.
+    """Per face ``i``: twice the sum of ``|c_i - c_j|`` over its neighbours ``j > i`` into ``out`` (m,); returns the
+    count of ordered pairs ``(i, j)``, ``j != i``.
 
-    The pair ``(i, i)`` adds ``sqrt(0) = 0`` to a non-negative sum, which leaves it unchanged: no branch on
-    ``j == i`` in the loop (the same sums), and the count is the pairs ``j != i``.
+    The pattern must be symmetric with each row sorted (the faces sharing a vertex with a face are:
+    :class:`meshdenoise.normal_filter.FaceNeighbourhood`). Then every unordered pair is one entry ``j > i``
+    of row ``i`` and one ``i < j`` of row ``j``: ``out.sum()`` is the sum over the ordered pairs
+    (``sum / count`` their mean spacing) with half the square roots, which bound this pass. Times 2 is
+    exact; the sum is in another order than over the ordered pairs, so it agrees to a few units in the
+    last place, not bit for bit.
     """
     m = C.shape[0]
     count = 0
     for i in prange(m):
+        lo, hi = indptr[i], indptr[i + 1]
+        start = lo
+        while start < hi and indices[start] <= i:  # a sorted row: the entries past i, after a few steps
+            start += 1
         s = 0.0
         c0 = C[i, 0]
         c1 = C[i, 1]
         c2 = C[i, 2]
-        self_pairs = 0
-        for k in range(indptr[i], indptr[i + 1]):
+        for k in range(start, hi):
             j = indices[k]
             d0 = c0 - C[j, 0]
             d1 = c1 - C[j, 1]
             d2 = c2 - C[j, 2]
             s += np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            self_pairs += j == i
-        out[i] = s
-        count += indptr[i + 1] - indptr[i] - self_pairs
+        out[i] = 2.0 * s
+        count += 2 * (hi - start)
     return count
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def gaussian_block(X, indptr, indices, denom, lo, hi, out):  # pragma: no cover - compiled
-    """``out[k - indptr[lo]] = exp(-|x_i - x_j|^2 / denom)`` for the pairs ``k = (i, j)`` of rows ``lo`` to ``hi - 1``
-    of the CSR pattern, ``X`` (m, 3). The exponents first, then their exponentials at once
-    (:func:`exp_nonpositive`; exp(-0) is 1 exactly)."""
+def gaussian_block(X, indptr, indices, factor, lo, hi, out):  # pragma: no cover - compiled
+    """``out[k - indptr[lo]] = exp(factor |x_i - x_j|^2)`` for the pairs ``k = (i, j)`` of rows ``lo`` to ``hi - 1``
+    of the CSR pattern, ``X`` (m, 3), ``factor = -1 / denom`` (< 0). The exponents first, then their
+    exponentials at once (:func:`exp_nonpositive`; exp(-0) is 1 exactly).
+
+    A product by the reciprocal instead of a division per pair: the exponent differs by at most an
+    ulp of it, the weight by ``|exponent|`` ulps (a weight above 1e-300 by under 1e-13 of itself).
+    """
     base = indptr[lo]
     for i in range(lo, hi):
         x0 = X[i, 0]
@@ -51,7 +62,7 @@ def gaussian_block(X, indptr, indices, denom, lo, hi, out):  # pragma: no cover 
             d0 = x0 - X[j, 0]
             d1 = x1 - X[j, 1]
             d2 = x2 - X[j, 2]
-            out[k - base] = -(d0 * d0 + d1 * d1 + d2 * d2) / denom
+            out[k - base] = (d0 * d0 + d1 * d1 + d2 * d2) * factor
     exp_nonpositive(out, indptr[hi] - base)
 
 
@@ -66,7 +77,14 @@ def _block_pairs(indptr, blocks):  # pragma: no cover - compiled
     return most
 
 
-@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+# The pair kernels' exponentials: FMA contraction (fastmath "contract" only: no reassociation, no
+# assumptions on NaN or infinities) halves the operations of the exponential's polynomial, whose
+# dependent chain bounds them, and rounds once where a product and a sum rounded twice; the
+# exponential stays within 1 ulp of numpy's (tests/test_two_stage_kernel.py).
+PAIR_MATH = {"contract"}
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy", fastmath=PAIR_MATH)
 def spatial_weights(C, A, indptr, indices, denom, S):  # pragma: no cover - compiled
     """``S[k] = A_j exp(-|c_i - c_j|^2 / denom)`` for every pair ``k = (i, j)`` of the CSR pattern.
 
@@ -74,16 +92,14 @@ def spatial_weights(C, A, indptr, indices, denom, S):  # pragma: no cover - comp
     then times ``A_j`` while the block is in cache.
     """
     m = C.shape[0]
+    factor = -1.0 / denom
     for b in prange((m + EXP_BLOCK - 1) // EXP_BLOCK):
         lo = b * EXP_BLOCK
         hi = min(m, lo + EXP_BLOCK)
         start, stop = indptr[lo], indptr[hi]
-        gaussian_block(C, indptr, indices, denom, lo, hi, S[start:stop])
+        gaussian_block(C, indptr, indices, factor, lo, hi, S[start:stop])
         for k in range(start, stop):
             S[k] *= A[indices[k]]
-
-
-
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
@@ -167,7 +183,7 @@ def pick_guidance(H, factor, g, indptr, indices, label, shift, key, G):  # pragm
 EXP_CHUNK = 8  # blocks of EXP_BLOCK rows per thread's task: one scratch allocation serves them all
 
 
-@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy", fastmath=PAIR_MATH)
 def bilateral_pass(N, G, S, indptr, indices, denom, out):  # pragma: no cover - compiled
     """One Jacobi pass ``out_i = unit(sum_j S_ij exp(-|G_i - G_j|^2 / denom) n_j)``.
 
@@ -177,13 +193,14 @@ def bilateral_pass(N, G, S, indptr, indices, denom, out):  # pragma: no cover - 
     m = N.shape[0]
     blocks = (m + EXP_BLOCK - 1) // EXP_BLOCK
     size = _block_pairs(indptr, blocks)
+    factor = -1.0 / denom
     for chunk in prange((blocks + EXP_CHUNK - 1) // EXP_CHUNK):
         w = np.empty(size)
         for b in range(chunk * EXP_CHUNK, min(blocks, (chunk + 1) * EXP_CHUNK)):
             lo = b * EXP_BLOCK
             hi = min(m, lo + EXP_BLOCK)
             base = indptr[lo]
-            gaussian_block(G, indptr, indices, denom, lo, hi, w)
+            gaussian_block(G, indptr, indices, factor, lo, hi, w)
             for i in range(lo, hi):
                 s0 = 0.0
                 s1 = 0.0
@@ -197,21 +214,26 @@ def bilateral_pass(N, G, S, indptr, indices, denom, out):  # pragma: no cover - 
                 unit_into(out, i, s0, s1, s2)
 
 
-@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy", fastmath=PAIR_MATH)
 def bilateral_spatial_pass(N, G, C, A, indptr, indices, denom_s, denom_r, out):  # pragma: no cover - compiled
     """:func:`spatial_weights` and :func:`bilateral_pass` in one sweep of the face pairs, the weights never stored.
 
-    ``out_i = unit(sum_j (A_j exp(-|c_i - c_j|^2 / denom_s)) exp(-|G_i - G_j|^2 / denom_r) n_j)``: the same
-    products in the same order as the two kernels, so the same bits, without writing and reading back
-    ``S`` (8 bytes a pair) or reading the pattern twice. For a run of one normal-filtering pass per
-    outer iteration (the default's), where ``S`` is used once.
+    ``out_i = unit(sum_j A_j exp(-|c_i - c_j|^2 / denom_s - |G_i - G_j|^2 / denom_r) n_j)``: the product of
+    the two kernels' weights as one exponential of the sum of their exponents, half the exponentials
+    (which bound the pass), and without writing and reading back ``S`` (8 bytes a pair) or reading the
+    pattern twice. For a run of one normal-filtering pass per outer iteration (the default's), where
+    ``S`` is used once. The sum of the exponents rounds once more: a weight differs from the product of
+    the two exponentials by about ``|exponent|`` ulps (under 1e-13 of itself above 1e-300), and the two
+    exponents add into one non-positive number, so a pair far in either tail gets a weight of 0 or
+    tiny, as before.
     """
     m = N.shape[0]
     blocks = (m + EXP_BLOCK - 1) // EXP_BLOCK
     size = _block_pairs(indptr, blocks)
+    factor_s = -1.0 / denom_s
+    factor_r = -1.0 / denom_r
     for chunk in prange((blocks + EXP_CHUNK - 1) // EXP_CHUNK):
-        ws = np.empty(size)
-        wr = np.empty(size)
+        w = np.empty(size)
         for b in range(chunk * EXP_CHUNK, min(blocks, (chunk + 1) * EXP_CHUNK)):
             lo = b * EXP_BLOCK
             hi = min(m, lo + EXP_BLOCK)
@@ -228,19 +250,18 @@ def bilateral_spatial_pass(N, G, C, A, indptr, indices, denom_s, denom_r, out): 
                     d0 = c0 - C[j, 0]
                     d1 = c1 - C[j, 1]
                     d2 = c2 - C[j, 2]
-                    ws[k - base] = -(d0 * d0 + d1 * d1 + d2 * d2) / denom_s
                     e0 = g0 - G[j, 0]
                     e1 = g1 - G[j, 1]
                     e2 = g2 - G[j, 2]
-                    wr[k - base] = -(e0 * e0 + e1 * e1 + e2 * e2) / denom_r
-            exp_nonpositive2(ws, wr, indptr[hi] - base)
+                    w[k - base] = (d0 * d0 + d1 * d1 + d2 * d2) * factor_s + (e0 * e0 + e1 * e1 + e2 * e2) * factor_r
+            exp_nonpositive(w, indptr[hi] - base)
             for i in range(lo, hi):
                 s0 = 0.0
                 s1 = 0.0
                 s2 = 0.0
                 for k in range(indptr[i], indptr[i + 1]):
                     j = indices[k]
-                    wk = (ws[k - base] * A[j]) * wr[k - base]
+                    wk = w[k - base] * A[j]
                     s0 += wk * N[j, 0]
                     s1 += wk * N[j, 1]
                     s2 += wk * N[j, 2]
