@@ -197,7 +197,8 @@ def kernel_rows(st: dict, new, old, repeat: int) -> list[dict]:
          lambda k: k.bilateral_pass(N, N, S, nb.indptr, nb.indices, dr, out)),
         ("bilateral_spatial_pass", pattern + 80 * m, "both, S never stored",
          lambda k: k.bilateral_spatial_pass(N, N, C, A, nb.indptr, nb.indices, ds, dr, out)),
-        ("fit_vertices (1 step)", fw + 24 * m + corners + 24 * m + 24 * m + 48 * n + 8 * n, "centroids, then vertices",
+        # the face pass writes n_f . c_f (8 bytes a face), the vertex pass reads it back with the normals
+        ("fit_vertices (1 step)", fw + 8 * m + corners + 24 * m + 8 * m + 48 * n + 8 * n, "n . c per face, then vertices",
          lambda k: k.fit_vertices(Xw, F, N, topo.corner_ptr, topo.corners, scale, 1, C)),
         ("restore_tangential", corners + 24 * m + 72 * n, "after face_geometry",
          lambda k: k.restore_tangential(Xw, Y, N, topo.corner_ptr, topo.corners)),

@@ -10,21 +10,40 @@ from .threads import njit
 
 
 # --------------------------------------------------------------------------- vertex update
+@njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def corner_face(corner):  # pragma: no cover - compiled
+    """The face of a corner index ``3 f + k`` (>= 0): ``f``.
+
+    Unsigned, the division by 3 is a multiplication and a shift; numba's signed ``//`` adds the
+    correction of Python's floor division for negative numbers, which made a vertex pass of
+    ``fit_vertices`` a quarter slower.
+    """
+    return np.uint64(corner) // np.uint64(3)
+
+
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def fit_vertices(X, F, N, corner_ptr, corners, scale, iterations, C):  # pragma: no cover - compiled
     """``iterations`` Jacobi steps ``x_i += scale_i sum_{corners c of i} n_f (n_f . (c_f - x_i))``, in place on ``X``.
 
     ``corners`` lists, per vertex (rows ``corner_ptr``), its corner indices ``3 f + k`` in
-    increasing order; ``C`` (m, 3) is scratch for the centroids.
+    increasing order; ``C`` (m, 3) is scratch, C-contiguous.
+
+    Each step's face pass stores ``d_f = n_f . c_f`` (its first ``m`` numbers), and the vertex pass
+    takes ``n_f . (c_f - x_i)`` as ``d_f - n_f . x_i``: 8 bytes a face written and gathered instead
+    of the centroid's 24. The difference rounds differently by about an ulp of ``|x|`` (the
+    centroid's own rounding is that size): with ``x`` scaled to an extent near 1, under 1e-16 of
+    the extent a step.
     """
     m = F.shape[0]
     n = X.shape[0]
+    D = C.reshape(C.size)[:m]  # contiguous: the first m numbers of the scratch
     for _ in range(iterations):
         for f in prange(m):
             a, b, c = F[f, 0], F[f, 1], F[f, 2]
-            for d in range(3):
-                C[f, d] = (X[a, d] + X[b, d] + X[c, d]) / 3.0
-        for v in prange(n):  # each vertex reads only its own x and the centroids: in place is Jacobi
+            D[f] = (N[f, 0] * ((X[a, 0] + X[b, 0] + X[c, 0]) / 3.0)
+                    + N[f, 1] * ((X[a, 1] + X[b, 1] + X[c, 1]) / 3.0)
+                    + N[f, 2] * ((X[a, 2] + X[b, 2] + X[c, 2]) / 3.0))
+        for v in prange(n):  # each vertex reads only its own x and the faces' d: in place is Jacobi
             x0 = X[v, 0]
             x1 = X[v, 1]
             x2 = X[v, 2]
@@ -32,8 +51,8 @@ def fit_vertices(X, F, N, corner_ptr, corners, scale, iterations, C):  # pragma:
             a1 = 0.0
             a2 = 0.0
             for t in range(corner_ptr[v], corner_ptr[v + 1]):
-                f = corners[t] // 3
-                s = N[f, 0] * (C[f, 0] - x0) + N[f, 1] * (C[f, 1] - x1) + N[f, 2] * (C[f, 2] - x2)
+                f = corner_face(corners[t])
+                s = D[f] - (N[f, 0] * x0 + N[f, 1] * x1 + N[f, 2] * x2)
                 a0 += N[f, 0] * s
                 a1 += N[f, 1] * s
                 a2 += N[f, 2] * s
@@ -57,7 +76,7 @@ def restore_tangential(X, Y, N, corner_ptr, corners):  # pragma: no cover - comp
         s1 = 0.0
         s2 = 0.0
         for t in range(corner_ptr[v], corner_ptr[v + 1]):
-            f = corners[t] // 3
+            f = corner_face(corners[t])
             s0 += N[f, 0]
             s1 += N[f, 1]
             s2 += N[f, 2]
