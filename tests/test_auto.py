@@ -480,7 +480,7 @@ def test_sobolev_normal_monte_carlo_divergence_matches_the_per_vertex_brute_forc
 
 
 @pytest.mark.parametrize("index_dtype", [np.int32, np.int64])
-def test_sobolev_normal_divergence_kernel_equals_the_numpy_loop_over_probes(monkeypatch, index_dtype):
+def test_sobolev_normal_divergence_kernel_equals_the_numpy_loop_over_probes(index_dtype):
     """The compiled divergence (kernels.projected_divergence_terms) against numpy's area normals and projection,
     probe by probe, on an open grid with an isolated vertex and a collapsed face (zero normals), in chunks or not."""
     import meshdenoise.plugins.sobolev_normal as sn
@@ -504,8 +504,7 @@ def test_sobolev_normal_divergence_kernel_equals_the_numpy_loop_over_probes(monk
     expected /= K
     whole = sn._projected_divergence(V, F, out, Bp, t, delta)
     assert whole == pytest.approx(expected, rel=1e-12, abs=1e-9)  # bit for bit here; einsum's lanes vary by CPU
-    monkeypatch.setattr(sn, "DIVERGENCE_CHUNK_BYTES", 24 * n * 2)  # two probes at a time: the same sums
-    assert sn._projected_divergence(V, F, out, Bp, t, delta) == whole
+    assert sn._projected_divergence(V, F, out, Bp, t, delta, chunk_bytes=24 * n * 2) == whole  # two probes at a time
 
 
 def test_sobolev_normal_scores_by_gcv_over_the_normal_coordinates():
@@ -619,8 +618,8 @@ def test_bad_requests_name_the_problem():
 
 @pytest.mark.parametrize("rho", [0.01, 0.05])
 def test_sinkhorn_runs_stop_past_their_best_count_with_the_same_choice(monkeypatch, rho):
-    """A run over the twiced iterations stops SINKHORN_PATIENCE iterations past its best score: the same (t, k) and
-    risk as the full eight-iteration runs, in fewer kernel solves."""
+    """A run over the twiced iterations stops SinkhornConfig.patience iterations past its best score: the same (t, k)
+    and risk as the full eight-iteration runs, in fewer kernel solves."""
     import meshdenoise.ot as ot
     import meshdenoise.plugins.sinkhorn as sk
     from meshdenoise.cache import clear_caches
@@ -632,10 +631,10 @@ def test_sinkhorn_runs_stop_past_their_best_count_with_the_same_choice(monkeypat
     monkeypatch.setattr(ot.MeshHeatKernel, "solve", lambda self, Y: calls.append(1) or real(self, Y))
     runs = {}
     for patience in (sk.SINKHORN_MAX_ITERATIONS, 2):
-        monkeypatch.setattr(sk, "SINKHORN_PATIENCE", patience)
         clear_caches()  # the memoised runs too
         calls.clear()
-        runs[patience] = choose_parameters((Vn, F), "sinkhorn", noise=rho, exact_trace=False, return_risk=True), len(calls)
+        runs[patience] = choose_parameters((Vn, F), "sinkhorn", noise=rho, exact_trace=False, return_risk=True,
+                                           config=sk.SinkhornConfig(patience=patience)), len(calls)
     (full, full_risk), full_calls = runs[sk.SINKHORN_MAX_ITERATIONS]
     (short, short_risk), short_calls = runs[2]
     assert short == full and short_risk == pytest.approx(full_risk, rel=1e-12)

@@ -82,7 +82,11 @@ def test_sobolev_gls_and_axes_with_a_held_border_as_by_the_held_factor(monkeypat
     import meshdenoise.plugins.sobolev_axes as ax
     import meshdenoise.plugins.sobolev_gls as sg
 
-    monkeypatch.setattr(sg, "GLS_FILTER_TOL", 1e-12)  # the held solves compared, not the weighted CG's tolerance
+    from meshdenoise.registry import get_filter, run_core
+
+    gls = get_filter("sobolev_gls")
+    # the held solves compared, not the weighted CG's tolerance: the core's config, handed in with its parameters
+    values = {**gls.resolve({"mu": 0.5, "beta": 8.0}), "config": sg.GlsConfig(filter_tol=1e-12)}
     built = []
     real = solvers.HeldByProduct.__init__
     monkeypatch.setattr(solvers.HeldByProduct, "__init__", lambda self, *a, **k: built.append(a[1:3]) or real(self, *a, **k))
@@ -93,7 +97,7 @@ def test_sobolev_gls_and_axes_with_a_held_border_as_by_the_held_factor(monkeypat
             any_size = functools.partial(shifted_solver, config=SolverConfig(held_by_product_min_vertices=0))
             monkeypatch.setattr(sg, "shifted_solver", any_size)
             monkeypatch.setattr(ax, "shifted_solver", any_size)
-        runs[mode] = (md.apply_filter("sobolev_gls", (Vn, F), mu=0.5, beta=8.0, boundary_motion="normal")[0],
+        runs[mode] = (run_core(gls, Vn, get_operators(F, len(Vn)), values, boundary_motion="normal"),
                       md.apply_filter("sobolev_axes", (Vn, F), mu1=0.5, mu2=2.0, mu3=40.0, boundary_motion="normal")[0])
     assert (0.5, 3) in built and (40.0, 3) in built  # gls' isotropic pass, the axis past CG's bound
     for a, b in zip(runs["factor"], runs["product"]):

@@ -89,8 +89,8 @@ def test_bad_shifts_and_non_convergence():
 
 
 def test_sobolev_gls_sweep_by_one_run_chooses_as_by_one_cg_per_beta(monkeypatch):
-    """The rule's beta sweep by shifted_family_cg against a CG per beta (GLS_FAMILY_MIN_BETAS out of reach): the same
-    choice, the sweep's scores to 1e-5 (1e-3 loose: both CG runs stop at SOBOLEV_GLS_SWEEP_TOL, 1e-2), in fewer
+    """The rule's beta sweep by shifted_family_cg against a CG per beta (GlsConfig.family_min_betas out of reach): the
+    same choice, the sweep's scores to 1e-5 (1e-3 loose: both CG runs stop at SOBOLEV_GLS_SWEEP_TOL, 1e-2), in fewer
     preconditioner solves."""
     import meshdenoise.plugins.sobolev_gls as sg
     from meshdenoise import add_normal_noise
@@ -99,7 +99,7 @@ def test_sobolev_gls_sweep_by_one_run_chooses_as_by_one_cg_per_beta(monkeypatch)
     from meshdenoise.tuning import TuningContext
     from meshdenoise.tuning.risk import Criterion
 
-    V, F = torus(40, 20)  # 800 vertices: above GLS_DENSE_MAX_VERTICES, the CG path
+    V, F = torus(40, 20)  # 800 vertices: above GlsConfig.dense_max_vertices, the CG path
     Vn, _ = add_normal_noise((V, F), 0.04, seed=3)
     ops = get_operators(F, len(V))
     solves = []
@@ -111,15 +111,14 @@ def test_sobolev_gls_sweep_by_one_run_chooses_as_by_one_cg_per_beta(monkeypatch)
 
     monkeypatch.setattr(sg, "shifted_solver", counting)
 
-    def run(loose):
+    def run(loose, config=()):
         solves.clear()
-        ctx = TuningContext(Vn, F, ops, 0.04, Criterion("sure"), False, {"mu": 0.05})  # mu held: the sweep alone
+        ctx = TuningContext(Vn, F, ops, 0.04, Criterion("sure"), False, {"mu": 0.05},  # mu held: the sweep alone
+                            config=config)
         return sg.choose_sobolev_gls_whole(ctx, None, loose=loose), len(solves)
 
     for loose in (False, True):
         (fast, p_fast), n_fast = run(loose)
-        monkeypatch.setattr(sg, "GLS_FAMILY_MIN_BETAS", 10**9)
-        (slow, p_slow), n_slow = run(loose)
-        monkeypatch.setattr(sg, "GLS_FAMILY_MIN_BETAS", 2)
+        (slow, p_slow), n_slow = run(loose, sg.GlsConfig(family_min_betas=10**9))
         assert fast == slow and p_fast.score == pytest.approx(p_slow.score, rel=1e-3 if loose else 1e-5)
         assert n_fast < 0.6 * n_slow

@@ -41,10 +41,7 @@ def _meshes():
 CASES = list(_meshes())
 
 
-@pytest.fixture(autouse=True)
-def kernels_on_small_meshes(monkeypatch):
-    """The compiled paths on these small meshes (they run from KERNEL_MIN_VERTICES vertices otherwise)."""
-    monkeypatch.setattr(nk, "KERNEL_MIN_VERTICES", 0)
+KERNELS = nk.NoiseKernelConfig(min_vertices=0)  # the compiled paths on these small meshes (from 65,536 vertices otherwise)
 
 
 def _scipy_fourth_difference(P):
@@ -56,7 +53,7 @@ def _scipy_fourth_difference(P):
 def test_fourth_difference_is_scipys_entry_for_entry(case):
     _, V, F = case
     ops = Operators(F, V.shape[0])
-    old, new = _scipy_fourth_difference(ops.P), nk.fourth_difference_csr(ops.P)
+    old, new = _scipy_fourth_difference(ops.P), nk.fourth_difference_csr(ops.P, config=KERNELS)
     assert np.array_equal(new.indptr, old.indptr) and np.array_equal(new.indices, old.indices)
     assert np.array_equal(new.data, old.data)  # the same values in the same order in every row
     # what the estimate reads off it: row sums of the squares (pairwise reduceat) and products with coordinates
@@ -78,7 +75,7 @@ def test_fourth_difference_on_any_number_of_threads_with_cancelled_entries(threa
     old = _scipy_fourth_difference(Q)
     S = abs(sp.identity(Q.shape[0], format="csr") - Q)  # the structure: positive entries cannot cancel
     assert old.nnz < (S @ S).nnz
-    new = nk.fourth_difference_csr(Q, threads=threads)
+    new = nk.fourth_difference_csr(Q, threads=threads, config=KERNELS)
     assert np.array_equal(new.indptr, old.indptr) and np.array_equal(new.indices, old.indices)
     assert np.array_equal(new.data, old.data)
 
@@ -89,19 +86,19 @@ def test_fourth_difference_of_a_non_canonical_matrix_takes_scipys_route():
     Q = sp.csr_matrix((P.data[::-1].copy(), P.indices[::-1].copy(), P.indptr), shape=P.shape)  # rows unsorted
     Q.has_sorted_indices = False
     assert not Q.has_canonical_format
-    np.testing.assert_allclose(nk.fourth_difference_csr(Q).toarray(), _scipy_fourth_difference(Q).toarray(), atol=1e-15)
+    np.testing.assert_allclose(nk.fourth_difference_csr(Q, config=KERNELS).toarray(), _scipy_fourth_difference(Q).toarray(), atol=1e-15)
 
 
 @pytest.mark.parametrize("case", CASES, ids=lambda c: c[0])
 def test_vertex_normals_and_edge_lengths_are_numpys(case):
     _, V, F = case
-    assert np.array_equal(nk.vertex_normals(V, F), numpy_vertex_normals(V, F))
+    assert np.array_equal(nk.vertex_normals(V, F, KERNELS), numpy_vertex_normals(V, F))
     e = Operators(F, V.shape[0]).edges
-    assert np.array_equal(nk.edge_lengths(V, e), np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1))
+    assert np.array_equal(nk.edge_lengths(V, e, KERNELS), np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1))
     with pytest.raises(ValueError, match="face indices"):
-        nk.vertex_normals(V, F + V.shape[0])
+        nk.vertex_normals(V, F + V.shape[0], KERNELS)
     with pytest.raises(ValueError, match="edge indices"):
-        nk.edge_lengths(V, e - V.shape[0] - 1)
+        nk.edge_lengths(V, e - V.shape[0] - 1, KERNELS)
 
 
 def _old_estimate(V, F, refine=2):
@@ -185,7 +182,7 @@ def test_the_noise_model_hands_its_operators_to_the_estimate(monkeypatch):
 
 
 def test_small_meshes_take_the_numpy_code_and_large_ones_the_kernels(monkeypatch):
-    """Below KERNEL_MIN_VERTICES the numpy/scipy code itself runs (no compiled code loaded for a small mesh)."""
+    """Below NoiseKernelConfig.min_vertices the numpy/scipy code itself runs (no compiled code loaded for a small mesh)."""
     V, F = icosphere(3)
     e = Operators(F, V.shape[0]).edges
     P = Operators(F, V.shape[0]).P
@@ -202,13 +199,15 @@ def test_small_meshes_take_the_numpy_code_and_large_ones_the_kernels(monkeypatch
 
     for name in ("_unit_face_normals", "_edge_lengths", "_i_minus_counts"):
         monkeypatch.setattr(nk, name, stub(name))
-    monkeypatch.setattr(nk, "KERNEL_MIN_VERTICES", V.shape[0] + 1)
-    assert np.array_equal(nk.vertex_normals(V, F), numpy_vertex_normals(V, F))
-    assert np.array_equal(nk.edge_lengths(V, e), np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1))
-    assert np.array_equal(nk.fourth_difference_csr(P).toarray(), _scipy_fourth_difference(P).toarray())
+    above = nk.NoiseKernelConfig(min_vertices=V.shape[0] + 1)
+    for config in (above, None):  # None: the default's 65,536 vertices
+        assert np.array_equal(nk.vertex_normals(V, F, config), numpy_vertex_normals(V, F))
+        assert np.array_equal(nk.edge_lengths(V, e, config), np.linalg.norm(V[e[:, 0]] - V[e[:, 1]], axis=1))
+        assert np.array_equal(nk.fourth_difference_csr(P, config=config).toarray(), _scipy_fourth_difference(P).toarray())
     assert called == []
-    monkeypatch.setattr(nk, "KERNEL_MIN_VERTICES", V.shape[0])
-    for f in (lambda: nk.vertex_normals(V, F), lambda: nk.edge_lengths(V, e), lambda: nk.fourth_difference_csr(P)):
+    at = nk.NoiseKernelConfig(min_vertices=V.shape[0])
+    for f in (lambda: nk.vertex_normals(V, F, at), lambda: nk.edge_lengths(V, e, at),
+              lambda: nk.fourth_difference_csr(P, config=at)):
         with pytest.raises(Ran):
             f()
     assert called == ["_unit_face_normals", "_edge_lengths", "_i_minus_counts"]
@@ -234,15 +233,18 @@ def test_the_estimates_averaging_rounds_are_sure_smoothed_and_share_its_memoised
 
 
 def test_geometry_vertex_normals_take_the_compiled_kernel_from_its_threshold(monkeypatch):
-    """``geometry.vertex_normals`` is the compiled kernel from KERNEL_MIN_VERTICES on: same numbers as numpy's."""
-    from meshdenoise.geometry import vertex_normals
+    """``geometry.vertex_normals`` asks the compiled kernel first (``LARGE_VERTEX_NORMALS``), which answers from
+    ``NoiseKernelConfig.min_vertices`` on: the same numbers as numpy's."""
+    from meshdenoise import geometry
 
     V, F = icosphere(3)
     V = V + 0.01 * np.random.default_rng(0).standard_normal(V.shape)
+    assert nk._large_vertex_normals in geometry.LARGE_VERTEX_NORMALS
+    assert np.array_equal(geometry.vertex_normals(V, F), numpy_vertex_normals(V, F))
     calls = []
     kernel = nk._unit_face_normals
     monkeypatch.setattr(nk, "_unit_face_normals", lambda *a: (calls.append(1), kernel(*a))[1])
-    monkeypatch.setattr(nk, "KERNEL_MIN_VERTICES", V.shape[0] + 1)
-    assert np.array_equal(vertex_normals(V, F), numpy_vertex_normals(V, F)) and calls == []
-    monkeypatch.setattr(nk, "KERNEL_MIN_VERTICES", V.shape[0])
-    assert np.array_equal(vertex_normals(V, F), numpy_vertex_normals(V, F)) and calls == [1]
+    assert nk._large_vertex_normals(V, F, nk.NoiseKernelConfig(min_vertices=V.shape[0] + 1)) is None and calls == []
+    assert nk._large_vertex_normals(V, F) is None and calls == []  # the default: from 65,536 vertices
+    at = nk._large_vertex_normals(V, F, nk.NoiseKernelConfig(min_vertices=V.shape[0]))
+    assert np.array_equal(at, numpy_vertex_normals(V, F)) and calls == [1]

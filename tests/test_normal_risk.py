@@ -364,7 +364,7 @@ def test_a_rules_normals_region_reaches_the_region_search(monkeypatch):
     """``AutoRule.normals_region``: the normals search runs on a region of that size from twice as many vertices."""
     import meshdenoise.tuning.choose as choose
     from meshdenoise.plugins.sobolev_axes import AXES_NORMAL_REGION
-    from meshdenoise.tuning.search import REGION_MIN_VERTICES
+    from meshdenoise.tuning.config import SearchConfig
 
     calls, real = [], choose.region_rule
 
@@ -377,7 +377,7 @@ def test_a_rules_normals_region_reaches_the_region_search(monkeypatch):
     choose_parameters((X, F), "sobolev_axes", criterion="normals")
     assert calls == [(AXES_NORMAL_REGION, 2 * AXES_NORMAL_REGION)]
     choose_parameters((X, F), "sobolev_bilaplacian", criterion="normals")
-    assert calls[-1] == (choose.NORMAL_REGION, REGION_MIN_VERTICES)
+    assert calls[-1] == (choose.NORMAL_REGION, SearchConfig().region_min_vertices)
 
 
 def _walk(f, size, start, passes=6):

@@ -15,11 +15,12 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from meshdenoise import add_normal_noise, apply_filter, choose_parameters, snr
+from meshdenoise import add_normal_noise, apply_filter, choose_parameters, get_filter
 from meshdenoise.operators import clear_cache, get_operators
 from meshdenoise.operators import Operators
 from meshdenoise.shapes import grid, icosphere, torus
 from meshdenoise.solvers import LanczosQuadrature, shifted_cg_bound
+from meshdenoise.tuning.config import SearchConfig, SpectralConfig
 from meshdenoise.tuning.memo import MEMO
 from meshdenoise.tuning import TuningContext
 from meshdenoise.tuning.risk import Criterion, Point, probe_block
@@ -220,22 +221,20 @@ def test_shifted_quadrature_at_its_default_tolerance_stops_sooner_within_it_of_t
     MEMO.clear()
 
 
-def test_a_quadrature_run_above_the_shared_bound_is_not_kept(monkeypatch):
-    """Above SHARED_RUN_MAX_BYTES (the run's columns and two basis vectors) the run is the search's own: a second
-    search of another order starts its own, and the memo holds nothing of it."""
-    import meshdenoise.tuning.search as search
-
+def test_a_quadrature_run_above_the_shared_bound_is_not_kept():
+    """Above SearchConfig.shared_run_max_bytes (the run's columns and two basis vectors) the run is the search's own:
+    a second search of another order starts its own, and the memo holds nothing of it."""
     _, Vn, F = _noisy(torus(40, 20), 0.01)
     ops = Operators(F, len(Vn))
     Z, s = probe_block(ops.n, False, n_probes=6)
     MEMO.clear()
     size = 8 * 3 * ops.n * (3 + Z.shape[1])
-    monkeypatch.setattr(search, "SHARED_RUN_MAX_BYTES", size - 1)
-    third = shifted_quadrature(Vn, ops, 3, Z, s)
-    assert shifted_quadrature(Vn, ops, 2, Z, s).quadrature is not third.quadrature and len(MEMO) == 0
-    monkeypatch.setattr(search, "SHARED_RUN_MAX_BYTES", size)
-    third = shifted_quadrature(Vn, ops, 3, Z, s)
-    assert shifted_quadrature(Vn, ops, 2, Z, s).quadrature is third.quadrature and len(MEMO) == 1
+    below = SearchConfig(shared_run_max_bytes=size - 1)
+    third = shifted_quadrature(Vn, ops, 3, Z, s, config=below)
+    assert shifted_quadrature(Vn, ops, 2, Z, s, config=below).quadrature is not third.quadrature and len(MEMO) == 0
+    at = SearchConfig(shared_run_max_bytes=size)
+    third = shifted_quadrature(Vn, ops, 3, Z, s, config=at)
+    assert shifted_quadrature(Vn, ops, 2, Z, s, config=at).quadrature is third.quadrature and len(MEMO) == 1
     third(1.0)  # the run grows: the memo counts its arrays as they are now (columns, two basis vectors, recurrence)
     run = third.quadrature
     assert MEMO.total_bytes() == run.nbytes == size + 8 * 2 * run.steps * (3 + Z.shape[1])
@@ -315,7 +314,7 @@ def test_best_shifted_without_coordinates_and_shifted_coordinates_against_dense(
 
 
 def test_best_shifted_strong_weight_coordinates_by_its_lanczos_run_not_cg(monkeypatch):
-    """Past COORDINATES_CG_BOUND the best point's coordinates come from the search's Lanczos run (no CG), as the
+    """Past SearchConfig.coordinates_cg_bound the best point's coordinates come from the search's Lanczos run (no CG), as the
     dense solve gives them; below it by CG."""
     import meshdenoise.tuning.search as search
 
@@ -324,13 +323,13 @@ def test_best_shifted_strong_weight_coordinates_by_its_lanczos_run_not_cg(monkey
     calls = []
     real = search.shifted_coordinates
     monkeypatch.setattr(search, "shifted_coordinates", lambda *a, **k: calls.append(a[3]) or real(*a, **k))
-    monkeypatch.setattr(search, "COORDINATES_CG_BOUND", 50)  # this small mesh's choice: a bound near 116
-    p = best_shifted(Vn, ops, 2, 0.3, "sure", False, center=30.0, search="quadrature")
-    assert shifted_cg_bound(ops, p.value, 2, 1e-10) > search.COORDINATES_CG_BOUND and not calls
+    low = SearchConfig(coordinates_cg_bound=50)  # this small mesh's choice: a bound near 116
+    p = best_shifted(Vn, ops, 2, 0.3, "sure", False, center=30.0, search="quadrature", config=low)
+    assert shifted_cg_bound(ops, p.value, 2, 1e-10) > low.coordinates_cg_bound and not calls
     A = np.eye(ops.n) + p.value * np.linalg.matrix_power(ops.L.toarray(), 2)
     np.testing.assert_allclose(p.X, np.linalg.solve(A, Vn), rtol=0, atol=1e-9 * np.abs(Vn).max())
-    monkeypatch.setattr(search, "COORDINATES_CG_BOUND", 1e12)
-    q = best_shifted(Vn, ops, 2, 0.3, "sure", False, center=30.0, search="quadrature")
+    q = best_shifted(Vn, ops, 2, 0.3, "sure", False, center=30.0, search="quadrature",
+                     config=SearchConfig(coordinates_cg_bound=1e12))
     assert calls == [q.value] and q.value == p.value
     np.testing.assert_allclose(q.X, p.X, rtol=0, atol=1e-9 * np.abs(Vn).max())
 
@@ -406,22 +405,22 @@ class _OldWalk:
         raise AssertionError
 
 
-def test_taubin_tries_finer_steps_only_while_the_count_is_small(monkeypatch):
+def test_taubin_tries_finer_steps_only_while_the_count_is_small():
     import meshdenoise.plugins.taubin as taubin_mod
 
     _, Vn, F = _noisy(torus(40, 20), 0.04)
     full = choose_parameters((Vn, F), "taubin", noise=0.04)
-    monkeypatch.setattr(taubin_mod, "TAUBIN_FINE_MIN_VERTICES", 0)
-    pruned = choose_parameters((Vn, F), "taubin", noise=0.04)
+    pruned = choose_parameters((Vn, F), "taubin", noise=0.04, config=taubin_mod.TaubinConfig(fine_min_vertices=0))
     at_half = choose_parameters((Vn, F), "taubin", noise=0.04, lam=0.5, mu=-0.53)
-    assert at_half["iterations"] >= taubin_mod.TAUBIN_FINE_MAX_ITERATIONS  # this mesh's count: pruning applies
+    assert at_half["iterations"] >= taubin_mod.TaubinConfig().fine_max_iterations  # this mesh's count: pruning applies
     assert pruned == {**at_half, "lam": 0.5, "mu": -0.53}
     assert full["lam"] in taubin_mod.TAUBIN_LAMBDAS
 
 
 # --------------------------------------------------------------------------- sobolev_bilaplacian's CG solver
-def test_bilaplacian_cg_equals_dense_solve_and_auto_picks_cg_only_when_large(monkeypatch):
+def test_bilaplacian_cg_equals_dense_solve_and_auto_picks_cg_only_when_large():
     import meshdenoise.plugins.sobolev_bilaplacian as bl
+    from meshdenoise.plugins.sobolev import SobolevConfig
     from meshdenoise.operators import get_operators
 
     _, Vn, F = _noisy(torus(30, 15), 0.01)
@@ -445,20 +444,20 @@ def test_bilaplacian_cg_equals_dense_solve_and_auto_picks_cg_only_when_large(mon
             np.testing.assert_allclose(Y, expected, rtol=0, atol=1e-10 * np.abs(Vn).max())
     ops = get_operators(F, len(Vn))
     assert bl._choose_solver(ops, 1.0, None, 1e-10) == "cholesky"  # small mesh: the factor is cheap and kept
-    monkeypatch.setattr(bl, "LANCZOS_MIN_VERTICES", 0)
-    assert bl._choose_solver(ops, 1.0, None, 1e-10) == "lanczos"
+    config = bl.BilaplacianConfig(lanczos_min_vertices=0)
+    assert bl._choose_solver(ops, 1.0, None, 1e-10, config) == "lanczos"
     assert bl.bilaplacian_cg_bound(ops, 1.0, 1e-10) == pytest.approx(0.5 * np.sqrt(1 + 12.0**2) * np.log(2e10))  # 143
-    assert bl._choose_solver(ops, 1.0, pinned, 1e-10) == "cholesky"  # pinned: a factor below PINNED_CG_MIN_VERTICES
-    monkeypatch.setattr(bl, "PINNED_CG_MIN_VERTICES", 0)
-    assert bl._choose_solver(ops, 1.0, pinned, 1e-10) == "cg"  # ... then CG while its bound is under PINNED_CG_BOUND
-    monkeypatch.setattr(bl, "PINNED_CG_BOUND", 100)
-    assert bl._choose_solver(ops, 1.0, pinned, 1e-10) == "cholesky"
-    monkeypatch.setattr(bl, "AUTO_CG_MIN_VERTICES", 0)
-    assert bl._choose_solver(ops, 1.0, pinned, 1e-10) == "cg"  # from there the bound AUTO_CG_MAX_ITERATIONS (300)
-    assert bl._choose_solver(ops, 1e4, None, 1e-10) == "lanczos"  # its steps grow like mu^(1/4)
-    assert bl._choose_solver(ops, 1e4, pinned, 1e-10) == "cholesky"  # CG's bound too large
+    assert bl._choose_solver(ops, 1.0, pinned, 1e-10, config) == "cholesky"  # pinned: a factor below its size
+    config = bl.BilaplacianConfig(lanczos_min_vertices=0, pinned_cg_min_vertices=0)
+    assert bl._choose_solver(ops, 1.0, pinned, 1e-10, config) == "cg"  # ... then CG while under pinned_cg_bound
+    config = bl.BilaplacianConfig(lanczos_min_vertices=0, pinned_cg_min_vertices=0, pinned_cg_bound=100)
+    assert bl._choose_solver(ops, 1.0, pinned, 1e-10, config) == "cholesky"
+    large = SobolevConfig(cg_min_vertices=0)
+    assert bl._choose_solver(ops, 1.0, pinned, 1e-10, config, large) == "cg"  # from there sobolev's bound (300)
+    assert bl._choose_solver(ops, 1e4, None, 1e-10, config, large) == "lanczos"  # its steps grow like mu^(1/4)
+    assert bl._choose_solver(ops, 1e4, pinned, 1e-10, config, large) == "cholesky"  # CG's bound too large
     bl.sobolev_bilaplacian((Vn, F), mu=1.0, solver="cholesky")  # the factor stored: reused
-    assert bl._choose_solver(ops, 1.0, None, 1e-10) == "cholesky"
+    assert bl._choose_solver(ops, 1.0, None, 1e-10, config, large) == "cholesky"
 
 
 def test_path_curve_memo_is_keyed_by_the_probes(monkeypatch):
@@ -504,17 +503,17 @@ def test_sobolev_normal_factor_free_path_equals_the_factor_path(monkeypatch):
     for order, mu, t in ((2, 3.0, 0.0), (3, 0.7, 0.4)):
         clear_cache()
         before = apply_filter("sobolev_normal", (Vn, F), mu=mu, order=order, tangential=t)[0]
-        monkeypatch.setattr(sn, "SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES", 0)
         clear_cache()
         monkeypatch.setattr(sn, "shifted_solver", lambda *a, **k: pytest.fail("a factor was built"))
-        after = apply_filter("sobolev_normal", (Vn, F), mu=mu, order=order, tangential=t)[0]
+        after = get_filter("sobolev_normal").core(Vn, F, ops=get_operators(F, len(Vn)), pinned=None, mu=mu, order=order,
+                                                  tangential=t, config=sn.SobolevNormalConfig(lanczos_min_vertices=0))
         monkeypatch.undo()
         np.testing.assert_allclose(after, before, atol=1e-11)
 
 
 @pytest.mark.parametrize("method", ["sobolev_normal", "sobolev_gls", "sinkhorn"])
 def test_region_rule_is_not_used_below_its_size(monkeypatch, method):
-    """Every quality-table mesh is below REGION_MIN_VERTICES: the rule runs on the whole mesh, as before."""
+    """Every quality-table mesh is below SearchConfig.region_min_vertices: the rule runs on the whole mesh, as before."""
     import meshdenoise.tuning.region as region
 
     monkeypatch.setattr(region, "SampledRegion", lambda *a, **k: pytest.fail("a region was cut"))
@@ -525,10 +524,10 @@ def test_region_rule_is_not_used_below_its_size(monkeypatch, method):
 
 
 def test_sinkhorn_rule_scores_a_regions_inner_vertices_and_cuts_again_while_its_choice_reaches_further(monkeypatch):
-    """From REGION_MIN_VERTICES the rule runs on a sampled region; a free border pulls its choice low, and while the
-    choice's reach (sinkhorn_reach) is wider than the margin used the region is cut again with that margin (here
-    the second region would be the whole mesh, so the whole-mesh rule decides). The first cut's margin is the reach
-    of the search's start (first_margin), here narrowed to see the second cut. On a 24,000-vertex torus the third
+    """From SearchConfig.region_min_vertices the rule runs on a sampled region; a free border pulls its choice low,
+    and while the choice's reach (sinkhorn_reach) is wider than the margin used the region is cut again with that
+    margin (here the second region would be the whole mesh, so the whole-mesh rule decides). The first cut's margin is
+    the reach of the search's start (first_margin), here narrowed to see the second cut. On a 24,000-vertex torus the third
     cut's choice is within 0.4 % of the whole mesh's t."""
     import meshdenoise.plugins.sinkhorn as sk
     import meshdenoise.tuning.search as search
@@ -538,9 +537,7 @@ def test_sinkhorn_rule_scores_a_regions_inner_vertices_and_cuts_again_while_its_
     Vn, _ = add_normal_noise((V, F), rho, seed=0)
     whole = choose_parameters((Vn, F), "sinkhorn", noise=rho)
     MEMO.clear()
-    monkeypatch.setattr(search, "REGION_MIN_VERTICES", 1000)
-    monkeypatch.setattr(sk, "SINKHORN_REGION", 3000)
-    monkeypatch.setattr(sk, "SINKHORN_PATCHES", 2)
+    config = (SearchConfig(region_min_vertices=1000), sk.SinkhornConfig(region=3000, patches=2))
     start = sk.first_margin(TuningContext(Vn, F, get_operators(F, len(V)), rho, Criterion("sure"), None, {}))
     assert sk.SINKHORN_MARGIN < start <= search.REGION_MAX_MARGIN
     monkeypatch.setattr(sk, "first_margin", lambda ctx: sk.SINKHORN_MARGIN)  # (the start's margin: the whole torus)
@@ -548,7 +545,7 @@ def test_sinkhorn_rule_scores_a_regions_inner_vertices_and_cuts_again_while_its_
     real = sk.choose_sinkhorn_whole
     monkeypatch.setattr(sk, "choose_sinkhorn_whole",
                         lambda ctx, scored=None: calls.append((ctx.n, scored)) or real(ctx, scored))
-    params = choose_parameters((Vn, F), "sinkhorn", noise=rho)
+    params = choose_parameters((Vn, F), "sinkhorn", noise=rho, config=config)
     (n_region, scored), (n_last, last) = calls
     assert n_region < len(V) and 0 < scored.sum() < n_region
     assert (n_last, last) == (len(V), None) and params == whole
@@ -597,14 +594,12 @@ def test_sobolev_normal_region_search_runs_on_a_cut_region_with_the_whole_mesh_t
     quality against the whole-mesh search is measured in docs/scale.md (elephant at 100k; a torus where it fails)."""
     import meshdenoise.plugins.sobolev_normal as sn
     import meshdenoise.tuning.region as region
-    import meshdenoise.tuning.search as search
 
     V, F = torus(100, 60)
     rho = 0.4 * float(np.linalg.norm(V[F[:, 0]] - V[F[:, 1]], axis=1).mean())
     Vn, _ = add_normal_noise((V, F), rho, seed=0)
-    monkeypatch.setattr(search, "REGION_MIN_VERTICES", 1000)
-    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_REGION", 3000)  # grown by region_shape to 4 x 19 x 8^2 = 4864
-    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_PATCHES", 4)
+    config = (SearchConfig(region_min_vertices=1000),
+              sn.SobolevNormalConfig(region=3000, patches=4))  # grown by region_shape to 4 x 19 x 8^2 = 4864
     cut, scored = [], []
     real_region, real_rule = region.SampledRegion, sn.choose_sobolev_normal_whole
     monkeypatch.setattr(region, "SampledRegion", lambda *a, **k: cut.append(real_region(*a, **k)) or cut[-1])
@@ -614,10 +609,10 @@ def test_sobolev_normal_region_search_runs_on_a_cut_region_with_the_whole_mesh_t
         return real_rule(ctx, mask, **kw)
 
     monkeypatch.setattr(sn, "choose_sobolev_normal_whole", spy)
-    params, risk = choose_parameters((Vn, F), "sobolev_normal", noise=rho, return_risk=True)
+    params, risk = choose_parameters((Vn, F), "sobolev_normal", noise=rho, return_risk=True, config=config)
     assert len(cut) == 1 and not cut[0].whole and 4864 <= cut[0].vertices.size < len(V)
     (ctx, mask, kw), = scored
-    pinned, _ = kw["boundary"]  # the region's outer SOBOLEV_NORMAL_PIN rings, held at the whole mesh's result
+    pinned, _ = kw["boundary"]  # the region's outer SobolevNormalConfig.pin rings, held at the whole mesh's result
     assert pinned.any() and not (pinned & mask).any()
     assert ctx.n == cut[0].vertices.size and np.array_equal(mask, cut[0].inner) and 0 < mask.sum() < ctx.n
     np.testing.assert_array_equal(ctx.V, Vn[cut[0].vertices])
@@ -676,16 +671,15 @@ def test_sobolev_normal_scored_rule_with_every_vertex_scored_is_the_whole_rule()
 def test_sobolev_axes_quadrature_search_chooses_the_factor_search_weights(monkeypatch):
     """Same candidates scored by quadrature and by a factor per mu (the independent path): same mu1..mu3, same risk."""
     import meshdenoise.plugins.sobolev_axes as ax
-    import meshdenoise.tuning.search as search
 
     V, F = torus(40, 20)
     Vn, _ = add_normal_noise((V, F), 0.03, seed=0)
     monkeypatch.setattr(ax, "probe_count", lambda n: 24)
-    monkeypatch.setattr(ax, "AXES_QUADRATURE_MIN_VERTICES", 10**9)
-    old, old_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True)
-    monkeypatch.setattr(ax, "AXES_QUADRATURE_MIN_VERTICES", 100)
+    old, old_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True,
+                                      config=SearchConfig(quadrature_min_vertices=10**9))
     monkeypatch.setattr(ax, "solve_shifted", lambda *a, **k: pytest.fail("a factor was used"))
-    new, new_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True)
+    new, new_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True,
+                                      config=SearchConfig(quadrature_min_vertices=100))
     for name in ("mu1", "mu2", "mu3"):
         assert new[name] == pytest.approx(old[name], rel=1e-9)
     assert new["frame_steps"] == old["frame_steps"]
@@ -693,17 +687,18 @@ def test_sobolev_axes_quadrature_search_chooses_the_factor_search_weights(monkey
 
 
 def test_sobolev_axes_quadrature_by_one_run_per_column_chooses_as_one_run(monkeypatch):
-    """Past AXES_ONE_RUN_MAX_VERTICES the quadrature is one run per column (the probes' LanczosDots with their three
+    """Past AxesConfig.one_run_max_vertices the quadrature is one run per column (the probes' LanczosDots with their three
     weighted duals): the same weights and risk as the one compiled run of every column."""
     import meshdenoise.plugins.sobolev_axes as ax
 
     V, F = torus(40, 20)
     Vn, _ = add_normal_noise((V, F), 0.03, seed=0)
-    monkeypatch.setattr(ax, "AXES_QUADRATURE_MIN_VERTICES", 100)
+    quadrature = SearchConfig(quadrature_min_vertices=100)
     monkeypatch.setattr(ax, "solve_shifted", lambda *a, **k: pytest.fail("a factor was used"))
-    one, one_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True)
-    monkeypatch.setattr(ax, "AXES_ONE_RUN_MAX_VERTICES", 100)
-    each, each_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True)
+    one, one_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True,
+                                      config=quadrature)
+    each, each_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True,
+                                        config=(quadrature, ax.AxesConfig(one_run_max_vertices=100)))
     assert each == pytest.approx(one, rel=1e-9)
     assert each_risk == pytest.approx(one_risk, rel=1e-5)
 
@@ -716,10 +711,11 @@ def test_sobolev_axes_factor_free_filter_equals_the_factor_filter(monkeypatch):
     params = dict(mu1=0.3, mu2=0.0, mu3=4.0, order=3, frame_steps=2)
     clear_cache()
     before = apply_filter("sobolev_axes", (Vn, F), **params)[0]
-    monkeypatch.setattr(ax, "AXES_LANCZOS_MIN_VERTICES", 0)
     monkeypatch.setattr(ax, "shifted_solver", lambda *a, **k: pytest.fail("a factor was built"))
     clear_cache()
-    after = apply_filter("sobolev_axes", (Vn, F), **params)[0]
+    spec = get_filter("sobolev_axes")
+    after = spec.core(Vn, F, ops=get_operators(F, len(Vn)), pinned=None, config=ax.AxesConfig(lanczos_min_vertices=0),
+                      **spec.resolve(params))
     np.testing.assert_allclose(after, before, atol=1e-11)
 
 
@@ -828,7 +824,7 @@ def test_region_held_at_the_whole_result_on_its_cut_rings_reproduces_the_whole_m
 
 
 def test_curve_terms_are_the_records_sums_on_any_thread_count(monkeypatch):
-    """kernels.curve_terms against numpy's sums; PathCurve takes it from CURVE_KERNEL_MIN_VERTICES on."""
+    """kernels.curve_terms against numpy's sums; PathCurve takes it from SearchConfig.curve_kernel_min_vertices on."""
     import numba
 
     from meshdenoise import kernels
@@ -850,8 +846,7 @@ def test_curve_terms_are_the_records_sums_on_any_thread_count(monkeypatch):
     step = search.averaging_step(ops.P, 0.5)
     Zs = probe_block(len(Vs), False, n_probes=4)
     old = search.PathCurve(Vs, ops, step, probes=Zs)
-    monkeypatch.setattr(search, "CURVE_KERNEL_MIN_VERTICES", len(Vs))
-    new = search.PathCurve(Vs, ops, step, probes=Zs)
+    new = search.PathCurve(Vs, ops, step, probes=Zs, config=SearchConfig(curve_kernel_min_vertices=len(Vs)))
     for a, b in zip(new.points(), old.points()):
         assert a.residual_sq == pytest.approx(b.residual_sq, rel=1e-12, abs=1e-300)
         assert a.trace == pytest.approx(b.trace, rel=1e-12)
@@ -931,7 +926,7 @@ def test_log_search_predicts_a_parabolas_minimum_and_its_grid_score_at_an_end():
 
 def test_sobolev_normal_refines_only_an_order_that_can_still_win_and_chooses_as_with_both(monkeypatch):
     """The rule's grid for both orders, the golden section only for an order whose grid parabola comes within
-    SOBOLEV_NORMAL_ORDER_MARGIN of the least grid score: on a noisy plane (order 2's grid 0.0504, order 3's 0.0543,
+    SobolevNormalConfig.order_margin of the least grid score: on a noisy plane (order 2's grid 0.0504, order 3's 0.0543,
     its parabola 0.0527) one order is refined, fewer evaluations, and the choice equals the one with both refined."""
     import meshdenoise.plugins.sobolev_normal as sn
     from meshdenoise.tuning.search import LogSearch
@@ -956,8 +951,8 @@ def test_sobolev_normal_refines_only_an_order_that_can_still_win_and_chooses_as_
     counts.clear()
     clear_cache()
     MEMO.clear()
-    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_ORDER_MARGIN", np.inf)  # every order refined
-    both = choose_parameters((Vn, F), "sobolev_normal", noise=0.02)
+    both = choose_parameters((Vn, F), "sobolev_normal", noise=0.02,
+                             config=sn.SobolevNormalConfig(order_margin=np.inf))  # every order refined
     assert chosen == both
     assert some < sum(counts)
 
@@ -1045,18 +1040,17 @@ def test_apply_many_from_the_kept_basis_equals_the_regenerated_one(columns):
             CompiledLanczos(L, B, keep_basis=bad)
 
 
-def test_a_spectral_search_keeps_its_coordinates_basis_within_its_budget(monkeypatch):
-    """SpectralSearch's coordinates run keeps its basis (SPECTRAL_BASIS_BYTES): every candidate's coordinates summed
-    from it, the same as with none kept (a second pass per call)."""
-    import meshdenoise.tuning.spectral as spectral
+def test_a_spectral_search_keeps_its_coordinates_basis_within_its_budget():
+    """SpectralSearch's coordinates run keeps its basis (SpectralConfig.basis_bytes): every candidate's coordinates
+    summed from it, the same as with none kept (a second pass per call)."""
     from meshdenoise.tuning.spectral import SpectralSearch, shifted_spectral
 
     V, F = icosphere(3)
     ops = get_operators(F, len(V))
     got = {}
-    for budget in (spectral.SPECTRAL_BASIS_BYTES, 0):
-        monkeypatch.setattr(spectral, "SPECTRAL_BASIS_BYTES", budget)
-        search = SpectralSearch(V, lambda mu: shifted_spectral(ops, mu, 2), candidates=[0.1, 0.3, 1.0])
+    for budget in (SpectralConfig().basis_bytes, 0):
+        search = SpectralSearch(V, lambda mu: shifted_spectral(ops, mu, 2), candidates=[0.1, 0.3, 1.0],
+                                config=SpectralConfig(basis_bytes=budget))
         got[budget] = [search.coordinates(mu) for mu in (0.3, 1.0, 0.1)]
         assert (search._coords._basis is not None) == (budget > 0)
     for a, b in zip(*got.values()):

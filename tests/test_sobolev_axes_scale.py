@@ -13,6 +13,16 @@ from meshdenoise.tuning.risk import probe_block
 from meshdenoise.tuning.search import quadrature_coordinates, shifted_quadrature
 
 
+def _axes(Vn, F, config, pinned=None, start=None, **params):
+    """sobolev_axes' array core with ``config`` (a filter's public call takes none), held rows kept as the registry
+    keeps them."""
+    out = get_filter("sobolev_axes").core(Vn, F, ops=get_operators(F, len(Vn)), pinned=pinned, start=start,
+                                          config=config, **params)
+    if pinned is not None:
+        out[pinned] = Vn[pinned]
+    return out
+
+
 def _dense_function(L: np.ndarray, g, B: np.ndarray) -> np.ndarray:
     lam, U = np.linalg.eigh(L)
     return (U * g(lam)) @ (U.T @ B)
@@ -107,26 +117,26 @@ def test_sobolev_axes_large_path_uses_one_run_and_equals_the_factor_filter(monke
         calls.append((float(mu), kw["tol"]))
         return real(ops, X, mu, order, **kw)
 
-    monkeypatch.setattr(ax, "AXES_LANCZOS_MIN_VERTICES", 0)
+    factor_free = ax.AxesConfig(lanczos_min_vertices=0)
     monkeypatch.setattr(ax, "lanczos_shifted", spy)
     monkeypatch.setattr(ax, "CompiledLanczos", lambda *a, **k: runs.append(a[1].shape) or CompiledLanczos(*a, **k))
     monkeypatch.setattr(ax, "shifted_solver", lambda *a, **k: pytest.fail("a factor was built"))
     clear_cache()
-    after = apply_filter("sobolev_axes", (Vn, F), **params)[0]
+    after = _axes(Vn, F, factor_free, **params)
     assert runs == [(len(Vn), 2)] and not calls  # an axis with mu = 0 is not solved
     np.testing.assert_allclose(after, before, atol=1e-11)
-    monkeypatch.setattr(ax, "LANCZOS_SHIFTED_MAX_STEPS", 3)  # the run gives up: each axis on its own
     clear_cache()
     runs.clear()
-    again = apply_filter("sobolev_axes", (Vn, F), **params)[0]
+    gives_up = ax.AxesConfig(lanczos_min_vertices=0, lanczos_max_steps=3)  # the run gives up: each axis on its own
+    again = _axes(Vn, F, gives_up, **params)
     assert runs == [(len(Vn), 2)] and calls == [(0.3, 1e-10), (4.0, 1e-10)]
     np.testing.assert_allclose(again, before, atol=1e-11)
 
 
 def test_sobolev_axes_with_held_vertices_by_cg_equals_its_factor(monkeypatch):
-    """The border option's second run (held vertices): CG while shifted_cg_bound is at most AXES_PINNED_CG_BOUND, CG
-    preconditioned by a one-ring factor past it (ShiftedPCGFamily, the axes together), the factor's Dirichlet solve below
-    AXES_LANCZOS_MIN_VERTICES; the same result to 1e-9 of the coordinates."""
+    """The border option's second run (held vertices): CG while shifted_cg_bound is at most AxesConfig.pinned_cg_bound,
+    CG preconditioned by a one-ring factor past it (ShiftedPCGFamily, the axes together), the factor's Dirichlet solve
+    below AxesConfig.lanczos_min_vertices; the same result to 1e-9 of the coordinates."""
     import meshdenoise.plugins.sobolev_axes as ax
     V, F = icosphere(3)
     Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
@@ -138,33 +148,31 @@ def test_sobolev_axes_with_held_vertices_by_cg_equals_its_factor(monkeypatch):
     methods = []
     real = ax.shifted_solver
     monkeypatch.setattr(ax, "shifted_solver", lambda *a, **k: methods.append(a[4] if len(a) > 4 else "cholesky") or real(*a, **k))
-    monkeypatch.setattr(ax, "AXES_LANCZOS_MIN_VERTICES", 0)
     clear_cache()
-    after = apply_filter("sobolev_axes", (Vn, F), pinned=pinned, **params)[0]
+    after = _axes(Vn, F, ax.AxesConfig(lanczos_min_vertices=0), pinned, **params)
     assert methods == ["cg", "cg"]  # the two weighted axes
     np.testing.assert_allclose(after, before, atol=1e-9 * np.abs(Vn).max())
     np.testing.assert_array_equal(after[pinned], Vn[pinned])
-    monkeypatch.setattr(ax, "AXES_PINNED_CG_BOUND", 0)  # past the bound: one CG run for the two axes together,
-    methods.clear()  # preconditioned by one one-ring factor (ShiftedPCGFamily)
+    past = ax.AxesConfig(lanczos_min_vertices=0, pinned_cg_bound=0)  # past the bound: one CG run for the two axes
+    methods.clear()  # together, preconditioned by one one-ring factor (ShiftedPCGFamily)
     families = []
     real_family = ax.ShiftedPCGFamily
     monkeypatch.setattr(ax, "ShiftedPCGFamily", lambda *a, **k: families.append(list(a[1])) or real_family(*a, **k))
     clear_cache()
-    pcg = apply_filter("sobolev_axes", (Vn, F), pinned=pinned, **params)[0]
+    pcg = _axes(Vn, F, past, pinned, **params)
     assert methods == [] and families == [[0.3, 0.05]]
     np.testing.assert_allclose(pcg, before, atol=1e-9 * np.abs(Vn).max())
     np.testing.assert_array_equal(pcg[pinned], Vn[pinned])
     # started from a nearby result (the border option's free run), both iterations: the same result, held rows exact
     free = apply_filter("sobolev_axes", (Vn, F), **params)[0]
     for bound in (0, 10**9):
-        monkeypatch.setattr(ax, "AXES_PINNED_CG_BOUND", bound)
         clear_cache()
         ops = get_operators(F, len(Vn))
-        warm = get_filter("sobolev_axes").core(Vn, F, ops=ops, pinned=pinned, start=free, **params)
+        warm = get_filter("sobolev_axes").core(Vn, F, ops=ops, pinned=pinned, start=free, **params,
+                                               config=ax.AxesConfig(lanczos_min_vertices=0, pinned_cg_bound=bound))
         np.testing.assert_allclose(warm, before, atol=1e-9 * np.abs(Vn).max())
         np.testing.assert_allclose(warm[pinned], Vn[pinned], atol=1e-15)  # the core's frame rotation back: rounding
-    monkeypatch.setattr(ax, "AXES_LANCZOS_MIN_VERTICES", 10**9)  # below the size: the factor
     methods.clear()
     clear_cache()
-    apply_filter("sobolev_axes", (Vn, F), pinned=pinned, **params)
+    _axes(Vn, F, ax.AxesConfig(lanczos_min_vertices=10**9), pinned, **params)  # below the size: the factor
     assert methods == ["cholesky", "cholesky"]

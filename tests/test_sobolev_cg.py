@@ -203,17 +203,17 @@ def test_block_cg_rejects_non_positive_diagonal():
         block_cg(A, np.ones(3))
 
 
-def test_auto_solver_takes_cg_for_a_one_off_solve_on_a_large_mesh(monkeypatch):
+def test_auto_solver_takes_cg_for_a_one_off_solve_on_a_large_mesh():
     from meshdenoise.plugins import sobolev as sobolev_module
 
     Vn, F = _noisy(icosphere(3))
     ops = get_operators(F, len(Vn))
     mu = 0.6173  # a weight no other test factorises on this topology (the factors are stored on it)
     assert sobolev_module.choose_solver(ops, mu, None, 1e-10) == "cholesky"  # small mesh: keep a factor
-    monkeypatch.setattr(sobolev_module, "AUTO_CG_MIN_VERTICES", 10)
-    assert sobolev_module.choose_solver(ops, mu, None, 1e-10) == "cg"
-    assert sobolev_module.choose_solver(ops, 1e6, None, 1e-10) == "cholesky"  # sqrt(mu) iterations: too many
-    auto = sobolev((Vn, F), mu=0.913)[0]
+    large = sobolev_module.SobolevConfig(cg_min_vertices=10)
+    assert sobolev_module.choose_solver(ops, mu, None, 1e-10, large) == "cg"
+    assert sobolev_module.choose_solver(ops, 1e6, None, 1e-10, large) == "cholesky"  # sqrt(mu) iterations: too many
+    auto = md.get_filter("sobolev").core(Vn, F, ops=ops, pinned=None, mu=0.913, config=large)
     assert (0.913, None) in ops.cache["shifted-p1-cg"] and (0.913, None) not in ops.cache.get("shifted-p1-cholesky", {})
     exact = sobolev((Vn, F), mu=0.913, solver="cholesky")[0]
     np.testing.assert_allclose(auto, exact, rtol=0, atol=1e-8 * np.abs(exact).max())

@@ -12,7 +12,7 @@ from meshdenoise.tuning import TuningContext
 from meshdenoise.tuning.noise_level import normal_spread
 from meshdenoise.geometry import vertex_normals
 from meshdenoise.operators import get_operators
-from meshdenoise.plugins.sobolev_gls import coherent_normals
+from meshdenoise.plugins.sobolev_gls import GlsConfig, coherent_normals
 from meshdenoise.registry import apply_filter, get_filter
 from meshdenoise.shapes import grid, icosphere, torus
 
@@ -73,24 +73,36 @@ def _reduced_dense_gls(Vn, F, Lp, mu, beta, pinned, draft=None):
     return y
 
 
+def _gls(mesh, config=None, pinned=None, **params):
+    """sobolev_gls on ``mesh`` as its public function runs it (``config`` None), or its array core with ``config``
+    (a filter's public call takes none), held rows kept as the registry keeps them."""
+    if config is None:
+        return apply_filter("sobolev_gls", mesh, pinned=pinned, **params)[0]
+    V, F = mesh
+    spec = get_filter("sobolev_gls")
+    mask = None
+    if pinned is not None:
+        mask = np.zeros(len(V), dtype=bool)
+        mask[pinned] = True
+    out = spec.core(V, F, ops=get_operators(F, len(V)), pinned=mask, config=config, **spec.resolve(params))
+    if mask is not None:
+        out[mask] = V[mask]
+    return out
+
+
 @pytest.fixture(params=["direct", "cg"])
-def solve_path(request, monkeypatch):
-    """Both ways normal_weighted_solve solves: the small mesh's dense Cholesky and the conjugate gradients it
-    takes above GLS_DENSE_MAX_VERTICES (forced here by a limit of 0)."""
-    import meshdenoise.plugins.sobolev_gls as sg
-
+def solve_path(request):
+    """Both ways normal_weighted_solve solves: the small mesh's dense Cholesky (None: the default config) and the
+    conjugate gradients it takes above GlsConfig.dense_max_vertices (forced here by a limit of 0)."""
     if request.param == "cg":
-        monkeypatch.setattr(sg, "GLS_DENSE_MAX_VERTICES", 0)
-        monkeypatch.setattr(sg, "GLS_FILTER_TOL", 1e-12)  # its own tolerance's bound: the test below
-    return request.param
+        return GlsConfig(dense_max_vertices=0, filter_tol=1e-12)  # its own tolerance's bound: the test below
+    return None
 
 
-def test_sobolev_gls_filter_tolerance_bounds_its_error_against_the_dense_solve(monkeypatch):
-    """At the filter's CG tolerance (GLS_FILTER_TOL) the correction D solves A D = b with A >= I, so the error is at
-    most tol ||b|| <= tol (beta - 1) ||X - X0||; and it is not exact (the tolerance is what the filter runs at)."""
-    import meshdenoise.plugins.sobolev_gls as sg
-
-    monkeypatch.setattr(sg, "GLS_DENSE_MAX_VERTICES", 0)
+def test_sobolev_gls_filter_tolerance_bounds_its_error_against_the_dense_solve():
+    """At the filter's CG tolerance (GlsConfig.filter_tol) the correction D solves A D = b with A >= I, so the error is
+    at most tol ||b|| <= tol (beta - 1) ||X - X0||; and it is not exact (the tolerance is what the filter runs at)."""
+    config = GlsConfig(dense_max_vertices=0)
     V, F = torus(12, 6)
     Vn, _ = add_normal_noise((V, F), 0.03, seed=1)
     n = len(V)
@@ -98,9 +110,9 @@ def test_sobolev_gls_filter_tolerance_bounds_its_error_against_the_dense_solve(m
     mu, beta = 0.4, 12.0
     expected = _dense_gls(Vn.ravel(), F, L3, mu, beta).reshape(n, 3)
     X0 = np.linalg.solve(np.eye(n) + mu * L3, Vn)
-    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=3)[0]
+    got = _gls((Vn, F), config, mu=mu, beta=beta, order=3)
     error = np.linalg.norm(got - expected)
-    assert error <= sg.GLS_FILTER_TOL * (beta - 1.0) * np.linalg.norm(Vn - X0)
+    assert error <= config.filter_tol * (beta - 1.0) * np.linalg.norm(Vn - X0)
     assert error > 1e-13
 
 
@@ -111,14 +123,14 @@ def test_sobolev_gls_matches_a_dense_generalised_least_squares_solve(solve_path)
     L3 = np.linalg.matrix_power(_dense_L(F, n), 3)
     mu, beta = 0.4, 4.0
     expected = _dense_gls(Vn.ravel(), F, L3, mu, beta).reshape(n, 3)
-    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=3)[0]
+    got = _gls((Vn, F), solve_path, mu=mu, beta=beta, order=3)
     np.testing.assert_allclose(got, expected, atol=1e-8)
     # beta = 1 is the isotropic polyharmonic filter
-    iso = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=1.0)[0]
+    iso = _gls((Vn, F), solve_path, mu=mu, beta=1.0)
     np.testing.assert_allclose(iso, np.linalg.solve(np.eye(n) + mu * L3, Vn), atol=1e-10)
     # rotation and translation equivariant
     R = np.linalg.qr(np.random.default_rng(2).standard_normal((3, 3)))[0]
-    moved = apply_filter("sobolev_gls", (Vn @ R.T + 5.0, F), mu=mu, beta=beta)[0]
+    moved = _gls((Vn @ R.T + 5.0, F), solve_path, mu=mu, beta=beta)
     np.testing.assert_allclose(moved, got @ R.T + 5.0, atol=1e-7)
 
 
@@ -129,7 +141,7 @@ def test_sobolev_gls_pinned_vertices_solve_the_reduced_dense_system(solve_path):
     L2 = np.linalg.matrix_power(_dense_L(F, n), 2)
     mu, beta, pinned = 0.7, 6.0, np.arange(7)
     y = _reduced_dense_gls(Vn, F, L2, mu, beta, pinned)  # isotropic pass and weighted solve, pinned rows kept
-    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=2, pinned=pinned)[0]
+    got = _gls((Vn, F), solve_path, pinned, mu=mu, beta=beta, order=2)
     assert np.array_equal(got[pinned], Vn[pinned])
     np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
 
@@ -137,8 +149,8 @@ def test_sobolev_gls_pinned_vertices_solve_the_reduced_dense_system(solve_path):
 @pytest.mark.parametrize("held", [False, True])
 @pytest.mark.parametrize("order", [2, 3])
 def test_sobolev_gls_one_ring_pcg_path_solves_the_dense_system(monkeypatch, order, held):
-    """From GLS_FACTOR_FREE_MIN_VERTICES (0 here) with no factor stored and CG's bound past GLS_FACTOR_FREE_CG_BOUND
-    (0 here): both solves by CG preconditioned by the one-ring factor's (L + aI)^-p (ShiftedPCG), no factor of
+    """From GlsConfig.factor_free_min_vertices (0 here) with no factor stored and CG's bound past
+    GlsConfig.factor_free_cg_bound (0 here): both solves by CG preconditioned by the one-ring factor's (L + aI)^-p (ShiftedPCG), no factor of
     I + mu L^p; against the (reduced) dense system."""
     import meshdenoise.plugins.sobolev_gls as sg
     from meshdenoise.operators import clear_cache
@@ -150,16 +162,12 @@ def test_sobolev_gls_one_ring_pcg_path_solves_the_dense_system(monkeypatch, orde
     mu, beta = 40.0, 6.0
     pinned = np.arange(7) if held else np.zeros(0, dtype=int)
     y = _reduced_dense_gls(Vn, F, Lp, mu, beta, pinned)
-    monkeypatch.setattr(sg, "GLS_FACTOR_FREE_MIN_VERTICES", 0)
-    monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", 0.0)
-    monkeypatch.setattr(sg, "GLS_DENSE_MAX_VERTICES", 0)
-    monkeypatch.setattr(sg, "GLS_FILTER_TOL", 1e-12)
+    config = GlsConfig(factor_free_min_vertices=0, factor_free_cg_bound=0.0, dense_max_vertices=0, filter_tol=1e-12)
     clear_cache()
     real = sg.shifted_solver
     monkeypatch.setattr(sg, "shifted_solver", lambda *a, **k: real(*a, **k) if a[4:] == ("pcg",)
                         else pytest.fail("a factor was built"))
-    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=order,
-                       pinned=pinned if held else None)[0]
+    got = _gls((Vn, F), config, pinned if held else None, mu=mu, beta=beta, order=order)
     assert np.array_equal(got[pinned], Vn[pinned])
     np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
     # given the border option's draft (the free isotropic pass): held rows, one correction solve from it, the normals
@@ -168,14 +176,14 @@ def test_sobolev_gls_one_ring_pcg_path_solves_the_dense_system(monkeypatch, orde
     mask[pinned] = True
     draft = np.linalg.solve(np.eye(n) + mu * Lp, Vn)
     warm = get_filter("sobolev_gls").core(Vn, F, ops=get_operators(F, n), pinned=mask if held else None, mu=mu,
-                                          beta=beta, order=order, draft=draft)
+                                          beta=beta, order=order, draft=draft, config=config)
     assert np.array_equal(warm[pinned], Vn[pinned])
     np.testing.assert_allclose(warm, _reduced_dense_gls(Vn, F, Lp, mu, beta, pinned, draft).reshape(n, 3), atol=1e-8)
 
 
 @pytest.mark.parametrize("order", [2, 3])
 def test_sobolev_gls_factor_free_path_with_held_rows_solves_the_reduced_dense_system(monkeypatch, order):
-    """With held rows (the border option's second run) and CG's bound under GLS_FACTOR_FREE_CG_BOUND the filter
+    """With held rows (the border option's second run) and CG's bound under GlsConfig.factor_free_cg_bound the filter
     factorises nothing either: Jacobi CG for the isotropic pass, block-Jacobi CG on the free rows for the correction.
     The reference is the reduced dense system, as in the test above."""
     import meshdenoise.plugins.sobolev_gls as sg
@@ -187,31 +195,29 @@ def test_sobolev_gls_factor_free_path_with_held_rows_solves_the_reduced_dense_sy
     Lp = np.linalg.matrix_power(_dense_L(F, n), order)
     mu, beta, pinned = 0.3, 6.0, np.arange(7)
     y = _reduced_dense_gls(Vn, F, Lp, mu, beta, pinned)
-    monkeypatch.setattr(sg, "GLS_FACTOR_FREE_MIN_VERTICES", 0)
-    monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", np.inf)
-    monkeypatch.setattr(sg, "GLS_FILTER_TOL", 1e-12)
+    config = GlsConfig(factor_free_min_vertices=0, factor_free_cg_bound=np.inf, filter_tol=1e-12)
     clear_cache()
     real = sg.shifted_solver
     monkeypatch.setattr(sg, "shifted_solver", lambda *a, **k: real(*a, **k) if a[4:] == ("cg",)
                         else pytest.fail("a factor was built"))
-    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=order, pinned=pinned)[0]
+    got = _gls((Vn, F), config, pinned, mu=mu, beta=beta, order=order)
     assert np.array_equal(got[pinned], Vn[pinned])
     np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
     mask = np.zeros(n, dtype=bool)
     mask[pinned] = True
     draft = np.linalg.solve(np.eye(n) + mu * Lp, Vn)  # the border option's draft: the free isotropic pass
     warm = get_filter("sobolev_gls").core(Vn, F, ops=get_operators(F, n), pinned=mask, mu=mu, beta=beta, order=order,
-                                          draft=draft)
+                                          draft=draft, config=config)
     assert np.array_equal(warm[pinned], Vn[pinned])
     np.testing.assert_allclose(warm, _reduced_dense_gls(Vn, F, Lp, mu, beta, pinned, draft).reshape(n, 3), atol=1e-8)
     # a draft with beta = 1: the held isotropic pass alone, started from it
     iso = get_filter("sobolev_gls").core(Vn, F, ops=get_operators(F, n), pinned=mask, mu=mu, beta=1.0, order=order,
-                                         draft=draft)
+                                         draft=draft, config=config)
     np.testing.assert_allclose(iso, _reduced_dense_gls(Vn, F, Lp, mu, 1.0, pinned).reshape(n, 3), atol=1e-8)
     # the gate: a stored factor, or a bound above the limit, keeps the factor path (here: the test fails on a factor)
-    monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", 0.0)
     with pytest.raises(pytest.fail.Exception, match="a factor was built"):
-        apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=order, pinned=pinned)
+        _gls((Vn, F), GlsConfig(factor_free_min_vertices=0, factor_free_cg_bound=0.0, filter_tol=1e-12), pinned,
+             mu=mu, beta=beta, order=order)
 
 
 def test_normal_weighted_cg_with_held_rows_solves_the_reduced_system():
@@ -399,8 +405,8 @@ def test_coherent_normals_derivative_matches_central_differences_on_both_branche
 @pytest.mark.parametrize("gate", ["size", "bound"])
 @pytest.mark.parametrize("mu, beta, order, jacobi_cap", [(0.4, 4.0, 3, 3000), (5.0, 12.0, 2, 3000), (0.4, 4.0, 3, 3)])
 def test_sobolev_gls_factor_free_path_matches_the_dense_solve(monkeypatch, mu, beta, order, jacobi_cap, gate):
-    """From GLS_ITERATIVE_MIN_VERTICES (0 here: gate "size"), or from GLS_FACTOR_FREE_MIN_VERTICES under CG's bound (0
-    and none here: gate "bound") nothing is factorised: Lanczos passes and block-Jacobi CG (a cap of 3 iterations
+    """From GlsConfig.iterative_min_vertices (0 here: gate "size"), or from GlsConfig.factor_free_min_vertices under
+    CG's bound (0 and none here: gate "bound") nothing is factorised: Lanczos passes and block-Jacobi CG (a cap of 3 iterations
     forces the Lanczos-preconditioned fallback); the dense 3n x 3n solve is the reference."""
     import meshdenoise.plugins.sobolev_gls as sg
     from meshdenoise.operators import clear_cache
@@ -411,24 +417,22 @@ def test_sobolev_gls_factor_free_path_matches_the_dense_solve(monkeypatch, mu, b
     Lp = np.linalg.matrix_power(_dense_L(F, n), order)
     expected = _dense_gls(Vn.ravel(), F, Lp, mu, beta).reshape(n, 3)
     if gate == "size":
-        monkeypatch.setattr(sg, "GLS_ITERATIVE_MIN_VERTICES", 0)
-        monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", 0.0)  # the size alone decides
+        paths = dict(iterative_min_vertices=0, factor_free_cg_bound=0.0)  # the size alone decides
     else:
-        monkeypatch.setattr(sg, "GLS_FACTOR_FREE_MIN_VERTICES", 0)
-        monkeypatch.setattr(sg, "GLS_FACTOR_FREE_CG_BOUND", np.inf)
-    monkeypatch.setattr(sg, "GLS_JACOBI_MAX_ITERATIONS", jacobi_cap)
+        paths = dict(factor_free_min_vertices=0, factor_free_cg_bound=np.inf)
+    config = GlsConfig(jacobi_max_iterations=jacobi_cap, **paths)
     clear_cache()
     built = []
     monkeypatch.setattr(sg, "shifted_solver", lambda *a, **k: built.append(a) or pytest.fail("a factor was built"))
     # at the filter's tolerance: the correction D solves A D = b with A >= I (W >= I, L^p >= 0), so a relative
     # residual tol bounds its error by tol ||b||, ||b|| <= (beta - 1) ||X - X0|| (b a projection of (beta - 1)(X - X0))
     X0 = np.linalg.solve(np.eye(n) + mu * Lp, Vn)
-    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=order)[0]
-    assert np.linalg.norm(got - expected) <= sg.GLS_FILTER_TOL * (beta - 1.0) * np.linalg.norm(Vn - X0) + 1e-10
-    monkeypatch.setattr(sg, "GLS_FILTER_TOL", 1e-12)
-    got = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=beta, order=order)[0]
+    got = _gls((Vn, F), config, mu=mu, beta=beta, order=order)
+    assert np.linalg.norm(got - expected) <= config.filter_tol * (beta - 1.0) * np.linalg.norm(Vn - X0) + 1e-10
+    config = GlsConfig(jacobi_max_iterations=jacobi_cap, filter_tol=1e-12, **paths)
+    got = _gls((Vn, F), config, mu=mu, beta=beta, order=order)
     np.testing.assert_allclose(got, expected, atol=1e-8)
-    iso = apply_filter("sobolev_gls", (Vn, F), mu=mu, beta=1.0, order=order)[0]
+    iso = _gls((Vn, F), config, mu=mu, beta=1.0, order=order)
     np.testing.assert_allclose(iso, np.linalg.solve(np.eye(n) + mu * Lp, Vn), atol=1e-10)
 
 

@@ -4,8 +4,11 @@ mesh's result, against the whole-mesh rule on a torus whose best weight is large
 import numpy as np
 import pytest
 
-from meshdenoise import add_normal_noise, apply_filter, choose_parameters, snr
+from meshdenoise import add_normal_noise, apply_filter, choose_parameters, get_filter, snr
+from meshdenoise.operators import get_operators
+from meshdenoise.plugins.sobolev_normal import SobolevNormalConfig
 from meshdenoise.shapes import torus
+from meshdenoise.tuning.config import SearchConfig, SpectralConfig
 
 
 def _torus_case():
@@ -16,38 +19,45 @@ def _torus_case():
 
 
 def _forced_region(monkeypatch, pin=None):
-    import meshdenoise.plugins.sobolev_normal as sn
+    """The rule's settings that cut a region of this 6,000-vertex torus, and the list of the regions cut."""
     import meshdenoise.tuning.region as region
-    import meshdenoise.tuning.search as search
 
-    monkeypatch.setattr(search, "REGION_MIN_VERTICES", 1000)
-    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_REGION", 2000)  # grown by region_shape to 2 x 19 x 8^2 = 2432
-    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_PATCHES", 2)
-    if pin is not None:
-        monkeypatch.setattr(sn, "SOBOLEV_NORMAL_PIN", pin)
+    # the region grown by region_shape to 2 x 19 x 8^2 = 2432 vertices
+    rule = SobolevNormalConfig(region=2000, patches=2, **({} if pin is None else {"pin": pin}))
     cuts = []
     real = region.SampledRegion
     monkeypatch.setattr(region, "SampledRegion", lambda *a, **k: cuts.append(real(*a, **k)) or cuts[-1])
-    return cuts
+    return (SearchConfig(region_min_vertices=1000), rule), cuts
+
+
+def _filtered(V, F, config, pinned=None, **params):
+    """sobolev_normal's array core with ``config`` (a filter's public call takes none), held rows kept as the
+    registry keeps them."""
+    spec = get_filter("sobolev_normal")
+    V = np.asarray(V, dtype=np.float64)
+    out = spec.core(V, F, ops=get_operators(F, len(V)), pinned=pinned, config=config, **spec.resolve(params))
+    if pinned is not None:
+        out[pinned] = V[pinned]
+    return out
 
 
 def test_region_choice_is_within_0_2_db_of_the_whole_mesh_rule_and_a_free_border_is_not(monkeypatch):
     """One cut (no second, wider one), held on its outer rings: within 0.2 dB of the whole-mesh rule's SNR. The same
     region with a free border (nothing held) loses several dB: the comparison can fail."""
     V, Vn, F, rho = _torus_case()
-    whole = choose_parameters((Vn, F), "sobolev_normal", noise=rho)  # 6,000 < REGION_MIN_VERTICES: the whole mesh
+    whole = choose_parameters((Vn, F), "sobolev_normal", noise=rho)  # 6,000 < SearchConfig.region_min_vertices: the whole mesh
     whole_snr = snr(V, apply_filter("sobolev_normal", (Vn, F), **whole)[0])
     assert whole["order"] == 3 and whole["mu"] > 30  # strong smoothing: where a cut pulls the choice down
 
-    cuts = _forced_region(monkeypatch)
-    held = choose_parameters((Vn, F), "sobolev_normal", noise=rho)
+    config, cuts = _forced_region(monkeypatch)
+    held = choose_parameters((Vn, F), "sobolev_normal", noise=rho, config=config)
     assert len(cuts) == 1 and not cuts[0].whole and cuts[0].vertices.size < 0.5 * len(V)
     held_snr = snr(V, apply_filter("sobolev_normal", (Vn, F), **held)[0])
     assert held_snr >= whole_snr - 0.2
 
     monkeypatch.undo()
-    cuts = _forced_region(monkeypatch, pin=0)  # pin = 0: the cut left a free border
-    free = choose_parameters((Vn, F), "sobolev_normal", noise=rho)
+    config, cuts = _forced_region(monkeypatch, pin=0)  # pin = 0: the cut left a free border
+    free = choose_parameters((Vn, F), "sobolev_normal", noise=rho, config=config)
     assert len(cuts) == 1
     free_snr = snr(V, apply_filter("sobolev_normal", (Vn, F), **free)[0])
     assert free_snr < whole_snr - 1.0
@@ -87,14 +97,14 @@ def test_region_rule_under_a_correlated_noise_model_colours_the_regions_probes_b
 
     V, Vn, F, rho = _torus_case()
     model = NoiseModel(rho, 2.0, Vn, F)
-    cuts = _forced_region(monkeypatch)
-    params = choose_parameters((Vn, F), "sobolev_normal", noise=model)
+    config, cuts = _forced_region(monkeypatch)
+    params = choose_parameters((Vn, F), "sobolev_normal", noise=model, config=config)
     assert cuts and cuts[0].vertices.size < len(V)  # on a region
     assert snr(V, apply_filter("sobolev_normal", (Vn, F), **params)[0]) > snr(V, Vn)
 
 
 def test_the_filter_with_held_vertices_on_a_large_mesh_solves_by_cg_within_its_bound_the_factors_result(monkeypatch):
-    # from SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES (here lowered) a held border (the border option's second run) is solved
+    # from SobolevNormalConfig.lanczos_min_vertices (here lowered) a held border (the border option's second run) is solved
     # by CG while shifted_cg_bound allows it, a factorisation beyond: the same result to the solve's tolerance
     import meshdenoise.plugins.sobolev_normal as sn
     import meshdenoise.solvers as solvers
@@ -111,21 +121,19 @@ def test_the_filter_with_held_vertices_on_a_large_mesh_solves_by_cg_within_its_b
     methods = []
     real = solvers.shifted_solver
     monkeypatch.setattr(sn, "shifted_solver", lambda *a, **k: methods.append(a[4] if len(a) > 4 else "cholesky") or real(*a, **k))
-    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES", 500)
-    cg = apply_filter("sobolev_normal", (Vn, F), mu=3.0, order=2, tangential=0.2, pinned=pinned)[0]
+    cg = _filtered(Vn, F, SobolevNormalConfig(lanczos_min_vertices=500), pinned, mu=3.0, order=2, tangential=0.2)
     assert methods == ["cg"]
     np.testing.assert_allclose(cg, factor, rtol=0, atol=1e-8 * np.abs(factor).max())
     np.testing.assert_array_equal(cg[pinned], Vn[pinned])
     methods.clear()
     clear_cache()
-    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_PINNED_CG_BOUND", 1.0)  # beyond the bound: the factor
-    np.testing.assert_array_equal(apply_filter("sobolev_normal", (Vn, F), mu=3.0, order=2, tangential=0.2,
-                                               pinned=pinned)[0], factor)
+    beyond = SobolevNormalConfig(lanczos_min_vertices=500, pinned_cg_bound=1.0)  # beyond the bound: the factor
+    np.testing.assert_array_equal(_filtered(Vn, F, beyond, pinned, mu=3.0, order=2, tangential=0.2), factor)
     assert methods == ["cholesky"]
 
 
 def test_whole_mesh_rule_by_one_lanczos_run_chooses_as_by_factors(monkeypatch):
-    """From SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES the whole-mesh rule's candidates (both orders) come from one Lanczos
+    """From SobolevNormalConfig.rule_lanczos_min_vertices the whole-mesh rule's candidates (both orders) come from one Lanczos
     run (the first grid in one second pass, LogSearch's evaluate_many) where d_max mu^(1/p) is at most the reach: the
     same order and mu (to the search's rounding) as with a factor per candidate."""
     import meshdenoise.plugins.sobolev_normal as sn
@@ -136,12 +144,12 @@ def test_whole_mesh_rule_by_one_lanczos_run_chooses_as_by_factors(monkeypatch):
 
     V0, F = icosphere(4)
     X = V0 + 0.01 * np.random.default_rng(2).standard_normal(len(V0))[:, None] * vn(V0, F)
-    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES", 10**9)
-    direct = choose_parameters((X, F), "sobolev_normal", noise=0.01)
+    direct = choose_parameters((X, F), "sobolev_normal", noise=0.01,
+                               config=SobolevNormalConfig(rule_lanczos_min_vertices=10**9))
     runs = []
     monkeypatch.setattr(sn, "CompiledLanczos", lambda *a, **k: runs.append(a[1].shape) or CompiledLanczos(*a, **k))
-    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES", 0)
-    fast = choose_parameters((X, F), "sobolev_normal", noise=0.01)
+    every = SobolevNormalConfig(rule_lanczos_min_vertices=0)
+    fast = choose_parameters((X, F), "sobolev_normal", noise=0.01, config=every)
     assert runs == [(len(X), 3 + 3 * sn.SOBOLEV_NORMAL_PROBES)]  # one run: coordinates and the probes
     assert fast["order"] == direct["order"] and fast["mu"] == pytest.approx(direct["mu"], rel=1e-6)
     assert fast["tangential"] == direct["tangential"]
@@ -150,11 +158,11 @@ def test_whole_mesh_rule_by_one_lanczos_run_chooses_as_by_factors(monkeypatch):
     passes = []
     real = CompiledLanczos.apply_many
     monkeypatch.setattr(CompiledLanczos, "apply_many", lambda self, gs, **k: passes.append(len(gs)) or real(self, gs, **k))
-    again = choose_parameters((X, F), "sobolev_normal", noise=0.01)
+    again = choose_parameters((X, F), "sobolev_normal", noise=0.01, config=every)
     assert passes[0] == 10 and again == fast
     passes.clear()
-    monkeypatch.setattr(sn, "SOBOLEV_NORMAL_BATCH_BYTES", 1)
-    single = choose_parameters((X, F), "sobolev_normal", noise=0.01)
+    single = choose_parameters((X, F), "sobolev_normal", noise=0.01,
+                               config=SobolevNormalConfig(rule_lanczos_min_vertices=0, batch_bytes=1))
     assert passes[:10] == [1] * 10
     assert single["order"] == fast["order"] and single["mu"] == pytest.approx(fast["mu"], rel=1e-6)
 
@@ -190,13 +198,12 @@ def test_past_an_edge_length_of_noise_the_rule_scores_by_quadrature_as_by_its_so
     """Tangential 1 (noise past an edge length): the update is H X, so SURE's residual and divergence are Gauss
     quadratures of L from one Lanczos run (no solve per candidate): the same order and mu as the solves give."""
     import meshdenoise.plugins.sobolev_normal as sn
-    import meshdenoise.tuning.spectral as spectral_module
     from meshdenoise.geometry import vertex_normals as vn
     from meshdenoise.shapes import icosphere
     from meshdenoise.solvers import CompiledLanczos
     from meshdenoise.tuning.choose import choose_parameters
 
-    V0, F = icosphere(4)  # 2,562 vertices: at least SPECTRAL_MIN_VERTICES
+    V0, F = icosphere(4)  # 2,562 vertices: at least SpectralConfig.min_vertices
     h = float(np.linalg.norm(V0[F[:, 0]] - V0[F[:, 1]], axis=1).mean())
     rho = 1.5 * h
     X = V0 + rho * np.random.default_rng(4).standard_normal(len(V0))[:, None] * vn(V0, F)
@@ -205,6 +212,6 @@ def test_past_an_edge_length_of_noise_the_rule_scores_by_quadrature_as_by_its_so
     fast = choose_parameters((X, F), "sobolev_normal", noise=rho)
     assert fast["tangential"] == 1.0
     assert runs == [(len(X), 3 * len(sn.SOBOLEV_NORMAL_ORDERS) + 3 * sn.SOBOLEV_NORMAL_PROBES)]
-    monkeypatch.setattr(spectral_module, "SPECTRAL_MIN_VERTICES", 10**9)  # every candidate by its solve
-    direct = choose_parameters((X, F), "sobolev_normal", noise=rho)
+    direct = choose_parameters((X, F), "sobolev_normal", noise=rho,
+                               config=SpectralConfig(min_vertices=10**9))  # every candidate by its solve
     assert fast["order"] == direct["order"] and fast["mu"] == pytest.approx(direct["mu"], rel=1e-6)

@@ -14,6 +14,7 @@ from meshdenoise.registry import get_filter
 from meshdenoise.shapes import icosphere
 from meshdenoise.solvers import LanczosDots
 from meshdenoise.tuning.choose import choose_parameters, normal_candidates
+from meshdenoise.tuning.config import SpectralConfig
 from meshdenoise.tuning.spectral import (SpectralSearch, averaging_spectral, heat_kernel_spectral, shifted_spectral)
 
 
@@ -112,7 +113,7 @@ def test_lanczos_dots_is_exact_once_the_krylov_space_is_exhausted_and_checks_sha
     (lambda ops: lambda v: averaging_spectral(ops, (0.5, -0.53), int(v)), [1, 12, 250]),
     (lambda ops: lambda v: heat_kernel_spectral(ops, v, 1, 4), [0.2, 2.0, 20.0]),
 ])
-@pytest.mark.parametrize("tol, accuracy", [(1e-10, 1e-9), (None, 1e-5)])  # None: SPECTRAL_TOL, the searches' own
+@pytest.mark.parametrize("tol, accuracy", [(1e-10, 1e-9), (None, 1e-5)])  # None: SpectralConfig.tol, the searches' own
 def test_spectral_search_coordinates_and_probe_terms_against_dense(family, values, tol, accuracy):
     """One coordinates' run and one probes' run serve every candidate: HX and u^T H b as the dense matrices give them,
     to ``accuracy`` of the smoothing's correction HX - X (the run's tolerance is relative to it, not to X)."""
@@ -234,22 +235,21 @@ def test_spectral_search_refuses_candidates_on_another_matrix():
 
 
 def _sphere(seed=3, rho=0.012):
-    V0, F = icosphere(4)  # 2,562 vertices: at least SPECTRAL_MIN_VERTICES
+    V0, F = icosphere(4)  # 2,562 vertices: at least SpectralConfig.min_vertices
     X = V0 + rho * np.random.default_rng(seed).standard_normal(len(V0))[:, None] * vertex_normals(V0, F)
     return V0, F, X
 
 
-@pytest.mark.parametrize("tol, accuracy", [(1e-10, 1e-8), (spectral_module.SPECTRAL_TOL, 1e-5)])
+@pytest.mark.parametrize("tol, accuracy", [(1e-10, 1e-8), (SpectralConfig().tol, 1e-5)])
 @pytest.mark.parametrize("additive", [True, False])
 @pytest.mark.parametrize("rho", [0.012, 0.2])  # 0.2: past an edge length, the Dirichlet ranking
-def test_refine_for_normals_scores_the_same_by_lanczos_runs_as_by_running_the_filter(additive, rho, tol, accuracy,
-                                                                                         monkeypatch):
+def test_refine_for_normals_scores_the_same_by_lanczos_runs_as_by_running_the_filter(additive, rho, tol, accuracy):
     """The spectral search against the filter run on the probes: the same candidates visited, the same choice and path,
     the risks and position SURE to ``accuracy`` (at the searches' tolerance and at 1e-10)."""
-    monkeypatch.setattr(spectral_module, "SPECTRAL_TOL", tol)
+    config = SpectralConfig(tol=tol)
     V0, F, X = _sphere(rho=rho)
     ops = get_operators(F, len(X))
-    assert len(X) >= spectral_module.SPECTRAL_MIN_VERTICES
+    assert len(X) >= config.min_vertices
     if additive:
         M = ops.P
 
@@ -269,14 +269,14 @@ def test_refine_for_normals_scores_the_same_by_lanczos_runs_as_by_running_the_fi
     rows[:200] = False  # a scored part, as on a region
     kw = dict(additive=additive, first=start * 3, rows=rows)
     direct = nr.refine_for_normals(X, F, apply, start, values, rho, **kw)
-    fast = nr.refine_for_normals(X, F, apply, start, values, rho, spectral=family, **kw)
+    fast = nr.refine_for_normals(X, F, apply, start, values, rho, spectral=family, config=config, **kw)
     assert direct.criterion == fast.criterion == ("dirichlet" if rho == 0.2 else "normals")
     assert (fast.value, fast.path, fast.values) == (direct.value, direct.path, direct.values)
     np.testing.assert_allclose(fast.risks, direct.risks, rtol=accuracy)
     assert fast.position_risk == pytest.approx(direct.position_risk, rel=accuracy)
 
 
-def test_refine_for_normals_runs_the_filter_where_a_lanczos_run_does_not_converge(monkeypatch):
+def test_refine_for_normals_runs_the_filter_where_a_lanczos_run_does_not_converge():
     V0, F, X = _sphere()
     ops = get_operators(F, len(X))
     calls = []
@@ -288,8 +288,8 @@ def test_refine_for_normals_runs_the_filter_where_a_lanczos_run_does_not_converg
     values = normal_candidates(0.3, False)
     direct = nr.refine_for_normals(X, F, apply, 0.3, values, 0.012)
     calls.clear()
-    monkeypatch.setattr(spectral_module, "SPECTRAL_MAX_STEPS", 3)
-    fallback = nr.refine_for_normals(X, F, apply, 0.3, values, 0.012, spectral=lambda mu: shifted_spectral(ops, mu, 1))
+    fallback = nr.refine_for_normals(X, F, apply, 0.3, values, 0.012, spectral=lambda mu: shifted_spectral(ops, mu, 1),
+                                     config=SpectralConfig(max_steps=3))
     assert fallback == direct and any(c > 3 for c in calls)  # the filter's own runs, the same choice to the bit
 
 
@@ -307,8 +307,7 @@ def test_normals_criterion_chooses_the_same_with_and_without_the_spectral_search
     monkeypatch.setattr(nr, "SpectralSearch", Counted)
     fast = choose_parameters((X, F), method, noise=0.012, criterion="normals")
     assert runs  # the candidates were scored by the Lanczos runs
-    monkeypatch.setattr(spectral_module, "SPECTRAL_MIN_VERTICES", 10**9)
-    direct = choose_parameters((X, F), method, noise=0.012, criterion="normals")
+    direct = choose_parameters((X, F), method, noise=0.012, criterion="normals", config=SpectralConfig(min_vertices=10**9))
     assert fast == direct
 
 
@@ -323,13 +322,12 @@ def test_sinkhorn_rule_reads_its_sure_curves_from_lanczos_runs_as_from_its_facto
     monkeypatch.setattr(SpectralSearch, "coordinates_many", lambda self, values: calls.append(values) or real(self, values))
     fast = choose_parameters((X, F), "sinkhorn", noise=0.012, criterion="sure")
     assert calls and all(len(v) == sk.SINKHORN_MAX_ITERATIONS for v in calls)  # every k of a t in one pass
-    monkeypatch.setattr(spectral_module, "SPECTRAL_MIN_VERTICES", 10**9)
-    direct = choose_parameters((X, F), "sinkhorn", noise=0.012, criterion="sure")
+    direct = choose_parameters((X, F), "sinkhorn", noise=0.012, criterion="sure", config=SpectralConfig(min_vertices=10**9))
     assert fast["iterations"] == direct["iterations"] and fast["t"] == pytest.approx(direct["t"], rel=1e-6)
-    monkeypatch.setattr(spectral_module, "SPECTRAL_MIN_VERTICES", 0)
-    monkeypatch.setattr(sk, "SINKHORN_SPECTRAL_MAX_BOUND", 0)  # every t past the bound: the factors' runs
     calls.clear()
-    gated = choose_parameters((X, F), "sinkhorn", noise=0.012, criterion="sure")
+    gated = choose_parameters((X, F), "sinkhorn", noise=0.012, criterion="sure",
+                              config=(SpectralConfig(min_vertices=0),
+                                      sk.SinkhornConfig(spectral_max_bound=0)))  # every t past the bound: the factors' runs
     assert gated == direct and not [v for v in calls if len(v) == sk.SINKHORN_MAX_ITERATIONS]
 
 

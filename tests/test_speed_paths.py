@@ -15,6 +15,7 @@ from meshdenoise.gpu import BACKENDS, get_backend
 from meshdenoise.operators import Operators, spmm
 from meshdenoise.plugins.filtering import filtering
 from meshdenoise.plugins.heat import chebyshev_coefficients, heat
+from meshdenoise.registry import get_filter
 from meshdenoise.shapes import grid, icosphere, torus
 
 
@@ -400,8 +401,8 @@ def test_locality_order_is_a_permutation_that_shrinks_bandwidth():
 
 
 @pytest.mark.parametrize("method", ["euler", "chebyshev"])
-def test_relabelled_fast_path_gives_the_same_result(monkeypatch, method):
-    """Forcing the locality-ordered path on a small mesh changes nothing but rounding."""
+def test_relabelled_fast_path_gives_the_same_result(method):
+    """Forcing the locality-ordered path on a small mesh (the cores' LocalityConfig) changes nothing but rounding."""
     from meshdenoise.plugins import filtering as filtering_module
 
     V, F = _noisy(torus(14, 9))
@@ -410,11 +411,19 @@ def test_relabelled_fast_path_gives_the_same_result(monkeypatch, method):
     assert not filtering_module.use_locality_order(Operators(F, len(V)), 20)  # a small mesh: the plain path
     ref_heat, _ = heat((V, F), time=6.0, method=method, pinned=pinned)
     ref_filt, _ = filtering((V, F), iterations=20, lam=0.6, weights="meshlab", pinned=pinned)
-    monkeypatch.setattr(filtering_module, "LOCALITY_MIN_VERTICES", 0)
+    config = filtering_module.LocalityConfig(min_vertices=0)
     ops = Operators(F, len(V))
-    assert filtering_module.use_locality_order(ops, 20)
-    got_heat, _ = heat((V, F), time=6.0, method=method, pinned=pinned, operators=ops)
-    got_filt, _ = filtering((V, F), iterations=20, lam=0.6, weights="meshlab", pinned=pinned, operators=ops)
+    assert filtering_module.use_locality_order(ops, 20, config)
+    mask = np.asarray(pinned, dtype=bool)
+
+    def core(name, **params):  # the filter's array core with the config, held rows kept as the registry keeps them
+        spec = get_filter(name)
+        out = spec.core(V, F, ops=ops, pinned=mask, config=config, **spec.resolve(params))
+        out[mask] = V[mask]
+        return out
+
+    got_heat = core("heat", time=6.0, method=method)
+    got_filt = core("filtering", iterations=20, lam=0.6, weights="meshlab")
     assert "locality_order" in ops.__dict__  # the relabelled path really ran
     np.testing.assert_allclose(got_heat, ref_heat, rtol=0, atol=1e-13)
     np.testing.assert_allclose(got_filt, ref_filt, rtol=0, atol=1e-13)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterator
+from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
@@ -11,12 +12,14 @@ from ..gpu import BACKENDS, Backend, get_backend
 from ..locality import LOCALITY_MIN_VERTICES
 from ..operators import Operators, gather_rows
 from ..registry import MAX_ITERATIONS, AutoRule, Param, ParameterError, register
+from ..tuning.config import check_fields, resolve
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import averaging_step, best_on_curve, best_on_path, iterative_path, path_curve
 from ..tuning.sweep import HeldOutRule, Sweep, geometric
 
-__all__ = ["filtering", "averaging_operator", "smoothing_steps", "step_matrix", "run_linear_steps", "WEIGHTS"]
+__all__ = ["filtering", "averaging_operator", "smoothing_steps", "step_matrix", "run_linear_steps", "WEIGHTS",
+           "LocalityConfig"]
 
 WEIGHTS = ("uniform", "meshlab", "meshlab_cotangent", "open3d", "inverse_distance")
 LINEAR_WEIGHTS = ("uniform", "meshlab", "open3d")  # the rest depend on the coordinates, recomputed every step
@@ -275,18 +278,40 @@ def averaging_operator(
     return ops.with_pinned_rows(A, pinned, name)
 
 
-LOCALITY_MIN_STEPS = 16  # the first relabelling costs about 15 products at 1.6M vertices
+@dataclass(frozen=True)
+class LocalityConfig:
+    """When ``filtering``'s and ``heat``'s steps run on relabelled vertices (their cores' ``config=``).
+
+    Attributes
+    ----------
+    min_vertices : int
+        From this many vertices (:data:`~meshdenoise.locality.LOCALITY_MIN_VERTICES`: below it the coordinates fit in
+        cache and relabelling cannot pay) ...
+    min_steps : int
+        ... for a run of at least this many steps, or once the order is computed: the first relabelling costs about
+        15 products at 1.6M vertices.
+    """
+
+    min_vertices: int = LOCALITY_MIN_VERTICES
+    min_steps: int = 16
+
+    def __post_init__(self) -> None:
+        check_fields(self, nonnegative=("min_vertices", "min_steps"))
 
 
-def use_locality_order(ops: Operators, steps: int) -> bool:
+DEFAULT = LocalityConfig()
+
+
+def use_locality_order(ops: Operators, steps: int, config: LocalityConfig | None = None) -> bool:
     """Whether to iterate on relabelled vertices (:attr:`Operators.locality_order`).
 
     Yes for large meshes when the order is already computed or the run is long enough
-    to repay computing it.
+    to repay computing it (:class:`LocalityConfig`; ``None``: its default).
     """
-    if ops.n < LOCALITY_MIN_VERTICES or ops.in_locality_order:
+    config = resolve(config, DEFAULT)
+    if ops.n < config.min_vertices or ops.in_locality_order:
         return False
-    return "locality_order" in ops.__dict__ or steps >= LOCALITY_MIN_STEPS
+    return "locality_order" in ops.__dict__ or steps >= config.min_steps
 
 
 def step_matrix(
@@ -445,7 +470,7 @@ FILTERING_NORMALS = HeldOutRule((Sweep("iterations", geometric(1, 400, 1.15, int
     ],
     linear=True,
 )
-def filtering(V, F, *, ops, pinned, iterations, weights, lam, boundary, backend):
+def filtering(V, F, *, ops, pinned, iterations, weights, lam, boundary, backend, config=None):
     """Linear filtering by repeated neighbour averaging (the paper's first method).
 
     .. math:: X^{(t+1)} = X^{(t)} + \\lambda \\left(A X^{(t)} - X^{(t)}\\right), \\qquad t = 0, \\dots, k - 1
@@ -493,6 +518,8 @@ def filtering(V, F, *, ops, pinned, iterations, weights, lam, boundary, backend)
         threaded over row blocks.
     pinned, region, preserve_volume, operators
         Options shared by every filter; see the README.
+    config : LocalityConfig, optional
+        The array core's (``get_filter("filtering").core``) relabelled path by size; ``None``: its default.
 
     Returns
     -------
@@ -531,6 +558,6 @@ def filtering(V, F, *, ops, pinned, iterations, weights, lam, boundary, backend)
         return X
     if iterations == 0:
         return np.array(V, dtype=np.float64)
-    permuted = use_locality_order(ops, iterations)
+    permuted = use_locality_order(ops, iterations, config)
     M = step_matrix(ops, weights, lam, pinned, boundary, permuted=permuted)
     return run_linear_steps(M, V, iterations, backend, ops.locality_order if permuted else None)

@@ -15,7 +15,7 @@ from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import averaging_step, best_on_curve, best_on_path, iterative_path, path_curve
 from ..tuning.sweep import HeldOutRule, Sweep, geometric
-from .filtering import run_linear_steps, step_matrix, use_locality_order
+from .filtering import LocalityConfig, run_linear_steps, step_matrix, use_locality_order
 
 __all__ = ["heat", "heat_steps", "stable_tau", "chebyshev_coefficients", "chebyshev_heat", "ChebyshevHeat"]
 
@@ -243,7 +243,7 @@ HEAT_NORMALS = HeldOutRule((Sweep("time", tuple(round(0.1 * k, 6) for k in geome
     ],
     linear=True,
 )
-def heat(V, F, *, ops, pinned, tau, time, method, tol, backend):
+def heat(V, F, *, ops, pinned, tau, time, method, tol, backend, config=None):
     """Heat diffusion by explicit Euler steps (the paper's second method).
 
     .. math:: X^{(t+1)} = X^{(t)} - \\tau \\left(I - D^{-1} W\\right) X^{(t)}, \\qquad t = 0, \\dots, \\lceil T / \\tau \\rceil - 1
@@ -290,6 +290,9 @@ def heat(V, F, *, ops, pinned, tau, time, method, tol, backend):
         Where the sparse products run; see :mod:`meshdenoise.gpu`.
     pinned, region, preserve_volume, operators
         Options shared by every filter; see the README.
+    config : LocalityConfig, optional
+        The array core's (``get_filter("heat").core``) relabelled path by size (``filtering``'s settings); ``None``:
+        its default.
 
     Returns
     -------
@@ -309,22 +312,23 @@ def heat(V, F, *, ops, pinned, tau, time, method, tol, backend):
     array([0.22222222, 0.22222222, 0.22222222])
     """
     if method == "chebyshev":
-        return _chebyshev_with_cache(ops, V, pinned, time, tol, backend)
+        return _chebyshev_with_cache(ops, V, pinned, time, tol, backend, config)
     _check_tau(ops, tau)
     steps = heat_steps(tau, time)
     if steps == 0:
         return np.array(V, dtype=np.float64)
-    permuted = use_locality_order(ops, steps)
+    permuted = use_locality_order(ops, steps, config)
     M = step_matrix(ops, "uniform", tau, pinned, permuted=permuted)
     return run_linear_steps(M, V, steps, backend, ops.locality_order if permuted else None)
 
 
-def _chebyshev_with_cache(ops: Operators, V: np.ndarray, pinned, time: float, tol: float, backend) -> np.ndarray:
+def _chebyshev_with_cache(ops: Operators, V: np.ndarray, pinned, time: float, tol: float, backend,
+                          config: LocalityConfig | None = None) -> np.ndarray:
     """Chebyshev heat with its matrices cached on the operators (per pinned mask and backend)."""
     upper = ops.lambda_max_bound
     if upper == 0.0:  # no edges: nothing diffuses
         return np.array(V, dtype=np.float64)
-    permuted = use_locality_order(ops, len(chebyshev_coefficients(time, tol, upper)))
+    permuted = use_locality_order(ops, len(chebyshev_coefficients(time, tol, upper)), config)
     be_name = backend if isinstance(backend, str) else backend.name
     key = ("chebyshev_heat", permuted, mask_key(pinned), be_name)
     if key not in ops.cache:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from ..ot import ot_denoise
@@ -12,25 +14,52 @@ from ..tuning.risk import Point, probe_block
 from ..tuning import search
 from ..solvers import shifted_cg_bound
 from ..tuning.search import region_rule, search_log, shifted_reach
-from ..tuning import spectral as spectral_module
+from ..tuning.config import SEARCH, SPECTRAL, check_fields
 from ..tuning.spectral import SpectralFailed, SpectralSearch, heat_kernel_spectral
 from ..tuning.sweep import HeldOutRule, Sweep, geometric
 
-__all__ = ["sinkhorn"]
+__all__ = ["sinkhorn", "SinkhornConfig"]
 
 
 # ----------------------------------------------------------------------------- automatic rule
 SINKHORN_MAX_ITERATIONS = 8
-SINKHORN_PATIENCE = 2  # a run over k stops after this many iterations past its best score (not with the oracle)
-SINKHORN_SPECTRAL_MAX_ITERATIONS = 16  # the rule's runs over k by Lanczos (all k at once) up to this many iterations
-SINKHORN_SPECTRAL_MAX_BOUND = 100  # ... and for a t whose substep (I + (t/s) L) has a CG bound (solvers.shifted_cg_bound, a
-# proxy of the Lanczos steps) at most this: the steps grow like sqrt(t) where a factor's path costs the same at any t (the
-# elephant's grid reached t = 200: 1.6 s by Lanczos, 0.2 s by factors)
-# from REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices in this many balls (each candidate t
-# is a factorisation and up to 16 solves of 3 + probes columns of the whole mesh: face000, 85k vertices, 54 s)
-SINKHORN_REGION = 32_000
-SINKHORN_PATCHES = 8
-SINKHORN_MARGIN = 4
+SINKHORN_MARGIN = 4  # the region's scored vertices at least this many rings from a cut
+
+
+@dataclass(frozen=True)
+class SinkhornConfig:
+    """The sinkhorn rule's settings (``choose_parameters(..., config=SinkhornConfig(...))``): the values, and where
+    they were measured.
+
+    Attributes
+    ----------
+    patience : int
+        A run over k stops after this many iterations past its best score (not with the oracle).
+    spectral_max_iterations : int
+        The rule's runs over k by Lanczos (all k at once) up to this many iterations ...
+    spectral_max_bound : float
+        ... and for a t whose substep (I + (t/s) L) has a CG bound (solvers.shifted_cg_bound, a proxy of the Lanczos
+        steps) at most this: the steps grow like sqrt(t) where a factor's path costs the same at any t (the
+        elephant's grid reached t = 200: 1.6 s by Lanczos, 0.2 s by factors).
+    region : int
+        From ``SearchConfig.region_min_vertices`` the rule runs on a sampled region of this many vertices ...
+    patches : int
+        ... in this many balls (each candidate t is a factorisation and up to 16 solves of 3 + probes columns of the
+        whole mesh: face000, 85k vertices, 54 s).
+    """
+
+    patience: int = 2
+    spectral_max_iterations: int = 16
+    spectral_max_bound: float = 100
+    region: int = 32_000
+    patches: int = 8
+
+    def __post_init__(self) -> None:
+        check_fields(self, positive=("patience", "region", "patches"),
+                     nonnegative=("spectral_max_iterations", "spectral_max_bound"))
+
+
+DEFAULT = SinkhornConfig()
 
 
 def sinkhorn_reach(chosen: dict) -> int:
@@ -49,8 +78,8 @@ def sinkhorn_reach(chosen: dict) -> int:
 
 
 def choose_sinkhorn(ctx: TuningContext) -> tuple[dict, Point]:
-    """:func:`choose_sinkhorn_whole`, from :data:`~meshdenoise.tuning.search.REGION_MIN_VERTICES` vertices on a
-    sampled region of ``SINKHORN_REGION`` vertices (:func:`~meshdenoise.tuning.search.region_rule`: the vertices
+    """:func:`choose_sinkhorn_whole`, from ``SearchConfig.region_min_vertices`` vertices on a
+    sampled region of ``SinkhornConfig.region`` vertices (:func:`~meshdenoise.tuning.search.region_rule`: the vertices
     more than :func:`sinkhorn_reach` rings from a cut scored, the region cut again while the choice reaches further),
     on the whole mesh below. ``t`` weighs the combinatorial Laplacian and ``iterations`` counts solves, both
     properties of the noise per edge and of the local shape, so the region's choice carries to the whole mesh.
@@ -63,8 +92,10 @@ def choose_sinkhorn(ctx: TuningContext) -> tuple[dict, Point]:
             f"debias=True (got laplacian={full['laplacian']!r}, measure={full['measure']!r}, debias={full['debias']!r}); "
             "automatic parameters need that configuration"
         )
-    margin = first_margin(ctx) if ctx.n >= search.REGION_MIN_VERTICES and not ctx.oracle else SINKHORN_MARGIN
-    return region_rule(ctx, choose_sinkhorn_whole, SINKHORN_REGION, SINKHORN_PATCHES, margin, reach=sinkhorn_reach)
+    config = ctx.config_for(DEFAULT)
+    margin = (first_margin(ctx) if ctx.n >= ctx.config_for(SEARCH).region_min_vertices and not ctx.oracle
+              else SINKHORN_MARGIN)
+    return region_rule(ctx, choose_sinkhorn_whole, config.region, config.patches, margin, reach=sinkhorn_reach)
 
 
 def first_margin(ctx: TuningContext) -> int:
@@ -83,7 +114,7 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
     give :math:`H_k = (2G - G^2)^k = (I - (I - G)^2)^k`. For each ``t`` the SURE curve over
     ``k = 1 .. SINKHORN_MAX_ITERATIONS`` is read along one run (probes carried through the
     same Cholesky solves); ``t`` minimises the best of it (:func:`~meshdenoise.tuning.search.search_log`, starting at
-    the ``sobolev`` guess). A given ``iterations`` is held. The run for one ``t`` stops ``SINKHORN_PATIENCE``
+    the ``sobolev`` guess). A given ``iterations`` is held. The run for one ``t`` stops ``SinkhornConfig.patience``
     iterations after its best score (each iteration smooths more: the score over ``k`` is taken to have one
     minimum): on face000 the best count is 1, and the SURE rule made 148 solves instead of 224.
 
@@ -95,6 +126,7 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
     from ..ot import MeshHeatKernel
 
     full = get_filter("sinkhorn").resolve(ctx.given, where="choose_parameters(method='sinkhorn')")
+    config, spectral_config = ctx.config_for(DEFAULT), ctx.config_for(SPECTRAL)
     steps = full["steps"]
     held = ctx.given.get("iterations")
     ks = [held] if held is not None else list(range(1, SINKHORN_MAX_ITERATIONS + 1))
@@ -109,12 +141,13 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
     best_k: dict[float, int] = {}
 
     early = held is None and not ctx.oracle  # a run's length then depends on the score: rho and criterion in the key
-    key = digest(ctx.F, ctx.V, Z, steps, max(ks), *((ctx.criterion.name, float(ctx.rho or 0.0)) if early else ()),
+    key = digest(ctx.F, ctx.V, Z, steps, max(ks),
+                 *((ctx.criterion.name, float(ctx.rho or 0.0), config.patience) if early else ()),
                  *(() if scored is None else (rows,)))
 
-    def stop(out: list, scores: list, t: float) -> bool:  # early: past SINKHORN_PATIENCE iterations after the best
+    def stop(out: list, scores: list, t: float) -> bool:  # early: past config.patience iterations after the best
         scores.append(score(Point(t, out[-1][1], out[-1][2], None)))
-        return len(scores) - 1 - int(np.argmin(scores)) >= SINKHORN_PATIENCE
+        return len(scores) - 1 - int(np.argmin(scores)) >= config.patience
 
     def path(t: float) -> list:
         K = MeshHeatKernel(ctx.V, ctx.F, t, laplacian="graph", mass="uniform", steps=steps)
@@ -130,17 +163,17 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
 
     # the map is g(L) (heat_kernel_spectral): every (t, k) from two Lanczos runs, the probes' one shared by the whole
     # search (tuning/spectral.py), no factorisation; the same terms to about 1e-10, the same early stop
-    lanczos = (not ctx.oracle and Z.shape[1] < n and n >= spectral_module.SPECTRAL_MIN_VERTICES
-               and max(ks) <= SINKHORN_SPECTRAL_MAX_ITERATIONS)
+    lanczos = (not ctx.oracle and Z.shape[1] < n and n >= spectral_config.min_vertices
+               and max(ks) <= config.spectral_max_iterations)
     if lanczos:
         family = lambda tk: heat_kernel_spectral(ctx.ops, tk[0], steps, tk[1])  # noqa: E731
-        spectral = SpectralSearch(ctx.V, family)
+        spectral = SpectralSearch(ctx.V, family, config=spectral_config)
         spectral.spectral((ctx.mu_guess(1), 1))  # the search's start: its matrix (every (t, k)'s) for the probes' run
         terms = spectral.probes(Z, [np.where(np.asarray(rows)[:, None], Z, 0.0) if scored is not None else Z])
         exact_path = path
 
         def path(t: float) -> list:  # noqa: F811
-            if shifted_cg_bound(ctx.ops, t / steps, 1, spectral.tol) > SINKHORN_SPECTRAL_MAX_BOUND:
+            if shifted_cg_bound(ctx.ops, t / steps, 1, spectral.tol) > config.spectral_max_bound:
                 return exact_path(t)  # Lanczos's steps grow like sqrt(t): a strong kernel by its factor
             try:
                 Xs = spectral.coordinates_many([(t, k) for k in range(1, max(ks) + 1)])
@@ -150,7 +183,7 @@ def choose_sinkhorn_whole(ctx: TuningContext, scored: np.ndarray | None = None) 
                     if early and stop(out, scores, t):
                         break
                 return out
-            except SpectralFailed:  # a run past SPECTRAL_MAX_STEPS: the factor's path
+            except SpectralFailed:  # a run past SpectralConfig.max_steps: the factor's path
                 return exact_path(t)
 
     def evaluate(t: float) -> Point:

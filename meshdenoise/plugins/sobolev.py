@@ -3,44 +3,69 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..operators import Operators
 from ..registry import AutoRule, Param, register
+from ..tuning.config import check_fields, resolve
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import best_shifted
 from ..tuning.sweep import HeldOutRule, Sweep, geometric
 from ..solvers import SPDSolver, shifted_matrix, shifted_solver
 
-__all__ = ["sobolev", "SobolevSolver", "choose_sobolev", "choose_solver", "SOLVERS"]
+__all__ = ["sobolev", "SobolevSolver", "choose_sobolev", "choose_solver", "SOLVERS", "SobolevConfig"]
 
 SOLVERS = ("auto", "cholesky", "cg")
-AUTO_CG_MIN_VERTICES = 200_000  # "auto": below this a factorisation costs under a few seconds and is kept for reuse
-AUTO_CG_MAX_ITERATIONS = 300  # ... and above it CG only while its iteration bound stays under this
 
 
-def choose_solver(ops: Operators, mu: float, pinned: np.ndarray | None, tol: float) -> str:
+@dataclass(frozen=True)
+class SobolevConfig:
+    """``solver="auto"``'s choice for ``sobolev`` (``core(..., config=)``, :func:`choose_solver`), also the bound of
+    ``sobolev_bilaplacian``'s held runs from its size.
+
+    Attributes
+    ----------
+    cg_min_vertices : int
+        Below this many vertices a factorisation costs under a few seconds and is kept for reuse ...
+    cg_max_iterations : float
+        ... and from it CG while its iteration bound stays under this (a one-off solve on a scan-sized mesh: 1.5 s
+        instead of a 28 s factorisation at 1.6M vertices, README "Speed").
+    """
+
+    cg_min_vertices: int = 200_000
+    cg_max_iterations: float = 300
+
+    def __post_init__(self) -> None:
+        check_fields(self, nonnegative=("cg_min_vertices", "cg_max_iterations"))
+
+
+DEFAULT = SobolevConfig()
+
+
+def choose_solver(ops: Operators, mu: float, pinned: np.ndarray | None, tol: float,
+                  config: SobolevConfig | None = None) -> str:
     """``"cg"`` or ``"cholesky"`` for ``solver="auto"``.
 
     Cholesky when a factor of ``I + mu L`` (same ``mu`` and pinned mask) is already stored
-    on the topology, or the mesh has fewer than :data:`AUTO_CG_MIN_VERTICES` vertices (the
+    on the topology, or the mesh has fewer than ``config.cg_min_vertices`` vertices (the
     factor is cheap and kept for the next call); otherwise CG while its iteration bound
     :math:`\\tfrac12\\sqrt{2(1 + \\mu d_{max})}\\,\\ln(2/\\mathrm{tol})` is at most
-    :data:`AUTO_CG_MAX_ITERATIONS` (a one-off solve on a scan-sized mesh: 1.5 s instead of a
-    28 s factorisation at 1.6M vertices, README "Speed"), Cholesky for larger ``mu``.
+    ``config.cg_max_iterations``, Cholesky for larger ``mu`` (:class:`SobolevConfig`; ``None``: its default).
     """
+    config = resolve(config, DEFAULT)
     from ..operators import mask_key
 
     stored = ops.cache.get("shifted-p1-cholesky", {})
     if (float(mu), mask_key(pinned if pinned is not None and pinned.any() else None)) in stored:
         return "cholesky"
-    if ops.n < AUTO_CG_MIN_VERTICES:
+    if ops.n < config.cg_min_vertices:
         return "cholesky"
     d_max = float(ops.degree.max()) if ops.n else 0.0
     bound = 0.5 * math.sqrt(2.0 * (1.0 + mu * d_max)) * math.log(2.0 / tol)
-    return "cg" if bound <= AUTO_CG_MAX_ITERATIONS else "cholesky"
+    return "cg" if bound <= config.cg_max_iterations else "cholesky"
 
 
 class SobolevSolver(SPDSolver):
@@ -115,7 +140,7 @@ SOBOLEV_NORMALS = HeldOutRule((Sweep("mu", geometric(0.01, 1e4, 2 ** (1 / 3))),)
     ],
     linear=True,
 )
-def sobolev(V, F, *, ops, pinned, mu, solver="auto", tol=1e-10):
+def sobolev(V, F, *, ops, pinned, mu, solver="auto", tol=1e-10, config=None):
     """Sobolev (Tikhonov) regularisation with the graph Laplacian (the paper's third method).
 
     .. math:: Y = \\arg\\min_Y \\|Y - X\\|_F^2 + \\mu\\, \\mathrm{tr}(Y^T L Y)
@@ -171,6 +196,8 @@ def sobolev(V, F, *, ops, pinned, mu, solver="auto", tol=1e-10):
         Relative residual at which ``"cg"`` stops (ignored by ``"cholesky"``).
     pinned, region, preserve_volume, operators
         Options shared by every filter; see the README.
+    config : SobolevConfig, optional
+        The array core's (``get_filter("sobolev").core``) ``"auto"`` choice by size; ``None``: :data:`DEFAULT`.
 
     Returns
     -------
@@ -197,7 +224,7 @@ def sobolev(V, F, *, ops, pinned, mu, solver="auto", tol=1e-10):
     if mu == 0:
         return np.array(V, dtype=np.float64)
     if solver == "auto":
-        solver = choose_solver(ops, mu, pinned, tol)
+        solver = choose_solver(ops, mu, pinned, tol, config)
     if solver == "cg":
         return shifted_solver(ops, mu, 1, pinned, "cg").solve(V, tol=tol, x0=V, maxiter=cg_iteration_cap(ops, mu, tol))
     return shifted_solver(ops, mu, 1, pinned).solve(V)

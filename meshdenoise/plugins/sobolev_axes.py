@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -18,28 +19,60 @@ from ..tuning.context import TuningContext
 from ..tuning.memo import MEMO, digest
 from ..tuning.noise_level import fourth_difference, mean_edge_length, normal_trust
 from ..tuning.risk import N_PROBES, Point, probe_block
-from ..tuning.search import QUADRATURE_MIN_VERTICES, best_shifted, probe_count, solve_shifted
+from ..tuning.config import SEARCH, check_fields, resolve
+from ..tuning.search import best_shifted, probe_count, solve_shifted
 from ..tuning.spectral import Spectral, shifted_spectral
 
-AXES_SCALE_MIN_VERTICES = 50_000  # from this size: the frame's estimate by Lanczos
-AXES_LANCZOS_MIN_VERTICES = 20_000  # from this size the filter runs without a factor: two Lanczos passes per axis, and
-AXES_PINNED_CG_BOUND = 600  # ... with held vertices CG while its bound is at most this (a factor
-# of I + mu L^3 with a held border took 1.2 s per axis on Bunny0.2, 3.5 of the filter's 4.9 s)
-AXES_QUADRATURE_MIN_VERTICES = QUADRATURE_MIN_VERTICES  # from this size the search by Lanczos quadrature (the same
-# candidates and probes as by a factor per mu, the same scores to about 1e-12)
-AXES_QUADRATURE_TOL = 1e-6  # ... each rule to this relative change over its last steps, as the normals
-# searches' SPECTRAL_TOL: the grid's candidates compared, no parabola. Measured against 1e-10 on the 7 rows of
-# benchmarks/filter_time.py it runs on: every per-axis score within 2.7e-5 of 1e-10's (the elephant; the others 8e-8 or
-# less), each axis's best ahead of its next by 1.7e-4 (Twelve0.5Impulsive) to 9e-3, the same choices; the elephant
-# 187 -> 120 steps, 3.2 -> 2.8 s
-AXES_ONE_RUN_MAX_VERTICES = 100_000  # below this size the rule's quadrature is one compiled Lanczos run of its 3 + m
-# columns (solvers.CompiledLanczos: Bunny0.2's 75 one-column numpy runs took 1.3 s), above it one run per column (memory)
+
+@dataclass(frozen=True)
+class AxesConfig:
+    """``sobolev_axes``' paths by size, for its filter (``core(..., config=)``) and its rule
+    (``choose_parameters(..., config=)``): the values, and where they were measured.
+
+    Attributes
+    ----------
+    scale_min_vertices : int
+        The rule's frame estimate takes its smoothed coordinates from the search's Lanczos run, no CG, from this size
+        (400k vertices: 4.6 s).
+    lanczos_min_vertices : int
+        The filter runs without a factor from this size: two Lanczos passes per axis, and ...
+    pinned_cg_bound : float
+        ... with held vertices CG while its bound is at most this (a factor of I + mu L^3 with a held border took
+        1.2 s per axis on Bunny0.2, 3.5 of the filter's 4.9 s); past it CG preconditioned by one one-ring factor.
+    lanczos_max_steps : int
+        The filter's one Lanczos run of the axes gives up after this many steps (each axis then on its own):
+        :data:`~meshdenoise.solvers.LANCZOS_SHIFTED_MAX_STEPS`.
+    quadrature_tol : float
+        The rule's quadrature (from ``SearchConfig.quadrature_min_vertices`` vertices): each rule to this relative
+        change over its last steps, as the normals searches' ``SpectralConfig.tol``: the grid's candidates compared,
+        no parabola. Measured against 1e-10 on the 7 rows of benchmarks/filter_time.py it runs on: every per-axis
+        score within 2.7e-5 of 1e-10's (the elephant; the others 8e-8 or less), each axis's best ahead of its next by
+        1.7e-4 (Twelve0.5Impulsive) to 9e-3, the same choices; the elephant 187 -> 120 steps, 3.2 -> 2.8 s.
+    one_run_max_vertices : int
+        Below this size the rule's quadrature is one compiled Lanczos run of its 3 + m columns
+        (solvers.CompiledLanczos: Bunny0.2's 75 one-column numpy runs took 1.3 s), above it one run per column (memory).
+    """
+
+    scale_min_vertices: int = 50_000
+    lanczos_min_vertices: int = 20_000
+    pinned_cg_bound: float = 600
+    lanczos_max_steps: int = LANCZOS_SHIFTED_MAX_STEPS
+    quadrature_tol: float = 1e-6
+    one_run_max_vertices: int = 100_000
+
+    def __post_init__(self) -> None:
+        check_fields(self, positive=("lanczos_max_steps", "quadrature_tol"),
+                     nonnegative=("scale_min_vertices", "lanczos_min_vertices", "pinned_cg_bound",
+                                  "one_run_max_vertices"))
+
+
+DEFAULT = AxesConfig()
 AXES_NORMAL_REGION = 8_000  # the normals criterion's search on a region of this size from twice as many vertices: each
 # candidate factorises I + mu L^3 three times (3.3 s each at 35k vertices; the whole-mesh search took 170 s on Bunny0.2)
 
 log = logging.getLogger("meshdenoise.auto")
 
-__all__ = ["sobolev_axes", "normal_frame", "choose_sobolev_axes", "sobolev_axes_map"]
+__all__ = ["sobolev_axes", "normal_frame", "choose_sobolev_axes", "sobolev_axes_map", "AxesConfig"]
 
 
 def _read_only(A: np.ndarray) -> np.ndarray:
@@ -133,7 +166,7 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
     misplace up to 30 % of an axis's noise on Nefertiti at rho = 1 (3 edge lengths),
     which made the per-axis SURE pick mu2 = 0.08 instead of about 10 on two of five seeds.
 
-    From ``AXES_QUADRATURE_MIN_VERTICES`` vertices (not the oracle, not exact traces) the candidates are the same and
+    From ``SearchConfig.quadrature_min_vertices`` vertices (not the oracle, not exact traces) the candidates are the same and
     their scores come from one Lanczos run on ``L`` (Gauss quadrature of both terms, which are
     quadratic forms of functions of ``L``, as :func:`~meshdenoise.tuning.search.shifted_quadrature`;
     the probes :func:`~meshdenoise.tuning.search.probe_count`; the weighted probes as the duals of
@@ -154,8 +187,10 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
     # noise directions: normals of the SURE-best bi-Laplacian estimate (smoother than `steps` averagings,
     # whose normals at 0.4 edge lengths of noise are still noisy and would bias the per-axis shares)
     rho_sure = ctx.rho if ctx.rho is not None else 0.0
-    by = "lanczos" if n >= AXES_SCALE_MIN_VERTICES else "cg"  # large: the search's own run, no CG (400k: 4.6 s)
-    Xs = best_shifted(ctx.V, ctx.ops, 2, rho_sure, "sure", ctx.exact, center=ctx.mu_guess(2), coordinates_by=by).X
+    config, search = ctx.config_for(DEFAULT), ctx.config_for(SEARCH)
+    by = "lanczos" if n >= config.scale_min_vertices else "cg"  # large: the search's own run, no CG (400k: 4.6 s)
+    Xs = best_shifted(ctx.V, ctx.ops, 2, rho_sure, "sure", ctx.exact, center=ctx.mu_guess(2), coordinates_by=by,
+                      config=search).X
     c = (vertex_normals(Xs, ctx.F) @ E) ** 2  # (n, 3) noise share of each axis per vertex
     if ctx.rho:
         c = c * _axis_share_correction(ctx.V, ctx.ops, E, c, ctx.rho, smooth)[None, :]
@@ -165,7 +200,7 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
     m = Z.shape[1]
     # a factor per mu costs 1 to 5 s at 35k vertices for L^3 (Bunny0.2: 10 of them); exact traces (identity probes,
     # a Lanczos run per column) keep it
-    use_quadrature = n >= AXES_QUADRATURE_MIN_VERTICES and Yf is None and m <= N_PROBES
+    use_quadrature = n >= search.quadrature_min_vertices and Yf is None and m <= N_PROBES
     # axis d's weighted trace sum_i c_id H_ii as E z^T diag(c_d) H z: the three axes from one set of m solves (H z),
     # each dotted with its own weighted probes c_d * z (E (z * sqrt c_d)^T H (z * sqrt c_d), the same sum, took 3m)
     def weighted(d: int) -> np.ndarray:  # (n, m): made when needed, not held
@@ -183,7 +218,7 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
         # (n, 3 + m) (at 1.6M vertices 12.8 MB a column), and numpy's passes over one contiguous column
         # cost less per number than over (n, k) blocks (30 steps at 400k: 2.0 CPU s for 15 one-column runs, 2.4 for
         # one 15-column run, 3.0 for three 5-column runs)
-        if n < AXES_ONE_RUN_MAX_VERTICES:  # one compiled run of all the columns: per-step work, not per column
+        if n < config.one_run_max_vertices:  # one compiled run of all the columns: per-step work, not per column
             # the weighted probes are the duals of the probe columns (zero on the coordinates')
             one = LanczosDots(ctx.ops.L, np.hstack([hp, Z]),
                               [np.hstack([np.zeros((n, 3)), weighted(d)]) for d in range(3)], max_steps=600)
@@ -198,7 +233,7 @@ def choose_sobolev_axes(ctx: TuningContext) -> tuple[dict, Point]:
         """Per-axis SURE: :math:`\\|H x_d - x_d\\|^2 = c_d^T \\mu^2 (I + \\mu L^p)^{-2} c_d`, :math:`c_d = L^p x_d`,
         and the weighted traces :math:`q^T (I + \\mu L^p)^{-1} q`, Gauss quadrature on the Lanczos runs."""
         # (1 + mu x^p)^-2 and ^-1 (ShiftedInverse: by tridiagonal solves, no eigenproblems)
-        tol, residual, trace = AXES_QUADRATURE_TOL, ShiftedInverse(mu, order, 2), ShiftedInverse(mu, order)
+        tol, residual, trace = config.quadrature_tol, ShiftedInverse(mu, order, 2), ShiftedInverse(mu, order)
         if quad is None:
             parts = [one.evaluate(residual, columns=range(3), rtol=tol, growth=0.25),
                      one.dots(trace, rtol=tol, growth=0.25)]
@@ -316,7 +351,7 @@ def sobolev_axes_spectral(V: np.ndarray, F: np.ndarray, ops: Operators, params: 
     linear=False,
     rough_free_run=True,  # the border option's free run: Lanczos to DRAFT_LANCZOS_TOL (face000 0.57 -> 0.33 s)
 )
-def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=None, rough=False):
+def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=None, rough=False, config=None):
     """Polyharmonic Sobolev smoothing, with its own strength on each principal axis of the normals.
 
     With :math:`E = (e_1, e_2, e_3)` the principal axes of the normals of the mesh
@@ -357,6 +392,8 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=
         Averaging steps applied before taking the normals that define the axes.
     pinned, region, preserve_volume, operators
         Options shared by every filter; see the README.
+    config : AxesConfig, optional
+        The array core's (``get_filter("sobolev_axes").core``) solver paths by size; ``None``: :data:`DEFAULT`.
 
     Returns
     -------
@@ -389,20 +426,22 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=
     C0 = C if start is None else np.asarray(start, dtype=np.float64) @ E
     out = np.empty_like(C)
     held = pinned is not None and pinned.any()
-    factor_free = ops.n >= AXES_LANCZOS_MIN_VERTICES and not held
+    config = resolve(config, DEFAULT)
+    factor_free = ops.n >= config.lanczos_min_vertices and not held
     stored = ops.cache.get(f"shifted-p{order}-cholesky", {})
     mus = (mu1, mu2, mu3)
     # a 100k factor of I + mu L^3: 20 s. The axes without a stored factor by one compiled Lanczos run on their columns,
     # one function of L per column (the elephant: 0.42 s; three numpy runs of one column each: 0.65 s)
     free = [d for d, mu in enumerate(mus) if mu != 0 and factor_free and (float(mu), None) not in stored]
     tol = DRAFT_LANCZOS_TOL if rough else FILTER_LANCZOS_TOL  # rough: the border option's free run, a draft
-    lanczos = _axes_by_lanczos(ops, C[:, free], [float(mus[d]) for d in free], order, tol) if free else None
+    lanczos = (_axes_by_lanczos(ops, C[:, free], [float(mus[d]) for d in free], order, tol, config.lanczos_max_steps)
+               if free else None)
     # held vertices (the border option's second run), no stored factor: CG while its bound is small, else CG
     # preconditioned by a one-ring factor for those axes together (solvers.ShiftedPCGFamily), where a factor of
     # I + mu L^p with the held rows took 2.8 s per axis on face000 (4,111 held border vertices)
     bounds = {d: shifted_cg_bound(ops, mu, order, FILTER_LANCZOS_TOL) for d, mu in enumerate(mus)
-              if mu != 0 and held and ops.n >= AXES_LANCZOS_MIN_VERTICES and (float(mu), mask_key(pinned)) not in stored}
-    family = [d for d, bound in bounds.items() if bound > AXES_PINNED_CG_BOUND and order > 1]
+              if mu != 0 and held and ops.n >= config.lanczos_min_vertices and (float(mu), mask_key(pinned)) not in stored}
+    family = [d for d, bound in bounds.items() if bound > config.pinned_cg_bound and order > 1]
     together = None
     if family:  # one factor, one run for the axes (face000's three: 3 factors and 2.5 s -> 1 and 1.5 s)
         together = ShiftedPCGFamily(ops, [mus[d] for d in family], order, pinned).solve(
@@ -415,7 +454,7 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=
             y = lanczos_shifted(ops, C[:, d], mu, order, tol=tol, growth=0.25)
         elif together is not None and d in family:
             y = together[:, family.index(d)]
-        elif d in bounds and bounds[d] <= AXES_PINNED_CG_BOUND:  # CG from the input, no factor
+        elif d in bounds and bounds[d] <= config.pinned_cg_bound:  # CG from the input, no factor
             y = shifted_solver(ops, mu, order, pinned, "cg").solve(C[:, d], tol=FILTER_LANCZOS_TOL, x0=C0[:, d],
                                                                  maxiter=int(4 * math.ceil(bounds[d])) + 50)
         if y is None:
@@ -425,15 +464,14 @@ def sobolev_axes(V, F, *, ops, pinned, mu1, mu2, mu3, order, frame_steps, start=
 
 
 def _axes_by_lanczos(ops: Operators, C: np.ndarray, mus: list[float], order: int,
-                     tol: float = FILTER_LANCZOS_TOL) -> np.ndarray | None:
+                     tol: float = FILTER_LANCZOS_TOL, max_steps: int = LANCZOS_SHIFTED_MAX_STEPS) -> np.ndarray | None:
     """:math:`(I + \\mu_j L^p)^{-1} c_j` for each column ``c_j`` of ``C`` (n, k) by one compiled Lanczos run on ``L``
     started at :math:`L^p C` (:meth:`~meshdenoise.solvers.CompiledLanczos.apply_many`, column ``j`` taking its own
     function, to ``tol``, :data:`~meshdenoise.solvers.FILTER_LANCZOS_TOL` by default), as
-    :func:`~meshdenoise.solvers.lanczos_shifted` gives each; ``None`` past
-    :data:`~meshdenoise.solvers.LANCZOS_SHIFTED_MAX_STEPS` steps."""
+    :func:`~meshdenoise.solvers.lanczos_shifted` gives each; ``None`` past ``max_steps`` steps."""
     c = np.ascontiguousarray(C, dtype=np.float64)
     for _ in range(int(order)):
         c = spmm(ops.L, c)
     gs = tuple(ShiftedInverse(mu, order) for mu in mus)
-    Y = CompiledLanczos(ops.L, c, max_steps=LANCZOS_SHIFTED_MAX_STEPS).apply_many([gs], rtol=tol, growth=0.25)
+    Y = CompiledLanczos(ops.L, c, max_steps=max_steps).apply_many([gs], rtol=tol, growth=0.25)
     return None if Y is None else C - np.asarray(mus)[None, :] * Y[0]

@@ -3,30 +3,56 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from ..registry import AutoRule, Param, register
+from ..tuning.config import check_fields, resolve
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import best_shifted
 from ..tuning.spectral import shifted_spectral
 from ..operators import Operators, mask_key, spmm
 from ..solvers import LanczosQuadrature, ShiftedInverse, shifted_cg_bound, shifted_solver
-from .sobolev import AUTO_CG_MAX_ITERATIONS, AUTO_CG_MIN_VERTICES
+from . import sobolev as _sobolev
+from .sobolev import SobolevConfig
 
 SOLVERS = ("auto", "cholesky", "cg", "lanczos")
 LANCZOS_MAX_STEPS = 1000
-LANCZOS_MIN_VERTICES = 50_000  # "auto" without pinned vertices: two Lanczos passes from this size (100k, load 15:
-# 2.9 s against a 15 s factorisation of I + mu L^2, same SNR to 13 digits; from 20,000 it is 2-3 times
-# faster than a factor for one run, but a choice that ran the filter at one mu once per probe took the elephant's
-# whole call from 2.2 to 7.7 s)
-PINNED_CG_BOUND = 500  # with pinned vertices (the border option's one run) from 20,000 vertices CG while its bound is at most this (the
-# Bunny0.2's border at mu 0.26: bound 135, 0.09 s against a 0.49 s factor; face000 at 12: 496, 0.76 against 1.19 s;
-# the elephant at 163: 2,726, 1.5 against 0.14 s), from AUTO_CG_MIN_VERTICES the bound AUTO_CG_MAX_ITERATIONS as for sobolev
-PINNED_CG_MIN_VERTICES = 20_000
 
-__all__ = ["sobolev_bilaplacian", "choose_sobolev_bilaplacian", "bilaplacian_cg_bound", "lanczos_bilaplacian"]
+__all__ = ["sobolev_bilaplacian", "choose_sobolev_bilaplacian", "bilaplacian_cg_bound", "lanczos_bilaplacian",
+           "BilaplacianConfig"]
+
+
+@dataclass(frozen=True)
+class BilaplacianConfig:
+    """``solver="auto"``'s choice for ``sobolev_bilaplacian`` (``core(..., config=)``): the values, and where they
+    were measured.
+
+    Attributes
+    ----------
+    lanczos_min_vertices : int
+        Without pinned vertices two Lanczos passes from this size (100k, load 15: 2.9 s against a 15 s factorisation
+        of I + mu L^2, same SNR to 13 digits; from 20,000 it is 2-3 times faster than a factor for one run, but a
+        choice that ran the filter at one mu once per probe took the elephant's whole call from 2.2 to 7.7 s).
+    pinned_cg_min_vertices : int
+        With pinned vertices (the border option's one run) a factor below this size, ...
+    pinned_cg_bound : float
+        ... CG from it while its bound is at most this (the Bunny0.2's border at mu 0.26: bound 135, 0.09 s against
+        a 0.49 s factor; face000 at 12: 496, 0.76 against 1.19 s; the elephant at 163: 2,726, 1.5 against 0.14 s),
+        from ``SobolevConfig.cg_min_vertices`` vertices the bound ``SobolevConfig.cg_max_iterations`` as for sobolev.
+    """
+
+    lanczos_min_vertices: int = 50_000
+    pinned_cg_min_vertices: int = 20_000
+    pinned_cg_bound: float = 500
+
+    def __post_init__(self) -> None:
+        check_fields(self, nonnegative=("lanczos_min_vertices", "pinned_cg_min_vertices", "pinned_cg_bound"))
+
+
+DEFAULT = BilaplacianConfig()
 
 
 def bilaplacian_cg_bound(ops: Operators, mu: float, tol: float) -> float:
@@ -34,24 +60,26 @@ def bilaplacian_cg_bound(ops: Operators, mu: float, tol: float) -> float:
     return shifted_cg_bound(ops, mu, 2, tol)
 
 
-def _choose_solver(ops: Operators, mu: float, pinned: np.ndarray | None, tol: float) -> str:
+def _choose_solver(ops: Operators, mu: float, pinned: np.ndarray | None, tol: float,
+                   config: BilaplacianConfig | None = None, large: SobolevConfig | None = None) -> str:
     """``solver="auto"``: as :func:`~meshdenoise.plugins.sobolev.choose_solver` for :math:`I + \\mu L^2`.
 
     Cholesky when its factor is stored; without pinned vertices two Lanczos passes
-    (:func:`lanczos_bilaplacian`) from :data:`LANCZOS_MIN_VERTICES` vertices, Cholesky below; with
-    them Cholesky below :data:`PINNED_CG_MIN_VERTICES` vertices, else CG while :func:`bilaplacian_cg_bound` is at most
-    :data:`PINNED_CG_BOUND` (from :data:`AUTO_CG_MIN_VERTICES` vertices :data:`AUTO_CG_MAX_ITERATIONS`),
+    (:func:`lanczos_bilaplacian`) from ``config.lanczos_min_vertices`` vertices, Cholesky below; with
+    them Cholesky below ``config.pinned_cg_min_vertices`` vertices, else CG while :func:`bilaplacian_cg_bound` is at
+    most ``config.pinned_cg_bound`` (from ``large.cg_min_vertices`` vertices ``large.cg_max_iterations``),
     Cholesky otherwise (the 400k scale mesh at the chosen mu = 1.1: a 14 s factorisation, 4.4 s of
-    CG, 2.1 s of Lanczos on a loaded machine).
+    CG, 2.1 s of Lanczos on a loaded machine). ``None``: :data:`DEFAULT`, ``sobolev``'s default.
     """
+    config, large = resolve(config, DEFAULT), resolve(large, _sobolev.DEFAULT)
     stored = ops.cache.get("shifted-p2-cholesky", {})
     if (float(mu), mask_key(pinned if pinned is not None and pinned.any() else None)) in stored:
         return "cholesky"
     if pinned is None or not pinned.any():  # its steps grow like mu^(1/4): no bound needed (a factor at 1.6M took
-        return "lanczos" if ops.n >= LANCZOS_MIN_VERTICES else "cholesky"  # over 3 minutes and 6.7 GB)
-    if ops.n < PINNED_CG_MIN_VERTICES:
+        return "lanczos" if ops.n >= config.lanczos_min_vertices else "cholesky"  # over 3 minutes and 6.7 GB)
+    if ops.n < config.pinned_cg_min_vertices:
         return "cholesky"
-    bound = PINNED_CG_BOUND if ops.n < AUTO_CG_MIN_VERTICES else AUTO_CG_MAX_ITERATIONS
+    bound = config.pinned_cg_bound if ops.n < large.cg_min_vertices else large.cg_max_iterations
     return "cg" if bilaplacian_cg_bound(ops, mu, tol) <= bound else "cholesky"
 
 
@@ -92,7 +120,7 @@ def choose_sobolev_bilaplacian(ctx: TuningContext) -> tuple[dict, Point]:
     ],
     linear=True,
 )
-def sobolev_bilaplacian(V, F, *, ops, pinned, mu, solver="auto", tol=1e-10):
+def sobolev_bilaplacian(V, F, *, ops, pinned, mu, solver="auto", tol=1e-10, config=None):
     """Second-order Sobolev regularisation: penalise the Laplacian of the result, not its gradient.
 
     .. math:: Y = \\arg\\min_Y \\|Y - X\\|_F^2 + \\mu \\|L Y\\|_F^2
@@ -156,7 +184,7 @@ def sobolev_bilaplacian(V, F, *, ops, pinned, mu, solver="auto", tol=1e-10):
     if mu == 0:
         return np.array(V, dtype=np.float64)
     if solver == "auto":
-        solver = _choose_solver(ops, mu, pinned, tol)
+        solver = _choose_solver(ops, mu, pinned, tol, config)
     if solver == "lanczos" and (pinned is None or not pinned.any()):
         Y = lanczos_bilaplacian(ops, V, mu, tol)
         if Y is not None:

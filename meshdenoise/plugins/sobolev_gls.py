@@ -17,24 +17,19 @@ from ..operators import Operators, mask_key, spmm
 from ..registry import AutoRule, Param, get_filter, register
 from ..solvers import (DRAFT_LANCZOS_TOL, FILTER_LANCZOS_TOL, lanczos_shifted, laplacian_power, one_ring_factor,
                        one_ring_solve, shifted_cg_bound, shifted_solver)
+from ..tuning.config import resolve
 from ..tuning.context import TuningContext
 from ..tuning.noise_level import mean_edge_length, normal_spread, normal_trust
 from ..tuning.risk import Point, gcv
 from ..tuning.search import best_shifted, probe_count, region_rule, search_log, shifted_reach, solve_shifted
 from ..tuning.sweep import HeldOutRule, Sweep, geometric
+from ._gls_solve import CG_TOL, DEFAULT, GlsConfig, normal_weighted_cg
 
 log = logging.getLogger("meshdenoise.auto")
 
-__all__ = ["sobolev_gls", "normal_weighted_solve", "coherent_normals"]
+__all__ = ["sobolev_gls", "normal_weighted_solve", "normal_weighted_cg", "coherent_normals", "GlsConfig"]
 
-CG_TOL = 1e-9  # relative residual of the preconditioned conjugate gradient
-GLS_FILTER_TOL = 1e-4  # ... in the filter, every path: A >= I, so the correction's error is at most tol ||b|| <=
-# tol (beta - 1) ||X - X0||, 1.1e-3 of the isotropic pass's change at beta = 12. Measured against 1e-10: the result
-# within 1.8e-5 of the change (bunny scanner, Block0.4, the elephant), the same SNR to 1e-4 dB; at 400k (mu 3.6,
-# beta 12) 2.5e-5 rho RMS from the converged result, about 205 block-Jacobi iterations (500 for 1e-9)
 CG_MAXITER = 300
-GLS_DENSE_MAX_VERTICES = 400  # up to this many vertices the 3n x 3n system is factorised densely: the exact traces'
-# 3n right-hand sides made ~10 CG iterations of 3n columns each (a 162-vertex sphere's choice: 11 s -> under 1 s)
 
 
 def _apply_weight(N: np.ndarray, beta: float, Y: np.ndarray) -> np.ndarray:
@@ -47,6 +42,7 @@ def _apply_weight(N: np.ndarray, beta: float, Y: np.ndarray) -> np.ndarray:
 def normal_weighted_solve(
     ops: Operators, N: np.ndarray, beta: float, mu: float, order: int, B: np.ndarray,
     pinned: np.ndarray | None = None, x0: np.ndarray | None = None, prec: Any = None, tol: float = CG_TOL,
+    config: GlsConfig | None = None,
 ) -> np.ndarray:
     """Solve :math:`(W + \\mu\\, L^p \\otimes I_3)\\, Y = B` by conjugate gradients, for one or several right-hand sides.
 
@@ -59,13 +55,14 @@ def normal_weighted_solve(
     of ``x0`` are kept and the free rows solve the reduced system. ``prec`` (optional) applies
     :math:`(I + \\mu L^p)^{-1}`, or an SPD approximation of it (zero on pinned rows), to an (n, c) array instead of the
     factor. ``tol``: the
-    relative residual every system reaches. Up to ``GLS_DENSE_MAX_VERTICES`` vertices the system is solved
-    directly instead (:func:`_dense_normal_weighted_solve`; ``tol`` and ``prec`` unused).
+    relative residual every system reaches. Up to ``config.dense_max_vertices`` vertices (:class:`GlsConfig`,
+    ``None``: its default) the system is solved directly instead (:func:`_dense_normal_weighted_solve`; ``tol`` and
+    ``prec`` unused).
     """
     many = B.ndim == 3
     Bk = B if many else B[:, :, None]
     n, _, k = Bk.shape
-    if n <= GLS_DENSE_MAX_VERTICES:
+    if n <= resolve(config, DEFAULT).dense_max_vertices:
         start = x0 if x0 is None or many else x0[:, :, None]
         Y = _dense_normal_weighted_solve(ops, N, beta, mu, order, Bk, pinned, start)
         return Y if many else Y[:, :, 0]
@@ -146,120 +143,6 @@ def _dense_normal_weighted_solve(
     return Y.reshape(n, 3, k)
 
 
-GLS_ITERATIVE_MIN_VERTICES = 200_000  # without held rows the filter factorises nothing from this size: at 400k (mu
-# 4.7, CG's bound 820) CG preconditioned by the one-ring factor took 13.2 s and 1,181 MB at its peak, block-Jacobi CG
-# 7.9 s and 635 MB (benchmarks/scale.py)
-GLS_FACTOR_FREE_MIN_VERTICES = 20_000  # ... and below it from this size, held rows or not, while CG's bound for
-GLS_FACTOR_FREE_CG_BOUND = 700  # I + mu L^p at GLS_FILTER_TOL is at most this (past it, CG preconditioned by a one-ring
-# factor, ShiftedPCG): measured, factor-free (Lanczos or Jacobi CG, then
-# block-Jacobi CG) against a factor and CG preconditioned by it, beta 12, cold: Bunny0.2 0.21 against 0.86 s at mu 0.1,
-# the two equal near a bound of 1,000 (mu 4), the elephant near 760 (mu 3 to 10), face000 near 710 (mu 10 to 12);
-# against ShiftedPCG, free rows: face000 at mu 34 (bound 1,200) 3.1 against 2.1 s
-GLS_JACOBI_MAX_ITERATIONS = 3000  # block-Jacobi CG's cap before the Lanczos-preconditioned solve takes over
-
-
-def _laplacian_power_diagonal(ops: Operators, order: int) -> np.ndarray:
-    """:math:`\\mathrm{diag}(L^p)` (n,), as :math:`\\sum_j (L^a)_{ij} (L^b)_{ij}`, :math:`a = \\lceil p/2 \\rceil`,
-    :math:`b = \\lfloor p/2 \\rfloor` (``L`` symmetric), without forming :math:`L^p` beyond :math:`L^a`."""
-    a, b = (order + 1) // 2, order // 2
-    La = laplacian_power(ops, a)
-    if b == 0:
-        return np.asarray(La.diagonal(), dtype=np.float64)
-    Lb = laplacian_power(ops, b)
-    return np.asarray(La.multiply(Lb).sum(axis=1), dtype=np.float64).ravel()
-
-
-def normal_weighted_cg(
-    ops: Operators, N: np.ndarray, beta: float, mu: float, order: int, B: np.ndarray,
-    tol: float = CG_TOL, maxiter: int = GLS_JACOBI_MAX_ITERATIONS, x0: np.ndarray | None = None,
-    pinned: np.ndarray | None = None,
-) -> tuple[np.ndarray, bool]:
-    """:math:`(W + \\mu L^p \\otimes I_3)\\, Y = B` (``B`` (n, 3)) by block-Jacobi CG, nothing factorised.
-
-    The operator is applied matrix-free (``p`` products with ``L`` on the three columns, not
-    :math:`L^p`); the preconditioner is the inverse of its 3 x 3 diagonal blocks
-    :math:`M_i = W_i + c_i I`, :math:`c_i = \\mu (L^p)_{ii}`, in closed form:
-
-    .. math:: M_i^{-1} = \\frac{1}{\\beta + c_i}\\Big(I + \\frac{\\beta - 1}{1 + c_i} N_i N_i^T\\Big)
-
-    (:math:`W_i = \\beta I - (\\beta - 1) N_i N_i^T`). Its iterations grow like
-    :math:`\\sqrt{\\mu}\\,\\lambda_{max}^{p/2}` (no longer bounded by :math:`\\sqrt\\beta` as
-    :func:`normal_weighted_solve`'s), but each costs ``p`` products on three columns where the
-    factor-preconditioned iteration costs a solve with the factor of :math:`I + \\mu L^p` (at 100k
-    vertices and ``p = 3``: a 20 s factorisation). ``x0`` (n, 3): a starting guess. ``pinned`` (bool (n,),
-    optional): rows held at ``x0``'s values (zero without it), the free rows solving the reduced system (as
-    :func:`normal_weighted_solve`). Returns ``(Y, converged)`` (relative residual ``tol`` of the free rows, relative
-    to ``B``'s, within ``maxiter`` iterations). The vector work of an iteration is done in place (no (n, 3)
-    temporaries beyond the products').
-    """
-    n = N.shape[0]
-    L = ops.L
-    N = np.ascontiguousarray(N, dtype=np.float64)
-    c = mu * _laplacian_power_diagonal(ops, order)
-    inv_a = (1.0 / (beta + c))[:, None]
-    g = (beta - 1.0) / (1.0 + c)
-    bm1 = beta - 1.0
-
-    def A(Y):  # (W + mu L^p) Y = mu L^p Y + beta Y - (beta - 1) N (N . Y)
-        Z = Y
-        for _ in range(order):
-            Z = spmm(L, Z)
-        Z *= mu
-        Z += beta * Y
-        Z -= (bm1 * np.einsum("ij,ij->i", N, Y))[:, None] * N
-        return Z
-
-    held = None if pinned is None or not np.any(pinned) else np.asarray(pinned, dtype=bool)
-    if held is not None:  # the reduced system: no scaling on the held rows keeps every search direction zero there
-        inv_a = np.where(held[:, None], 0.0, inv_a)
-
-    def prec(R):
-        Z = (g * np.einsum("ij,ij->i", N, R))[:, None] * N
-        Z += R
-        Z *= inv_a
-        return Z
-
-    def dot(a, b):  # einsum, not BLAS: OpenBLAS's threaded dot was 13x slower on a loaded machine
-        return float(np.einsum("ij,ij->", a, b))
-
-    B = np.ascontiguousarray(B, dtype=np.float64)
-    if held is not None:
-        B = np.where(held[:, None], 0.0, B)
-    norm0 = math.sqrt(dot(B, B)) + 1e-300
-    if x0 is None:
-        Y = np.zeros((n, 3))
-        R = B.copy()
-    else:
-        Y = np.array(x0, dtype=np.float64)
-        R = B - A(Y)
-        if held is not None:
-            R[held] = 0.0
-    Z = prec(R)
-    P = Z.copy()
-    rz = dot(R, Z)
-    for _ in range(int(maxiter)):
-        if math.sqrt(dot(R, R)) <= tol * norm0:
-            return Y, True
-        AP = A(P)
-        if held is not None:
-            AP[held] = 0.0
-        pap = dot(P, AP)
-        if pap <= 0:
-            break
-        alpha = rz / pap
-        Y += alpha * P
-        AP *= alpha
-        R -= AP
-        Z = prec(R)
-        rz_new = dot(R, Z)
-        if rz > 0:
-            P *= rz_new / rz
-            P += Z
-        else:
-            P = Z
-        rz = rz_new
-    return Y, bool(math.sqrt(dot(R, R)) <= tol * norm0)
-
 
 # ----------------------------------------------------------------------------- automatic rule
 SOBOLEV_GLS_BETAS = (1.0, 2.0, 3.0, 5.0, 8.0, 12.0)  # candidate tangential weights
@@ -269,7 +152,7 @@ SOBOLEV_GLS_PROBE_REFERENCE = 10_000  # ... this many scored vertices, then fewe
 # every solve: the elephant's whole-mesh sweep 8 -> 4 probes, 4.6 -> 3.4 s, beta 5 -> 3 (18.53 -> 18.35 degrees,
 # the oracle 18.06; 8 probes chose 5, 3, 5 for seeds 0, 1, 2, where 4 chose 3 for all three)
 SOBOLEV_GLS_EXACT_MAX = 400  # exact traces up to this many vertices: 3n right-hand sides through CG per candidate
-SOBOLEV_GLS_REGION = 10_000  # from search.REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices
+SOBOLEV_GLS_REGION = 10_000  # from SearchConfig.region_min_vertices the rule runs on a sampled region of this many vertices
 SOBOLEV_GLS_PATCHES = 8  # ... made of this many balls of vertices
 SOBOLEV_GLS_MARGIN = 8  # ... scoring only its vertices more than this many rings from a cut
 SOBOLEV_GLS_SPREAD_SAMPLES = 4  # simulated noise draws of the parametric bootstrap of the normals' spread
@@ -282,14 +165,7 @@ SOBOLEV_GLS_SWEEP_TOL = 1e-2  # ... and for a sweep over beta alone (mu held: be
 # are 26 % or more apart: measured on the 8 rows of benchmarks/filter_time.py against 1e-6, every score's gap to the best
 # moved by at most 4.2 % of itself (the bunny scanner; the elephant 4.0 %), the same betas; the elephant's sweep
 # 0.88 -> 0.59 s (15 -> 9 steps), the bunny scanner's 0.52 -> 0.29 s
-GLS_FAMILY_MIN_BETAS = 2  # a sweep over at least this many betas at one mu solves them by one CG run (shifted_family_cg:
-# Block0.4's sweep 71 -> 21 preconditioner solves, its choice 3.0-3.4 -> 2.4 s; bunny scanner 6.5 -> 5.4 s, the same betas)
-SOBOLEV_GLS_LOOSE_WARM = 4  # ... of the last this many candidates
-GLS_SWEEP_REGION_FROM = 20_000  # before the normals search the beta sweep runs on the region from this size (not
-# REGION_MIN_VERTICES): measured 1.1 to 1.8 times faster on 25k-35k meshes, the same beta but the bunny scanner's
-# (5 for 12)
-
-
+SOBOLEV_GLS_LOOSE_WARM = 4  # ... each solve started from the nearest of the last this many candidates
 
 
 def _normals_derivative(X0: np.ndarray, F: np.ndarray, S: Any, B: np.ndarray) -> np.ndarray:
@@ -324,7 +200,7 @@ def _normals_divergence(
 
 def choose_sobolev_gls(ctx: TuningContext) -> tuple[dict, Point]:
     """:func:`choose_sobolev_gls_whole` on a sampled region of ``SOBOLEV_GLS_REGION`` vertices from
-    :data:`~meshdenoise.tuning.search.REGION_MIN_VERTICES` vertices (:func:`~meshdenoise.tuning.search.region_rule`),
+    ``SearchConfig.region_min_vertices`` vertices (:func:`~meshdenoise.tuning.search.region_rule`),
     on the whole mesh below (docs/scale.md: the same choice at 100k and 400k, a bounded cost).
     """
     order = int(get_filter("sobolev_gls").resolve(ctx.given, where="choose_parameters(method='sobolev_gls')")["order"])
@@ -413,6 +289,7 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
     if ctx.rho == 0 and ctx.reference is None:
         return {"mu": 0.0, "beta": float(full["beta"])}, Point(0, 0.0, float(n), ctx.V, 0.0)
     exact = ctx.exact if ctx.exact is not None else n <= SOBOLEV_GLS_EXACT_MAX
+    config = ctx.config_for(DEFAULT)
     if ctx.reference is None:
         # noise directions: normals Nn of the SURE-best bi-Laplacian estimate Xs; the true ones (the clean mesh's
         # vertex normals) spread around them by tau = E sin^2(angle), by a parametric bootstrap (_normal_spread)
@@ -479,7 +356,7 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
         (> 1, not yet evaluated) at once (:func:`~meshdenoise.multishift.shifted_family_cg`: one CG run preconditioned
         by the factor of :math:`I + \\mu L^p`, the correction's right-hand side scaled by :math:`\\beta - 1` after)."""
         todo = [b for b in betas if b != 1.0 and (round(math.log10(mu), 9), float(b)) not in evaluated]
-        if ctx.reference is not None or n <= GLS_DENSE_MAX_VERTICES or len(todo) < GLS_FAMILY_MIN_BETAS:
+        if ctx.reference is not None or n <= config.dense_max_vertices or len(todo) < config.family_min_betas:
             return
         S, X0, N = isotropic_at(mu)
         rhs = np.concatenate([_correction_rhs(N, 2.0, ctx.V, X0)[:, :, None], B], axis=2)  # beta 2: P_T (X - X0)
@@ -495,7 +372,8 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
         if key not in evaluated:
             S, X0, N = isotropic_at(mu)
             if ctx.reference is not None:
-                X = X0 if beta == 1.0 else X0 + normal_weighted_solve(ctx.ops, N, beta, mu, order, _correction_rhs(N, beta, ctx.V, X0))
+                X = X0 if beta == 1.0 else X0 + normal_weighted_solve(ctx.ops, N, beta, mu, order,
+                                                                      _correction_rhs(N, beta, ctx.V, X0), config=config)
                 p = Point(mu, float(np.sum((X - ctx.V) ** 2)), 0.0, X)
                 p.score = float(np.sum((X - ctx.reference) ** 2))
             else:
@@ -509,7 +387,7 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
                     if out is None:
                         rhs = np.concatenate([_correction_rhs(N, beta, ctx.V, X0)[:, :, None], B], axis=2)
                         out = normal_weighted_solve(ctx.ops, N, beta, mu, order, rhs, tol=tol,
-                                                    x0=start(mu, beta) if loose else None)
+                                                    x0=start(mu, beta) if loose else None, config=config)
                     if loose:
                         warm.append((math.log10(mu), math.log10(beta), out))
                         del warm[:-SOBOLEV_GLS_LOOSE_WARM]
@@ -564,7 +442,7 @@ GLS_NORMALS = HeldOutRule((Sweep("mu", geometric(0.01, 1e6, 2 ** (1 / 3)), (("be
     border_draft=lambda values: {**values, "beta": 1.0},
     rough_free_run=True,  # ... by Lanczos to DRAFT_LANCZOS_TOL (face000: 0.68 -> 0.47 s)
 )
-def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, draft=None, rough=False):
+def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, draft=None, rough=False, config=None):
     """Polyharmonic Sobolev smoothing whose data term trusts the tangential directions more.
 
     The paper's noise moves each vertex along its normal only, so a denoiser should
@@ -587,7 +465,7 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, draft=None, rough=False):
     preconditioned with the cached Cholesky factor of :math:`I + \\mu L^p`
     (:func:`normal_weighted_solve`, spectrum in :math:`[1, \\beta]`), for the correction
     :math:`Y - \\hat X`; with no factor stored, from 200,000 vertices, or from 20,000 while the weight is weak
-    (``GLS_FACTOR_FREE_CG_BOUND``), nothing is factorised (:func:`normal_weighted_cg`), and from 20,000 past that
+    (``GlsConfig.factor_free_cg_bound``), nothing is factorised (:func:`normal_weighted_cg`), and from 20,000 past that
     weight both solves are preconditioned by one factor of a one-ring matrix instead
     (:class:`~meshdenoise.solvers.ShiftedPCG`). For pinned normals
     the map is linear; the filter is translation and rotation equivariant. In ``boundary_motion="normal"`` the held
@@ -614,6 +492,8 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, draft=None, rough=False):
         Power ``p`` of the Laplacian.
     pinned, region, preserve_volume, operators
         Options shared by every filter; see the README.
+    config : GlsConfig, optional
+        The array core's (``get_filter("sobolev_gls").core``) solve paths and tolerance; ``None``: its default.
 
     Returns
     -------
@@ -642,17 +522,18 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, draft=None, rough=False):
     if F.shape[0] == 0 or mu == 0:
         return X
     held = pinned is not None and bool(np.any(pinned))
+    config = resolve(config, DEFAULT)
     start = None if draft is None else np.asarray(draft, dtype=np.float64)
     if start is not None and held and beta != 1.0:
-        return _held_from_draft(X, F, ops, mu, beta, order, pinned, start)
+        return _held_from_draft(X, F, ops, mu, beta, order, pinned, start, config)
     # rough: the border option's free run (its draft), read for the border's moves and the held run's normals
     draft_tol = DRAFT_LANCZOS_TOL if rough else None
-    if _iterative(ops, mu, order, pinned):
-        return _sobolev_gls_iterative(X, F, ops, mu, beta, order, pinned, start, draft_tol)
-    # no factor of I + mu L^p stored on a mesh from GLS_FACTOR_FREE_MIN_VERTICES: CG preconditioned by a one-ring
+    if _iterative(ops, mu, order, pinned, config):
+        return _sobolev_gls_iterative(X, F, ops, mu, beta, order, pinned, start, draft_tol, config)
+    # no factor of I + mu L^p stored on a mesh from config.factor_free_min_vertices: CG preconditioned by a one-ring
     # factor's (L + a I)^-p for both solves (ShiftedPCG; the bunny scanner's solves 0.72 -> 0.57 s, face000's held run
     # 1.8 s where its factor took 3.0 s)
-    by_pcg = _by_one_ring(ops, mu, order, pinned)
+    by_pcg = _by_one_ring(ops, mu, order, pinned, config)
     if by_pcg and beta == 1.0 and not held:
         # the isotropic pass alone with no held rows (the border option's draft, border_draft): two Lanczos passes,
         # no factor (face000 at mu 34: 0.7 s against 0.3 s for the one-ring factor and 0.75 s of its CG)
@@ -665,7 +546,8 @@ def sobolev_gls(V, F, *, ops, pinned, mu, beta, order, draft=None, rough=False):
         return X0
     N = coherent_normals(X0, F)
     return X0 + normal_weighted_solve(ops, N, beta, mu, order, _correction_rhs(N, beta, X, X0), pinned,
-                                      tol=GLS_FILTER_TOL, prec=_on_free_rows(ops.n, pinned, S.precondition) if by_pcg else None)
+                                      tol=config.filter_tol, config=config,
+                                      prec=_on_free_rows(ops.n, pinned, S.precondition) if by_pcg else None)
 
 
 def _on_free_rows(n: int, pinned: np.ndarray | None, apply: Callable[[np.ndarray], np.ndarray]):
@@ -682,7 +564,7 @@ def _on_free_rows(n: int, pinned: np.ndarray | None, apply: Callable[[np.ndarray
 
 
 def _held_from_draft(X: np.ndarray, F: np.ndarray, ops: Operators, mu: float, beta: float, order: int,
-                     pinned: np.ndarray, X0: np.ndarray) -> np.ndarray:
+                     pinned: np.ndarray, X0: np.ndarray, config: GlsConfig = DEFAULT) -> np.ndarray:
     """The border option's held run from its draft ``X0``, the isotropic pass on the free border (``border_draft``):
     :math:`Y = X_0 + D` with the normals :math:`\\hat N` of :math:`X_0` and
 
@@ -694,7 +576,7 @@ def _held_from_draft(X: np.ndarray, F: np.ndarray, ops: Operators, mu: float, be
     the held system (block-Jacobi CG, the one-ring factor's CG or a factor), where the held run took a held
     isotropic pass and then the correction: face000's held run 0.5 s less, its result within 0.006 degrees
     (8.3916 -> 8.3857, 70.6027 -> 70.6059 dB, the border's error the same). The solve is for :math:`D` minus the
-    held rows' values, to ``GLS_FILTER_TOL`` of the reduced system's whole right-hand side (the tangential residual
+    held rows' values, to ``config.filter_tol`` of the reduced system's whole right-hand side (the tangential residual
     and the held rows' pull): face000's 45 -> 28 steps, the result within 5e-4 of the mean move of a solve to 1e-8
     (3.7e-4 rho on average, 2e-3 rho at most), the same normal error and SNR to 1e-6."""
     N = coherent_normals(X0, F)
@@ -707,27 +589,29 @@ def _held_from_draft(X: np.ndarray, F: np.ndarray, ops: Operators, mu: float, be
         pull = spmm(ops.L, pull)
     rhs = _correction_rhs(N, beta, X, X0) - _apply_weight(N, beta, D_held) - mu * pull
     rhs[pinned] = 0.0
-    if _iterative(ops, mu, order, pinned):
-        E, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs, tol=GLS_FILTER_TOL, pinned=pinned)
+    tol = config.filter_tol
+    if _iterative(ops, mu, order, pinned, config):
+        E, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs, tol=tol, pinned=pinned,
+                                   maxiter=config.jacobi_max_iterations)
         if not ok:
-            E = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, x0=E)
-    elif _by_one_ring(ops, mu, order, pinned):
+            E = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, x0=E, config=config)
+    elif _by_one_ring(ops, mu, order, pinned, config):
         # the one-ring preconditioner mu^-1 (L_ff + a I + share)^-p alone: ShiftedPCG's held system (I + mu L^p)_ff
         # and its coupling are not needed here (face000: 0.2 s of slicing a 3-ring matrix)
         factor = one_ring_factor(ops, mu ** (-1.0 / order), order, pinned)
-        E = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, tol=GLS_FILTER_TOL,
+        E = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, tol=tol, config=config,
                                   prec=_on_free_rows(ops.n, pinned, lambda R: one_ring_solve(factor, R, order, mu)))
     else:
-        E = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, tol=GLS_FILTER_TOL)
+        E = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, tol=tol, config=config)
     Y = X0 + D_held + E
     Y[pinned] = X[pinned]  # the held values bit for bit (X0 + (X - X0) rounds)
     return Y
 
 
-def _by_one_ring(ops: Operators, mu: float, order: int, pinned: np.ndarray | None) -> bool:
+def _by_one_ring(ops: Operators, mu: float, order: int, pinned: np.ndarray | None, config: GlsConfig = DEFAULT) -> bool:
     """Whether a mesh the factor-free paths leave (:func:`_iterative` false) solves by CG preconditioned by a one-ring
-    factor: from ``GLS_FACTOR_FREE_MIN_VERTICES`` vertices with no factor of :math:`I + \\mu L^p` stored."""
-    return ops.n >= GLS_FACTOR_FREE_MIN_VERTICES and not _factor_stored(ops, mu, order, pinned)
+    factor: from ``config.factor_free_min_vertices`` vertices with no factor of :math:`I + \\mu L^p` stored."""
+    return ops.n >= config.factor_free_min_vertices and not _factor_stored(ops, mu, order, pinned)
 
 
 def _factor_stored(ops: Operators, mu: float, order: int, pinned: np.ndarray | None) -> bool:
@@ -738,22 +622,23 @@ def _factor_stored(ops: Operators, mu: float, order: int, pinned: np.ndarray | N
     return (float(mu), None) in stored or (held and (float(mu), mask_key(pinned)) in stored)
 
 
-def _iterative(ops: Operators, mu: float, order: int, pinned: np.ndarray | None) -> bool:
+def _iterative(ops: Operators, mu: float, order: int, pinned: np.ndarray | None, config: GlsConfig = DEFAULT) -> bool:
     """Whether :func:`sobolev_gls` factorises nothing: no factor of :math:`I + \\mu L^p` stored already (with
     ``pinned``'s rows held, or free: held rows' product form preconditions by it), and from
-    ``GLS_ITERATIVE_MIN_VERTICES`` vertices with none held, or from ``GLS_FACTOR_FREE_MIN_VERTICES`` while CG's bound
-    (:func:`~meshdenoise.solvers.shifted_cg_bound` at ``GLS_FILTER_TOL``) is at most ``GLS_FACTOR_FREE_CG_BOUND``."""
+    ``config.iterative_min_vertices`` vertices with none held, or from ``config.factor_free_min_vertices`` while CG's
+    bound (:func:`~meshdenoise.solvers.shifted_cg_bound` at ``config.filter_tol``) is at most
+    ``config.factor_free_cg_bound`` (:class:`GlsConfig`)."""
     if _factor_stored(ops, mu, order, pinned):
         return False
-    if ops.n >= GLS_ITERATIVE_MIN_VERTICES and (pinned is None or not np.any(pinned)):
+    if ops.n >= config.iterative_min_vertices and (pinned is None or not np.any(pinned)):
         return True
-    return (ops.n >= GLS_FACTOR_FREE_MIN_VERTICES
-            and shifted_cg_bound(ops, mu, order, GLS_FILTER_TOL) <= GLS_FACTOR_FREE_CG_BOUND)
+    return (ops.n >= config.factor_free_min_vertices
+            and shifted_cg_bound(ops, mu, order, config.filter_tol) <= config.factor_free_cg_bound)
 
 
 def _sobolev_gls_iterative(X: np.ndarray, F: np.ndarray, ops: Operators, mu: float, beta: float, order: int,
                            pinned: np.ndarray | None = None, start: np.ndarray | None = None,
-                           draft_tol: float | None = None) -> np.ndarray:
+                           draft_tol: float | None = None, config: GlsConfig = DEFAULT) -> np.ndarray:
     """:func:`sobolev_gls` without a factor: :math:`X_0` by two Lanczos passes (:func:`~meshdenoise.solvers.lanczos_shifted`)
     or, with held rows, by Jacobi CG on the free rows (from the input, as ``sobolev_axes``' held run); the correction
     by block-Jacobi CG (:func:`normal_weighted_cg`), else by CG preconditioned by Lanczos solves (a factor with held
@@ -777,9 +662,11 @@ def _sobolev_gls_iterative(X: np.ndarray, F: np.ndarray, ops: Operators, mu: flo
         return X0
     N = coherent_normals(X0, F)
     rhs = _correction_rhs(N, beta, X, X0)
-    D, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs, tol=GLS_FILTER_TOL, pinned=pinned)
+    D, ok = normal_weighted_cg(ops, N, beta, mu, order, rhs, tol=config.filter_tol, pinned=pinned,
+                               maxiter=config.jacobi_max_iterations)
     if not ok:  # a very large mu: the factor-preconditioned iteration, its count bounded by sqrt(beta)
-        D = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, x0=D, prec=None if held else shifted)
+        D = normal_weighted_solve(ops, N, beta, mu, order, rhs, pinned, x0=D, prec=None if held else shifted,
+                                  config=config)
     return X0 + D
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -12,14 +13,14 @@ from ..geometry import vertex_normals
 from ..operators import mask_key, spmm
 from ..solvers import (FILTER_LANCZOS_TOL, LANCZOS_SHIFTED_MAX_STEPS, CompiledLanczos, LanczosRows, ShiftedInverse,
                        SPDSolver, lanczos_shifted, shifted_cg_bound, shifted_matrix, shifted_solver)
-from ..tuning import spectral as spectral_module
+from ..tuning.config import SPECTRAL, check_fields, resolve
 from ..tuning.context import TuningContext
 from ..tuning.memo import digest
 from ..tuning.noise_level import mean_edge_length, normal_trust
 from ..tuning.risk import MC_SURE_STEP, Point, gcv
 from ..tuning.search import LogSearch, region_rule, solve_shifted
 
-__all__ = ["sobolev_normal", "project_update", "area_normals"]
+__all__ = ["sobolev_normal", "project_update", "area_normals", "SobolevNormalConfig"]
 
 
 def project_update(X: np.ndarray, Y: np.ndarray, N: np.ndarray, tangential: float) -> np.ndarray:
@@ -43,34 +44,74 @@ def project_update(X: np.ndarray, Y: np.ndarray, N: np.ndarray, tangential: floa
 
 # ----------------------------------------------------------------------------- automatic rule
 SOBOLEV_NORMAL_ORDERS = (2, 3)  # candidate Laplacian powers of the automatic sobolev_normal rule
-SOBOLEV_NORMAL_ORDER_MARGIN = 0.02  # an order's log search is refined when its grid's parabola predicts a score within this share of the least grid score
 SOBOLEV_NORMAL_PROBES = 16  # Monte-Carlo SURE probes (along the normals) of sobolev_normal
-SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES = 20_000  # without pinned vertices the filter factorises nothing from this size
-# (the default runs sobolev_normal on small meshes only, so a run is a one-off here) ...
-SOBOLEV_NORMAL_PINNED_CG_BOUND = 600  # ... and with them solves by CG while its iteration bound is at most this (face000,
-# its border held, mu 6.7: order 2, bound 370, 192 iterations, 0.58 s against a 1.22 s factor; order 3, bound 1,280,
-# 531 iterations, 2.8 against 3.3 s)
-SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES = 20_000  # the whole-mesh rule's candidates by one Lanczos run from this size
-# (the Bunny0.2's 14 candidates were 21 factors and 23 51-column solves, 8.5 s), for the candidates whose poles lie
-SOBOLEV_NORMAL_RULE_LANCZOS_REACH = 50.0  # ... near enough: d_max mu^(1/p) at most this (the steps grow like its square
-# root, a factor costs the same at any mu: the elephant's grid reached mu = 10^3.9, 1.9 s a candidate by Lanczos at 1e-10;
-# at the searches' 1e-6, 25 -> 50 took the bunny scanner's two factored candidates into the run, 3.7 -> 3.2 s)
 SOBOLEV_NORMAL_QUADRATURE_MAX_STEPS = 1000  # tangential 1: the quadrature run's steps before a candidate is solved instead
-SOBOLEV_NORMAL_BATCH_BYTES = 256 << 20  # ... both orders' first grids in one second pass while their results take at most
-# this many bytes (Bunny0.2: 10 candidates of 51 columns, 142 MB; one pass fewer than a pass per order)
-SOBOLEV_NORMAL_REGION = 16_000  # from search.REGION_MIN_VERTICES the rule runs on a sampled region of this many vertices
-SOBOLEV_NORMAL_PATCHES = 8  # ... made of this many balls of vertices
-SOBOLEV_NORMAL_MARGIN = 8  # ... scoring only its vertices more than this many rings from a cut
+SOBOLEV_NORMAL_MARGIN = 8  # a region's scored vertices: more than this many rings from a cut ...
 SOBOLEV_NORMAL_REGION_PROBES = 16  # ... with this many probes (48 moved no choice at 100k: the spread is the content)
-SOBOLEV_NORMAL_PIN = max(SOBOLEV_NORMAL_ORDERS)  # ... its vertices this few rings from a cut held at the whole mesh's
-# result for each candidate (Dirichlet data, not a free border, whose drift biased the choice low: docs/scale.md)
 SOBOLEV_NORMAL_PIN_MAX_STEPS = 1000  # whole_result_at: Lanczos steps before a candidate's border is left free
 
 
-DIVERGENCE_CHUNK_BYTES = 64 << 20  # _projected_divergence: the probes' (n, 3) terms held at once, at most this many bytes
+@dataclass(frozen=True)
+class SobolevNormalConfig:
+    """``sobolev_normal``'s paths by size, for its filter (``core(..., config=)``) and its rule
+    (``choose_parameters(..., config=)``): the values, and where they were measured.
+
+    Attributes
+    ----------
+    lanczos_min_vertices : int
+        Without pinned vertices the filter factorises nothing from this size (the default runs ``sobolev_normal`` on
+        small meshes only, so a run is a one-off here) ...
+    pinned_cg_bound : float
+        ... and with them solves by CG while its iteration bound is at most this (face000, its border held, mu 6.7:
+        order 2, bound 370, 192 iterations, 0.58 s against a 1.22 s factor; order 3, bound 1,280, 531 iterations, 2.8
+        against 3.3 s).
+    order_margin : float
+        An order's log search is refined when its grid's parabola predicts a score within this share of the least
+        grid score (a refinement gains about 1 % on a grid 0.75 decades apart; the other order's search was half the
+        rule's factorisations).
+    rule_lanczos_min_vertices : int
+        The whole-mesh rule's candidates by one Lanczos run from this size (the Bunny0.2's 14 candidates were 21
+        factors and 23 51-column solves, 8.5 s), for the candidates whose poles lie ...
+    rule_lanczos_reach : float
+        ... near enough: d_max mu^(1/p) at most this (the steps grow like its square root, a factor costs the same at
+        any mu: the elephant's grid reached mu = 10^3.9, 1.9 s a candidate by Lanczos at 1e-10; at the searches' 1e-6,
+        25 -> 50 took the bunny scanner's two factored candidates into the run, 3.7 -> 3.2 s).
+    batch_bytes : int
+        Both orders' first grids in one second pass of that run while their results take at most this many bytes
+        (Bunny0.2: 10 candidates of 51 columns, 142 MB; one pass fewer than a pass per order).
+    region : int
+        From ``SearchConfig.region_min_vertices`` the rule runs on a sampled region of this many vertices ...
+    patches : int
+        ... made of this many balls of vertices ...
+    pin : int
+        ... its vertices this few rings from a cut held at the whole mesh's result for each candidate (Dirichlet
+        data, not a free border, whose drift biased the choice low: docs/scale.md); 0: a free border.
+    divergence_chunk_bytes : int
+        The Monte-Carlo divergence's probe terms ((n, 3) each) held at once, at most this many bytes.
+    """
+
+    lanczos_min_vertices: int = 20_000
+    pinned_cg_bound: float = 600
+    order_margin: float = 0.02
+    rule_lanczos_min_vertices: int = 20_000
+    rule_lanczos_reach: float = 50.0
+    batch_bytes: int = 256 << 20
+    region: int = 16_000
+    patches: int = 8
+    pin: int = max(SOBOLEV_NORMAL_ORDERS)
+    divergence_chunk_bytes: int = 64 << 20
+
+    def __post_init__(self) -> None:
+        check_fields(self, positive=("region", "patches"),
+                     nonnegative=("lanczos_min_vertices", "pinned_cg_bound", "order_margin", "rule_lanczos_min_vertices",
+                                  "rule_lanczos_reach", "batch_bytes", "pin", "divergence_chunk_bytes"))
 
 
-def _projected_divergence(V: np.ndarray, F: np.ndarray, out: np.ndarray, Bp: np.ndarray, t: float, delta: float) -> float:
+DEFAULT = SobolevNormalConfig()
+
+
+def _projected_divergence(V: np.ndarray, F: np.ndarray, out: np.ndarray, Bp: np.ndarray, t: float, delta: float,
+                          chunk_bytes: int = DEFAULT.divergence_chunk_bytes) -> float:
     """Monte-Carlo divergence of ``sobolev_normal`` along probes ``Bp`` (n, 3K), from ``out = H [V, Bp]``.
 
     .. math:: \\frac1K \\sum_k b_k^T \\big(f(V + \\delta b_k) - f(V)\\big) / \\delta, \\qquad
@@ -79,7 +120,8 @@ def _projected_divergence(V: np.ndarray, F: np.ndarray, out: np.ndarray, Bp: np.
     (``H`` linear: the solve of the perturbed input is ``HV + delta Hb``, read from ``out``).
     Each probe's perturbed mesh, its area normals and projected update by one compiled kernel, a probe
     per thread (:func:`~meshdenoise.kernels.projected_divergence_terms`: numpy's arithmetic, the same
-    terms; 5.4 -> 1.3 ms a probe on the 34,834-vertex bunny), each probe's sum by numpy.
+    terms; 5.4 -> 1.3 ms a probe on the 34,834-vertex bunny), each probe's sum by numpy; ``chunk_bytes`` bounds the
+    probes' terms held at once.
     """
     from ..kernels import projected_divergence_terms, set_threads
 
@@ -88,7 +130,7 @@ def _projected_divergence(V: np.ndarray, F: np.ndarray, out: np.ndarray, Bp: np.
     X = project_update(V, Y, area_normals(Y, F), t)
     O, B = np.ascontiguousarray(out[:, 3:], dtype=np.float64), np.ascontiguousarray(Bp, dtype=np.float64)
     n, K = V.shape[0], Bp.shape[1] // 3
-    chunk = max(1, min(K, DIVERGENCE_CHUNK_BYTES // max(24 * n, 1)))
+    chunk = max(1, min(K, int(chunk_bytes) // max(24 * n, 1)))
     terms = np.empty((chunk, n, 3))
     set_threads()
     div = 0.0
@@ -101,8 +143,8 @@ def _projected_divergence(V: np.ndarray, F: np.ndarray, out: np.ndarray, Bp: np.
 
 
 def choose_sobolev_normal(ctx: TuningContext) -> tuple[dict, Point]:
-    """:func:`choose_sobolev_normal_whole`, from :data:`~meshdenoise.tuning.search.REGION_MIN_VERTICES` vertices
-    on a sampled region of ``SOBOLEV_NORMAL_REGION`` vertices (:func:`~meshdenoise.tuning.search.region_rule`,
+    """:func:`choose_sobolev_normal_whole`, from ``SearchConfig.region_min_vertices`` vertices
+    on a sampled region of ``SobolevNormalConfig.region`` vertices (:func:`~meshdenoise.tuning.search.region_rule`,
     scored on the vertices more than ``SOBOLEV_NORMAL_MARGIN`` rings from a cut), the whole mesh below.
 
     ``tangential`` is a statistic of the whole mesh (the noise per mean edge length of its
@@ -118,9 +160,10 @@ def choose_sobolev_normal(ctx: TuningContext) -> tuple[dict, Point]:
     # One cut, no reach loop: the region's outer rings are held at the whole mesh's result for each
     # candidate, so its free rows are the whole mesh's result whatever the weight, and a larger margin is not needed
     # for strong smoothing (a reach loop grew the region to 38,900 of 51,200 vertices on a torus, docs/scale.md).
-    return region_rule(ctx, choose_sobolev_normal_whole, SOBOLEV_NORMAL_REGION, SOBOLEV_NORMAL_PATCHES,
+    config = ctx.config_for(DEFAULT)
+    return region_rule(ctx, choose_sobolev_normal_whole, config.region, config.patches,
                        SOBOLEV_NORMAL_MARGIN, given=whole_tangential,
-                       pin=SOBOLEV_NORMAL_PIN, boundary=lambda rows: whole_result_at(ctx, rows))
+                       pin=config.pin, boundary=lambda rows: whole_result_at(ctx, rows))
 
 
 def whole_result_at(ctx: TuningContext, rows: np.ndarray):
@@ -182,7 +225,7 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     (normals of ``Y`` are meaningless above one edge length of noise). ``mu`` by the log
     search of ``sobolev`` for each order (:class:`~meshdenoise.tuning.search.LogSearch`): each
     order's grid, then, for the orders whose grid parabola predicts a score within
-    ``SOBOLEV_NORMAL_ORDER_MARGIN`` (2 %) of the least grid score, successive parabolic
+    ``SobolevNormalConfig.order_margin`` (2 %) of the least grid score, successive parabolic
     interpolation to 0.02 decades (:meth:`~meshdenoise.tuning.search.LogSearch.refine_parabolic`,
     1 to 4 candidates where the golden section took 9). On the eight benchmark rows: 28 -> 14 s
     on Bunny0.2, 22 -> 10 s on the bunny scanner, normal errors within 0.5 % of the golden
@@ -223,16 +266,17 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
         if scored is not None and (pinned & rows).any():
             raise ValueError("choose_sobolev_normal_whole: a pinned vertex is scored; pin fewer rings than the margin")
         pinned_values = boundary[1]
-    # the whole mesh from SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES: every candidate of either order from one Lanczos
+    # the whole mesh from config.rule_lanczos_min_vertices: every candidate of either order from one Lanczos
     # run on L (H rhs = rhs - mu f(L) L rhs, f(t) = t^(p-1) / (1 + mu t^p)), a compiled second pass each, no factor
     run, d_max = None, float(ctx.ops.degree.max()) if n else 0.0
-    tol = spectral_module.SPECTRAL_TOL  # a search's scores, to about 1e-6 (tuning/spectral.py), not the filter's 1e-10
+    config, spectral = ctx.config_for(DEFAULT), ctx.config_for(SPECTRAL)
+    tol = spectral.tol  # a search's scores, to about 1e-6 (tuning/spectral.py), not the filter's 1e-10
     # tangential 1 (noise past an edge length): the update is H X itself, the filter linear, and SURE's two terms are
     # quadratures of L, ||HX - X||^2 = c^T mu^2 (I + mu L^p)^-2 c (c = L^p X) and b^T H b, from one Lanczos run for
     # every candidate of both orders, no solve (the divergence through perturbed normals is b^T H b to rounding)
     quad = None
     if (t == 1.0 and pinned is None and scored is None and ctx.reference is None
-            and n >= spectral_module.SPECTRAL_MIN_VERTICES):
+            and n >= spectral.min_vertices):
         highs = []
         for order in orders:
             c = np.ascontiguousarray(ctx.V, dtype=np.float64)
@@ -240,7 +284,7 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
                 c = spmm(ctx.ops.L, c)
             highs.append(c)
         quad = CompiledLanczos(ctx.ops.L, np.hstack(highs + [Bp]), max_steps=SOBOLEV_NORMAL_QUADRATURE_MAX_STEPS)
-    elif pinned is None and scored is None and n >= SOBOLEV_NORMAL_RULE_LANCZOS_MIN_VERTICES:
+    elif pinned is None and scored is None and n >= config.rule_lanczos_min_vertices:
         run = CompiledLanczos(ctx.ops.L, spmm(ctx.ops.L, np.ascontiguousarray(rhs)), max_steps=LANCZOS_SHIFTED_MAX_STEPS)
 
     def linear_point(mu: float, order: int) -> Point | None:
@@ -258,7 +302,7 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     searches: dict[int, LogSearch] = {}
 
     def by_lanczos(mu: float, order: int) -> bool:
-        return run is not None and d_max * mu ** (1.0 / order) <= SOBOLEV_NORMAL_RULE_LANCZOS_REACH
+        return run is not None and d_max * mu ** (1.0 / order) <= config.rule_lanczos_reach
 
     def g(mu: float, order: int) -> ShiftedInverse:
         # x^(p-1) / (1 + mu x^p): a lifted ShiftedInverse, its coefficients by tridiagonal solves and products where
@@ -268,7 +312,8 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     def point(mu: float, out: np.ndarray) -> Point:
         Y = out[:, :3]
         X = project_update(ctx.V, Y, area_normals(Y, ctx.F), t)
-        div = float(n) if ctx.reference is not None else _projected_divergence(ctx.V, ctx.F, out, Bp, t, delta)
+        div = (float(n) if ctx.reference is not None
+               else _projected_divergence(ctx.V, ctx.F, out, Bp, t, delta, config.divergence_chunk_bytes))
         p = Point(mu, float(np.sum((X - ctx.V)[rows] ** 2)), div, X)
         p.score = gcv(p.residual_sq, div, n_scored) if use_gcv else ctx.criterion.score(p, n_scored, ctx.rho)
         return p
@@ -300,7 +345,7 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
         searches[order] = LogSearch(evaluate, ctx.mu_guess(order), evaluate_many=evaluate_many if run is not None else None)
     if run is not None:  # both orders' first grids in one second pass of the run (in groups of bounded size)
         todo = [(order, mu) for order, search in searches.items() for mu in search.first_grid() if by_lanczos(mu, order)]
-        per = max(1, SOBOLEV_NORMAL_BATCH_BYTES // (8 * n * rhs.shape[1]))
+        per = max(1, config.batch_bytes // (8 * n * rhs.shape[1]))
         for i in range(0, len(todo), per):
             group = todo[i:i + per]
             Zs = run.apply_many([g(mu, order) for order, mu in group], rtol=tol, growth=0.25)
@@ -312,12 +357,12 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     for search in searches.values():
         search.bracket()
     # each order's grid, then the refinement only for the orders that can still win: those whose parabola through
-    # the grid minimum predicts a score within SOBOLEV_NORMAL_ORDER_MARGIN of the least grid score (a refinement
+    # the grid minimum predicts a score within config.order_margin of the least grid score (a refinement
     # gains about 1 % on a grid 0.75 decades apart; the other order's search was half the rule's factorisations)
     least = min(s.bracket().score for s in searches.values())
     best, best_order = None, None
     for order, search in searches.items():
-        if search.predicted() <= least + SOBOLEV_NORMAL_ORDER_MARGIN * abs(least):
+        if search.predicted() <= least + config.order_margin * abs(least):
             search.refine_parabolic()
         p = search.best
         if best is None or p.score < best.score:
@@ -337,7 +382,7 @@ def choose_sobolev_normal_whole(ctx: TuningContext, scored: np.ndarray | None = 
     ],
     linear=False,
 )
-def sobolev_normal(V, F, *, ops, pinned, mu, order, tangential):
+def sobolev_normal(V, F, *, ops, pinned, mu, order, tangential, config=None):
     """Sobolev smoothing whose displacement is projected on the normals of the smoothed mesh.
 
     .. math:: (I + \\mu L^p)\\, Y = X, \\qquad
@@ -356,11 +401,11 @@ def sobolev_normal(V, F, *, ops, pinned, mu, order, tangential):
     normals depend on the input); translation and rotation equivariant. The factors of
     :math:`I + \\mu L^p` are cached per (topology, p, mu, pinned mask) as for
     ``sobolev_axes``; pinned vertices do not move (their update is zero). From
-    ``SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES`` vertices, with no pinned vertex and no stored factor,
+    ``SobolevNormalConfig.lanczos_min_vertices`` vertices, with no pinned vertex and no stored factor,
     ``Y`` comes from two Lanczos passes on ``L`` (:func:`~meshdenoise.solvers.lanczos_shifted`), no
     factorisation (the same ``Y`` to about 1e-13 of the coordinates); with pinned vertices from
     Jacobi-preconditioned CG while its iteration bound (:func:`~meshdenoise.solvers.shifted_cg_bound`)
-    is at most ``SOBOLEV_NORMAL_PINNED_CG_BOUND`` (the same ``Y`` to about 1e-9).
+    is at most ``SobolevNormalConfig.pinned_cg_bound`` (the same ``Y`` to about 1e-9).
 
     Choosing ``mu`` for a scan: no rule of thumb holds across shapes (with noise of 0.1, 0.3 and 1
     mean edge lengths along the normals the oracle chose 21, 31 and 12 on a sphere, 4.5, 11 and 24
@@ -378,6 +423,8 @@ def sobolev_normal(V, F, *, ops, pinned, mu, order, tangential):
         Share ``t`` of the tangential update kept.
     pinned, region, preserve_volume, operators
         Options shared by every filter; see the README.
+    config : SobolevNormalConfig, optional
+        The array core's (``get_filter("sobolev_normal").core``) solver paths by size; ``None``: :data:`DEFAULT`.
 
     Returns
     -------
@@ -405,10 +452,11 @@ def sobolev_normal(V, F, *, ops, pinned, mu, order, tangential):
     Y = None
     held = pinned is not None and pinned.any()
     stored = ((float(mu), mask_key(pinned if held else None)) in ops.cache.get(f"shifted-p{order}-cholesky", {}))
-    if ops.n >= SOBOLEV_NORMAL_LANCZOS_MIN_VERTICES and not stored:
+    config = resolve(config, DEFAULT)
+    if ops.n >= config.lanczos_min_vertices and not stored:
         if not held:
             Y = lanczos_shifted(ops, X, mu, order, tol=FILTER_LANCZOS_TOL, growth=0.25)  # a 100k factor of I + mu L^3: 20 s
-        elif (bound := shifted_cg_bound(ops, mu, order, FILTER_LANCZOS_TOL)) <= SOBOLEV_NORMAL_PINNED_CG_BOUND:
+        elif (bound := shifted_cg_bound(ops, mu, order, FILTER_LANCZOS_TOL)) <= config.pinned_cg_bound:
             # held vertices (the border option's second run): CG from the input, no factor
             Y = shifted_solver(ops, mu, order, pinned, "cg").solve(X, tol=FILTER_LANCZOS_TOL, x0=X,
                                                                  maxiter=int(4 * math.ceil(bound)) + 50)

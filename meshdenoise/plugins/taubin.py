@@ -2,18 +2,21 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import scipy.sparse as sp
 
 from ..operators import Operators, spmm
 from ..registry import MAX_ITERATIONS, AutoRule, Param, get_filter, register
+from ..tuning.config import check_fields
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import averaging_step, best_on_curve, best_on_path, iterative_path, path_curve
 from ..tuning.sweep import HeldOutRule, Sweep, geometric
 from .filtering import has_repeated_index, vcglib_sum_matrix
 
-__all__ = ["taubin", "meshlab_taubin_operator", "pass_matrix", "TAUBIN_WEIGHTS"]
+__all__ = ["taubin", "meshlab_taubin_operator", "pass_matrix", "TAUBIN_WEIGHTS", "TaubinConfig"]
 
 TAUBIN_WEIGHTS = ("uniform", "meshlab", "open3d")
 
@@ -54,8 +57,28 @@ def meshlab_taubin_operator(ops: Operators) -> sp.csr_matrix:
 
 # ----------------------------------------------------------------------------- automatic rule
 TAUBIN_LAMBDAS = (0.5, 0.25, 0.125)  # candidate shrinking steps of the automatic taubin rule
-TAUBIN_FINE_MIN_VERTICES = 10_000  # from this size a finer lambda is tried only while ...
-TAUBIN_FINE_MAX_ITERATIONS = 8  # ... the coarser one's best count is below this
+
+
+@dataclass(frozen=True)
+class TaubinConfig:
+    """The taubin rule's pruning (``choose_parameters(..., config=TaubinConfig(...))``).
+
+    Attributes
+    ----------
+    fine_min_vertices : int
+        From this size a finer lambda is tried only while ...
+    fine_max_iterations : int
+        ... the coarser one's best count is below this (a count past it is already a fine step's).
+    """
+
+    fine_min_vertices: int = 10_000
+    fine_max_iterations: int = 8
+
+    def __post_init__(self) -> None:
+        check_fields(self, nonnegative=("fine_min_vertices", "fine_max_iterations"))
+
+
+DEFAULT = TaubinConfig()
 
 
 def taubin_mu_for(lam: float, pass_band: float) -> float:
@@ -92,8 +115,8 @@ def choose_taubin(ctx: TuningContext) -> tuple[dict, Point]:
     :func:`taubin_mu_for` keeping the pass band :math:`k_{PB} = 1/\\lambda + 1/\\mu` of the
     defaults (0.5, -0.53): the same low-pass shape, finer steps (one default iteration
     can already be too much on weak noise: Nefertiti at rho = 0.015), and the smallest
-    SURE wins, as ``tau`` for ``heat``. From ``TAUBIN_FINE_MIN_VERTICES`` (10,000) vertices a
-    finer lambda is tried only while the best count so far is below ``TAUBIN_FINE_MAX_ITERATIONS``
+    SURE wins, as ``tau`` for ``heat``. From ``TaubinConfig.fine_min_vertices`` (10,000) vertices a
+    finer lambda is tried only while the best count so far is below ``TaubinConfig.fine_max_iterations``
     (8): the finer steps are there for weak noise, where one default iteration is already too
     much; with more iterations the count itself resolves the time, and each halving of lambda
     doubles a walk that is already long (the 400k scale mesh: 80 iterations at lambda 0.5,
@@ -114,9 +137,10 @@ def choose_taubin(ctx: TuningContext) -> tuple[dict, Point]:
         pass_band = 1.0 / lam0 + 1.0 / mu0
         pairs = [(lam, taubin_mu_for(lam, pass_band)) for lam in TAUBIN_LAMBDAS]
     A = ctx.ops.P if weights == "uniform" else meshlab_taubin_operator(ctx.ops)
+    config = ctx.config_for(DEFAULT)
     best, best_pair = None, None
     for lam, mu in pairs:
-        if best is not None and ctx.n >= TAUBIN_FINE_MIN_VERTICES and best.value >= TAUBIN_FINE_MAX_ITERATIONS:
+        if best is not None and ctx.n >= config.fine_min_vertices and best.value >= config.fine_max_iterations:
             break  # the run's own count already resolves the time; a finer step costs twice the walk
         shrink, inflate = averaging_step(A, lam), averaging_step(A, mu)
         step = lambda Y, s=shrink, f=inflate: f(s(Y))  # noqa: E731

@@ -21,18 +21,19 @@ from ..operators import get_operators
 from ..progress import stage
 from ..registry import get_filter, list_filters
 from ..solvers import retain_factors
-from .context import TuningContext
+from .context import TuningContext, as_configs
 from .covariance import NoiseModel, estimate_noise_model
 from .noise_level import mean_edge_length
 from .normal_risk import NORMAL_FIRST, NORMAL_SCALES, NORMAL_WIDE_BELOW, NORMAL_WIDE_SCALES, NormalChoice, refine_for_normals
 from .risk import Criterion, Point, noise_colouring
 from .holdout import NoHoldout
-from .search import REGION_MAX_MARGIN, REGION_MIN_VERTICES, region_rule, sure_smoothed
+from .config import SEARCH, SPECTRAL
+from .search import REGION_MAX_MARGIN, region_rule, sure_smoothed
 
 __all__ = ["choose_parameters", "auto_filters", "normal_filters", "rule_criterion", "CRITERIA"]
 
 CRITERIA = ("sure", "gcv", "oracle", "normals")
-NORMAL_REGION = 32_000  # criterion "normals" from REGION_MIN_VERTICES: the search on a sampled region of this many vertices
+NORMAL_REGION = 32_000  # criterion "normals" from SearchConfig.region_min_vertices: the search on a sampled region of this many vertices
 NORMAL_PATCHES = 8  # ... made of this many balls
 NORMAL_RETAINED_CANDIDATES = 3  # factorisations kept through the search: this many candidates' (solvers.retain_factors)
 
@@ -119,7 +120,7 @@ def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, Nor
     """``chosen`` with its smoothing amount moved to the least estimated face-normal error (``None``: left as it is).
 
     The smoothing amount is the parameter ``spec.auto.normals`` names, or a common factor on the
-    parameters it names (a tuple). From :data:`~meshdenoise.tuning.search.REGION_MIN_VERTICES`
+    parameters it names (a tuple). From :attr:`SearchConfig.region_min_vertices <meshdenoise.tuning.config.SearchConfig>`
     vertices (or twice the rule's ``normals_region``) the search runs on a sampled region of about
     :data:`NORMAL_REGION` vertices (the rule's ``normals_region``)
     (:func:`~meshdenoise.tuning.search.region_rule`), scoring the faces more than a margin from
@@ -177,11 +178,12 @@ def _for_normals(spec: Any, ctx: TuningContext, chosen: dict) -> tuple[dict, Nor
         found.append(refine_for_normals(sub.V, sub.F, apply, start, candidates, sub.rho, spectral=family,
                                         colour=sub.colour if correlated else None, edge_length=h,
                                         first=start * NORMAL_FIRST, rows=scored,
-                                        guard_above=start * NORMAL_SCALES[-1] * 1.001))
+                                        guard_above=start * NORMAL_SCALES[-1] * 1.001,
+                                        config=sub.config_for(SPECTRAL)))
         return values(found[-1].value), Point(found[-1].value, math.nan, math.nan, None, found[-1].risk)
 
     size = int(rule.normals_region or NORMAL_REGION)
-    least = min(REGION_MIN_VERTICES, 2 * size)
+    least = min(ctx.config_for(SEARCH).region_min_vertices, 2 * size)
     k = float(ctx.smoothed("sure").value) if ctx.n >= least else 0.0
     # the margin for 10 times SURE's weight, also with the wide scales: for 100 times, sobolev_axes on face000 took 363 s
     # (184 s) and chose 50 (63) times SURE's weights, 8.93 (8.99) degrees against the oracle's 8.30
@@ -202,6 +204,7 @@ def choose_parameters(
     exact_trace: bool | None = None,
     reference: Any = None,
     return_risk: bool = False,
+    config: Any = None,
     **given: Any,
 ) -> dict | tuple[dict, float]:
     """Choose a filter's parameters from the noisy mesh alone.
@@ -250,6 +253,12 @@ def choose_parameters(
     **given
         Parameters held fixed (e.g. ``weights="meshlab"`` for filtering, ``tau`` for heat);
         the method's tuned parameters that are not given are chosen.
+    config : settings object or sequence of them, optional
+        Settings for the rule instead of the measured defaults: the tuning machinery's
+        (:class:`~meshdenoise.tuning.config.SearchConfig`, :class:`~meshdenoise.tuning.config.SpectralConfig`) and
+        the filter's own (e.g. ``GlsConfig`` in ``plugins/sobolev_gls.py``); each is read where its module reads its
+        settings (:meth:`~meshdenoise.tuning.context.TuningContext.config_for`), e.g.
+        ``config=(SearchConfig(region_min_vertices=1000), SinkhornConfig(region=3000))``.
 
     Returns
     -------
@@ -282,6 +291,7 @@ def choose_parameters(
     if (criterion == "oracle") != (reference is not None):
         raise ValueError("choose_parameters: reference= (the clean mesh) goes with criterion='oracle', and only with it")
     spec.resolve(given, where=f"choose_parameters(method='{method}')")  # names/types/ranges of held values
+    configs = as_configs(config)
     if criterion == "normals" and spec.auto.held_out is not None:
         params, score = _held_out(spec, mesh, noise, correlation_length, given)
         return (params, score) if return_risk else params
@@ -329,7 +339,7 @@ def choose_parameters(
         if relabel is not None:
             Y = relabel.vertices(Y)
     ctx = TuningContext(V, F, ops, rho, Criterion("sure" if criterion == "normals" else criterion, Y), exact_trace,
-                        dict(given), model)
+                        dict(given), model, configs)
     with stage(f"choosing {method}'s parameters"), noise_colouring(model):
         chosen, point = spec.auto.choose(ctx)
         if criterion == "normals":

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -11,7 +12,35 @@ from ..operators import Operators
 from .risk import Criterion, Point, as_criterion, colour_probes
 from .search import mu_guess, sure_smoothed
 
-__all__ = ["TuningContext"]
+__all__ = ["TuningContext", "as_configs"]
+
+C = TypeVar("C")
+
+
+def as_configs(config: Any) -> tuple:
+    """``config`` as a tuple of settings objects: ``None`` is none, one frozen dataclass instance is one, a sequence
+    of them is itself; two of one type, or anything else, raise a ValueError naming it.
+
+    Examples
+    --------
+    >>> from meshdenoise.tuning.config import SearchConfig, SpectralConfig
+    >>> [type(c).__name__ for c in as_configs((SearchConfig(region_min_vertices=1000), SpectralConfig()))]
+    ['SearchConfig', 'SpectralConfig']
+    >>> as_configs(None)
+    ()
+    """
+    if config is None:
+        return ()
+    items = tuple(config) if isinstance(config, (tuple, list)) else (config,)
+    seen = set()
+    for item in items:
+        if not dataclasses.is_dataclass(item) or isinstance(item, type) or not item.__dataclass_params__.frozen:
+            raise ValueError(f"config must be a settings object (a frozen dataclass such as SearchConfig) or a "
+                             f"sequence of them, got {item!r}")
+        if type(item) in seen:
+            raise ValueError(f"config holds two {type(item).__name__} objects: give one")
+        seen.add(type(item))
+    return items
 
 
 @dataclass
@@ -37,6 +66,10 @@ class TuningContext:
         The noise covariance (:class:`~meshdenoise.tuning.covariance.NoiseModel`): its
         ``rho`` is ``rho``; a correlated one colours the trace probes while the rule runs
         (:func:`~meshdenoise.tuning.risk.noise_colouring`). ``None``: independent noise.
+    config : tuple
+        Settings objects the caller handed in (``choose_parameters(..., config=...)``): each module's rule reads the
+        one of its own type (:meth:`config_for`), its module's default when none is given, e.g.
+        ``config=(SearchConfig(region_min_vertices=1000), SinkhornConfig(region=3000))``.
     """
 
     V: np.ndarray
@@ -47,9 +80,18 @@ class TuningContext:
     exact: bool | None
     given: dict[str, Any] = field(default_factory=dict)
     noise: Any = None
+    config: tuple = ()
 
     def __post_init__(self) -> None:
         self.criterion = as_criterion(self.criterion)
+        self.config = as_configs(self.config)
+
+    def config_for(self, default: C) -> C:
+        """The settings object of ``default``'s type in :attr:`config`, else ``default`` (the module's own)."""
+        for item in self.config:
+            if type(item) is type(default):
+                return item
+        return default
 
     @property
     def n(self) -> int:

@@ -28,11 +28,9 @@ import scipy.sparse as sp
 from .. import geometry
 from .. import kernels as _kernels  # the threading layer and OpenMP settings of the project's kernels
 from ..kernels import njit, numba, prange
+from .config import NOISE_KERNELS, NoiseKernelConfig, resolve
 
-__all__ = ["fourth_difference_csr", "vertex_normals", "edge_lengths", "KERNEL_MIN_VERTICES"]
-
-KERNEL_MIN_VERTICES = 1 << 16  # below this the numpy/scipy code runs (the same numbers): loading the compiled code
-# costs about 0.2 s once per process, more than the kernels save on a small mesh
+__all__ = ["fourth_difference_csr", "vertex_normals", "edge_lengths", "NoiseKernelConfig"]
 
 
 # --------------------------------------------------------------------------- (I - P)^2
@@ -128,10 +126,12 @@ def _check_matmat() -> bool:
     return _matmat_ok
 
 
-def fourth_difference_csr(P: sp.csr_matrix, threads: int | None = None) -> sp.csr_matrix:
+def fourth_difference_csr(P: sp.csr_matrix, threads: int | None = None,
+                          config: NoiseKernelConfig | None = None) -> sp.csr_matrix:
     """:math:`(I - P)^2` for a CSR ``P`` (n, n) with sorted, unique column indices: scipy's result, bit for bit.
 
-    Below :data:`KERNEL_MIN_VERTICES` rows scipy's own one-threaded product (the same numbers).
+    Below ``config.min_vertices`` rows (:class:`~meshdenoise.tuning.config.NoiseKernelConfig`, ``None``: its
+    default) scipy's own one-threaded product (the same numbers).
 
     The same as ``sp.csr_matrix((sp.identity(n, format="csr") - P) @ (sp.identity(n, format="csr") - P))``:
     scipy's own kernel (``csr_matmat``, which releases the GIL) on ``threads`` blocks of rows
@@ -141,7 +141,7 @@ def fourth_difference_csr(P: sp.csr_matrix, threads: int | None = None) -> sp.cs
     indices are not sorted and unique, or a scipy without the private kernels, takes scipy's route.
     """
     n = P.shape[0]
-    if P.shape != (n, n) or n < max(KERNEL_MIN_VERTICES, 1) or not P.has_canonical_format or not _check_matmat():
+    if P.shape != (n, n) or n < max(resolve(config, NOISE_KERNELS).min_vertices, 1) or not P.has_canonical_format or not _check_matmat():
         A = sp.identity(n, format="csr") - sp.csr_matrix(P)
         return sp.csr_matrix(A @ A)
     from concurrent.futures import ThreadPoolExecutor
@@ -227,17 +227,18 @@ def _normalise_rows(X):  # pragma: no cover - compiled
             X[i, 2] = 0.0
 
 
-def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+def vertex_normals(V: np.ndarray, F: np.ndarray, config: NoiseKernelConfig | None = None) -> np.ndarray:
     """:func:`meshdenoise.geometry.vertex_normals` bit for bit: ``V`` (n, 3) float, ``F`` (m, 3) int in 0 .. n-1 -> (n, 3).
 
-    Below :data:`KERNEL_MIN_VERTICES` vertices that function itself."""
+    Below ``config.min_vertices`` vertices (``None``: :class:`~meshdenoise.tuning.config.NoiseKernelConfig`'s
+    default) that function itself."""
     V = np.ascontiguousarray(V, dtype=np.float64)
     F = np.ascontiguousarray(F, dtype=np.int64)
     if V.ndim != 2 or V.shape[1] != 3 or F.ndim != 2 or F.shape[1] != 3:
         raise ValueError(f"vertex_normals: V must be (n, 3) and F (m, 3), got {V.shape} and {F.shape}")
     if F.size and (F.min() < 0 or F.max() >= V.shape[0]):
         raise ValueError(f"vertex_normals: face indices must lie in 0 .. {V.shape[0] - 1}, got {F.min()} .. {F.max()}")
-    if V.shape[0] < KERNEL_MIN_VERTICES:
+    if V.shape[0] < resolve(config, NOISE_KERNELS).min_vertices:
         return geometry.numpy_vertex_normals(V, F)
     _kernels.set_threads()
     normals = np.empty((F.shape[0], 3))
@@ -249,10 +250,11 @@ def vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray:
     return out
 
 
-def _large_vertex_normals(V: np.ndarray, F: np.ndarray) -> np.ndarray | None:
-    """:func:`vertex_normals` from :data:`KERNEL_MIN_VERTICES` vertices on, else None: what
-    :func:`meshdenoise.geometry.vertex_normals` asks first."""
-    return vertex_normals(V, F) if np.shape(V)[0] >= KERNEL_MIN_VERTICES else None
+def _large_vertex_normals(V: np.ndarray, F: np.ndarray, config: NoiseKernelConfig | None = None) -> np.ndarray | None:
+    """:func:`vertex_normals` from ``config.min_vertices`` vertices on, else None: what
+    :func:`meshdenoise.geometry.vertex_normals` asks first (with the default)."""
+    config = resolve(config, NOISE_KERNELS)
+    return vertex_normals(V, F, config) if np.shape(V)[0] >= config.min_vertices else None
 
 
 geometry.LARGE_VERTEX_NORMALS.append(_large_vertex_normals)
@@ -269,15 +271,15 @@ def _edge_lengths(X, e, out):  # pragma: no cover - compiled
         out[k] = np.sqrt((d0 * d0 + d1 * d1) + d2 * d2)
 
 
-def edge_lengths(X: np.ndarray, e: np.ndarray) -> np.ndarray:
+def edge_lengths(X: np.ndarray, e: np.ndarray, config: NoiseKernelConfig | None = None) -> np.ndarray:
     """``np.linalg.norm(X[e[:, 0]] - X[e[:, 1]], axis=1)`` bit for bit: ``X`` (n, 3), ``e`` (k, 2) int -> (k,).
 
-    Below :data:`KERNEL_MIN_VERTICES` vertices that expression itself."""
+    Below ``config.min_vertices`` vertices that expression itself."""
     X = np.ascontiguousarray(X, dtype=np.float64)
     e = np.ascontiguousarray(e, dtype=np.int64)
     if e.size and (e.min() < 0 or e.max() >= X.shape[0]):
         raise ValueError(f"edge_lengths: edge indices must lie in 0 .. {X.shape[0] - 1}, got {e.min()} .. {e.max()}")
-    if X.shape[0] < KERNEL_MIN_VERTICES:
+    if X.shape[0] < resolve(config, NOISE_KERNELS).min_vertices:
         return np.linalg.norm(X[e[:, 0]] - X[e[:, 1]], axis=1)
     _kernels.set_threads()
     out = np.empty(e.shape[0])

@@ -21,7 +21,7 @@ import numpy as np
 from .. import kernels
 from ..geometry import cross_rows, vertex_normals
 from .risk import EXACT_TRACE_MAX
-from . import spectral as _spectral_module
+from .config import SPECTRAL, SpectralConfig, resolve
 from .spectral import Spectral, SpectralFailed, SpectralSearch, StartDual
 
 __all__ = ["NormalJacobian", "NormalChoice", "normal_risk", "dirichlet_sure", "refine_for_normals", "normal_probe_count",
@@ -424,7 +424,8 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
                        additive: bool = False, first: float | None = None, rows: np.ndarray | None = None,
                        exact: bool | None = None, guard_above: float | None = None, seed: int = 0,
                        resume: bool = False, edge_length: float | None = None,
-                       spectral: Callable[[float], Spectral] | None = None) -> NormalChoice:
+                       spectral: Callable[[float], Spectral] | None = None,
+                       config: SpectralConfig | None = None) -> NormalChoice:
     """The parameter of a linear smoother with the least estimated face-normal risk (:func:`normal_risk`).
 
     The risk is linearised at a mesh ``R`` (``J`` and the noise directions ``N``, the unit
@@ -482,7 +483,7 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
     spectral : callable, optional
         ``spectral(value)``: the map at ``value`` as :math:`S^{-1} g(M) S`
         (:class:`~meshdenoise.tuning.spectral.Spectral`, every value on the same ``M``). From
-        :data:`~meshdenoise.tuning.spectral.SPECTRAL_MIN_VERTICES` vertices (Rademacher probes) the candidates are then scored
+        ``config.min_vertices`` vertices (Rademacher probes) the candidates are then scored
         without running ``apply`` on the probes: their terms :math:`u_p^T H b_p` (the normal
         risk's :math:`(J b_p)^T (J H b_p)` with :math:`u_p = J^T J b_p`, position SURE's and the
         Dirichlet estimate's) from one Lanczos run per pass that records the duals' projections,
@@ -490,6 +491,8 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
         (:class:`~meshdenoise.tuning.spectral.SpectralSearch`): the same estimates to about 1e-10,
         no factorisation or filter run per candidate. ``apply`` is used where a run does not
         converge.
+    config : SpectralConfig, optional
+        The Lanczos runs' settings (:class:`~meshdenoise.tuning.config.SpectralConfig`; ``None``: its default).
     rows : ndarray of bool, shape (n,), optional
         The vertices scored (a sampled region's inner part): only faces with three scored
         corners count. Default: all.
@@ -671,9 +674,10 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
         return NormalChoice(values[best], float(risks[best]), tuple(path), tuple(values[i] for i in order),
                             tuple(float(risks[i]) for i in order), float(sures[best]), float(count * rho**2))
 
-    if spectral is not None and not exact_probes and n >= _spectral_module.SPECTRAL_MIN_VERTICES:
+    config = resolve(config, SPECTRAL)
+    if spectral is not None and not exact_probes and n >= config.min_vertices:
         try:
-            return passes(SpectralSearch(V, spectral, candidates=values))
-        except SpectralFailed:  # a run past SPECTRAL_MAX_STEPS: the filter's own runs
+            return passes(SpectralSearch(V, spectral, candidates=values, config=config))
+        except SpectralFailed:  # a run past config.max_steps: the filter's own runs
             pass
     return passes(None)

@@ -19,7 +19,8 @@ import scipy.sparse as sp
 from ..operators import Operators, spmm
 from ..solvers import (CompiledLanczos, LanczosQuadrature, ShiftedInverse, shifted_cg_bound, shifted_factor,
                        shifted_solver)
-from .memo import MEMO, MEMO_BYTES, digest
+from .config import SEARCH, SearchConfig, resolve
+from .memo import MEMO, digest
 from .risk import N_PROBES, Criterion, Point, as_criterion, probe_block
 from .walk import past_minimum, walk
 
@@ -42,29 +43,21 @@ __all__ = [
     "shifted_quadrature",
     "quadrature_coordinates",
     "SHIFTED_SEARCHES",
-    "QUADRATURE_MIN_VERTICES",
     "QUADRATURE_TOL",
     "region_rule",
     "region_shape",
     "shifted_reach",
-    "REGION_MIN_VERTICES",
+    "SearchConfig",
 ]
 
 PROBE_REFERENCE_VERTICES = 50_000  # up to this size every search keeps N_PROBES probes (all quality-table meshes)
 MIN_PROBES = 4
-COORDINATES_CG_BOUND = 600  # best_shifted: the best point's coordinates by CG while its bound is at most this, else by
-# the search's own Lanczos run (the elephant's sobolev_axes, order 2, mu = 129: bound 2,429, CG 1.36 s)
-QUADRATURE_MIN_VERTICES = 1_000  # best_shifted(search="auto"): Lanczos quadrature from this size (above the exact-trace
-# meshes), one factor per mu below; the two choose the same mu (scores equal to 1e-12 relative, docs/scale.md)
 SHIFTED_SEARCHES = ("auto", "quadrature", "factor")
 QUADRATURE_BASE_ORDER = 2  # shifted_quadrature's run on the columns L^min(p, this) X: the searches of orders 2 and 3
 # on the same coordinates and probes share it (sobolev_gls' pilot and sweep weights on the elephant: 187 steps, 0.26 s)
 QUADRATURE_TOL = 1e-6  # shifted_quadrature: each Gauss rule to this relative change over 10 steps; against 1e-10:
 # sobolev_gls' run on the elephant (its order-3 and order-2 searches) 120 Lanczos steps, not 187; the same choices on the
 # 56 cells whose rules search these weights (default, the Sobolev filters, two_stage), weights to 1e-9
-SHARED_RUN_MAX_BYTES = MEMO_BYTES // 8  # ... kept in the tuning memo up to this size (its columns, two basis vectors:
-# 16 MB on the elephant, 27 columns); above, a scan's whole-mesh run would sit in the memo for nothing (face000's
-# sobolev_gls searches its pilot on a region: with a bound of 64 MB its peak memory 564 -> 604 MB)
 
 
 def probe_count(n: int, most: int = N_PROBES, reference: int = PROBE_REFERENCE_VERTICES) -> int:
@@ -137,9 +130,6 @@ def iterative_path(
         k += 1
 
 
-CURVE_KERNEL_MIN_VERTICES = 1 << 16  # from this size PathCurve records its terms by kernels.curve_terms
-
-
 class PathCurve:
     """The residuals and traces of an iterative linear run, kept and extended on demand (no noise level in them).
 
@@ -149,14 +139,15 @@ class PathCurve:
     the start guess of the Sobolev searches and the ``filtering`` / ``heat`` rules read the
     same averaging curve (:func:`path_curve` memoises it). The coordinates of a step are not
     stored: :meth:`coordinates` runs ``step`` again on the three columns alone (the same
-    row sums, so the same numbers). From :data:`CURVE_KERNEL_MIN_VERTICES` vertices the two
+    row sums, so the same numbers). From ``config.curve_kernel_min_vertices`` vertices the two
     sums of a step are one compiled pass (:func:`meshdenoise.kernels.curve_terms`), equal to
     numpy's to the last few places.
     """
 
     def __init__(self, V: np.ndarray, ops: Operators, step: Callable, exact: bool | None = None, seed: int = 0,
-                 probes: tuple[np.ndarray, float] | None = None):
+                 probes: tuple[np.ndarray, float] | None = None, config: SearchConfig | None = None):
         n = V.shape[0]
+        self.kernel_from = resolve(config, SEARCH).curve_kernel_min_vertices
         self.V = np.array(V, dtype=np.float64)
         self.step = step
         self.Z, self.s = probes if probes is not None else probe_block(n, exact, n_probes=probe_count(n), seed=seed)
@@ -165,7 +156,7 @@ class PathCurve:
         self._record()
 
     def _record(self) -> None:
-        if self.V.shape[0] >= CURVE_KERNEL_MIN_VERTICES:  # one compiled pass: at 1.6M the numpy record was 18 ms a step
+        if self.V.shape[0] >= self.kernel_from:  # one compiled pass
             from ..kernels import curve_terms
 
             r, t = curve_terms(self.Y, self.V, self.Z)
@@ -445,7 +436,8 @@ class _SharedRun:
 
 
 def shifted_quadrature(V: np.ndarray, ops: Operators, order: int, Z: np.ndarray, s: float,
-                       max_steps: int = 600, tol: float = QUADRATURE_TOL) -> Callable[[float], Point | None]:
+                       max_steps: int = 600, tol: float = QUADRATURE_TOL,
+                       config: SearchConfig | None = None) -> Callable[[float], Point | None]:
     """Residual and trace of :math:`H_\\mu = (I + \\mu L^p)^{-1}` for every ``mu`` from one Lanczos run on ``L``.
 
     ``H_mu`` is a function of ``L``, so both terms of SURE are quadratic forms of ``L``
@@ -462,7 +454,7 @@ def shifted_quadrature(V: np.ndarray, ops: Operators, order: int, Z: np.ndarray,
     :math:`\\mu^{-1/p}` from the spectrum, so the rule converges in about
     :math:`\\mu^{1/(2p)}` steps times a log, 30 to 150 steps for the weights SURE picks.
     The run depends on ``p`` only through ``q``: it is kept in the tuning memo (up to
-    ``SHARED_RUN_MAX_BYTES``) under the digest of the faces, ``q``, ``V``, ``Z`` and ``max_steps``, so that a search
+    ``config.shared_run_max_bytes``) under the digest of the faces, ``q``, ``V``, ``Z`` and ``max_steps``, so that a search
     of another order on the same coordinates and probes goes on with it (``sobolev_gls``: its sweep's weight at order
     3, then its pilot's at order 2; the elephant 0.26 s less). A run extended for one search gives another the rule of
     more steps: the same values to the convergence test's ``tol``.
@@ -485,7 +477,7 @@ def shifted_quadrature(V: np.ndarray, ops: Operators, order: int, Z: np.ndarray,
         # compiled steps: the same rule to ~1e-13
         return _SharedRun(CompiledLanczos(ops.L, np.hstack([c, Z]), max_steps=max_steps))
 
-    if 8 * 3 * V.shape[0] * (3 + Z.shape[1]) <= SHARED_RUN_MAX_BYTES:
+    if 8 * 3 * V.shape[0] * (3 + Z.shape[1]) <= resolve(config, SEARCH).shared_run_max_bytes:
         shared = MEMO.get(("lanczos", digest(ops.F, base, V, Z, int(max_steps))), run)
     else:
         shared = run()  # a scan's run: not worth evicting the memo's other entries
@@ -541,7 +533,7 @@ def shifted_coordinates(V: np.ndarray, ops: Operators, order: int, mu: float, to
 def best_shifted(
     V: np.ndarray, ops: Operators, order: int, rho: float | None, criterion: Criterion | str,
     exact: bool | None = None, center: float = 1.0, golden_steps: int = 8, search: str = "auto",
-    coordinates: bool = True, coordinates_by: str = "cg",
+    coordinates: bool = True, coordinates_by: str = "cg", config: SearchConfig | None = None,
 ) -> Point:
     """Minimise the criterion of :math:`(I + \\mu L^p)^{-1}` over log mu (:func:`search_log`).
 
@@ -555,7 +547,7 @@ def best_shifted(
       (:func:`shifted_coordinates`). A candidate whose rule has not converged (a very
       large mu) falls back to its factorisation. Not with the oracle (its score is not a
       quadratic form of ``L``).
-    - ``"auto"``: quadrature from :data:`QUADRATURE_MIN_VERTICES` vertices, factor below.
+    - ``"auto"``: quadrature from ``config.quadrature_min_vertices`` vertices, factor below.
 
     The two agree to the rules' tolerance (``QUADRATURE_TOL``, 1e-6 relative change; about 1e-12 relative on every
     term run to 1e-10, tests/test_scale_search.py), and chose the same mu on every benchmark row. With
@@ -565,8 +557,11 @@ def best_shifted(
     search's best coordinates by the second pass of the search's own Lanczos run on its three
     coordinate columns (:func:`quadrature_coordinates`) instead of CG (:func:`shifted_coordinates`,
     the default): the same coordinates to the tolerance 1e-10 of either, and at 400k vertices
-    (order 2, mu = 1.1) about 60 products with 3 columns against about 90 CG iterations.
+    (order 2, mu = 1.1) about 60 products with 3 columns against about 90 CG iterations; past
+    ``config.coordinates_cg_bound`` CG iterations by that second pass too. ``config``: a
+    :class:`~meshdenoise.tuning.config.SearchConfig` (``None``: its default).
     """
+    config = resolve(config, SEARCH)
     if search not in SHIFTED_SEARCHES:
         raise ValueError(f"best_shifted: search must be one of {SHIFTED_SEARCHES}, got {search!r}")
     if coordinates_by not in ("cg", "lanczos"):
@@ -581,8 +576,9 @@ def best_shifted(
             keys.append(digest(ops.F, order, np.hstack([V, Z])))
         return solve_point(V, ops, order, mu, Z, s, keys[0])
 
-    use_quadrature = not criterion.oracle and (search == "quadrature" or (search == "auto" and n >= QUADRATURE_MIN_VERTICES))
-    at = shifted_quadrature(V, ops, order, Z, s) if use_quadrature else by_factor
+    use_quadrature = not criterion.oracle and (search == "quadrature"
+                                               or (search == "auto" and n >= config.quadrature_min_vertices))
+    at = shifted_quadrature(V, ops, order, Z, s, config=config) if use_quadrature else by_factor
 
     def evaluate(mu: float) -> Point:
         p = at(mu)
@@ -592,7 +588,8 @@ def best_shifted(
         return p
 
     best = search_log(evaluate, center, golden_steps)
-    strong = best.X is None and coordinates and shifted_cg_bound(ops, best.value, order, 1e-10) > COORDINATES_CG_BOUND
+    strong = (best.X is None and coordinates
+              and shifted_cg_bound(ops, best.value, order, 1e-10) > config.coordinates_cg_bound)
     if best.X is None and coordinates and (coordinates_by == "lanczos" or strong):
         with at.lock:
             best.X = quadrature_coordinates(V, at.quadrature, order, best.value, base=at.base)
@@ -629,10 +626,6 @@ def mu_guess(V: np.ndarray, ops: Operators, rho: float | None, criterion: Criter
                           coordinates=False).value
     dbar = float(np.mean(ops.degree[~ops.isolated])) if (~ops.isolated).any() else 1.0
     return max(k, 0.5) ** order / dbar**order
-
-
-REGION_MIN_VERTICES = 50_000  # region_rule: from this size a rule runs on a sampled region (every quality-table mesh
-# is below it, so their choices are unchanged)
 
 
 REGION_MAX_MARGIN = 16  # region_shape: at most this many rings of margin
@@ -690,7 +683,7 @@ def region_rule(ctx, rule: Callable, size: int, patches: int, margin: int = 0, s
     correlated noise model is rebuilt on the region with the same level and correlation length)
     and, held fixed, the parameters ``given()`` returns (statistics of the whole mesh the rule
     would otherwise compute on the region). On the whole mesh the rule runs as ``rule(ctx, None)``.
-    Below ``min_vertices`` (default :data:`REGION_MIN_VERTICES`), in oracle mode, or when
+    Below ``min_vertices`` (default the context's ``SearchConfig.region_min_vertices``), in oracle mode, or when
     the region would be the whole mesh, the rule runs on the whole mesh as before.
 
     ``reach(chosen)`` (optional): the margin in rings the chosen parameters need (a cut's
@@ -717,7 +710,7 @@ def region_rule(ctx, rule: Callable, size: int, patches: int, margin: int = 0, s
     mesh's squared error; its ``X`` is the result on the region (``None`` coordinates are kept).
     """
     n = ctx.ops.n
-    limit = REGION_MIN_VERTICES if min_vertices is None else int(min_vertices)
+    limit = ctx.config_for(SEARCH).region_min_vertices if min_vertices is None else int(min_vertices)
     if ctx.oracle or n < limit or n <= size:
         return rule(ctx, None)
     size, margin = region_shape(ctx, size, patches, margin)

@@ -25,22 +25,11 @@ import scipy.sparse as sp
 
 from ..operators import Operators, spmm
 from ..solvers import CompiledLanczos, LanczosDots, ShiftedInverse
+from .config import SPECTRAL, SpectralConfig, resolve
 
 __all__ = ["Spectral", "SpectralFailed", "SpectralSearch", "StartDual", "shifted_spectral", "averaging_spectral",
-           "heat_kernel_spectral", "normalized_laplacian", "SPECTRAL_TOL", "SPECTRAL_MAX_STEPS", "SPECTRAL_WINDOW", "SPECTRAL_MIN_VERTICES",
-           "SPECTRAL_BASIS_BYTES"]
+           "heat_kernel_spectral", "normalized_laplacian", "SpectralConfig", "SPECTRAL_WINDOW"]
 
-SPECTRAL_TOL = 1e-6  # relative change over 10 Lanczos steps (of an estimate's Cauchy-Schwarz scale) at which a search's
-# estimates are taken: its scores to about 1e-6 (tests/test_spectral.py: within 1e-5 of the filter runs'), where the
-# probes' own Monte-Carlo spread is 1/sqrt(P) and the best candidate's nearer-scoring neighbour (26 % apart) scored
-# 1.3e-4 to 9e-2 above it, median 6e-3, over the normals searches of the 8 benchmark rows x 5 filters;
-# a tolerance of 1e-10 chose the same on all 88 cells (benchmarks/results/filter-time.md) with more steps
-SPECTRAL_MAX_STEPS = 2000  # a run longer than this gives up (SpectralFailed): the caller runs the filter instead
-SPECTRAL_MIN_VERTICES = 2_000  # searches score by these Lanczos runs from this size (with Rademacher probes; the exact
-# traces of small meshes are 3n columns, and a few solves of a small factor cost less)
-SPECTRAL_BASIS_BYTES = 192 * 2**20  # the coordinates' run keeps its basis up to this many bytes (CompiledLanczos
-# keep_basis), every candidate's coordinates then summed from it instead of a second pass of sparse products: the elephant's
-# normals searches (24,955 vertices, 3 columns, 233 and 291 steps: 140 and 175 MB); a longer run regenerates
 SPECTRAL_WINDOW = 2  # SpectralSearch.coordinates: a candidate's coordinates with this many neighbours on each side
 _TINY = 1e-300  # h at y = 0 is its limit: every h below is written without cancellation, so h(1e-300) is that limit
 
@@ -256,7 +245,7 @@ def _start_rules(run: LanczosDots, g: Callable[[np.ndarray], np.ndarray], power:
 
 
 class SpectralFailed(RuntimeError):
-    """A Lanczos run did not converge within :data:`SPECTRAL_MAX_STEPS`: run the filter instead."""
+    """A Lanczos run did not converge within ``SpectralConfig.max_steps``: run the filter instead."""
 
 
 class SpectralSearch:
@@ -275,9 +264,12 @@ class SpectralSearch:
         ``family(value) -> Spectral``.
     tol : float, optional
         The runs' relative tolerance (:meth:`~meshdenoise.solvers.CompiledLanczos.apply_many`,
-        :meth:`~meshdenoise.solvers.LanczosDots.dots`); default :data:`SPECTRAL_TOL`, read when the search is made.
+        :meth:`~meshdenoise.solvers.LanczosDots.dots`); default ``config.tol``.
     candidates : sequence of float, optional
         The search's values in order: :meth:`coordinates` computes a value's neighbours with it.
+    config : SpectralConfig, optional
+        The runs' settings (:class:`~meshdenoise.tuning.config.SpectralConfig`: tolerance, most steps, basis kept);
+        ``None``: its default.
 
     Examples
     --------
@@ -292,9 +284,10 @@ class SpectralSearch:
     """
 
     def __init__(self, V: np.ndarray, family: Callable[[float], Spectral], tol: float | None = None,
-                 candidates: Sequence[float] = ()):
+                 candidates: Sequence[float] = (), config: SpectralConfig | None = None):
         self.V = np.asarray(V, dtype=np.float64)
-        self.family, self.tol = family, float(SPECTRAL_TOL if tol is None else tol)
+        self.config = resolve(config, SPECTRAL)
+        self.family, self.tol = family, float(self.config.tol if tol is None else tol)
         self.candidates = [float(c) for c in candidates]
         self._first: Spectral | None = None
         self._coords: CompiledLanczos | None = None
@@ -338,8 +331,8 @@ class SpectralSearch:
 
     def _coordinates_run(self, spec: Spectral) -> CompiledLanczos:
         if self._coords is None:
-            self._coords = CompiledLanczos(spec.M, spmm(spec.M, self._scaled(self.V)), max_steps=SPECTRAL_MAX_STEPS,
-                                           keep_basis=SPECTRAL_BASIS_BYTES)
+            self._coords = CompiledLanczos(spec.M, spmm(spec.M, self._scaled(self.V)), max_steps=self.config.max_steps,
+                                           keep_basis=self.config.basis_bytes)
         return self._coords
 
     def coordinates_many(self, values: Sequence) -> list[np.ndarray]:
@@ -391,7 +384,7 @@ class SpectralSearch:
                 U = formed
             recorded.append((i, np.asarray(U, dtype=np.float64)))
         start = self._scaled(B)
-        run = LanczosDots(first.M, start, [self._dual(U) for _, U in recorded], max_steps=SPECTRAL_MAX_STEPS)
+        run = LanczosDots(first.M, start, [self._dual(U) for _, U in recorded], max_steps=self.config.max_steps)
         columns = B.shape[1]
         dual_norms = {}  # ||M^k b_j|| per power: the Cauchy-Schwarz scale LanczosDots.dots tests against
         for _, power in direct:
