@@ -13,10 +13,14 @@ and is registered with it, ``register(..., auto=AutoRule(...))``):
 - :mod:`~meshdenoise.tuning.context`: the :class:`TuningContext` a rule is given;
 - :mod:`~meshdenoise.tuning.choose`: :func:`choose_parameters` (``meshdenoise.denoise``, which also chooses
   the filter, is the policy above this floor: :mod:`meshdenoise.policy`);
-- :mod:`~meshdenoise.tuning.memo`: the bounded memo of repeated solves.
+- :mod:`~meshdenoise.tuning.memo`: the bounded memo of repeated solves;
+- :mod:`~meshdenoise.tuning.config`: the machinery's settings (:class:`SearchConfig`, :class:`SpectralConfig`,
+  :class:`NoiseKernelConfig`), frozen objects a caller hands in (``choose_parameters(..., config=...)``) instead of
+  module constants; each filter's own (``GlsConfig``, ``SinkhornConfig``, ...) lives in its plugin module.
 """
 
 from .choose import auto_filters, choose_parameters, given_noise_model
+from .config import NoiseKernelConfig, SearchConfig, SpectralConfig
 from .context import TuningContext
 from .covariance import NoiseModel, estimate_noise_model
 from .noise_level import estimate_noise
@@ -39,4 +43,7 @@ __all__ = [
     "EXACT_TRACE_MAX",
     "walk",
     "Walk",
+    "SearchConfig",
+    "SpectralConfig",
+    "NoiseKernelConfig",
 ]
