@@ -639,3 +639,27 @@ def test_sinkhorn_runs_stop_past_their_best_count_with_the_same_choice(monkeypat
     (short, short_risk), short_calls = runs[2]
     assert short == full and short_risk == pytest.approx(full_risk, rel=1e-12)
     assert 0 < short_calls < full_calls
+
+
+def test_settings_objects_are_checked_and_handed_to_the_rules():
+    """A config names its bad field and value; choose_parameters(config=...) takes one or a sequence of them (one of a
+    type), refuses anything else, and the default settings give the same choice as no config."""
+    from meshdenoise.plugins.sinkhorn import SinkhornConfig
+    from meshdenoise.plugins.sobolev_gls import GlsConfig
+    from meshdenoise.tuning import SearchConfig, SpectralConfig
+
+    for bad, message in ((lambda: SearchConfig(region_min_vertices=-1), "SearchConfig: region_min_vertices"),
+                         (lambda: SpectralConfig(tol=0.0), "SpectralConfig: tol must be a number > 0, got 0.0"),
+                         (lambda: GlsConfig(filter_tol=float("nan")), "GlsConfig: filter_tol"),
+                         (lambda: SinkhornConfig(patience=True), "SinkhornConfig: patience")):
+        with pytest.raises(ValueError, match=message):
+            bad()
+    V, F = icosphere(2)
+    Vn, _ = add_normal_noise((V, F), 0.02, seed=0)
+    plain = choose_parameters((Vn, F), "sobolev", noise=0.02)
+    assert choose_parameters((Vn, F), "sobolev", noise=0.02, config=SearchConfig()) == plain
+    assert choose_parameters((Vn, F), "sobolev", noise=0.02, config=[SearchConfig(), SpectralConfig()]) == plain
+    with pytest.raises(ValueError, match="two SearchConfig"):
+        choose_parameters((Vn, F), "sobolev", noise=0.02, config=(SearchConfig(), SearchConfig()))
+    with pytest.raises(ValueError, match="settings object"):
+        choose_parameters((Vn, F), "sobolev", noise=0.02, config={"region_min_vertices": 1000})
