@@ -659,6 +659,8 @@ def test_settings_objects_are_checked_and_handed_to_the_rules():
     plain = choose_parameters((Vn, F), "sobolev", noise=0.02)
     assert choose_parameters((Vn, F), "sobolev", noise=0.02, config=SearchConfig()) == plain
     assert choose_parameters((Vn, F), "sobolev", noise=0.02, config=[SearchConfig(), SpectralConfig()]) == plain
+    by_quadrature = choose_parameters((Vn, F), "sobolev", noise=0.02, config=SearchConfig(quadrature_min_vertices=0))
+    assert by_quadrature["mu"] == pytest.approx(plain["mu"], rel=1e-6)  # the rule's search by Lanczos quadrature
     with pytest.raises(ValueError, match="two SearchConfig"):
         choose_parameters((Vn, F), "sobolev", noise=0.02, config=(SearchConfig(), SearchConfig()))
     with pytest.raises(ValueError, match="settings object"):

@@ -9,7 +9,7 @@ import numpy as np
 
 from ..operators import Operators
 from ..registry import AutoRule, Param, register
-from ..tuning.config import check_fields, resolve
+from ..tuning.config import SEARCH, check_fields, resolve
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import best_shifted
@@ -118,7 +118,8 @@ def choose_sobolev(ctx: TuningContext) -> tuple[dict, Point]:
     averaging steps: both filters damp the eigenmode of :math:`I - D^{-1}W` with
     eigenvalue :math:`\\lambda` by about half when :math:`k\\lambda \\approx \\mu \\bar d \\lambda \\approx 1`.
     """
-    p = best_shifted(ctx.V, ctx.ops, 1, ctx.rho, ctx.criterion, ctx.exact, center=ctx.mu_guess(1), coordinates=False)
+    p = best_shifted(ctx.V, ctx.ops, 1, ctx.rho, ctx.criterion, ctx.exact, center=ctx.mu_guess(1), coordinates=False,
+                     config=ctx.config_for(SEARCH))
     return {"mu": float(p.value)}, p
 
 

@@ -8,7 +8,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..registry import AutoRule, Param, register
-from ..tuning.config import check_fields, resolve
+from ..tuning.config import SEARCH, check_fields, resolve
 from ..tuning.context import TuningContext
 from ..tuning.risk import Point
 from ..tuning.search import best_shifted
@@ -101,7 +101,8 @@ def lanczos_bilaplacian(ops: Operators, V: np.ndarray, mu: float, tol: float) ->
 # ----------------------------------------------------------------------------- automatic rule
 def choose_sobolev_bilaplacian(ctx: TuningContext) -> tuple[dict, Point]:
     """``mu`` of :math:`(I + \\mu L^2) Y = X`: SURE over log mu, starting at :math:`(k/\\bar d)^2`."""
-    p = best_shifted(ctx.V, ctx.ops, 2, ctx.rho, ctx.criterion, ctx.exact, center=ctx.mu_guess(2), coordinates=False)
+    p = best_shifted(ctx.V, ctx.ops, 2, ctx.rho, ctx.criterion, ctx.exact, center=ctx.mu_guess(2), coordinates=False,
+                     config=ctx.config_for(SEARCH))
     return {"mu": float(p.value)}, p
 
 

@@ -17,7 +17,7 @@ from ..operators import Operators, mask_key, spmm
 from ..registry import AutoRule, Param, get_filter, register
 from ..solvers import (DRAFT_LANCZOS_TOL, FILTER_LANCZOS_TOL, lanczos_shifted, laplacian_power, one_ring_factor,
                        one_ring_solve, shifted_cg_bound, shifted_solver)
-from ..tuning.config import resolve
+from ..tuning.config import SEARCH, resolve
 from ..tuning.context import TuningContext
 from ..tuning.noise_level import mean_edge_length, normal_spread, normal_trust
 from ..tuning.risk import Point, gcv
@@ -295,7 +295,8 @@ def choose_sobolev_gls_whole(ctx: TuningContext, scored: np.ndarray | None = Non
         # vertex normals) spread around them by tau = E sin^2(angle), by a parametric bootstrap (_normal_spread)
         # its coordinates by the factor the bootstrap smooths with (one more 3-column solve), not by the search's own
         # CG or Lanczos run: the bunny scanner's region 0.08 s less
-        best_s = best_shifted(ctx.V, ctx.ops, 2, ctx.rho, "sure", ctx.exact, center=ctx.mu_guess(2), coordinates=False)
+        best_s = best_shifted(ctx.V, ctx.ops, 2, ctx.rho, "sure", ctx.exact, center=ctx.mu_guess(2), coordinates=False,
+                              config=ctx.config_for(SEARCH))
         mu_s = best_s.value
         Xs = best_s.X if best_s.X is not None else solve_shifted(ctx.ops, 2, mu_s, ctx.V)
         Nn = vertex_normals(Xs, ctx.F)
