@@ -4,7 +4,14 @@ Each module registers its filters with :func:`meshdenoise.registry.register`: th
 core, its :class:`~meshdenoise.registry.Param` list and its automatic rule
 (:class:`~meshdenoise.registry.AutoRule`). A new filter is one new module, named after
 the filter it registers, added to ``MODULES`` below (tests/test_code_layout.py
-checks that every module of this folder is listed).
+checks that every module of this folder is listed). A module whose name starts with ``_`` holds
+parts of one family and registers nothing (``_gls_solve``: ``sobolev_gls``' settings and its
+factor-free solve).
+
+Each filter's settings (the sizes and bounds that choose its solve paths) are a frozen object in
+its module (``GlsConfig``, ``SinkhornConfig``, ...): its array core takes ``config=``
+(``get_filter(name).core(V, F, ops=..., pinned=None, config=..., **params)``) and its rule reads
+the one handed to ``choose_parameters(..., config=...)``.
 """
 
 from . import (  # noqa: F401  (imported for their registrations)
