@@ -10,9 +10,10 @@ of ``--baseline`` (the commit before the pair kernels were vectorised and fused)
 that commit's ``meshdenoise/kernels/`` package (``meshdenoise/kernels.py`` before it was one) and timed
 in the same process, alternating with the current ones. Then the whole ``two_stage(iterations=19,
 normal_iterations=1, vertex_iterations=5, sigma_r=2.0, keep_tangential=False)`` at each of
-``--whole-sizes``, in subprocesses alternating between the baseline's package and ``--current``'s
-(each unpacked with ``git archive``, so uncommitted edits elsewhere in the checkout play no part),
-and the largest difference of the two results relative to the mesh's extent.
+``--whole-sizes``, in subprocesses alternating between the baseline's package and the same package
+with ``--current``'s ``meshdenoise/kernels/`` (both unpacked with ``git archive``: only the kernels
+differ, and uncommitted edits elsewhere in the checkout play no part), and the largest difference
+of the two results relative to the mesh's extent.
 
 Usage::
 
@@ -25,6 +26,7 @@ import argparse
 import importlib.util
 import json
 import os
+import shutil
 import subprocess
 import sys
 import tarfile
@@ -256,6 +258,20 @@ print(json.dumps({{"seconds": seconds, "module": md.__file__}}))
     return record["seconds"]
 
 
+def kernels_tree(baseline: Path, commit: str, folder: Path) -> Path:
+    """A copy of the package unpacked in ``baseline`` whose ``meshdenoise/kernels/`` is ``commit``'s."""
+    tree = folder / f"{baseline.name}_kernels_{commit}"
+    if not (tree / "meshdenoise" / "__init__.py").is_file():
+        shutil.copytree(baseline / "meshdenoise", tree / "meshdenoise", dirs_exist_ok=True,
+                        ignore=shutil.ignore_patterns("__pycache__"))
+        shutil.rmtree(tree / "meshdenoise" / "kernels")
+        data = subprocess.run(["git", "archive", "--format=tar", commit, "meshdenoise/kernels"], cwd=ROOT, check=True,
+                              capture_output=True).stdout
+        with tarfile.open(fileobj=BytesIO(data)) as tar:
+            tar.extractall(tree)
+    return tree
+
+
 def relative_difference(a: Path, b: Path, label: str, folder: Path) -> float:
     """The largest coordinate difference of two saved results over the noisy mesh's extent (its largest side)."""
     with np.load(folder / ("elephant-o3dloop%d.npz" % {"400k": 2, "1.6M": 3}[label])) as z:
@@ -271,7 +287,7 @@ def markdown(bw: dict, exp_s: float, threads: int, sizes: dict, whole: dict, bas
         "# two_stage's pass kernels against the memory-bandwidth bound",
         "",
         f"Made by `{COMMAND}` (baseline {baseline}: two exponentials a pair in the fused pass, each spacing summed "
-        f"twice; current {current}).",
+        f"twice; current: the kernels of {current}).",
         "",
         f"Bandwidth, best of 5 on 256 MB arrays: numpy copy {bw['copy'] / 1e9:.1f} GB/s, numpy two-step triad "
         f"{bw['numpy_triad'] / 1e9:.1f} GB/s, threaded triad ({threads} threads) {bw['threaded_triad'] / 1e9:.1f} GB/s; "
@@ -304,7 +320,8 @@ def markdown(bw: dict, exp_s: float, threads: int, sizes: dict, whole: dict, bas
     if whole:
         lines += ["## The whole call", "",
                   "`two_stage(iterations=19, normal_iterations=1, vertex_iterations=5, sigma_r=2.0, "
-                  "keep_tangential=False)`, topology cached, kernels loaded, each in a fresh process, alternating; "
+                  "keep_tangential=False)`, topology cached, kernels loaded, each in a fresh process, alternating, on the baseline's "
+                  "package and on it with the current kernels; "
                   "*difference*: the largest coordinate difference of the two results over the noisy mesh's extent:",
                   "", "| mesh | tree | seconds (each run) | best | difference |", "|---|---|---|---:|---:|"]
         for label, (runs, diff) in whole.items():
@@ -353,13 +370,14 @@ def main(argv: list[str] | None = None) -> None:
                              text=True).stdout.strip()
     whole = {}
     if args.whole_runs:
-        trees = {f"baseline {args.baseline}": commit_tree(args.baseline, work), f"current {current}": commit_tree(current, work)}
+        base = commit_tree(args.baseline, work)
+        trees = {f"baseline {args.baseline}": base, f"kernels of {current}": kernels_tree(base, current, work)}
         for label in [s for s in args.whole_sizes.split(",") if s]:
             prepare(label, folder)
             runs, results = {}, {}
             for _ in range(args.whole_runs):
                 for tag, tree in trees.items():
-                    results[tag] = work / f"whole_{tag.split()[-1]}_{label}.npy"
+                    results[tag] = work / f"whole_{tree.name}_{label}.npy"
                     s = whole_call(tree, label, folder, results[tag])
                     runs.setdefault(tag, []).append(s)
                     print("whole", label, tag, round(s, 2), flush=True)
