@@ -140,7 +140,7 @@ def face_neighbour_lists(F: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]
     Returns ``indptr`` (m + 1,) int64 and ``indices`` (nnz,) int32 (int64 for huge meshes):
     the pattern of ``M^T M`` for the vertex-face incidence ``M``, without forming it.
     """
-    F = np.array(F, dtype=np.int64, order="C")  # one compiled variant: writable int64
+    F = np.require(F, dtype=np.int64, requirements=["C", "W"])  # one compiled variant: writable int64 (copied if not)
     m = F.shape[0]
     index_dtype = np.int32 if max(m, n) < 2**31 - 1 else np.int64
     vf_ptr, vf = _csr_of_groups(F.ravel(), n, np.int64)
