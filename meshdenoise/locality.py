@@ -23,7 +23,9 @@ import threading
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.sparse.csgraph import reverse_cuthill_mckee
 
+from .kernels.topology import _csr_of_groups
 from .operators import (  # noqa: F401 - far_side_fraction and its limits live with Operators.in_locality_order
     FAR_ROWS,
     FAR_SIDES_MAX,
@@ -80,7 +82,11 @@ class Relabelling:
         inverse = np.empty_like(order)
         inverse[order] = np.arange(order.size, dtype=index)
         G = inverse[np.asarray(F)]
-        G = G[np.argsort(G.min(axis=1), kind="stable")] if len(G) else G.reshape(0, 3)
+        if len(G):  # rows by their least corner, stably: a counting sort (an argsort took 0.6 s at 1.6M vertices)
+            _, rows = _csr_of_groups(G.min(axis=1), order.size, index)
+            G = G[rows]
+        else:
+            G = G.reshape(0, 3)
         for a in (order, inverse, G):
             a.flags.writeable = False
         return cls(order, inverse, np.ascontiguousarray(G))
@@ -116,7 +122,7 @@ class Relabelling:
         return int(self.order.nbytes + self.inverse.nbytes + self.faces.nbytes)
 
 
-def relabelling(F: np.ndarray, n: int) -> Relabelling | None:
+def relabelling(F: np.ndarray, n: int, ops: Operators | None = None) -> Relabelling | None:
     """The :class:`Relabelling` a mesh needs, or ``None`` when it is small or already in a good order.
 
     ``None`` below :data:`LOCALITY_MIN_VERTICES` vertices and when at most :data:`FAR_SIDES_MAX`
@@ -130,6 +136,9 @@ def relabelling(F: np.ndarray, n: int) -> Relabelling | None:
     F : ndarray, shape (m, 3), int
     n : int
         Number of vertices.
+    ops : Operators, optional
+        The operators of ``(F, n)`` when the caller holds them: their adjacency is used (built if
+        it is not yet) instead of a throwaway one (at 1.6M vertices its build took 0.9 s).
 
     Examples
     --------
@@ -144,9 +153,14 @@ def relabelling(F: np.ndarray, n: int) -> Relabelling | None:
     with _lock:
         if _last is not None and _last[0] == key:
             return _last[1]
-    ops = Operators(F, n)  # not the cached one: its W on the old labels is dropped at once
-    result = Relabelling.from_order(ops.locality_order, ops.F)
-    del ops
+    if ops is not None and (ops.n != n or ops.F.shape != np.shape(F)):
+        raise ValueError(f"relabelling: operators of {ops.n} vertices and {ops.F.shape[0]} faces for a mesh of {n} "
+                         f"vertices and {np.shape(F)[0]} faces")
+    own = ops if ops is not None else Operators(F, n)  # not the cached one: its W on the old labels is dropped at once
+    # Operators.locality_order, not kept on the operators (n int64 they would hold for nothing): this mesh is not in
+    # locality order (checked above), so it is reverse Cuthill-McKee of W
+    result = Relabelling.from_order(np.asarray(reverse_cuthill_mckee(own.W, symmetric_mode=True), dtype=np.int64), own.F)
+    del own
     with _lock:
         _last = (key, result)
     return result
