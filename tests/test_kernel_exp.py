@@ -34,6 +34,16 @@ def mesh(request):
     return MESHES[request.param]()
 
 
+def test_the_face_pairs_are_symmetric_with_sorted_rows(mesh):
+    """What centroid_spacing_sums relies on to visit each unordered pair once (from the row of its smaller face)."""
+    V, F = mesh
+    nb = face_neighbourhood(Operators(F, len(V)))
+    rows = np.repeat(np.arange(len(F)), np.diff(nb.indptr))
+    assert np.all((np.diff(nb.indices) > 0) | (np.diff(rows) > 0))  # strictly increasing within each row
+    forward = set(zip(rows.tolist(), nb.indices.tolist()))
+    assert forward == {(j, i) for i, j in forward}
+
+
 def test_spacing_sums_visit_each_pair_once_and_give_the_full_mean(mesh):
     V, F = mesh
     nb, _, _, C = pair_arrays(V, F)
