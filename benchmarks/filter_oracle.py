@@ -23,8 +23,8 @@ chooses, every other parameter at the value the rule used (so the oracle searche
   the rule's choice, two sweeps, the second narrower); ``frame_steps`` and ``order`` at the rule's values.
 - ``sobolev_gls``: ``beta`` in ``SOBOLEV_GLS_BETAS`` x ``mu`` by :func:`minimize_log` with a coarser grid
   (0.5 decade either side of the rule's ``mu``, golden section to 0.02 decade): each candidate is a CG solve.
-- ``two_stage``: the whole grid of ``benchmarks/two_stage_auto.py`` (``TWO_STAGE_SIGMA_R`` x
-  ``TWO_STAGE_NORMAL_ITERATIONS`` x vertex steps 10, 20, 40 x 1..``TWO_STAGE_MAX_ITERATIONS`` outer iterations,
+- ``two_stage``: the whole grid of ``benchmarks/two_stage_auto.py`` (``GRID_SIGMA_R`` x
+  ``GRID_NORMAL_ITERATIONS`` x vertex steps 10, 20, 40 x 1..``GRID_MAX_ITERATIONS`` outer iterations,
   ``sigma_s`` 1, ``keep_tangential`` on); ``--two-stage-from JSON`` copies that script's ``grid_ne`` for the rows it
   shares (the same benchmark pairs), which depend on the filter only, not on the rule.
 
@@ -419,16 +419,16 @@ def oracle_two_stage(V0, F, Vn, auto: dict, scorer: Scorer) -> dict:
     return {"grid": TWO_STAGE_GRID, "edges": _two_stage_edges(best_ne["params"]), "points": None}
 
 
-TWO_STAGE_GRID = ("benchmarks/two_stage_auto.py's grid: sigma_r in TWO_STAGE_SIGMA_R x normal_iterations in "
-                  "TWO_STAGE_NORMAL_ITERATIONS x vertex_iterations in (10, 20, 40) x iterations 1..8, sigma_s 1, "
+TWO_STAGE_GRID = ("benchmarks/two_stage_auto.py's grid: sigma_r in GRID_SIGMA_R x normal_iterations in "
+                  "GRID_NORMAL_ITERATIONS x vertex_iterations in (10, 20, 40) x iterations 1..8, sigma_s 1, "
                   "keep_tangential on")
 
 
 def _two_stage_edges(params: dict) -> list[str]:
-    from meshdenoise.plugins import two_stage as ts
+    import two_stage_auto as grid
 
-    axes = {"sigma_r": ts.TWO_STAGE_SIGMA_R, "normal_iterations": ts.TWO_STAGE_NORMAL_ITERATIONS,
-            "vertex_iterations": (10, 20, 40), "iterations": tuple(range(1, ts.TWO_STAGE_MAX_ITERATIONS + 1))}
+    axes = {"sigma_r": grid.GRID_SIGMA_R, "normal_iterations": grid.GRID_NORMAL_ITERATIONS,
+            "vertex_iterations": (10, 20, 40), "iterations": tuple(range(1, grid.GRID_MAX_ITERATIONS + 1))}
     return [k for k, axis in axes.items() if k in params and params[k] in (min(axis), max(axis))]
 
 

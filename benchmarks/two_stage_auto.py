@@ -1,14 +1,13 @@
 """``two_stage``'s automatic parameters against a position-SURE rule and against the oracles.
 
-Per row: the noisy mesh; the position-SURE rule (column "previous auto"; Monte-Carlo SURE on positions over the
+Per row: the noisy mesh; the position-SURE rule (column "position SURE"; Monte-Carlo SURE on positions over the
 outer iterations only, other parameters at their defaults, reimplemented here as
-:func:`previous_rule`); the automatic rule (column "new auto"; ``choose_parameters(mesh, "two_stage")``,
-with the time of the choice); the generic oracle (``criterion="oracle"``: the same staged
-search on the whole mesh, scored by squared position error against the clean mesh); and the
-normal-error oracle: the least mean face-normal error over the rule's whole grid
-(``TWO_STAGE_SIGMA_R`` x ``TWO_STAGE_NORMAL_ITERATIONS`` x 10, 20 and 40 vertex steps
-x 1..``TWO_STAGE_MAX_ITERATIONS`` outer iterations, ``keep_tangential`` as the rule sets it),
-with the SNR-best of that grid beside it. Columns: mean face-normal error (deg), SNR (dB), time (s).
+:func:`previous_rule`); the automatic rule (column "auto"; ``choose_parameters(mesh, "two_stage", criterion="normals")``: the least
+held-out face-normal loss along the sweeps of ``two_stage.TWO_STAGE_NORMALS``, with the time of the choice); the
+generic oracle (``criterion="oracle"``: the same sweeps on the whole mesh, scored by squared position error against
+the clean mesh); and the normal-error oracle: the least mean face-normal error over a grid of the guided filter
+(``GRID_SIGMA_R`` x ``GRID_NORMAL_ITERATIONS`` x ``GRID_VERTEX_ITERATIONS`` x 1..``GRID_MAX_ITERATIONS`` outer
+iterations, ``keep_tangential`` on), with the SNR-best of that grid beside it. Columns: mean face-normal error (deg), SNR (dB), time (s).
 
 Rows: the four pairs of the Guided Mesh Normal Filtering benchmark (``benchmark/*``; noisy and
 clean given), pymeshlab's sample bunny with normal noise of 0.5 % of its bounding-box diagonal
@@ -46,7 +45,11 @@ from meshdenoise.tuning.search import sure_smoothed
 
 PAIRS = ("Fandisk0.3", "Block0.4", "Twelve0.5Impulsive", "Bunny0.2")
 SMOOTH = ("bunny 0.5%", "elephant rho=0.015")
-GRID_VERTEX_ITERATIONS = ts.TWO_STAGE_ORACLE_VERTEX_ITERATIONS  # the grid oracles: 20, 10 and 40 (the rule tries 20 and 40; sigma_s 1 only)
+# the grid oracles' guided filter: sigma_s 1, guided normals, keep_tangential on
+GRID_SIGMA_R = (0.2, 0.25, 0.3, 0.35, 0.45)
+GRID_NORMAL_ITERATIONS = (5, 10, 20)
+GRID_VERTEX_ITERATIONS = (20, 10, 40)
+GRID_MAX_ITERATIONS = 8
 
 
 def load_row(name: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -75,7 +78,7 @@ def previous_rule(V: np.ndarray, F: np.ndarray, rho: float) -> dict:
     delta = MC_SURE_STEP * rho
     X, Xp = V, V + delta * b
     best_k, best = 0, float(n) * rho**2
-    for k in range(1, ts.TWO_STAGE_MAX_ITERATIONS + 1):
+    for k in range(1, GRID_MAX_ITERATIONS + 1):
         X = apply_filter("two_stage", (X, F), iterations=1)[0]
         Xp = apply_filter("two_stage", (Xp, F), iterations=1)[0]
         score = float(np.sum((X - V) ** 2)) - n * rho**2 + 2 * rho**2 * float(np.sum(b * (Xp - X))) / delta
@@ -95,11 +98,11 @@ def grid_oracles(V0, Vn, F) -> tuple[dict, dict]:
     """The normal-error-best and the SNR-best candidate of the rule's whole grid."""
     best_ne, best_snr = None, None
     ops = get_operators(F, Vn.shape[0])
-    for sr in ts.TWO_STAGE_SIGMA_R:
-        for ni in ts.TWO_STAGE_NORMAL_ITERATIONS:
+    for sr in GRID_SIGMA_R:
+        for ni in GRID_NORMAL_ITERATIONS:
             for vi in GRID_VERTEX_ITERATIONS:
                 step = {"sigma_r": sr, "normal_iterations": ni, "vertex_iterations": vi, "keep_tangential": True}
-                params = {**step, "iterations": ts.TWO_STAGE_MAX_ITERATIONS, "sigma_s": 1.0, "guidance": "guided"}
+                params = {**step, "iterations": GRID_MAX_ITERATIONS, "sigma_s": 1.0, "guidance": "guided"}
                 for k, X in enumerate(ts.outer_iterates(Vn, ops, None, **params), start=1):
                     r = {"ne": normal_error_deg((V0, F), (X, F)), "snr": snr(V0, X), "params": {**step, "iterations": k}}
                     if best_ne is None or r["ne"] < best_ne["ne"]:
@@ -118,7 +121,7 @@ def run_row(name: str, grid: bool) -> dict:
     p = previous_rule(Vn, F, rho)
     out["previous"] = {**measure(V0, Vn, F, p), "time": time.perf_counter() - t}
     t = time.perf_counter()
-    p = choose_parameters((Vn, F), "two_stage", noise=rho)
+    p = choose_parameters((Vn, F), "two_stage", criterion="normals")
     out["auto"] = {**measure(V0, Vn, F, p), "time": time.perf_counter() - t}
     t = time.perf_counter()
     p = choose_parameters((Vn, F), "two_stage", noise=rho, criterion="oracle", reference=V0)
@@ -135,14 +138,15 @@ def fmt_params(p: dict) -> str:
 
 def table(results: list[dict], command: str, load: str) -> str:
     lines = [
-        "# two_stage automatic parameters (issue 22)",
+        "# two_stage automatic parameters",
         "",
         f"Command: `{command}`  ",
-        f"Load average when started: {load} (2 cores, shared). rho estimated by `estimate_noise`; auto time = the",
-        "choice only (noise level given), previous rule's time = its whole SURE path. Cells: mean face-normal error",
-        "(deg) / SNR (dB). `ne-best` and `snr-best` are the best of the rule's whole grid against the clean mesh.",
+        f"Load average when started: {load} (2 cores, shared). `position SURE`: outer iterations by Monte-Carlo SURE",
+        "(rho by `estimate_noise`), the rest at the defaults; `auto`: `choose_parameters(criterion=\"normals\")`, held-out",
+        "vertices, time = the choice. Cells: mean face-normal error (deg) / SNR (dB). `ne-best` and `snr-best` are the",
+        "best of a grid of the guided filter against the clean mesh (benchmarks/two_stage_auto.py's GRID_*).",
         "",
-        "| row | n | noisy | previous auto | new auto | new auto time (s) | oracle (position, same search) | ne-best of grid | snr-best of grid | auto / ne-best |",
+        "| row | n | noisy | position SURE | auto | auto time (s) | oracle (position, same search) | ne-best of grid | snr-best of grid | auto / ne-best |",
         "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in results:
@@ -156,7 +160,7 @@ def table(results: list[dict], command: str, load: str) -> str:
         )
     lines += ["", "Parameters:", ""]
     for r in results:
-        lines.append(f"- {r['row']}: previous {fmt_params(r['previous']['params'])}; new auto {fmt_params(r['auto']['params'])}; "
+        lines.append(f"- {r['row']}: position SURE {fmt_params(r['previous']['params'])}; auto {fmt_params(r['auto']['params'])}; "
                      f"oracle {fmt_params(r['oracle']['params'])}"
                      + (f"; ne-best {fmt_params(r['grid_ne']['params'])}; snr-best {fmt_params(r['grid_snr']['params'])}"
                         if "grid_ne" in r else ""))

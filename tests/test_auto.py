@@ -610,8 +610,6 @@ def test_bad_requests_name_the_problem():
         choose_parameters((V, F), "sobolev", criterion="oracle")
     with pytest.raises(TypeError, match="unknown parameter 'iteration'"):
         choose_parameters((V, F), "filtering", iteration=3)
-    with pytest.raises(ValueError, match="not a linear smoother"):
-        choose_parameters((V, F), "two_stage", criterion="gcv")
     with pytest.raises(ValueError, match="noise level per axis"):
         choose_parameters((V, F), "sobolev_axes", criterion="gcv")
 

@@ -451,7 +451,7 @@ def test_filters_json_lists_every_filter_and_step_as_the_registry_has_them():
         assert auto["tunes"] == list(spec.auto.tunes)
         assert auto["criteria"] == (["sure", "normals"] if spec.name in normal_filters() else ["sure"])
         assert auto["default_criterion"] == auto["criteria"][-1]
-    assert listed["two_stage"]["auto"]["criteria"] == ["sure"] and listed["taubin"]["auto"]["criteria"][-1] == "normals"
+    assert listed["sobolev_normal"]["auto"]["criteria"] == ["sure"] and listed["taubin"]["auto"]["criteria"][-1] == "normals"
 
 
 # item 1: square brackets in names and content are printed as they are ----------------------------------

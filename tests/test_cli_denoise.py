@@ -69,7 +69,7 @@ def test_the_pipeline_denoise_step_with_a_method_means_the_same(noisy, tmp_path)
     ("{method: sobolv}", "unknown filter 'sobolv' (did you mean 'sobolev'?)"),
     ("{method: sobolev, explain: true}", "explain says why the default chose its filter"),
     ("{method: sobolev, parameters: auto}", "chooses the parameters not given by itself"),
-    ("{method: two_stage, criterion: normals}", "criterion 'normals' is for the linear filters"),
+    ("{method: sobolev_normal, criterion: normals}", "criterion 'normals' is for the filters with a rule for it"),
     ("{method: sobolev, muu: 2}", "unknown parameter 'muu' (did you mean 'mu'?)"),
     ("{mu: 2}", "unknown parameter 'mu': the default chooses the filter and its parameters"),
     ("{defaults: true}", "'defaults' needs method"),

@@ -256,7 +256,7 @@ def test_bad_noise_models_are_refused():
         estimate_noise_model((V, F), refine=0)
 
 
-@pytest.mark.parametrize("method", ["two_stage", "sobolev_normal", "sobolev_gls"])
+@pytest.mark.parametrize("method", ["sobolev_normal", "sobolev_gls"])
 def test_monte_carlo_sure_rules_draw_coloured_probes(method, monkeypatch):
     """The nonlinear rules' own probes (b = z N) go through the model's colouring when it is correlated."""
     calls = []

@@ -220,45 +220,6 @@ def test_linear_maps_against_dense_matrices():
     np.testing.assert_allclose(out[:, :3], spec.core(X, F, ops=ops, pinned=None, **p), atol=1e-10)
 
 
-def test_descending_and_sweeping_searches_agree():
-    """An additive filter searched by one run (sweep) or by separate runs (descent) chooses the same count."""
-    V0, F, X = _sphere_case(seed=3)
-    ops = get_operators(F, len(X))
-    P = ops.P
-
-    def steps(k, block):
-        for _ in range(int(k)):
-            block = P @ block
-        return block
-
-    values = normal_candidates(2, True)
-    a = refine_for_normals(X, F, steps, 2, values, 0.012, additive=True, first=6)
-    b = refine_for_normals(X, F, steps, 2, values, 0.012, additive=False, first=6)
-    assert a.value == b.value and a.path == b.path
-
-
-def test_resumed_descent_chooses_as_the_plain_descent_with_fewer_steps():
-    """resume runs each candidate on from a smaller one the pass kept: the same risks, path and choice, fewer steps."""
-    V0, F, X = _sphere_case(seed=3)
-    P = get_operators(F, len(X)).P
-    taken = []
-
-    def steps(k, block):
-        taken.append(int(k))
-        for _ in range(int(k)):
-            block = P @ block
-        return block
-
-    values = normal_candidates(2, True)
-    plain = refine_for_normals(X, F, steps, 2, values, 0.012, first=6)
-    plain_steps = sum(taken)
-    taken.clear()
-    resumed = refine_for_normals(X, F, steps, 2, values, 0.012, first=6, resume=True)
-    assert (resumed.value, resumed.path, resumed.values) == (plain.value, plain.path, plain.values)
-    np.testing.assert_allclose(resumed.risks, plain.risks, rtol=1e-9)
-    assert sum(taken) < 0.7 * plain_steps
-
-
 def test_guard_keeps_the_search_from_shrinking_the_mesh_away():
     """A map that only shrinks the mesh turns no face, so the linearised risk falls without end (each face's noise
     is scaled away); past ``guard_above`` a candidate must also keep the positions better than the input's."""
@@ -283,10 +244,10 @@ def test_choice_is_scale_invariant():
 def test_criterion_errors_and_defaults():
     V, F = icosphere(2)
     assert set(normal_filters()) == {"filtering", "heat", "sinkhorn", "sobolev", "sobolev_axes", "sobolev_bilaplacian",
-                                     "sobolev_gls", "taubin"}
-    assert rule_criterion("taubin") == "normals" and rule_criterion("two_stage") == "sure"
-    with pytest.raises(ValueError, match="criterion 'normals' is for the linear filters .* not 'two_stage'"):
-        choose_parameters((V, F), "two_stage", criterion="normals")
+                                     "sobolev_gls", "taubin", "two_stage"}
+    assert rule_criterion("taubin") == "normals" and rule_criterion("sobolev_normal") == "sure"
+    with pytest.raises(ValueError, match="criterion 'normals' is for the filters with a rule .* not 'sobolev_normal'"):
+        choose_parameters((V, F), "sobolev_normal", criterion="normals")
     with pytest.raises(ValueError, match="criterion must be one of"):
         choose_parameters((V, F), "sobolev", criterion="angles")
     with pytest.raises(TypeError, match="criterion='sure' needs method="):
@@ -320,9 +281,9 @@ def test_command_line_and_pipeline_criterion(tmp_path):
         np.testing.assert_allclose(load_mesh(out).V, md.apply_filter("sobolev", (X, F), mu=mu)[0], atol=1e-9)
     result = CliRunner().invoke(cli, ["denoise", str(src), str(tmp_path / "x.ply"), "--criterion", "sure"])
     assert result.exit_code == 2 and "--criterion sure: it says how --method M chooses" in result.output
-    result = CliRunner().invoke(cli, ["denoise", str(src), str(tmp_path / "x.ply"), "--method", "two_stage",
+    result = CliRunner().invoke(cli, ["denoise", str(src), str(tmp_path / "x.ply"), "--method", "sobolev_normal",
                                       "--criterion", "normals"])
-    assert result.exit_code == 2 and "criterion 'normals' is for the linear filters" in result.output
+    assert result.exit_code == 2 and "criterion 'normals' is for the filters with a rule for it" in result.output
     assert not (tmp_path / "x.ply").exists()
     # a pipeline step: sure unless told
     p = tmp_path / "p.yaml"

@@ -180,7 +180,7 @@ def _check_criterion(name: str, criterion: str, at: str) -> None:
     from ..tuning.choose import normal_filters
 
     if criterion == "normals" and name not in normal_filters():
-        raise PipelineValidationError(f"{at}: criterion 'normals' is for the linear filters "
+        raise PipelineValidationError(f"{at}: criterion 'normals' is for the filters with a rule for it "
                                       f"({', '.join(normal_filters())}), not '{name}'")
 
 

@@ -10,6 +10,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
+from ..plugins.two_stage import TWO_STAGE_NORMALS
 from ..tuning.sweep import HoldoutConfig
 
 __all__ = ["Family", "DefaultConfig", "HoldoutConfig", "FAMILIES", "OTHER_FAMILIES"]
@@ -51,15 +52,11 @@ def _two_stage(sigma_r: float, keep_tangential: bool) -> Family:
                                 ("sigma_s", 1.0), ("guidance", "bilateral"), ("keep_tangential", keep_tangential)))
 
 
-# the sharp normal filter (sigma_r 0.35: normals more than about 20 degrees apart hardly average), keeping or
-# dropping the input's tangential part (noise along the normals, or along any direction), and the smooth one
-# (sigma_r 2.0: every neighbour's normal counts) dropping it. Each kept because the tune half's aggregate is worse
-# without it; the others tried are OTHER_FAMILIES (benchmarks/results/policy-tune.md)
-FAMILIES = (
-    _two_stage(0.35, True),
-    _two_stage(0.35, False),
-    _two_stage(2.0, False),
-)
+# two_stage's own rule's runs (meshdenoise.plugins.two_stage.TWO_STAGE_NORMALS, where the tune-half measurements that
+# keep each are): the sharp normal filter (sigma_r 0.35) keeping or dropping the input's tangential part and the
+# smooth one (sigma_r 2.0) dropping it, so that denoise(mesh) and denoise(mesh, method="two_stage") choose alike.
+# The others tried are OTHER_FAMILIES (benchmarks/results/policy-tune.md)
+FAMILIES = tuple(Family("two_stage", sweep.fixed) for sweep in TWO_STAGE_NORMALS.sweeps)
 OTHER_FAMILIES = (
     _two_stage(2.0, True),
     Family("taubin", (("lam", 0.5), ("mu", -0.53), ("weights", "uniform"))),

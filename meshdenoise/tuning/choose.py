@@ -52,13 +52,14 @@ def auto_filters() -> list[str]:
 
 
 def normal_filters() -> list[str]:
-    """Names of the registered filters whose rule takes ``criterion="normals"`` (linear in the coordinates for what
-    they read of the mesh held, with a smoothing amount).
+    """Names of the registered filters whose rule takes ``criterion="normals"``: a held-out sweep
+    (:func:`held_out_filters`), or a smoothing amount of a filter linear in the coordinates for what it reads of the
+    mesh held.
 
     Examples
     --------
     >>> normal_filters()
-    ['filtering', 'heat', 'sinkhorn', 'sobolev', 'sobolev_axes', 'sobolev_bilaplacian', 'sobolev_gls', 'taubin']
+    ['filtering', 'heat', 'sinkhorn', 'sobolev', 'sobolev_axes', 'sobolev_bilaplacian', 'sobolev_gls', 'taubin', 'two_stage']
     """
     return [spec.name for spec in list_filters() if spec.auto is not None and spec.auto.normals is not None]
 
@@ -73,7 +74,7 @@ def rule_criterion(method: str, criterion: str | None = None) -> str:
 
     Examples
     --------
-    >>> rule_criterion("sobolev"), rule_criterion("two_stage"), rule_criterion("sobolev", "sure")
+    >>> rule_criterion("sobolev"), rule_criterion("sobolev_normal"), rule_criterion("sobolev", "sure")
     ('normals', 'sure', 'sure')
     """
     if criterion is not None:
@@ -235,7 +236,7 @@ def choose_parameters(
     criterion : {"sure", "gcv", "oracle", "normals"}
         ``"oracle"`` needs ``reference`` (the clean mesh) and minimises the true error
         over the same search space: the best parameters in hindsight, for benchmarks.
-        ``"normals"`` (linear filters, :func:`normal_filters`): the least error of the face normals,
+        ``"normals"`` (:func:`normal_filters`): the least error of the face normals,
         what a rendering shows, at some position error (the result shrinks more); what
         ``denoise(mesh, method=M)`` uses. For the filters of :func:`held_out_filters` the value of least
         held-out face-normal loss along the rule's sweep (:class:`~meshdenoise.tuning.sweep.HeldOutRule`,
@@ -286,7 +287,7 @@ def choose_parameters(
     if criterion not in CRITERIA:
         raise ValueError(f"choose_parameters: criterion must be one of {', '.join(CRITERIA)}, got {criterion!r}")
     if criterion == "normals" and method not in normal_filters():
-        raise ValueError(f"choose_parameters: criterion 'normals' is for the linear filters "
+        raise ValueError(f"choose_parameters: criterion 'normals' is for the filters with a rule for it "
                          f"({', '.join(normal_filters())}), not '{method}'")
     if (criterion == "oracle") != (reference is not None):
         raise ValueError("choose_parameters: reference= (the clean mesh) goes with criterion='oracle', and only with it")

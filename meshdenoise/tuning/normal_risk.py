@@ -26,7 +26,7 @@ from .spectral import Spectral, SpectralFailed, SpectralSearch, StartDual
 
 __all__ = ["NormalJacobian", "NormalChoice", "normal_risk", "dirichlet_sure", "refine_for_normals", "normal_probe_count",
            "NORMAL_PROBES", "NORMAL_ITERATIONS", "NORMAL_SCALES", "NORMAL_WIDE_SCALES", "NORMAL_WIDE_BELOW", "NORMAL_FIRST",
-           "NORMAL_PATIENCE", "NORMAL_RESUME_KEEP", "NORMAL_LINEAR_MAX"]
+           "NORMAL_LINEAR_MAX"]
 
 # Rademacher vector probes: NORMAL_PROBE_BUDGET / n, from NORMAL_PROBES to NORMAL_MAX_PROBES (the estimate averages
 # over the faces, so its spread falls like 1 / sqrt(n P): a constant n P keeps it; 8 probes at 50k vertices chose the
@@ -34,16 +34,10 @@ __all__ = ["NormalJacobian", "NormalChoice", "normal_risk", "dirichlet_sure", "r
 NORMAL_PROBES = 8
 NORMAL_MAX_PROBES = 64
 NORMAL_PROBE_BUDGET = 8 * 50_000
-NORMAL_PATIENCE = 3  # an additive sweep stops this many candidates past its least risk
 NORMAL_LINEAR_MAX = 1.0  # noise (rho) from this many mean edge lengths of a smoothed mesh: the linearised risk
 # does not hold and the candidates are ranked by the Dirichlet energy's SURE (elephant rho = 0.2, 29 edge lengths:
 # filtering, heat, sinkhorn, sobolev 1.07, 1.07, 1.03, 1.10 times their normal oracles' error, against 1.21, 1.28,
 # 1.15, 1.00; every other benchmark row is below 0.7)
-NORMAL_RESUME_KEEP = 3  # a resumed descent keeps this many results to run on from (each (n, 3 + 3 x probes))
-# an additive sweep costs its length (up to 10x position SURE's count: thousands of Taubin steps at lam 0.125) times
-# the probes: at most this many (Fandisk0.3, Block0.4, Twelve0.5Impulsive chose the same counts as with 50-64 probes,
-# in 4-8 s instead of 12-50 s)
-NORMAL_SWEEP_PROBES = 16
 # the first pass linearises at this multiple of position SURE's choice, the middle of NORMAL_SCALES: at SURE's own
 # choice a rough mesh's J overstates the turns of further smoothing (filtering on Fandisk0.3 stayed at 1 step, its
 # normal oracle 2; from the middle it found 2)
@@ -421,9 +415,9 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
                        start: float, candidates: Sequence[float], rho: float, *,
                        colour: Callable[[np.ndarray, float], np.ndarray] | None = None,
                        probes: int | None = None, iterations: int = NORMAL_ITERATIONS,
-                       additive: bool = False, first: float | None = None, rows: np.ndarray | None = None,
+                       first: float | None = None, rows: np.ndarray | None = None,
                        exact: bool | None = None, guard_above: float | None = None, seed: int = 0,
-                       resume: bool = False, edge_length: float | None = None,
+                       edge_length: float | None = None,
                        spectral: Callable[[float], Spectral] | None = None,
                        config: SpectralConfig | None = None) -> NormalChoice:
     """The parameter of a linear smoother with the least estimated face-normal risk (:func:`normal_risk`).
@@ -464,22 +458,15 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
         ``colour(Z, s)``: probes ``Z`` (n, P) coloured like correlated noise
         (:meth:`~meshdenoise.tuning.context.TuningContext.colour`); none for independent noise.
     probes : int, optional
-        Default :func:`normal_probe_count`, at most :data:`NORMAL_SWEEP_PROBES` with ``additive``.
+        Default :func:`normal_probe_count`.
     iterations : int
-    additive : bool
-        ``apply(b, apply(a, X)) == apply(a + b, X)`` (iteration counts, diffusion times): the
-        candidates are then reached by running on from the previous one, in one run that stops
-        :data:`NORMAL_PATIENCE` candidates past the least risk. Otherwise each pass descends
-        from the candidate nearest the value it linearised at to a local minimum (a few solves).
+        Most passes; each descends from the candidate nearest the value it linearised at to a local
+        minimum (a few solves).
     first : float, optional
         The value whose result the first pass linearises at (default ``start``).
     edge_length : float, optional
         The mean edge length ``rho`` is compared with (:data:`NORMAL_LINEAR_MAX`); default the
         first pass's mesh's (a smoothed mesh: the noisy one's edges grow with the noise).
-    resume : bool
-        ``apply`` is additive (as for ``additive``) but the search descends as without it: each
-        candidate's run starts from the result of the nearest smaller candidate the pass has
-        kept (the last :data:`NORMAL_RESUME_KEEP`), the same results for fewer steps.
     spectral : callable, optional
         ``spectral(value)``: the map at ``value`` as :math:`S^{-1} g(M) S`
         (:class:`~meshdenoise.tuning.spectral.Spectral`, every value on the same ``M``). From
@@ -532,8 +519,6 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
         raise ValueError(f"refine_for_normals: rho must be finite and > 0, got {rho!r}")
     if probes is None:
         probes = normal_probe_count(V.shape[0])
-        if additive:
-            probes = min(probes, NORMAL_SWEEP_PROBES)
     if int(probes) < 1 or int(iterations) < 1:
         raise ValueError(f"refine_for_normals: probes and iterations must be >= 1, got {probes!r}, {iterations!r}")
     n = V.shape[0]
@@ -571,18 +556,10 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
 
     def search(at: int, result: Callable[[int], _Result], score: Callable[[int, _Result], None],
                risks: dict[int, float]) -> None:
-        """Score candidates into ``risks``: along the values until PATIENCE past the best (additive), or a descent
-        from ``at`` to a local minimum."""
-        if additive:
-            for i in range(len(values)):
-                score(i, result(i))
-                if i - min(risks, key=risks.get) >= NORMAL_PATIENCE:
-                    break
-            return
+        """Score candidates into ``risks``: a descent from ``at`` to a local minimum."""
         cur = at  # descend from the candidate linearised at (the risk is smooth in log value)
         while True:
-            # cur first: its result was just computed for R (a cached factor); resumed runs go upwards
-            for j in (cur - 1, cur, cur + 1) if resume else (cur, cur - 1, cur + 1):
+            for j in (cur, cur - 1, cur + 1):  # cur first: its result was just computed for R (a cached factor)
                 if 0 <= j < len(values) and j not in risks:
                     score(j, result(j))
             nxt = min((j for j in (cur - 1, cur, cur + 1) if j in risks), key=risks.get)
@@ -591,26 +568,11 @@ def refine_for_normals(V: np.ndarray, F: np.ndarray, apply: Callable[[float, np.
             cur = nxt
 
     def run_results(B: np.ndarray, duals: list[np.ndarray]) -> Callable[[int], _Result]:
-        """Each candidate's result by the filter on ``[V, B]``: one run on from each candidate to the next
-        (additive), each count on from the nearest kept below (resume), or one run per candidate."""
+        """Each candidate's result by the filter on ``[V, B]``, one run per candidate."""
         VB = np.hstack([V, B])
-        state: dict = {"block": VB, "done": 0.0}
-        runs: dict[int, np.ndarray] = {}  # resume: the last results, each run on from the nearest below
 
         def result(j: int) -> _Result:
-            value = values[j]
-            if additive:  # asked in increasing order
-                if value > state["done"]:
-                    state["block"], state["done"] = apply(value - state["done"], state["block"]), value
-                out = state["block"]
-            elif resume:
-                below = [i for i in runs if i < j]
-                out = apply(value, VB) if not below else apply(value - values[max(below)], runs[max(below)])
-                runs[j] = out
-                while len(runs) > NORMAL_RESUME_KEEP:
-                    del runs[next(iter(runs))]  # the oldest
-            else:
-                out = apply(value, VB)
+            out = apply(values[j], VB)
             return _Result(out[:, :3], out=out)
 
         return result

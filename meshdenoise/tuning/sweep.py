@@ -121,12 +121,17 @@ class Sweep:
     additive : bool
         Running the filter at ``a`` then at ``b`` is running it at ``a + b`` (counts of one run): the
         states are read along one run instead of one run per value.
+    along : callable, optional
+        The filter's own reading of one run: ``along(fixed, values, F, ops)`` gives ``path(Y)``, the
+        states at each of ``values`` (counts of one run whose later states depend on its input, as
+        ``two_stage`` restoring its input's tangential parts); used instead of ``additive``.
     """
 
     parameter: str
     values: tuple
     fixed: tuple = ()
     additive: bool = False
+    along: Callable[..., Path] | None = None
 
     def __post_init__(self):
         if not self.values:
@@ -145,7 +150,7 @@ class Sweep:
         own = dict(self.fixed)
         fixed = {**own, **{k: v for k, v in given.items() if k != self.parameter}}
         additive = self.additive and all(fixed[k] == v for k, v in own.items())
-        return Sweep(self.parameter, self.values, tuple(fixed.items()), additive)
+        return Sweep(self.parameter, self.values, tuple(fixed.items()), additive, self.along)
 
 
 # run(Y, F, ops, params) -> the filter's positions (n, 3) on the mesh (Y, F) with its operators
@@ -155,6 +160,8 @@ Runner = Callable[[np.ndarray, np.ndarray, Operators, dict], np.ndarray]
 def sweep_path(sweep: Sweep, run: Runner, F: np.ndarray, ops: Operators) -> Path:
     """``path(Y)``: the filter's positions at each of the sweep's values, from ``Y`` (n, 3)."""
     fixed = dict(sweep.fixed)
+    if sweep.along is not None:
+        return sweep.along(fixed, sweep.values, F, ops)
 
     def path(Y: np.ndarray) -> Iterator[np.ndarray]:
         if sweep.additive:  # one run, read at each count: the step from the previous count only
@@ -202,3 +209,26 @@ class HeldOutRule:
         best = min(range(len(sweeps)), key=lambda i: float(np.min(losses[i])))
         k = int(np.argmin(losses[best]))
         return {**sweeps[best].params(k), **given}, float(losses[best][k])
+
+    def oracle(self, V: np.ndarray, F: np.ndarray, ops: Operators, run: Runner, given: dict,
+               reference: np.ndarray) -> tuple[dict, float]:
+        """``(parameters, least squared error)``: the value of the sweeps closest to the clean ``reference`` (n, 3)
+        (the sum of the squared distances of the vertices), each sweep read on the whole mesh up to
+        ``config.patience`` values past its least error. For benchmarks: the best this rule could choose."""
+        sweeps = [s.with_given(given) for s in self.sweeps if s.parameter not in given]
+        if not sweeps:
+            return dict(given), float("nan")
+        best, at = float("inf"), dict(given)
+        for s in sweeps:
+            least, since = float("inf"), 0
+            for k, X in enumerate(sweep_path(s, run, F, ops)(V)):
+                err = float(np.sum((X - reference) ** 2))
+                if err < least:
+                    least, since = err, 0
+                    if err < best:
+                        best, at = err, {**s.params(k), **given}
+                else:
+                    since += 1
+                    if since >= self.config.patience:
+                        break
+        return at, best
