@@ -87,6 +87,26 @@ def test_the_fused_pass_with_one_exponential_matches_two_exact_ones(mesh, sigma_
     np.testing.assert_allclose(out, numpy_pass(N, C, A, nb, ds, dr), rtol=0, atol=1e-14)
 
 
+def test_the_exponential_with_fma_is_within_one_ulp_of_numpys_and_zero_below_its_floor():
+    """exp_nonpositive as the pair kernels compile it (FMA contraction, ``PAIR_MATH``)."""
+    from meshdenoise.kernels import EXP_FLOOR, exp_nonpositive, njit
+
+    @njit(fastmath=kernels.PAIR_MATH)
+    def contracted(buf):
+        exp_nonpositive(buf, buf.size)
+
+    rng = np.random.default_rng(3)
+    x = -np.concatenate([rng.random(200_000) * 30, rng.random(20_000) * -EXP_FLOOR, np.logspace(-300, 2.8, 2_000),
+                         [0.0, 5e-324, 1e-17, 0.5 * np.log(2), np.log(2), 699.99]])
+    y = x.copy()
+    contracted(y)
+    exact = np.exp(x)
+    assert np.all(np.abs(y - exact) <= np.spacing(exact)), np.max(np.abs(y - exact) / np.spacing(exact))
+    below = np.array([EXP_FLOOR - 1e-9, -745.0, -1e300, -np.inf])
+    contracted(below)
+    np.testing.assert_array_equal(below, 0.0)
+
+
 def test_a_weight_deep_in_the_tail_is_zero_not_garbage():
     """With a spatial scale far below the spacing every exponent but a face's own is under -700: weight 0, so each
     face keeps its own normal (and the guided kernel's spatial weights are exactly 0 off the diagonal)."""
