@@ -30,9 +30,9 @@ def fit_vertices(X, F, N, corner_ptr, corners, scale, iterations, C):  # pragma:
 
     Each step's face pass stores ``d_f = n_f . c_f`` (its first ``m`` numbers), and the vertex pass
     takes ``n_f . (c_f - x_i)`` as ``d_f - n_f . x_i``: 8 bytes a face written and gathered instead
-    of the centroid's 24. The difference rounds differently by about an ulp of ``|x|`` (the
-    centroid's own rounding is that size): with ``x`` scaled to an extent near 1, under 1e-16 of
-    the extent a step.
+    of the centroid's 24. A step's move rounds differently by about an ulp of ``|x|``, the size of
+    the centroid's own rounding (tests/test_two_stage_kernel.py holds the result to 1e-12 of the
+    numpy code's).
     """
     m = F.shape[0]
     n = X.shape[0]
