@@ -27,7 +27,7 @@ import numpy as np
 __all__ = [
     "Param", "AutoRule", "FilterSpec", "register", "get_filter", "list_filters", "apply_filter", "REGISTRY",
     "parse_number", "MAX_ITERATIONS", "ParameterError", "UnknownFilterError", "FilterOption", "COMMON_OPTIONS",
-    "KEYWORD_OPTIONS", "STEP_OPTIONS",
+    "KEYWORD_OPTIONS", "STEP_OPTIONS", "ParameterTypeError", "ParameterValueError",
 ]
 
 
@@ -39,6 +39,24 @@ class ParameterError(ValueError):
     parameters and their values (``heat``'s ``tau`` out of its stable range on this mesh): the registry
     passes it on as it is, and words any other failure of the core itself (:func:`_run_filter`).
     """
+
+
+class _AboutParameter:
+    """The error of one parameter: :attr:`parameter` names it, so that a caller can point at it (a pipeline's
+    error names the line of that key in its file) without reading the message."""
+
+    def __init__(self, message: str = "", parameter: str | None = None) -> None:
+        super().__init__(message)
+        self.parameter = parameter
+
+
+class ParameterTypeError(_AboutParameter, TypeError):
+    """A parameter given a value of the wrong type, or a parameter the filter does not have."""
+
+
+class ParameterValueError(_AboutParameter, ValueError):
+    """A parameter's value out of its range or not among its choices."""
+
 
 #: Upper bound of every iteration or step count (``iterations``, heat's ``ceil(time / tau)``...):
 #: a count above it would run for hours and is refused before anything is allocated.
@@ -140,40 +158,46 @@ class Param:
 
         Raises
         ------
-        TypeError
-            Wrong type (``True`` is not an ``int``; ``2.5`` is not an ``int``).
-        ValueError
+        ParameterTypeError
+            Wrong type (``True`` is not an ``int``; ``2.5`` is not an ``int``); a ``TypeError``.
+        ParameterValueError
             Out of range or not among the choices; the message names the parameter,
-            the value and the allowed range.
+            the value and the allowed range; a ``ValueError``. Both carry ``parameter``, this one's name.
         """
         prefix = f"{where}: " if where else ""
         k = self.kind
         if k is bool:
             if not isinstance(value, (bool, np.bool_)):
-                raise TypeError(f"{prefix}parameter '{self.name}' must be True or False, got {value!r}")
+                raise ParameterTypeError(f"{prefix}parameter '{self.name}' must be True or False, got {value!r}",
+                                         self.name)
             return bool(value)
         if k is str:
             if not isinstance(value, str):
-                raise TypeError(f"{prefix}parameter '{self.name}' must be a string, got {value!r}")
+                raise ParameterTypeError(f"{prefix}parameter '{self.name}' must be a string, got {value!r}", self.name)
             if self.choices is not None and value not in self.choices:
                 hint = difflib.get_close_matches(value, self.choices, n=1)
                 extra = f" (did you mean {hint[0]!r}?)" if hint else ""
-                raise ValueError(
-                    f"{prefix}parameter '{self.name}' = {value!r} is not allowed: {self.range_text()}{extra}"
+                raise ParameterValueError(
+                    f"{prefix}parameter '{self.name}' = {value!r} is not allowed: {self.range_text()}{extra}",
+                    self.name,
                 )
             return value
         try:
             value = parse_number(value, k)
         except OverflowError:  # an integer of hundreds of digits for a float parameter
-            raise ValueError(f"{prefix}parameter '{self.name}' = {value!r} is too large for a float ({self.range_text()})") from None
+            raise ParameterValueError(f"{prefix}parameter '{self.name}' = {value!r} is too large for a float ({self.range_text()})",
+                                      self.name) from None
         except TypeError:
-            raise TypeError(f"{prefix}parameter '{self.name}' must be a{'n' if k is int else ''} {k.__name__}, got {value!r}") from None
+            raise ParameterTypeError(f"{prefix}parameter '{self.name}' must be a{'n' if k is int else ''} {k.__name__}, got {value!r}",
+                                     self.name) from None
         if k is float and not math.isfinite(value):
-            raise ValueError(f"{prefix}parameter '{self.name}' = {value!r} must be finite ({self.range_text()})")
+            raise ParameterValueError(f"{prefix}parameter '{self.name}' = {value!r} must be finite ({self.range_text()})",
+                                      self.name)
         too_low = self.low is not None and (value <= self.low if self.low_open else value < self.low)
         too_high = self.high is not None and (value >= self.high if self.high_open else value > self.high)
         if too_low or too_high:
-            raise ValueError(f"{prefix}parameter '{self.name}' = {value!r} is out of range: {self.range_text()}")
+            raise ParameterValueError(f"{prefix}parameter '{self.name}' = {value!r} is out of range: {self.range_text()}",
+                                      self.name)
         return value
 
     def describe(self) -> dict:
@@ -265,7 +289,13 @@ class FilterSpec:
         raise KeyError(name)
 
     def resolve(self, given: dict, where: str = "") -> dict:
-        """Check the given parameters (names, types, ranges) and fill in defaults."""
+        """Check the given parameters (names, types, ranges) and fill in defaults.
+
+        Raises
+        ------
+        ParameterTypeError, ParameterValueError
+            As :meth:`Param.check`; an unknown name is a ``ParameterTypeError`` whose ``parameter`` is that name.
+        """
         known = {p.name for p in self.params}
         prefix = f"{where}: " if where else f"filter '{self.name}': "
         for key in given:
@@ -273,7 +303,7 @@ class FilterSpec:
                 hint = difflib.get_close_matches(key, sorted(known | KEYWORD_OPTIONS), n=1)
                 extra = f" (did you mean '{hint[0]}'?)" if hint else ""
                 allowed = ", ".join(sorted(known)) or "none"
-                raise TypeError(f"{prefix}unknown parameter '{key}'{extra}; its parameters are: {allowed}")
+                raise ParameterTypeError(f"{prefix}unknown parameter '{key}'{extra}; its parameters are: {allowed}", key)
         return {p.name: p.check(given.get(p.name, p.default), prefix.rstrip(": ")) for p in self.params}
 
 

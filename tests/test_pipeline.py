@@ -557,6 +557,32 @@ def test_one_parameter_check_for_our_filters_builtin_open3d_and_pymeshlab_steps(
         parse_step({"apply_coord_taubin_smoothing": {"lambda_": float("nan")}}, 1, "t.yaml", 1)
 
 
+def test_errors_carry_their_parameter_and_a_step_error_names_its_key_line(tmp_path):
+    """The checks attach the key an error is about (``exc.parameter``); the step's parser names that key's line
+    from it, not from what the message quotes ('mux' below suggests 'mu', on the line above)."""
+    from meshdenoise.pipeline import pymeshlab_steps
+    from meshdenoise.registry import ParameterTypeError, ParameterValueError, get_filter
+
+    spec = get_filter("sobolev")
+    for given, kind, key in (({"mu": -1}, ParameterValueError, "mu"), ({"mu": "x"}, ParameterTypeError, "mu"),
+                             ({"mux": 1}, ParameterTypeError, "mux")):
+        with pytest.raises(kind) as info:
+            spec.resolve(given, "here")
+        assert info.value.parameter == key and isinstance(info.value, (TypeError, ValueError))
+    with pytest.raises(ValueError) as info:
+        pymeshlab_steps.check_parameters("apply_coord_laplacian_smoothing", {"stepsmothnum": 3}, "here")
+    assert info.value.parameter == "stepsmothnum"
+    _sphere_file(tmp_path)
+    for steps, line, expected in (
+        ("  - sobolev:\n      mu: 1\n      mux: 2\n", 6, "unknown parameter 'mux' (did you mean 'mu'?)"),
+        ("  - sobolev:\n      mu: 1\n      preserve_volume: 3\n", 6, "preserve_volume must be true or false, got 3"),
+    ):
+        p = _write(tmp_path, f"inputs: s.ply\noutput_dir: {tmp_path / 'out'}\nsteps:\n{steps}")
+        result = _run("run", "--check", p)
+        assert result.exit_code == 2 and f"{p}:{line}: step 1 'sobolev': " in result.output, result.output
+        assert expected in result.output, result.output
+
+
 @pytest.mark.parametrize(
     "path, expected",
     [("{stem:>99999999999}.ply", "width 99999999999 is more than 255"), ("{stem.ply", "path template '{stem.ply'"),

@@ -327,11 +327,7 @@ def denoise_command(input_path, output_path, method, params, defaults, pinned, r
     task = Task(0, src.resolve(), {}, "", [step, save], {str(target): target})
 
     def echo(message) -> None:
-        text = str(message)
-        if ": warning: " in text:
-            err_console.print(Text.assemble(("warning:", "yellow"), " ", text.split(": warning: ", 1)[1]))
-        else:
-            console.print(text)
+        console.print(str(message))
 
     from ..kernels import compiled_here
     from ..progress import LogProgress, RichProgress, listening

@@ -10,7 +10,15 @@ class PipelineError(Exception):
 
 
 class PipelineValidationError(PipelineError, ValueError):
-    """The pipeline is invalid; the message names the file, the line and the step. Nothing was run."""
+    """The pipeline is invalid; the message names the file, the line and the step. Nothing was run.
+
+    ``parameter`` names the step's key the error is about, when it is about one (the step's parser then
+    names that key's line instead of the step's).
+    """
+
+    def __init__(self, message: str = "", parameter: str | None = None) -> None:
+        super().__init__(message)
+        self.parameter = parameter
 
 
 class StepFailure(PipelineError, RuntimeError):

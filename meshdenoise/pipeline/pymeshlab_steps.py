@@ -33,6 +33,7 @@ from typing import Any
 
 import numpy as np
 
+from ..registry import Param, ParameterValueError
 from .meshlab_names import FILTERS, _probe
 
 __all__ = ["filter_names", "parameter_types", "check_parameters", "check_value", "to_pymeshlab_value", "PERCENT"]
@@ -115,11 +116,9 @@ def check_value(param: str, value: Any, info: dict, where: str) -> Any:
 
     Raises
     ------
-    ValueError
-        Naming ``where``, the parameter, the value and the MeshLab type.
+    meshdenoise.registry.ParameterValueError
+        Naming ``where``, the parameter, the value and the MeshLab type; ``parameter`` is ``param``.
     """
-    from ..registry import Param
-
     t = info["type"]
     kind = _SCALAR_KINDS.get(t)
     if kind is not None:
@@ -128,10 +127,10 @@ def check_value(param: str, value: Any, info: dict, where: str) -> Any:
         try:
             return Param(param, kind, info.get("default"), low=low, high=high).check(value, where)
         except (TypeError, ValueError, OverflowError) as exc:
-            raise ValueError(f"{exc} ({t})") from None
+            raise ParameterValueError(f"{exc} ({t})", param) from None
     problem = _check_other(value, info)
     if problem:
-        raise ValueError(f"{where}: parameter '{param}' = {value!r} {problem} ({t})")
+        raise ParameterValueError(f"{where}: parameter '{param}' = {value!r} {problem} ({t})", param)
     return value
 
 
@@ -140,9 +139,9 @@ def check_parameters(name: str, given: dict, where: str) -> dict:
 
     Raises
     ------
-    ValueError
+    meshdenoise.registry.ParameterValueError
         Unknown parameter (with "did you mean" and the full list) or a badly typed value,
-        naming ``where`` (file, line, step).
+        naming ``where`` (file, line, step); ``parameter`` is the key.
     """
     types = parameter_types(name)
     out = {}
@@ -151,7 +150,8 @@ def check_parameters(name: str, given: dict, where: str) -> dict:
             hint = difflib.get_close_matches(str(key), list(types), n=1)
             extra = f" (did you mean '{hint[0]}'?)" if hint else ""
             allowed = ", ".join(types) or "none"
-            raise ValueError(f"{where}: pymeshlab filter '{name}' has no parameter '{key}'{extra}; its parameters: {allowed}")
+            raise ParameterValueError(f"{where}: pymeshlab filter '{name}' has no parameter '{key}'{extra}; "
+                                      f"its parameters: {allowed}", key)
         out[key] = check_value(key, value, types[key], where)
     return out
 

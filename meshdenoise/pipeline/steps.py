@@ -124,7 +124,7 @@ def _check_params(params: list[Param], given: dict, at: str) -> dict:
     try:
         return FilterSpec("", "", tuple(params), core=None).resolve(given, at)
     except (TypeError, ValueError) as exc:
-        raise PipelineValidationError(str(exc)) from None
+        raise PipelineValidationError(str(exc), getattr(exc, "parameter", None)) from None
 
 
 def _check_vertex_spec(key: str, value: Any, at: str, keywords: tuple[str, ...]) -> Any:
@@ -132,11 +132,13 @@ def _check_vertex_spec(key: str, value: Any, at: str, keywords: tuple[str, ...])
         if value not in keywords:
             hint = difflib.get_close_matches(value, keywords, n=1)
             extra = f" (did you mean '{hint[0]}'?)" if hint else ""
-            raise PipelineValidationError(f"{at}: {key}: {value!r} is not understood{extra}; use {', '.join(keywords)} or a list of vertex indices")
+            raise PipelineValidationError(f"{at}: {key}: {value!r} is not understood{extra}; use {', '.join(keywords)} "
+                                          "or a list of vertex indices", key)
         return value
     if isinstance(value, list) and all(isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in value):
         return list(value)
-    raise PipelineValidationError(f"{at}: {key}: expected {', '.join(keywords)} or a list of vertex indices, got {value!r}")
+    raise PipelineValidationError(f"{at}: {key}: expected {', '.join(keywords)} or a list of vertex indices, got {value!r}",
+                                  key)
 
 
 def _filter_options(given: dict, at: str, allowed: tuple[str, ...] = tuple(sorted(COMMON))) -> tuple[dict, dict]:
@@ -153,18 +155,19 @@ def _filter_options(given: dict, at: str, allowed: tuple[str, ...] = tuple(sorte
             options[key] = _check_vertex_spec(key, value, at, option.choices)
         elif option.type == "bool":
             if not isinstance(value, bool):
-                raise PipelineValidationError(f"{at}: {key} must be true or false, got {value!r}")
+                raise PipelineValidationError(f"{at}: {key} must be true or false, got {value!r}", key)
             options[key] = value
         elif key == "noise":
             try:
                 options[key] = parse_noise_option(value, f"{at}: noise")
             except ValueError as exc:
-                raise PipelineValidationError(str(exc)) from None
+                raise PipelineValidationError(str(exc), key) from None
         else:
             if value not in option.choices:
                 hint = difflib.get_close_matches(str(value), option.choices, n=1)
                 extra = f" (did you mean '{hint[0]}'?)" if hint else ""
-                raise PipelineValidationError(f"{at}: {key} must be {_in_words(option.choices)}, got {value!r}{extra}")
+                raise PipelineValidationError(f"{at}: {key} must be {_in_words(option.choices)}, got {value!r}{extra}",
+                                              key)
             options[key] = value
     return options, rest
 
@@ -181,7 +184,7 @@ def _check_criterion(name: str, criterion: str, at: str) -> None:
 
     if criterion == "normals" and name not in normal_filters():
         raise PipelineValidationError(f"{at}: criterion 'normals' is for the filters with a rule for it "
-                                      f"({', '.join(normal_filters())}), not '{name}'")
+                                      f"({', '.join(normal_filters())}), not '{name}'", "criterion")
 
 
 def _our_filter(index, name, given, label, source, line) -> Step:
@@ -190,11 +193,11 @@ def _our_filter(index, name, given, label, source, line) -> Step:
     options, rest = _filter_options(given, at)
     if "noise" in options and options.get("parameters") != "auto":
         raise PipelineValidationError(f"{at}: noise: the noise level is used only to choose parameters: add "
-                                      "'parameters: auto', or leave noise out")
+                                      "'parameters: auto', or leave noise out", "noise")
     if "criterion" in options:
         if options.get("parameters") != "auto":
             raise PipelineValidationError(f"{at}: criterion: it says how parameters are chosen: add 'parameters: auto', "
-                                          "or leave criterion out")
+                                          "or leave criterion out", "criterion")
         _check_criterion(name, options["criterion"], at)
     try:
         if options.get("parameters") == "auto":
@@ -203,7 +206,7 @@ def _our_filter(index, name, given, label, source, line) -> Step:
         else:
             params = spec.resolve(rest, at)
     except (TypeError, ValueError) as exc:
-        raise PipelineValidationError(str(exc)) from None
+        raise PipelineValidationError(str(exc), getattr(exc, "parameter", None)) from None
     return Step(index, name, "ours", params, label, source, line, options)
 
 
@@ -473,10 +476,9 @@ def _parse(name, given, index, label, source, line, at_param) -> Step:
         try:
             return _our_filter(index, name, given, label, source, line)
         except PipelineValidationError as exc:
-            key = _named_key(str(exc), given)
-            if key is not None:
-                raise PipelineValidationError(str(exc).replace(at, at_param(key), 1)) from None
-            raise
+            if exc.parameter is None:
+                raise
+            raise _at_its_key(exc, at, at_param) from None
     if name.startswith("open3d."):
         op = name[len("open3d."):]
         if op not in OPEN3D_OPS:
@@ -511,9 +513,7 @@ def _parse(name, given, index, label, source, line, at_param) -> Step:
         try:
             params = pymeshlab_steps.check_parameters(canonical, given, at)
         except ValueError as exc:
-            key = _named_key(str(exc), given)
-            msg = str(exc) if key is None else str(exc).replace(at, at_param(key), 1)
-            raise PipelineValidationError(msg) from None
+            raise _at_its_key(exc, at, at_param) from None
         return Step(index, canonical, "pymeshlab", params, label, source, line, notes=[f"{at}: {n}" for n in renamed])
     _ = bad_key
     raise _unknown_step(name, at)
@@ -587,16 +587,16 @@ def denoise_step(given: dict, index: int | None = None, label: str | None = None
     try:
         checked = spec.resolve(rest, at)  # the values given, checked; the rule (or the defaults) fills the others
     except (TypeError, ValueError) as exc:
-        key = _named_key(str(exc), rest)
-        raise PipelineValidationError(str(exc) if key is None else str(exc).replace(at, at_param(key), 1)) from None
+        raise _at_its_key(exc, at, at_param) from None
     options.update(flags)
     options["method"] = method
     options.setdefault("boundary_motion", "normal")
     return Step(index, "denoise", "default", {k: checked[k] for k in rest}, label, source, line, options)
 
 
-def _named_key(message: str, given: dict) -> str | None:
-    for key in given:
-        if f"'{key}'" in message or f"{key}:" in message:
-            return key
-    return None
+def _at_its_key(exc: Exception, at: str, at_param) -> PipelineValidationError:
+    """``exc`` as a validation error said at the line of the key it is about (its ``parameter``, set where it was
+    raised), or at the step's line ``at`` when it is about no one key."""
+    key = getattr(exc, "parameter", None)
+    text = str(exc) if key is None else str(exc).replace(at, at_param(key), 1)
+    return PipelineValidationError(text, key)
