@@ -389,7 +389,7 @@ def oracle_sobolev_axes(V0, F, Vn, auto: dict, scorer: Scorer) -> dict:
 
 
 def oracle_sobolev_gls(V0, F, Vn, auto: dict, scorer: Scorer) -> dict:
-    from meshdenoise.plugins.sobolev_gls import SOBOLEV_GLS_BETAS
+    from meshdenoise.plugins.sobolev_gls_rule import SOBOLEV_GLS_BETAS
     from meshdenoise.registry import apply_filter
 
     order = int(auto["params"].get("order", 3))

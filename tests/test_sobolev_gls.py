@@ -7,7 +7,7 @@ import pytest
 
 from meshdenoise import add_normal_noise, snr
 from meshdenoise.tuning import choose_parameters
-from meshdenoise.plugins.sobolev_gls import SOBOLEV_GLS_BETAS, SOBOLEV_GLS_SPREAD_SAMPLES, choose_sobolev_gls
+from meshdenoise.plugins.sobolev_gls_rule import SOBOLEV_GLS_BETAS, SOBOLEV_GLS_SPREAD_SAMPLES, choose_sobolev_gls
 from meshdenoise.tuning import TuningContext
 from meshdenoise.tuning.noise_level import normal_spread
 from meshdenoise.geometry import vertex_normals
@@ -152,6 +152,7 @@ def test_sobolev_gls_one_ring_pcg_path_solves_the_dense_system(monkeypatch, orde
     """From GlsConfig.factor_free_min_vertices (0 here) with no factor stored and CG's bound past
     GlsConfig.factor_free_cg_bound (0 here): both solves by CG preconditioned by the one-ring factor's (L + aI)^-p (ShiftedPCG), no factor of
     I + mu L^p; against the (reduced) dense system."""
+    import meshdenoise.plugins._gls_solve as gls_solve
     import meshdenoise.plugins.sobolev_gls as sg
     from meshdenoise.operators import clear_cache
 
@@ -165,8 +166,9 @@ def test_sobolev_gls_one_ring_pcg_path_solves_the_dense_system(monkeypatch, orde
     config = GlsConfig(factor_free_min_vertices=0, factor_free_cg_bound=0.0, dense_max_vertices=0, filter_tol=1e-12)
     clear_cache()
     real = sg.shifted_solver
-    monkeypatch.setattr(sg, "shifted_solver", lambda *a, **k: real(*a, **k) if a[4:] == ("pcg",)
-                        else pytest.fail("a factor was built"))
+    for module in (sg, gls_solve):
+        monkeypatch.setattr(module, "shifted_solver", lambda *a, **k: real(*a, **k) if a[4:] == ("pcg",)
+                            else pytest.fail("a factor was built"))
     got = _gls((Vn, F), config, pinned if held else None, mu=mu, beta=beta, order=order)
     assert np.array_equal(got[pinned], Vn[pinned])
     np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
@@ -186,6 +188,7 @@ def test_sobolev_gls_factor_free_path_with_held_rows_solves_the_reduced_dense_sy
     """With held rows (the border option's second run) and CG's bound under GlsConfig.factor_free_cg_bound the filter
     factorises nothing either: Jacobi CG for the isotropic pass, block-Jacobi CG on the free rows for the correction.
     The reference is the reduced dense system, as in the test above."""
+    import meshdenoise.plugins._gls_solve as gls_solve
     import meshdenoise.plugins.sobolev_gls as sg
     from meshdenoise.operators import clear_cache
 
@@ -198,8 +201,9 @@ def test_sobolev_gls_factor_free_path_with_held_rows_solves_the_reduced_dense_sy
     config = GlsConfig(factor_free_min_vertices=0, factor_free_cg_bound=np.inf, filter_tol=1e-12)
     clear_cache()
     real = sg.shifted_solver
-    monkeypatch.setattr(sg, "shifted_solver", lambda *a, **k: real(*a, **k) if a[4:] == ("cg",)
-                        else pytest.fail("a factor was built"))
+    for module in (sg, gls_solve):
+        monkeypatch.setattr(module, "shifted_solver", lambda *a, **k: real(*a, **k) if a[4:] == ("cg",)
+                            else pytest.fail("a factor was built"))
     got = _gls((Vn, F), config, pinned, mu=mu, beta=beta, order=order)
     assert np.array_equal(got[pinned], Vn[pinned])
     np.testing.assert_allclose(got, y.reshape(n, 3), atol=1e-8)
@@ -408,6 +412,7 @@ def test_sobolev_gls_factor_free_path_matches_the_dense_solve(monkeypatch, mu, b
     """From GlsConfig.iterative_min_vertices (0 here: gate "size"), or from GlsConfig.factor_free_min_vertices under
     CG's bound (0 and none here: gate "bound") nothing is factorised: Lanczos passes and block-Jacobi CG (a cap of 3 iterations
     forces the Lanczos-preconditioned fallback); the dense 3n x 3n solve is the reference."""
+    import meshdenoise.plugins._gls_solve as gls_solve
     import meshdenoise.plugins.sobolev_gls as sg
     from meshdenoise.operators import clear_cache
 
@@ -423,7 +428,8 @@ def test_sobolev_gls_factor_free_path_matches_the_dense_solve(monkeypatch, mu, b
     config = GlsConfig(jacobi_max_iterations=jacobi_cap, **paths)
     clear_cache()
     built = []
-    monkeypatch.setattr(sg, "shifted_solver", lambda *a, **k: built.append(a) or pytest.fail("a factor was built"))
+    for module in (sg, gls_solve):
+        monkeypatch.setattr(module, "shifted_solver", lambda *a, **k: built.append(a) or pytest.fail("a factor was built"))
     # at the filter's tolerance: the correction D solves A D = b with A >= I (W >= I, L^p >= 0), so a relative
     # residual tol bounds its error by tol ||b||, ||b|| <= (beta - 1) ||X - X0|| (b a projection of (beta - 1)(X - X0))
     X0 = np.linalg.solve(np.eye(n) + mu * Lp, Vn)
@@ -463,7 +469,7 @@ def test_normal_weighted_cg_solves_the_dense_system_and_reports_non_convergence(
 
 def test_sobolev_gls_scored_rule_with_every_vertex_scored_is_the_whole_rule():
     """region_rule's scored mask: all True must give the whole-mesh rule's choice and score exactly."""
-    from meshdenoise.plugins.sobolev_gls import choose_sobolev_gls_whole
+    from meshdenoise.plugins.sobolev_gls_rule import choose_sobolev_gls_whole
     from meshdenoise.tuning.risk import Criterion
 
     V, F = torus(16, 8)
@@ -480,8 +486,8 @@ def test_sobolev_gls_scored_rule_with_every_vertex_scored_is_the_whole_rule():
 def test_sobolev_gls_region_mode_choice_and_refinement_against_the_whole_rule(monkeypatch):
     """loose=True (looser CG, warm starts) chooses what the whole rule chooses up to a golden step; with a previous
     choice beta is held and mu refined in a few candidates, landing near the whole rule's mu."""
-    import meshdenoise.plugins.sobolev_gls as sg
-    from meshdenoise.plugins.sobolev_gls import choose_sobolev_gls_whole
+    import meshdenoise.plugins.sobolev_gls_rule as sg
+    from meshdenoise.plugins.sobolev_gls_rule import choose_sobolev_gls_whole
     from meshdenoise.tuning.risk import Criterion
 
     V, F = torus(16, 8)
@@ -509,7 +515,7 @@ def test_a_loose_sweep_over_beta_alone_stops_at_the_sweep_tolerance_and_chooses_
     candidate's score within 1e-3 of it (relative)."""
     import logging
 
-    import meshdenoise.plugins.sobolev_gls as sg
+    import meshdenoise.plugins.sobolev_gls_rule as sg
     from meshdenoise.shapes import torus
     from meshdenoise.tuning.risk import Criterion
 

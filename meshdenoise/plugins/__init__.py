@@ -2,11 +2,13 @@
 
 Each module registers its filters with :func:`meshdenoise.registry.register`: the array
 core, its :class:`~meshdenoise.registry.Param` list and its automatic rule
-(:class:`~meshdenoise.registry.AutoRule`). A new filter is one new module, named after
-the filter it registers, added to ``MODULES`` below (tests/test_code_layout.py
-checks that every module of this folder is listed). A module whose name starts with ``_`` holds
-parts of one family and registers nothing (``_gls_solve``: ``sobolev_gls``' settings and its
-factor-free solve).
+(:class:`~meshdenoise.registry.AutoRule`), whose choice functions live in a module of their own next
+to it, ``<filter>_rule`` (``sobolev_gls_rule``), which the filter's module imports and which does not
+import it back (it reaches the filter through ``get_filter(name)``). A new filter is one new module,
+named after the filter it registers, added to ``MODULES`` below (tests/test_code_layout.py
+checks that every module of this folder is listed, or is a listed filter's rule). A module whose name
+starts with ``_`` holds parts of one family that its filter and its rule share, and registers nothing
+(``_gls_solve``: ``sobolev_gls``' settings and its solves).
 
 Each filter's settings (the sizes and bounds that choose its solve paths) are a frozen object in
 its module (``GlsConfig``, ``SinkhornConfig``, ...): its array core takes ``config=``

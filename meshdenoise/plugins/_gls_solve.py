@@ -1,23 +1,28 @@
-"""``sobolev_gls``' settings and its factor-free solve: block-Jacobi CG on the normal-weighted system.
+"""``sobolev_gls``' settings and its solves of the normal-weighted system, which its filter and its rule share.
 
 :class:`GlsConfig` holds the sizes and bounds that choose the filter's and its rule's solve paths
-(``plugins/sobolev_gls.py`` reads them; ``get_filter("sobolev_gls").core(..., config=)`` and
-``choose_parameters(..., config=)`` take another); :func:`normal_weighted_cg` solves
-:math:`(W + \\mu L^p \\otimes I_3)\\, Y = B` without a factor.
+(``plugins/sobolev_gls.py`` and ``plugins/sobolev_gls_rule.py`` read them; ``get_filter("sobolev_gls").core(...,
+config=)`` and ``choose_parameters(..., config=)`` take another); :func:`normal_weighted_cg` solves
+:math:`(W + \\mu L^p \\otimes I_3)\\, Y = B` without a factor, :func:`normal_weighted_solve` by CG preconditioned by
+the isotropic system (or densely on a small mesh).
 """
 
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
+import scipy.linalg as sla
 
 from ..operators import Operators, spmm
-from ..solvers import laplacian_power
-from ..tuning.config import check_fields
+from ..solvers import laplacian_power, shifted_solver
+from ..tuning.config import check_fields, resolve
 
-__all__ = ["GlsConfig", "DEFAULT", "CG_TOL", "normal_weighted_cg"]
+__all__ = ["GlsConfig", "DEFAULT", "CG_TOL", "CG_MAXITER", "normal_weighted_cg", "normal_weighted_solve", "apply_weight",
+           "correction_rhs"]
 
 CG_TOL = 1e-9  # relative residual of the preconditioned conjugate gradient (the rule's whole-mesh solves)
 
@@ -179,3 +184,130 @@ def normal_weighted_cg(
             P = Z
         rz = rz_new
     return Y, bool(math.sqrt(dot(R, R)) <= tol * norm0)
+
+
+CG_MAXITER = 300  # normal_weighted_solve's cap on CG steps before it warns
+
+
+def apply_weight(N: np.ndarray, beta: float, Y: np.ndarray) -> np.ndarray:
+    """:math:`W Y`, :math:`W_i = \\beta I - (\\beta - 1) N_i N_i^T`, for ``Y`` (n, 3) or (n, 3, k)."""
+    if Y.ndim == 2:
+        return beta * Y - (beta - 1.0) * N * np.sum(N * Y, axis=1, keepdims=True)
+    return beta * Y - (beta - 1.0) * N[:, :, None] * np.sum(N[:, :, None] * Y, axis=1, keepdims=True)
+
+
+def normal_weighted_solve(
+    ops: Operators, N: np.ndarray, beta: float, mu: float, order: int, B: np.ndarray,
+    pinned: np.ndarray | None = None, x0: np.ndarray | None = None, prec: Any = None, tol: float = CG_TOL,
+    config: GlsConfig | None = None,
+) -> np.ndarray:
+    """Solve :math:`(W + \\mu\\, L^p \\otimes I_3)\\, Y = B` by conjugate gradients, for one or several right-hand sides.
+
+    :math:`W` is block diagonal, :math:`W_i = \\beta I - (\\beta - 1) N_i N_i^T`
+    (``N`` (n, 3) unit rows, ``beta >= 1``); ``B`` is (n, 3) or (n, 3, k) (k independent
+    systems, each an (n, 3) array). The preconditioner is :math:`(I + \\mu L^p)^{-1}` on each
+    coordinate (the cached Cholesky factor of ``sobolev_axes``): :math:`I \\preceq W \\preceq \\beta I`,
+    so the preconditioned matrix has its spectrum in :math:`[1, \\beta]` and CG converges in
+    :math:`O(\\sqrt\\beta)` iterations whatever the mesh. With ``pinned`` vertices their rows
+    of ``x0`` are kept and the free rows solve the reduced system. ``prec`` (optional) applies
+    :math:`(I + \\mu L^p)^{-1}`, or an SPD approximation of it (zero on pinned rows), to an (n, c) array instead of the
+    factor. ``tol``: the
+    relative residual every system reaches. Up to ``config.dense_max_vertices`` vertices (:class:`GlsConfig`,
+    ``None``: its default) the system is solved directly instead (:func:`_dense_normal_weighted_solve`; ``tol`` and
+    ``prec`` unused).
+    """
+    many = B.ndim == 3
+    Bk = B if many else B[:, :, None]
+    n, _, k = Bk.shape
+    if n <= resolve(config, DEFAULT).dense_max_vertices:
+        start = x0 if x0 is None or many else x0[:, :, None]
+        Y = _dense_normal_weighted_solve(ops, N, beta, mu, order, Bk, pinned, start)
+        return Y if many else Y[:, :, 0]
+    M = laplacian_power(ops, order)
+    if prec is None:
+        S = shifted_solver(ops, mu, order, pinned)
+        # held rows with the product form (HeldByProduct): its free factors are the preconditioner (R is zero on the
+        # held rows and Z is zeroed there, so it is (A^-1)_ff: two more iterations on Bunny0.2, no inner CG)
+        S = getattr(S, "product", S)
+
+        def prec(R):
+            return S.solve(R.reshape(n, 3 * k)).reshape(n, 3, k)
+    else:
+        apply_inverse = prec
+
+        def prec(R):
+            return apply_inverse(R.reshape(n, 3 * k)).reshape(n, 3, k)
+
+    def A(Y):  # (n, 3, k)
+        return apply_weight(N, beta, Y) + mu * (M @ Y.reshape(n, 3 * k)).reshape(n, 3, k)
+
+    Y = np.zeros_like(Bk) if x0 is None else np.array(x0 if many else x0[:, :, None], dtype=np.float64)
+    free = None if pinned is None or not pinned.any() else ~pinned
+    R = Bk - A(Y)
+    if free is not None:
+        R[~free] = 0.0
+    Z = prec(R)
+    if free is not None:
+        Z[~free] = 0.0
+    P = Z.copy()
+    rz = np.einsum("ijk,ijk->k", R, Z)
+    norm0 = np.sqrt(np.einsum("ijk,ijk->k", Bk, Bk)) + 1e-300
+    for _ in range(CG_MAXITER):
+        if np.all(np.sqrt(np.einsum("ijk,ijk->k", R, R)) <= tol * norm0):
+            break
+        AP = A(P)
+        if free is not None:
+            AP[~free] = 0.0
+        pap = np.einsum("ijk,ijk->k", P, AP)
+        alpha = np.where(pap > 0, rz / np.where(pap > 0, pap, 1.0), 0.0)
+        Y += alpha * P
+        R -= alpha * AP
+        Z = prec(R)
+        if free is not None:
+            Z[~free] = 0.0
+        rz_new = np.einsum("ijk,ijk->k", R, Z)
+        P = Z + np.where(rz > 0, rz_new / np.where(rz > 0, rz, 1.0), 0.0) * P
+        rz = rz_new
+    else:
+        warnings.warn(
+            f"sobolev_gls: conjugate gradients did not reach a relative residual of {tol:g} in {CG_MAXITER} "
+            f"iterations (beta = {beta:g}); a smaller beta converges faster",
+            UserWarning,
+            stacklevel=3,
+        )
+    return Y if many else Y[:, :, 0]
+
+
+def _dense_normal_weighted_solve(
+    ops: Operators, N: np.ndarray, beta: float, mu: float, order: int, Bk: np.ndarray,
+    pinned: np.ndarray | None, x0: np.ndarray | None,
+) -> np.ndarray:
+    """:func:`normal_weighted_solve` on a small mesh: :math:`A = W + \\mu L^p \\otimes I_3` (index ``3i + d``)
+    formed densely and factorised by Cholesky, exact where CG stops at its tolerance. ``Bk`` (n, 3, k); pinned
+    rows keep ``x0``'s values (zero without it) and the free rows solve the reduced system, as CG does."""
+    n, _, k = Bk.shape
+    A = mu * np.kron(laplacian_power(ops, order).toarray(), np.eye(3))
+    blocks = A.reshape(n, 3, n, 3)
+    i = np.arange(n)
+    blocks[i, :, i, :] += beta * np.eye(3) - (beta - 1.0) * N[:, :, None] * N[:, None, :]
+    B2 = np.ascontiguousarray(Bk, dtype=np.float64).reshape(3 * n, k)
+    if pinned is None or not np.any(pinned):
+        return sla.cho_solve(sla.cho_factor(A, check_finite=False), B2, check_finite=False).reshape(n, 3, k)
+    Y = np.zeros((3 * n, k)) if x0 is None else np.array(x0, dtype=np.float64).reshape(3 * n, k)
+    free = np.repeat(~np.asarray(pinned, dtype=bool), 3)
+    rhs = B2[free] - A[np.ix_(free, ~free)] @ Y[~free]
+    Y[free] = sla.cho_solve(sla.cho_factor(A[np.ix_(free, free)], check_finite=False), rhs, check_finite=False)
+    return Y.reshape(n, 3, k)
+
+
+def correction_rhs(N: np.ndarray, beta: float, X: np.ndarray, X0: np.ndarray) -> np.ndarray:
+    """Right-hand side of the system for :math:`D = Y - X_0`: :math:`(\\beta - 1)(I - N N^T)(X - X_0)`.
+
+    From :math:`(I + \\mu K) X_0 = X`: :math:`(W + \\mu K) D = W X - (W + \\mu K) X_0 = (W - I)(X - X_0)`.
+    It does not see a translation of the mesh (unlike :math:`W X`), so the iterative
+    solve's tolerance is relative to the correction, not to the coordinates' magnitude. ``X``, ``X0``: (n, 3), or
+    (n, 3, k) for k systems.
+    """
+    R = X - X0
+    Nb = N if R.ndim == 2 else N[:, :, None]
+    return (beta - 1.0) * (R - Nb * np.sum(Nb * R, axis=1, keepdims=True))
