@@ -18,7 +18,7 @@ import pytest
 import meshdenoise as md
 from meshdenoise import kernels
 from meshdenoise.geometry import face_normals, vertex_face_incidence
-from meshdenoise.locality import Relabelling, relabelling
+from meshdenoise.locality import Relabelling, relabelled_operators, relabelling
 from meshdenoise.normal_filter import FaceNeighbourhood, two_stage_topology
 from meshdenoise.operators import Operators, clear_cache, get_operators
 from meshdenoise.policy import flipped_faces
@@ -156,6 +156,22 @@ def test_the_relabelling_from_given_operators_is_the_throwaway_adjacencys():
     with pytest.raises(ValueError, match="operators of"):
         clear_cache()
         relabelling(F, len(V), Operators(F[:-1], len(V)))
+    clear_cache()
+
+
+def test_the_relabelled_operators_carry_the_border_the_callers_operators_found(wavy):
+    V, F = wavy
+    perm = np.random.default_rng(7).permutation(len(V))
+    inverse = np.empty_like(perm)
+    inverse[perm] = np.arange(len(perm))
+    F2 = inverse[F]  # vertex k of this mesh is vertex perm[k] of the grid
+    clear_cache()
+    ops = Operators(F2, len(V))
+    r = relabelling(F2, len(V), ops)
+    ops.boundary_vertices
+    own = relabelled_operators(r, ops)
+    assert own is get_operators(r.faces, len(V)) and "_undirected_edges" not in own.__dict__
+    np.testing.assert_array_equal(own.boundary_vertices, Operators(r.faces, len(V)).boundary_vertices)
     clear_cache()
 
 

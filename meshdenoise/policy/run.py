@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from ..adapters import read_mesh
-from ..locality import LOCALITY_MIN_VERTICES, relabelling
+from ..locality import LOCALITY_MIN_VERTICES, relabelled_operators, relabelling
 from ..operators import get_operators
 from ..progress import stage
 from ..registry import get_filter
@@ -63,15 +63,18 @@ def run_default(mesh: Any, config: DefaultConfig | None = None, **options: Any) 
         return m.write(np.array(m.V, dtype=np.float64)), choice.rescaled(k)
     spec = get_filter(choice.method)
     with stage(f"running {choice.method}"):
-        if options.get("operators") is None:
-            # the vertex order the filter's run asks for (meshdenoise.locality, kept for it), from the adjacency the
-            # choice built: not a second one
-            relabelling(m.F, len(X), ops)
         if choice.method == "two_stage" and len(X) >= LOCALITY_MIN_VERTICES:
             # two_stage reads none of the vertex matrices of a large mesh (it runs in locality order, read from the
             # faces), and the guard reads the degrees and the border only: kept, the matrices dropped before the run's
             # peak (W, P and the edges: about 160 bytes per vertex)
             ops.degree, ops.boundary_vertices
+        if options.get("operators") is None:
+            # the vertex order the filter's run asks for (meshdenoise.locality, kept for it), from the adjacency the
+            # choice built: not a second one; its operators know the border already
+            r = relabelling(m.F, len(X), ops)
+            if r is not None:
+                relabelled_operators(r, ops)
+        if choice.method == "two_stage" and len(X) >= LOCALITY_MIN_VERTICES:
             ops.drop_matrices()
         Y = guard(choice, X, m.F, ops, lambda params: spec.public((X, m.F), **params, **options)[0],
                   config.unfold_rounds)
