@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
-from .kernels.topology import _csr_of_groups
+from .kernels.topology import relabel_faces
 from .operators import (  # noqa: F401 - far_side_fraction and its limits live with Operators.in_locality_order
     FAR_ROWS,
     FAR_SIDES_MAX,
@@ -82,12 +82,7 @@ class Relabelling:
         order = np.asarray(order, dtype=index)
         inverse = np.empty_like(order)
         inverse[order] = np.arange(order.size, dtype=index)
-        G = inverse[np.asarray(F)]
-        if len(G):  # rows by their least corner, stably: a counting sort (an argsort took 0.6 s at 1.6M vertices)
-            _, rows = _csr_of_groups(G.min(axis=1), order.size, index)
-            G = G[rows]
-        else:
-            G = G.reshape(0, 3)
+        G = relabel_faces(F, inverse) if len(F) else np.zeros((0, 3), dtype=index)  # rows by their least corner, stably
         for a in (order, inverse, G):
             a.flags.writeable = False
         return cls(order, inverse, np.ascontiguousarray(G))

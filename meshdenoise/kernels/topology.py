@@ -203,3 +203,41 @@ def patch_edge_lists(
     patch_edge = np.empty(int(patch_ptr[-1]), dtype=index_dtype)
     _patch_edges(indptr, indices, a_ptr, a_edges, a_other, patch_ptr, patch_edge, True)
     return patch_ptr, patch_edge
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def _least_corners(F, inverse, least):  # pragma: no cover - compiled
+    for f in prange(F.shape[0]):
+        least[f] = min(inverse[F[f, 0]], min(inverse[F[f, 1]], inverse[F[f, 2]]))
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _place_rows(F, inverse, least, ptr, out):  # pragma: no cover - compiled
+    at = ptr[:-1].copy()
+    for f in range(F.shape[0]):
+        row = at[least[f]]
+        at[least[f]] += 1
+        for k in range(3):
+            out[row, k] = inverse[F[f, k]]
+
+
+def relabel_faces(F: np.ndarray, inverse: np.ndarray) -> np.ndarray:
+    """``G = inverse[F]`` with its rows sorted stably by their least entry: ``G[np.argsort(G.min(axis=1), kind="stable")]``.
+
+    Faces on relabelled vertices (``inverse``: old label -> new), listed by their first vertex in the
+    new order. A counting sort in two passes over the faces, without ``G``, its row minima's argsort
+    and the gathered copy (0.6 s at 1.6M vertices, 3.6 s at 5M with the gather); the result has
+    ``inverse``'s type.
+    """
+    F = np.require(F, dtype=np.int64, requirements=["C"])
+    inverse = np.ascontiguousarray(inverse)
+    n, m = inverse.size, F.shape[0]
+    if F.size and (F.min() < 0 or F.max() >= n):
+        raise IndexError(f"relabel_faces: face indices must lie in 0 .. {n - 1}")
+    least = np.empty(m, dtype=inverse.dtype)
+    _least_corners(F, inverse, least)
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(least, minlength=n), out=ptr[1:])
+    out = np.empty((m, 3), dtype=inverse.dtype)
+    _place_rows(F, inverse, least, ptr, out)
+    return out
