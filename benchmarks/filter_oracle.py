@@ -260,7 +260,7 @@ def oracle_heat(V0, F, Vn, auto: dict, scorer: Scorer) -> dict:
 
 def oracle_taubin(V0, F, Vn, auto: dict, scorer: Scorer) -> dict:
     from meshdenoise.operators import get_operators
-    from meshdenoise.plugins.taubin import TAUBIN_LAMBDAS, taubin_mu_for
+    from meshdenoise.plugins.taubin_rule import TAUBIN_LAMBDAS, taubin_mu_for
     from meshdenoise.registry import get_filter
     from meshdenoise.tuning.search import averaging_step
 
@@ -283,7 +283,7 @@ def oracle_taubin(V0, F, Vn, auto: dict, scorer: Scorer) -> dict:
 
 def oracle_sinkhorn(V0, F, Vn, auto: dict, scorer: Scorer) -> dict:
     from meshdenoise.ot import MeshHeatKernel
-    from meshdenoise.plugins.sinkhorn import SINKHORN_MAX_ITERATIONS
+    from meshdenoise.plugins.sinkhorn_rule import SINKHORN_MAX_ITERATIONS
     from meshdenoise.registry import get_filter
 
     steps = int(get_filter("sinkhorn").param("steps").default)
@@ -323,7 +323,7 @@ def _oracle_mu(name: str, extra: dict):
 
 
 def oracle_sobolev_normal(V0, F, Vn, auto: dict, scorer: Scorer) -> dict:
-    from meshdenoise.plugins.sobolev_normal import SOBOLEV_NORMAL_ORDERS
+    from meshdenoise.plugins.sobolev_normal_rule import SOBOLEV_NORMAL_ORDERS
     from meshdenoise.registry import apply_filter
 
     tangential = float(auto["params"]["tangential"])

@@ -11,7 +11,7 @@ import scipy.sparse as sp
 from meshdenoise import add_normal_noise, snr
 from meshdenoise.default import denoise
 from meshdenoise.tuning import auto_filters, choose_parameters, estimate_noise, gcv, probe_block, sure
-from meshdenoise.plugins.taubin import TAUBIN_LAMBDAS, taubin_mu_for
+from meshdenoise.plugins.taubin_rule import TAUBIN_LAMBDAS, taubin_mu_for
 from meshdenoise.tuning.noise_level import _gauss_winsor_moments
 from meshdenoise.tuning.search import averaging_step, iterative_path, solve_point
 from meshdenoise.geometry import vertex_normals
@@ -393,7 +393,7 @@ def test_sobolev_axes_share_correction_reads_the_true_axis_noise_energy():
     sum_j b_j (N_j . e_d)^2 / sum_j b_j, b_j = sum_i B_ij^2. Torus (288 vertices) at 3 edge
     lengths, 8 seeds: measured mean worst-axis |log ratio| 0.18 (normals) vs 0.10 (corrected).
     """
-    from meshdenoise.plugins.sobolev_axes import _axis_share_correction
+    from meshdenoise.plugins.sobolev_axes_rule import _axis_share_correction
     from meshdenoise.tuning.noise_level import mean_edge_length
     from meshdenoise.tuning.search import best_on_path, best_shifted
     from meshdenoise.plugins.sobolev_axes import normal_frame
@@ -451,7 +451,7 @@ def test_sobolev_normal_monte_carlo_divergence_matches_the_per_vertex_brute_forc
     divergence exceeds tr(H) by a third (the normals of Y are not the noise's, and they
     respond to it), which the rule must count and a fixed-normal trace would miss.
     """
-    from meshdenoise.plugins.sobolev_normal import _projected_divergence
+    from meshdenoise.plugins.sobolev_normal_rule import _projected_divergence
 
     V, F = nefertiti
     n = len(V)
@@ -483,7 +483,7 @@ def test_sobolev_normal_monte_carlo_divergence_matches_the_per_vertex_brute_forc
 def test_sobolev_normal_divergence_kernel_equals_the_numpy_loop_over_probes(index_dtype):
     """The compiled divergence (kernels.projected_divergence_terms) against numpy's area normals and projection,
     probe by probe, on an open grid with an isolated vertex and a collapsed face (zero normals), in chunks or not."""
-    import meshdenoise.plugins.sobolev_normal as sn
+    import meshdenoise.plugins.sobolev_normal_rule as sn
     from meshdenoise.geometry import area_normals
 
     V, F = grid(9, 7)
@@ -509,7 +509,7 @@ def test_sobolev_normal_divergence_kernel_equals_the_numpy_loop_over_probes(inde
 
 def test_sobolev_normal_scores_by_gcv_over_the_normal_coordinates():
     """Tangential share 0: the rule's score is n ||f(X) - X||^2 / (n - div)^2, f(X) from a dense solve and the test's own projection."""
-    from meshdenoise.plugins.sobolev_normal import choose_sobolev_normal
+    from meshdenoise.plugins.sobolev_normal_rule import choose_sobolev_normal
     from meshdenoise.tuning import TuningContext
 
     V, F = icosphere(3)
@@ -619,7 +619,7 @@ def test_sinkhorn_runs_stop_past_their_best_count_with_the_same_choice(monkeypat
     """A run over the twiced iterations stops SinkhornConfig.patience iterations past its best score: the same (t, k)
     and risk as the full eight-iteration runs, in fewer kernel solves."""
     import meshdenoise.ot as ot
-    import meshdenoise.plugins.sinkhorn as sk
+    import meshdenoise.plugins.sinkhorn_rule as sk
     from meshdenoise.cache import clear_caches
 
     V, F = icosphere(3)
@@ -642,7 +642,7 @@ def test_sinkhorn_runs_stop_past_their_best_count_with_the_same_choice(monkeypat
 def test_settings_objects_are_checked_and_handed_to_the_rules():
     """A config names its bad field and value; choose_parameters(config=...) takes one or a sequence of them (one of a
     type), refuses anything else, and the default settings give the same choice as no config."""
-    from meshdenoise.plugins.sinkhorn import SinkhornConfig
+    from meshdenoise.plugins.sinkhorn_rule import SinkhornConfig
     from meshdenoise.plugins.sobolev_gls import GlsConfig
     from meshdenoise.tuning import SearchConfig, SpectralConfig
 

@@ -324,7 +324,7 @@ def test_warning_when_the_normals_choice_is_worse_than_the_input_in_positions(mo
 def test_a_rules_normals_region_reaches_the_region_search(monkeypatch):
     """``AutoRule.normals_region``: the normals search runs on a region of that size from twice as many vertices."""
     import meshdenoise.tuning.choose as choose
-    from meshdenoise.plugins.sobolev_axes import AXES_NORMAL_REGION
+    from meshdenoise.plugins.sobolev_axes_rule import AXES_NORMAL_REGION
     from meshdenoise.tuning.config import SearchConfig
 
     calls, real = [], choose.region_rule

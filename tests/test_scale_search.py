@@ -379,9 +379,9 @@ def test_rules_on_the_memo_choose_what_the_old_walk_chose(method, given, monkeyp
     V, Vn, F = _noisy(torus(24, 12) if method == "taubin" else torus(40, 20), 0.02)
     MEMO.clear()
     new = choose_parameters((Vn, F), method, noise=0.02, **given)
-    import meshdenoise.plugins.filtering as filtering_mod
-    import meshdenoise.plugins.heat as heat_mod
-    import meshdenoise.plugins.taubin as taubin_mod
+    import meshdenoise.plugins.filtering_rule as filtering_mod
+    import meshdenoise.plugins.heat_rule as heat_mod
+    import meshdenoise.plugins.taubin_rule as taubin_mod
 
     def old_curve(V_, ops, step, name, exact=None):  # the old walk: a fresh run, every step's coordinates
         return _OldWalk(V_, ops, step, exact)
@@ -406,7 +406,7 @@ class _OldWalk:
 
 
 def test_taubin_tries_finer_steps_only_while_the_count_is_small():
-    import meshdenoise.plugins.taubin as taubin_mod
+    import meshdenoise.plugins.taubin_rule as taubin_mod
 
     _, Vn, F = _noisy(torus(40, 20), 0.04)
     full = choose_parameters((Vn, F), "taubin", noise=0.04)
@@ -529,7 +529,7 @@ def test_sinkhorn_rule_scores_a_regions_inner_vertices_and_cuts_again_while_its_
     margin (here the second region would be the whole mesh, so the whole-mesh rule decides). The first cut's margin is
     the reach of the search's start (first_margin), here narrowed to see the second cut. On a 24,000-vertex torus the third
     cut's choice is within 0.4 % of the whole mesh's t."""
-    import meshdenoise.plugins.sinkhorn as sk
+    import meshdenoise.plugins.sinkhorn_rule as sk
     import meshdenoise.tuning.search as search
 
     V, F = torus(100, 60)
@@ -556,7 +556,7 @@ def test_sinkhorn_rule_scores_a_regions_inner_vertices_and_cuts_again_while_its_
 def test_sinkhorn_rule_scoring_every_vertex_is_the_whole_mesh_rule():
     V, F = icosphere(3)
     Vn, _ = add_normal_noise((V, F), 0.02, seed=1)
-    import meshdenoise.plugins.sinkhorn as sk
+    import meshdenoise.plugins.sinkhorn_rule as sk
 
     ctx = TuningContext(Vn, F, get_operators(F, len(V)), 0.02, Criterion("sure"), False, {})
     a, pa = sk.choose_sinkhorn_whole(ctx, None)
@@ -570,7 +570,7 @@ def test_sinkhorn_rule_scoring_every_vertex_is_the_whole_mesh_rule():
 
 
 def test_sinkhorn_rule_on_scored_vertices_traces_the_scored_diagonal_of_the_dense_smoother():
-    import meshdenoise.plugins.sinkhorn as sk
+    import meshdenoise.plugins.sinkhorn_rule as sk
     from meshdenoise.registry import get_filter
 
     V, F = icosphere(2)
@@ -592,14 +592,15 @@ def test_sobolev_normal_region_search_runs_on_a_cut_region_with_the_whole_mesh_t
     """The wiring of region_rule: a region is cut (grown to patches x 19 x margin^2 vertices), the rule scores its
     inner vertices with the whole mesh's tangential share held, and the risk is scaled to the whole mesh. Its
     quality against the whole-mesh search is measured in docs/scale.md (elephant at 100k; a torus where it fails)."""
-    import meshdenoise.plugins.sobolev_normal as sn
+    import meshdenoise.plugins.sobolev_normal_rule as sn
     import meshdenoise.tuning.region as region
+    from meshdenoise.plugins.sobolev_normal import SobolevNormalConfig
 
     V, F = torus(100, 60)
     rho = 0.4 * float(np.linalg.norm(V[F[:, 0]] - V[F[:, 1]], axis=1).mean())
     Vn, _ = add_normal_noise((V, F), rho, seed=0)
     config = (SearchConfig(region_min_vertices=1000),
-              sn.SobolevNormalConfig(region=3000, patches=4))  # grown by region_shape to 4 x 19 x 8^2 = 4864
+              SobolevNormalConfig(region=3000, patches=4))  # grown by region_shape to 4 x 19 x 8^2 = 4864
     cut, scored = [], []
     real_region, real_rule = region.SampledRegion, sn.choose_sobolev_normal_whole
     monkeypatch.setattr(region, "SampledRegion", lambda *a, **k: cut.append(real_region(*a, **k)) or cut[-1])
@@ -656,7 +657,7 @@ def test_region_rule_cuts_again_with_the_margin_the_choice_needs(monkeypatch):
 
 
 def test_sobolev_normal_scored_rule_with_every_vertex_scored_is_the_whole_rule():
-    from meshdenoise.plugins.sobolev_normal import choose_sobolev_normal_whole
+    from meshdenoise.plugins.sobolev_normal_rule import choose_sobolev_normal_whole
     from meshdenoise.tuning import TuningContext
 
     V, F = torus(16, 8)
@@ -670,7 +671,7 @@ def test_sobolev_normal_scored_rule_with_every_vertex_scored_is_the_whole_rule()
 
 def test_sobolev_axes_quadrature_search_chooses_the_factor_search_weights(monkeypatch):
     """Same candidates scored by quadrature and by a factor per mu (the independent path): same mu1..mu3, same risk."""
-    import meshdenoise.plugins.sobolev_axes as ax
+    import meshdenoise.plugins.sobolev_axes_rule as ax
 
     V, F = torus(40, 20)
     Vn, _ = add_normal_noise((V, F), 0.03, seed=0)
@@ -689,7 +690,8 @@ def test_sobolev_axes_quadrature_search_chooses_the_factor_search_weights(monkey
 def test_sobolev_axes_quadrature_by_one_run_per_column_chooses_as_one_run(monkeypatch):
     """Past AxesConfig.one_run_max_vertices the quadrature is one run per column (the probes' LanczosDots with their three
     weighted duals): the same weights and risk as the one compiled run of every column."""
-    import meshdenoise.plugins.sobolev_axes as ax
+    import meshdenoise.plugins.sobolev_axes_rule as ax
+    from meshdenoise.plugins.sobolev_axes import AxesConfig
 
     V, F = torus(40, 20)
     Vn, _ = add_normal_noise((V, F), 0.03, seed=0)
@@ -698,7 +700,7 @@ def test_sobolev_axes_quadrature_by_one_run_per_column_chooses_as_one_run(monkey
     one, one_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True,
                                       config=quadrature)
     each, each_risk = choose_parameters((Vn, F), "sobolev_axes", noise=0.03, exact_trace=False, return_risk=True,
-                                        config=(quadrature, ax.AxesConfig(one_run_max_vertices=100)))
+                                        config=(quadrature, AxesConfig(one_run_max_vertices=100)))
     assert each == pytest.approx(one, rel=1e-9)
     assert each_risk == pytest.approx(one_risk, rel=1e-5)
 
@@ -797,7 +799,7 @@ def test_region_held_at_the_whole_result_on_its_cut_rings_reproduces_the_whole_m
     (torus, mu = 80, order 3) differs from the whole mesh's by a sizable fraction of rho on the scored vertices,
     however deep; held on its outer 3 rings at the whole mesh's result (whole_result_at, checked against a factor
     solve) its free rows are the whole mesh's result."""
-    from meshdenoise.plugins.sobolev_normal import whole_result_at
+    from meshdenoise.plugins.sobolev_normal_rule import whole_result_at
     from meshdenoise.solvers import SPDSolver, shifted_matrix
     from meshdenoise.tuning.region import SampledRegion
 
@@ -928,7 +930,8 @@ def test_sobolev_normal_refines_only_an_order_that_can_still_win_and_chooses_as_
     """The rule's grid for both orders, the golden section only for an order whose grid parabola comes within
     SobolevNormalConfig.order_margin of the least grid score: on a noisy plane (order 2's grid 0.0504, order 3's 0.0543,
     its parabola 0.0527) one order is refined, fewer evaluations, and the choice equals the one with both refined."""
-    import meshdenoise.plugins.sobolev_normal as sn
+    import meshdenoise.plugins.sobolev_normal_rule as sn
+    from meshdenoise.plugins.sobolev_normal import SobolevNormalConfig
     from meshdenoise.tuning.search import LogSearch
 
     V, F = grid(40, 40)
@@ -952,7 +955,7 @@ def test_sobolev_normal_refines_only_an_order_that_can_still_win_and_chooses_as_
     clear_cache()
     MEMO.clear()
     both = choose_parameters((Vn, F), "sobolev_normal", noise=0.02,
-                             config=sn.SobolevNormalConfig(order_margin=np.inf))  # every order refined
+                             config=SobolevNormalConfig(order_margin=np.inf))  # every order refined
     assert chosen == both
     assert some < sum(counts)
 

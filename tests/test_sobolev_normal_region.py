@@ -136,7 +136,7 @@ def test_whole_mesh_rule_by_one_lanczos_run_chooses_as_by_factors(monkeypatch):
     """From SobolevNormalConfig.rule_lanczos_min_vertices the whole-mesh rule's candidates (both orders) come from one Lanczos
     run (the first grid in one second pass, LogSearch's evaluate_many) where d_max mu^(1/p) is at most the reach: the
     same order and mu (to the search's rounding) as with a factor per candidate."""
-    import meshdenoise.plugins.sobolev_normal as sn
+    import meshdenoise.plugins.sobolev_normal_rule as sn
     from meshdenoise.shapes import icosphere
     from meshdenoise.geometry import vertex_normals as vn
     from meshdenoise.solvers import CompiledLanczos
@@ -197,7 +197,7 @@ def test_log_search_first_grid_points_added_are_not_evaluated_again():
 def test_past_an_edge_length_of_noise_the_rule_scores_by_quadrature_as_by_its_solves(monkeypatch):
     """Tangential 1 (noise past an edge length): the update is H X, so SURE's residual and divergence are Gauss
     quadratures of L from one Lanczos run (no solve per candidate): the same order and mu as the solves give."""
-    import meshdenoise.plugins.sobolev_normal as sn
+    import meshdenoise.plugins.sobolev_normal_rule as sn
     from meshdenoise.geometry import vertex_normals as vn
     from meshdenoise.shapes import icosphere
     from meshdenoise.solvers import CompiledLanczos

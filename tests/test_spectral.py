@@ -314,7 +314,7 @@ def test_normals_criterion_chooses_the_same_with_and_without_the_spectral_search
 def test_sinkhorn_rule_reads_its_sure_curves_from_lanczos_runs_as_from_its_factors(monkeypatch):
     """choose_sinkhorn_whole's curves over (t, k) by SpectralSearch (the probes' run shared by every t) and by the heat
     kernel's factors: the same t (to the search's rounding) and iterations; strong kernels (past the CG bound) by factors."""
-    import meshdenoise.plugins.sinkhorn as sk
+    import meshdenoise.plugins.sinkhorn_rule as sk
 
     V0, F, X = _sphere(seed=7)
     calls = []

@@ -7,21 +7,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..registry import AutoRule, Param, register
-from ..tuning.config import SEARCH, check_fields, resolve
-from ..tuning.context import TuningContext
-from ..tuning.risk import Point
-from ..tuning.search import best_shifted
-from ..tuning.spectral import shifted_spectral
 from ..operators import Operators, mask_key, spmm
+from ..registry import AutoRule, Param, register
 from ..solvers import LanczosQuadrature, ShiftedInverse, shifted_cg_bound, shifted_solver
+from ..tuning.config import check_fields, resolve
+from ..tuning.spectral import shifted_spectral
 from . import sobolev as _sobolev
 from .sobolev import SobolevConfig
+from .sobolev_bilaplacian_rule import choose_sobolev_bilaplacian
 
 SOLVERS = ("auto", "cholesky", "cg", "lanczos")
 LANCZOS_MAX_STEPS = 1000
 
-__all__ = ["sobolev_bilaplacian", "choose_sobolev_bilaplacian", "bilaplacian_cg_bound", "lanczos_bilaplacian",
+__all__ = ["sobolev_bilaplacian", "bilaplacian_cg_bound", "lanczos_bilaplacian",
            "BilaplacianConfig"]
 
 
@@ -96,14 +94,6 @@ def lanczos_bilaplacian(ops: Operators, V: np.ndarray, mu: float, tol: float) ->
     c = spmm(ops.L, spmm(ops.L, np.asarray(V, dtype=np.float64)))
     Y = LanczosQuadrature(ops.L, c, max_steps=LANCZOS_MAX_STEPS).apply(ShiftedInverse(mu, 2), rtol=tol)
     return None if Y is None else np.array(V, dtype=np.float64) - mu * Y
-
-
-# ----------------------------------------------------------------------------- automatic rule
-def choose_sobolev_bilaplacian(ctx: TuningContext) -> tuple[dict, Point]:
-    """``mu`` of :math:`(I + \\mu L^2) Y = X`: SURE over log mu, starting at :math:`(k/\\bar d)^2`."""
-    p = best_shifted(ctx.V, ctx.ops, 2, ctx.rho, ctx.criterion, ctx.exact, center=ctx.mu_guess(2), coordinates=False,
-                     config=ctx.config_for(SEARCH))
-    return {"mu": float(p.value)}, p
 
 
 @register(
