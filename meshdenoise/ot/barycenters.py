@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import itertools
 import warnings
 
 import numpy as np
@@ -86,15 +87,12 @@ def barycenter(A, M, reg, weights=None, numItermax=1000, stopThr=1e-9, log=False
 
 
 def _ibp(Kop, KTop, A, w, numItermax, stopThr, log, warn, stab=1e-300):
-    """Shared iterative Bregman projection loop (A: (dim, k) histograms)."""
-    numItermax = _positive_int("numItermax", numItermax)
-    stopThr = _positive_float("stopThr", stopThr, allow_zero=True)
-    u = np.ones_like(A)
-    errs = []
-    converged = False
-    p_last = None
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        for it in range(numItermax):
+    """Iterative Bregman projections on the scalings (A: (dim, k) histograms), run by :func:`_projections`."""
+
+    def rounds():
+        u = np.ones_like(A)
+        p_last = None
+        for it in itertools.count():
             v = A / Kop(u)
             KTv = KTop(v)
             marg = u * KTv
@@ -106,14 +104,32 @@ def _ibp(Kop, KTop, A, w, numItermax, stopThr, log, warn, stab=1e-300):
                     "iterations); returning the last finite iterate -- increase reg, or use "
                     "method='sinkhorn_log' where available",
                     UserWarning,
-                    stacklevel=3,
+                    stacklevel=5,
                 )
-                p = p_last if p_last is not None else p
+                yield (p_last if p_last is not None else p), None
+                return
+            p_last = p
+            yield p, lambda: marg
+
+    return _projections(rounds(), numItermax, stopThr, log, warn, over="ignore")
+
+
+def _projections(rounds, numItermax, stopThr, log, warn, **errstate):
+    """The loop both iterations share: ``rounds`` yields ``(p, marginals)`` a round, ``marginals()`` the plans'
+    barycenter marginals (dim, k), read every 10th round: the run stops when their spread across the plans,
+    :math:`\\sum_i \\mathrm{std}_k`, is under ``stopThr`` (or warns after ``numItermax`` rounds). A round whose
+    ``marginals`` is ``None`` ends the run with its ``p`` (the round has warned why)."""
+    numItermax = _positive_int("numItermax", numItermax)
+    stopThr = _positive_float("stopThr", stopThr, allow_zero=True)
+    errs = []
+    converged = False
+    with np.errstate(divide="ignore", invalid="ignore", **errstate):
+        for it, (p, marginals) in zip(range(numItermax), rounds):
+            if marginals is None:
                 converged = True  # already warned
                 break
-            p_last = p
             if it % 10 == 9:
-                err = float(np.sum(np.std(marg, axis=1)))
+                err = float(np.sum(np.std(marginals(), axis=1)))
                 errs.append(err)
                 if err < stopThr:
                     converged = True
@@ -123,7 +139,7 @@ def _ibp(Kop, KTop, A, w, numItermax, stopThr, log, warn, stab=1e-300):
             f"barycenter did not converge in numItermax={numItermax} iterations "
             f"(error {errs[-1] if errs else float('nan'):.3e} > stopThr={stopThr:g}): increase numItermax or reg",
             UserWarning,
-            stacklevel=3,
+            stacklevel=4,
         )
     if log:
         return p, {"err": errs, "niter": it}
@@ -214,7 +230,6 @@ def convolutional_barycenter(A, kernel, weights=None, area=None, numItermax=1000
     return _ibp(Kop, Kop, A, w, numItermax, stopThr, log, warn)
 
 
-
 def convolutional_barycenter2d(
     A, reg, weights=None, method="sinkhorn", numItermax=10000, stopThr=1e-9, log=False, warn=True
 ):
@@ -290,35 +305,18 @@ def convolutional_barycenter2d(
 
 
 def _ibp_log(logK, A, w, numItermax, stopThr, log, warn):
-    """Iterative Bregman projections on log-scalings (symmetric log-kernel operator)."""
-    numItermax = _positive_int("numItermax", numItermax)
-    stopThr = _positive_float("stopThr", stopThr, allow_zero=True)
-    with np.errstate(divide="ignore"):
-        logA = np.log(A)
-    logu = np.zeros_like(A)
-    errs = []
-    converged = False
-    with np.errstate(divide="ignore", invalid="ignore"):
-        for it in range(numItermax):
+    """Iterative Bregman projections on the log-scalings (symmetric log-kernel operator), run by :func:`_projections`."""
+
+    def rounds():
+        with np.errstate(divide="ignore"):
+            logA = np.log(A)
+        logu = np.zeros_like(A)
+        while True:
             logv = logA - logK(logu)
             logKv = logK(logv)
             logmarg = logu + logKv
             logp = logmarg @ w
             logu = logp[:, None] - logKv
-            if it % 10 == 9:
-                err = float(np.sum(np.std(np.exp(logmarg), axis=1)))
-                errs.append(err)
-                if err < stopThr:
-                    converged = True
-                    break
-    if not converged and warn:
-        warnings.warn(
-            f"barycenter did not converge in numItermax={numItermax} iterations "
-            f"(error {errs[-1] if errs else float('nan'):.3e} > stopThr={stopThr:g}): increase numItermax or reg",
-            UserWarning,
-            stacklevel=3,
-        )
-    p = np.exp(logp)
-    if log:
-        return p, {"err": errs, "niter": it}
-    return p
+            yield np.exp(logp), lambda: np.exp(logmarg)
+
+    return _projections(rounds(), numItermax, stopThr, log, warn)
