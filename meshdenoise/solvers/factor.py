@@ -67,6 +67,16 @@ class DirichletSystem:
             return np.array(X2, dtype=np.float64, order=order)
         return np.asarray(X2[self.free] - self._coupling @ X2[self._pinned_rows], order=order)
 
+    def _start(self, x0: np.ndarray | None, X: np.ndarray) -> np.ndarray | None:
+        """An iterative solve's start on the reduced system: the free rows of ``x0`` (a guess shaped like the right-hand
+        side ``X``), or ``None`` without one."""
+        if x0 is None:
+            return None
+        start = self._columns(x0)
+        if start.shape != self._columns(X).shape:
+            raise ValueError(f"{type(self).__name__}.solve: x0 has shape {np.shape(x0)}, X {np.shape(X)}")
+        return start if self.free is None else start[self.free]
+
     def _expand(self, X2: np.ndarray, out: np.ndarray) -> np.ndarray:
         """The full solution: ``out`` on the free rows, the pinned rows of ``X2`` bit for bit."""
         if self.free is None:

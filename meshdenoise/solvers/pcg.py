@@ -143,12 +143,7 @@ class ShiftedPCG(DirichletSystem):
         b = self._reduce(X2)
         if not self.size:
             return self._expand(X2, b).reshape(np.shape(X))
-        start = None
-        if x0 is not None:
-            start = self._columns(x0)
-            if start.shape != X2.shape:
-                raise ValueError(f"ShiftedPCG.solve: x0 has shape {np.shape(x0)}, X {np.shape(X)}")
-            start = start if self.free is None else start[self.free]
+        start = self._start(x0, X)
         found = preconditioned_cg(self.A, b, self.precondition, tol,
                                    SHIFTED_PCG_MAXITER if maxiter is None else int(maxiter), start)
         if found is None:  # far from the bound: factorise
@@ -247,12 +242,7 @@ class ShiftedPCGFamily(DirichletSystem):
             b = X2[self.free] - self.mus[None, :] * self._power_free(held)
         if not self.size:
             return self._expand(X2, b)
-        start = None
-        if x0 is not None:
-            start = self._columns(x0)
-            if start.shape != X2.shape:
-                raise ValueError(f"ShiftedPCGFamily.solve: x0 has shape {np.shape(x0)}, X {np.shape(X)}")
-            start = start if self.free is None else start[self.free]
+        start = self._start(x0, X)
         found = preconditioned_cg(self._product, b, self.precondition, tol,
                                    SHIFTED_PCG_MAXITER if maxiter is None else int(maxiter), start)
         if found is None:  # far from the bound: factorise each column's system
