@@ -576,10 +576,12 @@ def test_errors_carry_their_parameter_and_a_step_error_names_its_key_line(tmp_pa
     for steps, line, expected in (
         ("  - sobolev:\n      mu: 1\n      mux: 2\n", 6, "unknown parameter 'mux' (did you mean 'mu'?)"),
         ("  - sobolev:\n      mu: 1\n      preserve_volume: 3\n", 6, "preserve_volume must be true or false, got 3"),
+        ("  - denoise:\n      method: sobolev\n      pinned: boundry\n", 6, "pinned: 'boundry' is not understood"),
     ):
         p = _write(tmp_path, f"inputs: s.ply\noutput_dir: {tmp_path / 'out'}\nsteps:\n{steps}")
         result = _run("run", "--check", p)
-        assert result.exit_code == 2 and f"{p}:{line}: step 1 'sobolev': " in result.output, result.output
+        step = steps.split(":")[0].strip("- ")
+        assert result.exit_code == 2 and f"{p}:{line}: step 1 '{step}': " in result.output, result.output
         assert expected in result.output, result.output
 
 

@@ -535,6 +535,13 @@ def denoise_step(given: dict, index: int | None = None, label: str | None = None
     # a step in no file is said as the option that gave it: --method 'sobolev' (Step.where alike)
     at = _step_at(source, line, index, method if index is None and isinstance(method, str) else "denoise")
     at_param = at_param or (lambda key: at)
+
+    def options_of(allowed: tuple[str, ...]) -> tuple[dict, dict]:
+        try:
+            return _filter_options(given, at, allowed)
+        except PipelineValidationError as exc:  # said at the line of the option it is about
+            raise _at_its_key(exc, at, at_param) from None
+
     flags = {}
     for key in ("explain", "defaults"):
         value = given.pop(key, False)
@@ -543,7 +550,7 @@ def denoise_step(given: dict, index: int | None = None, label: str | None = None
         if value:
             flags[key] = True
     if method is None:
-        options, rest = _filter_options(given, at, ("pinned", "region", "preserve_volume", "boundary_motion"))
+        options, rest = options_of(("pinned", "region", "preserve_volume", "boundary_motion"))
         if rest or "defaults" in flags:
             key = next(iter(rest), "defaults")
             if key == "noise":
@@ -571,7 +578,7 @@ def denoise_step(given: dict, index: int | None = None, label: str | None = None
         raise PipelineValidationError(f"{at_param('parameters')}: a denoise step with a method chooses the "
                                       "parameters not given by itself (defaults: true runs the filter's defaults "
                                       "instead); leave out parameters")
-    options, rest = _filter_options(given, at, tuple(k for k in DENOISE_KEYS if k in _STEP_OPTION))
+    options, rest = options_of(tuple(k for k in DENOISE_KEYS if k in _STEP_OPTION))
     chooses = "defaults" not in flags and spec.auto is not None
     for key in ("noise", "criterion"):
         if key in options and not chooses:
