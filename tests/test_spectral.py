@@ -241,16 +241,16 @@ def _sphere(seed=3, rho=0.012):
 
 
 @pytest.mark.parametrize("tol, accuracy", [(1e-10, 1e-8), (SpectralConfig().tol, 1e-5)])
-@pytest.mark.parametrize("additive", [True, False])
+@pytest.mark.parametrize("averaging", [True, False])
 @pytest.mark.parametrize("rho", [0.012, 0.2])  # 0.2: past an edge length, the Dirichlet ranking
-def test_refine_for_normals_scores_the_same_by_lanczos_runs_as_by_running_the_filter(additive, rho, tol, accuracy):
+def test_refine_for_normals_scores_the_same_by_lanczos_runs_as_by_running_the_filter(averaging, rho, tol, accuracy):
     """The spectral search against the filter run on the probes: the same candidates visited, the same choice and path,
     the risks and position SURE to ``accuracy`` (at the searches' tolerance and at 1e-10)."""
     config = SpectralConfig(tol=tol)
     V0, F, X = _sphere(rho=rho)
     ops = get_operators(F, len(X))
     assert len(X) >= config.min_vertices
-    if additive:
+    if averaging:  # k steps of X <- P X, or (I + mu L)^-1
         M = ops.P
 
         def apply(k, block):
@@ -267,7 +267,7 @@ def test_refine_for_normals_scores_the_same_by_lanczos_runs_as_by_running_the_fi
         family, values, start = (lambda mu: shifted_spectral(ops, mu, 1)), normal_candidates(0.3, False), 0.3
     rows = np.ones(len(X), dtype=bool)
     rows[:200] = False  # a scored part, as on a region
-    kw = dict(additive=additive, first=start * 3, rows=rows)
+    kw = dict(first=start * 3, rows=rows)
     direct = nr.refine_for_normals(X, F, apply, start, values, rho, **kw)
     fast = nr.refine_for_normals(X, F, apply, start, values, rho, spectral=family, config=config, **kw)
     assert direct.criterion == fast.criterion == ("dirichlet" if rho == 0.2 else "normals")
