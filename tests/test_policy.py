@@ -22,8 +22,8 @@ from meshdenoise.policy import FAMILIES, OTHER_FAMILIES, DefaultConfig, Family, 
 from meshdenoise.policy.choose import DefaultChoice, Score
 from meshdenoise.policy.paths import family_path
 from meshdenoise.registry import get_filter
-from meshdenoise.shapes import box, grid, icosphere
-from meshdenoise.tuning.holdout import holdout, path_losses, region
+from meshdenoise.shapes import box, grid, icosphere, torus
+from meshdenoise.tuning.holdout import _keys, holdout, path_losses, region
 
 FAST = DefaultConfig(holdout=HoldoutConfig(masks=2, patience=4), steps=12)
 
@@ -133,6 +133,38 @@ def test_a_region_is_its_mesh_when_small_and_balls_around_seeds_when_large():
     assert 600 <= part.vertices.size < len(V)
     np.testing.assert_array_equal(V[part.vertices][part.F], V[F[np.isin(F, part.vertices).all(axis=1)]])
     assert 0 < part.inner.sum() < part.vertices.size
+
+
+def _region_by_whole_mesh_rings(V, F, ops, size, patches, margin):
+    """region() as products over the whole mesh: seeds by a full sort, whole rings grown, the cut's margin grown from
+    every vertex outside the part."""
+    n = len(V)
+    W = ops.W.tocsr()
+
+    def grow(mask, rings):
+        for _ in range(rings):
+            mask = mask | (W @ mask.astype(np.float64) > 0)
+        return mask
+
+    key = np.where(ops.degree > 0, _keys(V, ops), np.inf)
+    inside = np.zeros(n, dtype=bool)
+    inside[np.argsort(key, kind="stable")[:patches]] = True
+    while inside.sum() < size and grow(inside, 1).sum() > inside.sum():
+        inside = grow(inside, 1)
+    used = np.zeros(n, dtype=bool)
+    used[F[inside[F].all(axis=1)].ravel()] = True
+    return np.flatnonzero(used), ~grow(~used, margin)[used]
+
+
+@pytest.mark.parametrize("size, patches, margin", [(500, 1, 0), (3000, 6, 1), (3000, 24, 6)])
+def test_a_region_grown_from_its_frontier_is_the_whole_mesh_rings_one(size, patches, margin):
+    V, F = torus(120, 60)
+    V = V + 1e-3 * np.random.default_rng(0).standard_normal(V.shape)
+    ops = get_operators(F, len(V))
+    part = region(V, F, ops, size, patches, margin)
+    vertices, inner = _region_by_whole_mesh_rings(V, F, ops, size, patches, margin)
+    np.testing.assert_array_equal(part.vertices, vertices)
+    np.testing.assert_array_equal(part.inner, inner)
 
 
 # ----------------------------------------------------------------------------- candidates' runs

@@ -269,31 +269,66 @@ class Region:
     inner: np.ndarray
 
 
+def _neighbours(W: sp.csr_matrix, vertices: np.ndarray) -> np.ndarray:
+    """The neighbours of ``vertices`` in ``W`` (with repeats): the rows' column indices, read row by row."""
+    start, stop = W.indptr[vertices], W.indptr[vertices + 1]
+    length = stop - start
+    offset = np.repeat(start - np.cumsum(length) + length, length)
+    return W.indices[np.arange(offset.size) + offset]
+
+
+def _rings(W: sp.csr_matrix, inside: np.ndarray, frontier: np.ndarray, rings: int, size: int = 0,
+           within: np.ndarray | None = None) -> np.ndarray:
+    """``inside`` (bool, n) grown ring by ring from ``frontier`` (its last ring) in place: ``rings`` rings, or until
+    it holds ``size`` vertices; only vertices of ``within`` join when given. Work in the rows read, not the mesh."""
+    count = int(np.count_nonzero(inside))
+    for _ in range(rings):
+        if size and count >= size:
+            break
+        near = _neighbours(W, frontier)
+        near = near[~inside[near]]
+        if within is not None:
+            near = near[within[near]]
+        if near.size == 0:
+            break
+        inside[near] = True
+        frontier = np.unique(near)
+        count += frontier.size
+    return inside
+
+
 def region(V: np.ndarray, F: np.ndarray, ops: Operators, size: int, patches: int, margin: int) -> Region:
     """Balls of rings around ``patches`` seeds, about ``size`` vertices in all; seeds drawn from the geometry.
 
     The seeds are the vertices of least key (:func:`holdout`'s keys), so the same surface numbered
-    otherwise gets the same part. A mesh of at most ``size`` vertices is its own region.
+    otherwise gets the same part. A mesh of at most ``size`` vertices is its own region. The balls
+    grow ring by ring from their last ring only, and the margin from the cut inside the part, so
+    the work past the keys is the part's, not the mesh's.
     """
     n = len(V)
     W = ops.W.tocsr()
     if n <= size:
         return Region(np.arange(n), np.asarray(F, dtype=np.int64), np.ones(n, dtype=bool))
     key = np.where(ops.degree > 0, _keys(V, ops), np.inf)
-    seeds = np.argsort(key, kind="stable")[: min(patches, n)]
+    k = min(patches, n)
+    least = np.argpartition(key, k - 1)[:k]
+    seeds = least[np.lexsort((least, key[least]))]  # the k least keys, ties to the lower index (argsort's order)
     inside = np.zeros(n, dtype=bool)
     inside[seeds] = True
-    while inside.sum() < size:
-        grown = _grow(W, inside, 1)
-        if grown.sum() == inside.sum():
-            break
-        inside = grown
+    _rings(W, inside, np.unique(seeds), n, size)
     keep = inside[F].all(axis=1)
     used = np.zeros(n, dtype=bool)
     used[F[keep].ravel()] = True
     vertices = np.flatnonzero(used)
     local = np.full(n, -1, dtype=np.int64)
     local[vertices] = np.arange(vertices.size)
-    # a vertex within `margin` rings of one outside the part is near the cut
-    near_cut = _grow(W, ~used, margin)
+    # a vertex within `margin` rings of one outside the part is near the cut: the part's vertices next to one
+    # outside, then `margin - 1` rings grown inside the part (a shortest path from outside enters the part once)
+    near_cut = np.zeros(n, dtype=bool)
+    if margin > 0:
+        around = _neighbours(W, vertices)
+        row = np.repeat(vertices, np.diff(W.indptr)[vertices])
+        edge = row[~used[around]]
+        near_cut[edge] = True
+        _rings(W, near_cut, np.unique(edge), margin - 1, within=used)
     return Region(vertices, local[F[keep]], ~near_cut[vertices])
