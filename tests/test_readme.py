@@ -9,6 +9,7 @@ import pytest
 from click.testing import CliRunner
 
 import meshdenoise as md
+from meshdenoise.metrics import normal_error_deg
 from meshdenoise.cli import cli
 from meshdenoise.shapes import icosphere
 
@@ -52,7 +53,8 @@ def test_readme_python_runs_when_pasted(tmp_path, monkeypatch):
     for block in blocks:
         exec(compile(block, "README.md", "exec"), {})
     Y = md.load_mesh(tmp_path / "scan_denoised.ply").V
-    assert md.snr(V, Y) > md.snr(V, Vn)  # the automatic sobolev_gls really denoised
+    # the default really denoised: its face normals (what it chooses by) much nearer the clean ones
+    assert normal_error_deg((V, F), Y) < 0.2 * normal_error_deg((V, F), Vn)
     assert (tmp_path / "scan_taubin.ply").is_file()
 
 

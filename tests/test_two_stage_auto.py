@@ -102,6 +102,38 @@ def test_keep_tangential_raises_the_snr_on_a_noisy_box():
 # --- the pieces of the rule --------------------------------------------------------------------
 
 
+def test_relax_tangential_is_the_fit_then_the_tangent_projection_of_the_neighbours_mean():
+    """Each outer iteration (keep_tangential off, so the run goes on from its last state) then the relaxation written
+    here: x + (I - u u^T)(P x - x), u the normalised sum of the unit face normals; border and pinned vertices stay."""
+    V, F = icosphere(3)
+    Vn = V + 0.02 * np.random.default_rng(0).standard_normal(V.shape)
+    ops = get_operators(F, len(V))
+    step = dict(normal_iterations=1, vertex_iterations=5, sigma_r=0.35, sigma_s=1.0, guidance="bilateral")
+    X = Vn.copy()
+    for _ in range(4):
+        X = apply_filter("two_stage", (X, F), iterations=1, **step)[0]
+        u = vertex_normals(X, F)
+        d = ops.P @ X - X
+        X = X + d - np.einsum("ij,ij->i", d, u)[:, None] * u
+    got = apply_filter("two_stage", (Vn, F), iterations=4, relax_tangential=True, **step)[0]
+    np.testing.assert_allclose(got, X, rtol=0, atol=1e-12)
+    # a plane stays a plane; its border and pinned vertices do not move along it
+    G, FG = grid(10, 8)
+    Gn = G + 0.01 * np.random.default_rng(1).standard_normal(G.shape) * [1, 1, 0]  # noise in the plane only
+    border = get_operators(FG, len(G)).boundary_vertices
+    pinned = np.zeros(len(G), dtype=bool)
+    pinned[40] = True
+    out = apply_filter("two_stage", (Gn, FG), iterations=3, relax_tangential=True, pinned=pinned, **step)[0]
+    np.testing.assert_allclose(out[:, 2], 0.0, atol=1e-12)
+    np.testing.assert_array_equal(out[border | pinned], Gn[border | pinned])
+    inner = ~(border | pinned)
+    assert np.linalg.norm(out[inner] - G[inner]) < 0.6 * np.linalg.norm(Gn[inner] - G[inner])
+    from meshdenoise.registry import ParameterError
+
+    with pytest.raises(ParameterError, match="keep_tangential' and 'relax_tangential' are both True"):
+        apply_filter("two_stage", (Vn, F), keep_tangential=True, relax_tangential=True)
+
+
 # --- the automatic rule -------------------------------------------------------------------------
 def _one_count_at_a_time(Vn, F, sweep, ops):
     """path(Y): two_stage run from Y once per count of the sweep (not along one run as the rule reads it)."""

@@ -24,7 +24,8 @@ def family_path(family: Family, F: np.ndarray, ops: Operators, steps: int) -> Ca
 
         def path(Y: np.ndarray) -> Iterator[np.ndarray]:
             yield from outer_iterates(Y, ops, None, steps, p["normal_iterations"], p["vertex_iterations"], p["sigma_r"],
-                                      p["sigma_s"], p["guidance"], p["keep_tangential"], every=True)
+                                      p["sigma_s"], p["guidance"], p["keep_tangential"], every=True,
+                                      relax_tangential=p.get("relax_tangential", False))
         return path
     if family.method == "taubin" and family.count == "iterations" and p.get("weights") == "uniform":
         from ..plugins.taubin import pass_matrix
