@@ -76,8 +76,8 @@ class DefaultConfig:
     holdout : HoldoutConfig
         How the held-out losses are read (:class:`meshdenoise.tuning.sweep.HoldoutConfig`: rings hidden
         around each held-out vertex, masks, the centres wanted on a small mesh, patience, the sampled
-        region above 12,000 vertices); two_stage's rule's (``TWO_STAGE_NORMALS.config``: 2 masks), so
-        that both choose alike. On a small mesh masks are added until 300 vertices are held out: the
+        region above 12,000 vertices); two_stage's rule's (``TWO_STAGE_NORMALS.config``), so that both
+        choose alike. On a small mesh masks are added until 300 vertices are held out: the
         corpus has no mesh under 2,800 vertices and its tune half reads about the same with or without
         it (1.309 and 1.309); a 400-vertex noisy plane needs it (with 3 masks alone, about 40 hidden
         vertices, one iteration was chosen: tests/test_policy.py).
