@@ -117,6 +117,13 @@ def test_relax_tangential_is_the_fit_then_the_tangent_projection_of_the_neighbou
         X = X + d - np.einsum("ij,ij->i", d, u)[:, None] * u
     got = apply_filter("two_stage", (Vn, F), iterations=4, relax_tangential=True, **step)[0]
     np.testing.assert_allclose(got, X, rtol=0, atol=1e-12)
+    from meshdenoise import kernels  # the neighbours' mean read from the faces: P X on a closed mesh
+
+    F64 = np.asarray(F, dtype=np.int64)
+    ptr, corners = _corner_lists(F64, len(V))
+    mean = np.empty_like(Vn)
+    kernels.face_corner_mean(Vn, F64, ptr, corners, mean)
+    np.testing.assert_allclose(mean, ops.P @ Vn, rtol=0, atol=1e-15)
     # a plane stays a plane; its border and pinned vertices do not move along it
     G, FG = grid(10, 8)
     Gn = G + 0.01 * np.random.default_rng(1).standard_normal(G.shape) * [1, 1, 0]  # noise in the plane only

@@ -98,6 +98,7 @@ from .lanczos import (  # noqa: F401
 )
 from .vertices import (  # noqa: F401
     corner_face,
+    face_corner_mean,
     fit_vertices,
     inverse_distance_pass,
     projected_divergence_terms,
@@ -175,6 +176,7 @@ __all__ = [
     "lanczos_update",
     "shifted_tridiagonal_solves",
     "corner_face",
+    "face_corner_mean",
     "fit_vertices",
     "inverse_distance_pass",
     "projected_divergence_terms",

@@ -62,6 +62,38 @@ def fit_vertices(X, F, N, corner_ptr, corners, scale, iterations, C):  # pragma:
 
 
 @njit(parallel=True, cache=True, nogil=True, error_model="numpy")
+def face_corner_mean(X, F, corner_ptr, corners, out):  # pragma: no cover - compiled
+    """``out[v]``: the mean of the other corners of vertex ``v``'s faces, each face's two counted once.
+
+    Each neighbour of an interior vertex of a manifold mesh lies on two of its faces, so this is its
+    neighbours' mean (``P X``, ``P = D^-1 W``) read from the faces, with no adjacency matrix. A vertex
+    on no face gets its own position.
+    """
+    n = X.shape[0]
+    for v in prange(n):
+        count = corner_ptr[v + 1] - corner_ptr[v]
+        if count == 0:
+            out[v, 0] = X[v, 0]
+            out[v, 1] = X[v, 1]
+            out[v, 2] = X[v, 2]
+            continue
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        for t in range(corner_ptr[v], corner_ptr[v + 1]):
+            f = corner_face(corners[t])
+            for k in range(3):
+                w = F[f, k]
+                s0 += X[w, 0]
+                s1 += X[w, 1]
+                s2 += X[w, 2]
+        d = 2.0 * count
+        out[v, 0] = (s0 - count * X[v, 0]) / d
+        out[v, 1] = (s1 - count * X[v, 1]) / d
+        out[v, 2] = (s2 - count * X[v, 2]) / d
+
+
+@njit(parallel=True, cache=True, nogil=True, error_model="numpy")
 def restore_tangential(X, Y, N, corner_ptr, corners):  # pragma: no cover - compiled
     """``x_i += (I - u_i u_i^T)(y_i - x_i)`` in place, ``u_i = unit(sum_{corners of i} n_f)``.
 

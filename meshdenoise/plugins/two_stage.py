@@ -6,7 +6,6 @@ import warnings
 from typing import Callable, Iterator
 
 import numpy as np
-import scipy.sparse as sp
 
 from ..normal_filter import GuidanceBuffers, bilateral_passes, fit_scale, power_of_two_scale, two_stage_topology
 from ..operators import Operators, gather_rows
@@ -229,31 +228,29 @@ def two_stage(
 
 
 class _Relaxation:
-    """Step 4' of :func:`two_stage` (``relax_tangential``) on the run's relabelled vertices.
+    """Step 5 of :func:`two_stage` (``relax_tangential``) on the run's relabelled vertices.
 
     Each vertex moves to its neighbours' mean, less the move's part along its vertex normal (the
     normalised sum of its faces' unit normals), so the surface keeps its shape to first order while
     the noise along it (any direction but the normal) is averaged out. Pinned, isolated and open-border
-    vertices stay (moving a border vertex to its neighbours' mean would pull the border in).
+    vertices stay (moving a border vertex to its neighbours' mean would pull the border in). The mean is
+    read from the faces: the other corners of a vertex's faces, each neighbour of an interior manifold
+    vertex twice, so no adjacency matrix is kept beside the run's arrays.
     """
 
     def __init__(self, ops: Operators, topo, scale: np.ndarray):
-        order = topo.vertex_order
-        self.P = ops.P.tocsr()[order][:, order].tocsr()
-        n, m = len(order), topo.F.shape[0]
-        faces = (np.asarray(topo.corners, dtype=np.int64) // 3)
-        self.M = sp.csr_matrix((np.ones(faces.size), faces, topo.corner_ptr), shape=(n, m))
-        self.still = (scale == 0) | ops.boundary_vertices[order]
+        self.F, self.ptr, self.corners = topo.F, topo.corner_ptr, topo.corners
+        self.still = (scale == 0) | ops.boundary_vertices[topo.vertex_order]
+        self.mean = None
 
     def step(self, X: np.ndarray, N: np.ndarray) -> None:
         """Move ``X`` (n, 3, relabelled) in place; ``N`` (m, 3) its unit face normals."""
-        U = self.M @ N
-        length = np.linalg.norm(U, axis=1, keepdims=True)
-        np.divide(U, length, out=U, where=length > 0)
-        D = self.P @ X - X
-        D -= np.einsum("ij,ij->i", D, U)[:, None] * U
-        D[self.still] = 0.0
-        X += D
+        from .. import kernels
+
+        self.mean = np.empty_like(X) if self.mean is None else self.mean
+        kernels.face_corner_mean(X, self.F, self.ptr, self.corners, self.mean)
+        self.mean[self.still] = X[self.still]
+        kernels.restore_tangential(X, self.mean, N, self.ptr, self.corners)
 
 
 def outer_iterates(
