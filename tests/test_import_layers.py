@@ -22,7 +22,7 @@ PACKAGE = "meshdenoise"
 FLOORS: dict[int, tuple[str, ...]] = {
     0: ("_launch", "arrays", "adapters", "cache", "constraints", "data", "geometry", "io.*", "kernels.*", "meshinfo",
         "metrics", "multishift", "progress", "shapes"),
-    1: ("operators", "solvers.*", "locality", "normal_filter", "gpu", "ot.*"),
+    1: ("operators", "solvers.*", "locality", "normal_filter", "folds", "gpu", "ot.*"),
     2: ("registry", "noise", "scanner", "tuning.*"),
     3: ("plugins.*",),
     4: ("policy.*", "default"),

@@ -18,7 +18,8 @@ from scipy.spatial.transform import Rotation
 import meshdenoise as md
 from meshdenoise.geometry import face_normals
 from meshdenoise.operators import get_operators
-from meshdenoise.policy import FAMILIES, OTHER_FAMILIES, DefaultConfig, Family, HoldoutConfig, choose, flipped_faces, guard
+from meshdenoise.folds import flipped_faces
+from meshdenoise.policy import FAMILIES, OTHER_FAMILIES, DefaultConfig, Family, HoldoutConfig, choose, guard
 from meshdenoise.policy.choose import DefaultChoice, Score
 from meshdenoise.policy.paths import family_path
 from meshdenoise.registry import get_filter

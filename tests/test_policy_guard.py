@@ -21,10 +21,11 @@ from meshdenoise.geometry import face_normals, vertex_face_incidence
 from meshdenoise.locality import Relabelling, relabelled_operators, relabelling
 from meshdenoise.normal_filter import FaceNeighbourhood, two_stage_topology
 from meshdenoise.operators import Operators, clear_cache, get_operators
-from meshdenoise.policy import OTHER_FAMILIES, flipped_faces
+from meshdenoise.folds import flipped_faces
+from meshdenoise.policy import OTHER_FAMILIES
 from meshdenoise.shapes import grid, icosphere, torus
 
-choose_module = importlib.import_module("meshdenoise.policy.choose")
+folds_module = importlib.import_module("meshdenoise.folds")
 run_module = importlib.import_module("meshdenoise.policy.run")
 
 
@@ -87,7 +88,7 @@ def test_the_fold_test_of_the_turned_faces_is_the_whole_mesh_test(wavy, scale):
     V, F = wavy
     X = V + scale / 320 * np.random.default_rng(1).standard_normal(V.shape)  # from none to many faces turned
     want = _whole_mesh_turned_over(V, X, F, vertex_face_incidence(F, len(V)))
-    got = choose_module.turned_over(V, X, F)
+    got = folds_module.turned_over(V, X, F)
     np.testing.assert_array_equal(got, want)
     assert flipped_faces(V, X, F) == int(want.sum())
     assert scale == 0.0 or want.any()
@@ -100,7 +101,7 @@ def test_unfolding_moves_what_the_whole_mesh_rounds_move(wavy, scale, rounds):
     X = V + scale / 320 * np.random.default_rng(2).standard_normal(V.shape)
     X[::7] = V[::7]  # vertices the filter left (pinned): not movable
     want, left = _whole_mesh_unfold(V, X, F, ops, rounds)
-    got, got_left = choose_module.unfold(V, X, F, ops, rounds)
+    got, got_left = folds_module.unfold(V, X, F, ops, rounds)
     assert got_left == left
     np.testing.assert_array_equal(got, want)
     assert not np.array_equal(got, X)  # something was unfolded

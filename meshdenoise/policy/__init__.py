@@ -5,9 +5,9 @@
 guard). :func:`meshdenoise.denoise` with no method runs them.
 """
 
-from .choose import DefaultChoice, Score, choose, flipped_faces, guard, pick, score
+from .choose import DefaultChoice, Score, choose, guard, pick, score
 from .config import FAMILIES, OTHER_FAMILIES, DefaultConfig, Family, HoldoutConfig
 from .run import choose_default, run_default
 
-__all__ = ["DefaultChoice", "DefaultConfig", "FAMILIES", "OTHER_FAMILIES", "Family", "HoldoutConfig", "Score", "choose", "flipped_faces", "guard",
+__all__ = ["DefaultChoice", "DefaultConfig", "FAMILIES", "OTHER_FAMILIES", "Family", "HoldoutConfig", "Score", "choose", "guard",
            "pick", "score", "choose_default", "run_default"]

@@ -85,7 +85,7 @@ class DefaultConfig:
         Most steps read along a run.
     unfold_rounds : int
         Most rounds of averaging the corners of faces the chosen run turned over
-        (:func:`meshdenoise.policy.choose.unfold`); 0 leaves folds as they are.
+        (:func:`meshdenoise.folds.unfold`); 0 leaves folds as they are.
     """
 
     families: tuple = field(default=FAMILIES)
