@@ -201,6 +201,12 @@ def test_rule_holds_given_parameters_and_is_the_same_on_renumbered_vertices():
                              keep_tangential=False)
     assert (held["sigma_r"], held["normal_iterations"], held["keep_tangential"]) == (0.3, 2, False)
     assert choose_parameters((Vn, F), "two_stage", criterion="normals", iterations=4)["iterations"] == 4
+    # a given tangential step holds the other off in every run (the two exclude each other)
+    kept = choose_parameters((Vn, F), "two_stage", keep_tangential=True)
+    assert kept["keep_tangential"] is True and kept["relax_tangential"] is False
+    relaxed = choose_parameters((Vn, F), "two_stage", relax_tangential=True)
+    assert relaxed["relax_tangential"] is True and relaxed["keep_tangential"] is False
+    apply_filter("two_stage", (Vn, F), **kept)  # a valid combination
     perm = np.random.default_rng(5).permutation(len(V))
     inverse = np.argsort(perm)
     assert choose_parameters((Vn[perm], inverse[F]), "two_stage") == choose_parameters((Vn, F), "two_stage")
